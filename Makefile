@@ -1,0 +1,42 @@
+# Every target uses the project's own virtual environment in .venv.
+PYTHON ?= python3.11
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed
+DEMO_OUT := out/demo
+HALL := datasets/hall
+
+.PHONY: setup demo test bench lint hall clean
+
+setup: $(STAMP)
+
+$(STAMP): pyproject.toml
+	@command -v $(PYTHON) >/dev/null 2>&1 || { echo "error: $(PYTHON) not found; install Python 3.11 or run 'make PYTHON=python3 ...'" >&2; exit 2; }
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --upgrade pip
+	$(BIN)/python -m pip install --quiet -e '.[dev]'
+	@touch $(STAMP)
+
+# Build a map from the hall's scans, localize every scan and print Table 1.
+demo: $(STAMP)
+	@mkdir -p $(DEMO_OUT)
+	$(BIN)/segloc map build $(HALL)/log.mcap --survey $(HALL)/survey.csv --out $(DEMO_OUT)/map.json
+	$(BIN)/segloc localize $(HALL)/log.mcap --map $(DEMO_OUT)/map.json --out $(DEMO_OUT)/estimates.csv
+	$(BIN)/segloc evaluate $(DEMO_OUT)/estimates.csv --survey $(HALL)/survey.csv --fail-above-cm 1 --fail-above-deg 0.2
+
+test: $(STAMP)
+	$(BIN)/python -m pytest -q
+
+bench: $(STAMP)
+	$(BIN)/python -m pytest benchmarks -q --benchmark-only --benchmark-columns=min,median,max,rounds -p no:randomly
+
+lint: $(STAMP)
+	$(BIN)/ruff check segloc_cli tests benchmarks
+	$(BIN)/ruff format --check segloc_cli tests benchmarks
+
+# Regenerate the shipped hall dataset (see datasets/hall/README.md).
+hall: $(STAMP)
+	bash $(HALL)/regenerate.sh
+
+clean:
+	rm -rf out .pytest_cache .benchmarks

@@ -1,0 +1,187 @@
+"""Stage 1, map alignment: the robot heading from a length-weighted Hough vote.
+
+The global map is summarised once in an R-table: every global segment's
+undirected orientation, quantised to the bin width, indexes the lengths of the
+segments with that orientation. A candidate heading α rotates the local map;
+each local segment (robot-frame orientation σ, length λL) then looks up the bin
+of σ + α and, if that bin holds global segments, votes with a weight computed
+from λL and the global length λG closest to λL. Positions play no part, which
+is what decouples heading from position.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from segloc_cli.geometry import segment_lengths, segment_orientations, wrap_angle
+
+VOTE_SCHEMES = ("product", "count", "local", "sum")
+"""Vote weights of the paper: eq. (1) λL·λG, eq. (2) 1, eq. (3) λL, eq. (4) λL + λG."""
+
+
+def vote_weight(scheme: str, local_len_m: np.ndarray, global_len_m: np.ndarray) -> np.ndarray:
+    """The vote of each (local, best global) pair under ``scheme`` (one of VOTE_SCHEMES)."""
+    if scheme == "product":
+        return local_len_m * global_len_m
+    if scheme == "count":
+        return np.ones_like(local_len_m)
+    if scheme == "local":
+        return np.asarray(local_len_m, dtype=float)
+    if scheme == "sum":
+        return local_len_m + global_len_m
+    raise ValueError(f"unknown vote scheme {scheme!r}; choose one of {', '.join(VOTE_SCHEMES)}")
+
+
+@dataclass(frozen=True)
+class RTable:
+    """Global segment lengths indexed by quantised undirected orientation.
+
+    ``bin_width_rad`` divides [0, π) into ``n_bins`` bins; bin b covers the
+    orientations that round to b·bin_width. ``lengths_m[b]`` is the (sorted)
+    array of the lengths (metres, rounded to 1 mm as in the paper) of the
+    global segments in bin b.
+    """
+
+    bin_width_rad: float
+    lengths_m: tuple[np.ndarray, ...]
+
+    @property
+    def n_bins(self) -> int:
+        return len(self.lengths_m)
+
+    @classmethod
+    def build(cls, segments_world: np.ndarray, bin_width_deg: float = 1.0) -> RTable:
+        n_bins = round(180.0 / bin_width_deg)
+        if n_bins < 1 or not np.isclose(n_bins * bin_width_deg, 180.0):
+            raise ValueError(f"bin width {bin_width_deg}° must divide 180° evenly")
+        bin_width_rad = np.deg2rad(bin_width_deg)
+        bins = orientation_bins(segment_orientations(segments_world), bin_width_rad, n_bins)
+        lengths = np.round(segment_lengths(segments_world), 3)
+        table = tuple(np.sort(lengths[bins == b]) for b in range(n_bins))
+        return cls(bin_width_rad=bin_width_rad, lengths_m=table)
+
+    def closest_lengths(self, local_len_m: np.ndarray) -> np.ndarray:
+        """(n_bins, N): per bin, the global length closest to each local one (NaN: empty bin)."""
+        local_len_m = np.asarray(local_len_m, dtype=float)
+        best = np.full((self.n_bins, local_len_m.size), np.nan)
+        for b, lengths in enumerate(self.lengths_m):
+            if lengths.size == 0:
+                continue
+            # Sorted lengths: the closest is one of the two neighbours of the insertion point.
+            hi = np.clip(np.searchsorted(lengths, local_len_m), 0, lengths.size - 1)
+            lo = np.clip(hi - 1, 0, lengths.size - 1)
+            pick_lo = np.abs(lengths[lo] - local_len_m) <= np.abs(lengths[hi] - local_len_m)
+            best[b] = np.where(pick_lo, lengths[lo], lengths[hi])
+        return best
+
+
+def orientation_bins(orientation_rad: np.ndarray, bin_width_rad: float, n_bins: int) -> np.ndarray:
+    """Bin of undirected orientations (radians, any value): nearest bin, modulo 180°."""
+    return np.rint((np.asarray(orientation_rad) % np.pi) / bin_width_rad).astype(np.int64) % n_bins
+
+
+def candidate_headings(prior_rad: float | None, window_rad: float, step_rad: float) -> np.ndarray:
+    """Headings the accumulator scores (radians, wrapped to [-π, π)).
+
+    With a prior heading: α0 − window … α0 + window in ``step_rad`` steps
+    (always including α0 itself). Without: the whole circle from 0.
+    """
+    if prior_rad is None:
+        n = round(2 * np.pi / step_rad)
+        return wrap_angle(np.arange(n) * step_rad)
+    k = int(np.floor(window_rad / step_rad + 1e-9))
+    return wrap_angle(prior_rad + np.arange(-k, k + 1) * step_rad)
+
+
+def accumulate(
+    rtable: RTable,
+    segments_robot: np.ndarray,
+    headings_rad: np.ndarray,
+    scheme: str = "product",
+) -> np.ndarray:
+    """Votes (H,) for each candidate heading (H,) given the local map (N, 4), robot frame."""
+    local_len = np.round(segment_lengths(segments_robot), 3)
+    sigma = segment_orientations(segments_robot)
+    closest = rtable.closest_lengths(local_len)  # (n_bins, N)
+    bins = orientation_bins(
+        sigma[None, :] + np.asarray(headings_rad)[:, None], rtable.bin_width_rad, rtable.n_bins
+    )  # (H, N)
+    global_len = closest[bins, np.arange(local_len.size)[None, :]]  # (H, N), NaN = empty bin
+    votes = vote_weight(scheme, local_len[None, :], np.nan_to_num(global_len))
+    return np.where(np.isnan(global_len), 0.0, votes).sum(axis=1)
+
+
+@dataclass(frozen=True)
+class Alignment:
+    """Result of stage 1: the accumulator and the headings it supports.
+
+    ``peaks_rad`` are candidate headings in decreasing order of votes
+    (``peak_votes``); with a prior heading there is one peak, the maximum
+    in the window.
+    """
+
+    headings_rad: np.ndarray
+    votes: np.ndarray
+    peaks_rad: np.ndarray
+    peak_votes: np.ndarray
+
+    @property
+    def best_rad(self) -> float:
+        return float(self.peaks_rad[0])
+
+
+def align(
+    rtable: RTable,
+    segments_robot: np.ndarray,
+    prior_rad: float | None = None,
+    window_deg: float = 20.0,
+    scheme: str = "product",
+    max_peaks: int = 8,
+    peak_ratio: float = 0.5,
+) -> Alignment:
+    """Estimate the robot heading (world frame) from the local map (N, 4), robot frame.
+
+    With ``prior_rad`` the accumulator spans ±``window_deg`` around it and the
+    single best heading is returned; ties go to the heading closest to the prior.
+    Without a prior the whole circle is scored and up to ``max_peaks`` local
+    maxima of at least ``peak_ratio`` × the highest are returned, so that the
+    180° twin (undirected orientations cannot tell α from α + 180°) and the
+    90° peaks of rectilinear buildings all reach stage 2.
+    """
+    step = rtable.bin_width_rad
+    headings = candidate_headings(prior_rad, np.deg2rad(window_deg), step)
+    votes = accumulate(rtable, segments_robot, headings, scheme)
+    if prior_rad is not None:
+        offset = np.abs(wrap_angle(headings - prior_rad))
+        order = np.lexsort((offset, -votes))
+        best = order[0]
+        return Alignment(headings, votes, headings[[best]], votes[[best]])
+    peaks = circular_peaks(votes, max_peaks, peak_ratio)
+    return Alignment(headings, votes, headings[peaks], votes[peaks])
+
+
+def circular_peaks(votes: np.ndarray, max_peaks: int, ratio: float) -> np.ndarray:
+    """Indices of the local maxima of a circular accumulator, strongest first.
+
+    A plateau of equal votes counts once, at its centre. Maxima below
+    ``ratio`` × the global maximum are dropped.
+    """
+    votes = np.asarray(votes, dtype=float)
+    n = votes.size
+    top = votes.max() if n else 0.0
+    if n == 0 or top <= 0:
+        return np.zeros(0, dtype=np.int64)
+    # Compress runs of equal values so plateaus become single points.
+    change = votes != np.roll(votes, 1)
+    if not change.any():
+        return np.array([0])
+    starts = np.flatnonzero(change)
+    values = votes[starts]
+    lengths = np.diff(np.append(starts, starts[0] + n))
+    is_peak = (values > np.roll(values, 1)) & (values > np.roll(values, -1))
+    peak_runs = np.flatnonzero(is_peak & (values >= ratio * top))
+    centres = (starts[peak_runs] + (lengths[peak_runs] - 1) // 2) % n
+    order = np.argsort(-votes[centres], kind="stable")
+    return centres[order][:max_peaks]

@@ -1,0 +1,582 @@
+"""The ``segloc`` command line: parse, call the library, print. No algorithm lives here."""
+
+from __future__ import annotations
+
+import sys
+import time
+from dataclasses import asdict
+from pathlib import Path
+
+import click
+import numpy as np
+
+from segloc_cli import __version__
+from segloc_cli.align import VOTE_SCHEMES
+from segloc_cli.errors import InputError, SeglocError
+from segloc_cli.geometry import Pose2
+
+PROGRESS_MIN_SCANS = 20
+"""Show a progress bar when a command works through at least this many scans."""
+
+EXIT_GATE_FAILED = 1
+EXIT_BAD_INPUT = 2
+
+
+def _warn(message: str) -> None:
+    click.echo(f"segloc: warning: {message}", err=True)
+
+
+def _info(message: str) -> None:
+    click.echo(message, err=True)
+
+
+def _load_log(path: Path):
+    from segloc_cli.io.mcap_log import read_log
+
+    contents = read_log(path)
+    for warning in contents.warnings:
+        _warn(warning)
+    return contents
+
+
+def _load_map(path: Path) -> np.ndarray:
+    from segloc_cli.io.maps import read_map
+
+    return read_map(path)
+
+
+def _pair_with_table(times_s: np.ndarray, table, tolerance_s: float) -> np.ndarray:
+    """Row of ``table`` nearest in time to each of ``times_s`` (−1 where none is close enough)."""
+    from segloc_cli.io.tables import nearest_by_time
+
+    return nearest_by_time(np.asarray(times_s, dtype=float), table.time_s, tolerance_s)
+
+
+def _time_range(times_s) -> str:
+    times_s = np.asarray(times_s, dtype=float)
+    if times_s.size == 0:
+        return "none"
+    return f"{times_s.min():.3f}–{times_s.max():.3f} s"
+
+
+@click.group(context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
+@click.version_option(__version__, prog_name="segloc")
+def cli() -> None:
+    """Localize a robot in a known map from 2D laser scans, and measure how well it works.
+
+    segloc implements the two-stage method of Reina & Gonzalez (2000): the
+    heading comes from a length-weighted Hough vote over segment orientations,
+    then the position from a coarse-to-fine search that maximises how much the
+    scan's segments overlap the map's.
+
+    \b
+    A typical run:
+      segloc simulate world.json --poses poses.csv --out sim/
+      segloc map build sim/log.mcap --survey sim/survey.csv --out map.json
+      segloc localize sim/log.mcap --map map.json --out estimates.csv
+      segloc evaluate estimates.csv --survey sim/survey.csv
+
+    Units: metres and degrees in files and options, errors in cm and degrees
+    in tables ("surveyed minus computed", as in the paper).
+    """
+
+
+# --------------------------------------------------------------------------- simulate
+
+
+def _parse_init_errors(value: str) -> tuple[str, float, float]:
+    if value == "paper":
+        return ("paper", 0.0, 0.0)
+    if value.startswith("uniform:"):
+        try:
+            xy, theta = (float(v) for v in value[len("uniform:") :].split(","))
+        except ValueError:
+            pass
+        else:
+            if xy >= 0 and theta >= 0:
+                return ("uniform", xy, theta)
+    raise click.BadParameter(
+        f"{value!r}; use 'paper' or 'uniform:XY_M,THETA_DEG' (e.g. uniform:1.5,20)",
+        param_hint="--init-errors",
+    )
+
+
+@cli.command()
+@click.argument("world_path", metavar="WORLD.json", type=click.Path(path_type=Path))
+@click.option(
+    "--poses",
+    "poses_path",
+    required=True,
+    type=click.Path(path_type=Path),
+    help="CSV of true poses: pose_id,[time_s,]x_m,y_m,theta_deg.",
+)
+@click.option(
+    "--out", "out_dir", required=True, type=click.Path(path_type=Path), help="Output folder."
+)
+@click.option(
+    "--readings",
+    type=click.Choice(["128", "256", "1024", "2048"]),
+    default="1024",
+    show_default=True,
+    help="Readings per 360° revolution (the Explorer's settings).",
+)
+@click.option(
+    "--noise-cm",
+    type=click.FloatRange(min=0),
+    default=1.2,
+    show_default=True,
+    help="Gaussian range noise σ.",
+)
+@click.option("--seed", type=int, default=0, show_default=True, help="Random seed.")
+@click.option(
+    "--init-errors",
+    default="paper",
+    show_default=True,
+    help="Initial-guess errors written to /odom: 'paper' (Table 1 of the paper, exactly) "
+    "or 'uniform:XY_M,THETA_DEG' (uniform in ±XY_M per axis and ±THETA_DEG).",
+)
+def simulate(world_path, poses_path, out_dir, readings, noise_cm, seed, init_errors):
+    """Simulate a 360° laser log of a world at given poses.
+
+    Writes OUT/log.mcap (/scan as foxglove.LaserScan, /odom as
+    foxglove.PoseInFrame carrying the initial guesses) and OUT/survey.csv (the
+    true poses, as ground truth). The sensor is modelled on the paper's
+    Explorer: Gaussian range noise, 1 mm resolution, dropouts, short spurious
+    returns from people, and glass that rarely returns.
+    """
+    from segloc_cli.io.maps import read_world
+    from segloc_cli.io.mcap_log import LogWriter
+    from segloc_cli.io.tables import PoseTable, read_pose_table, write_pose_table
+    from segloc_cli.sim import (
+        SensorModel,
+        initial_guesses,
+        paper_initial_errors,
+        simulate_scan,
+        uniform_initial_errors,
+    )
+
+    mode, xy_m, theta_deg = _parse_init_errors(init_errors)
+    world = read_world(world_path)
+    truth = read_pose_table(poses_path, require_time=False)
+    times = truth.time_s
+    if np.isnan(times).any():
+        times = np.arange(1, len(truth) + 1, dtype=float)
+    rng = np.random.default_rng(seed)
+    if mode == "paper":
+        errors = paper_initial_errors(len(truth))
+    else:
+        errors = uniform_initial_errors(len(truth), xy_m, theta_deg, rng)
+    guesses = initial_guesses(truth.poses, errors)
+    sensor = SensorModel(readings=int(readings), noise_cm=noise_cm)
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    settings = {
+        "device": "simulated Explorer",
+        "readings": readings,
+        "noise_cm": repr(noise_cm),
+        "range_max_m": repr(sensor.range_max_m),
+        "seed": str(seed),
+        "world": world.name,
+        "init_errors": init_errors,
+    }
+    with LogWriter(out_dir / "log.mcap", settings) as log:
+        for t, pose, guess in zip(times, truth.poses, guesses, strict=True):
+            log.add_odom(float(t), Pose2(*guess))
+            log.add_scan(simulate_scan(world, Pose2(*pose), sensor, rng, float(t)))
+    write_pose_table(out_dir / "survey.csv", PoseTable(truth.pose_id, times, truth.poses))
+    _info(
+        f"wrote {len(truth)} scans to {out_dir / 'log.mcap'} "
+        f"and the true poses to {out_dir / 'survey.csv'}"
+    )
+
+
+# --------------------------------------------------------------------------- map
+
+
+@cli.group("map")
+def map_group() -> None:
+    """Build segment maps."""
+
+
+@map_group.command("build")
+@click.argument("log_path", metavar="LOG.mcap", type=click.Path(path_type=Path))
+@click.option(
+    "--survey",
+    "survey_path",
+    required=True,
+    type=click.Path(path_type=Path),
+    help="Poses of the scans (survey CSV or TUM); scans without a row are ignored.",
+)
+@click.option(
+    "--out", "out_path", required=True, type=click.Path(path_type=Path), help="MAP.json to write."
+)
+@click.option(
+    "--tolerance-ms",
+    type=click.FloatRange(min=0),
+    default=50.0,
+    show_default=True,
+    help="Largest time difference when pairing scans with survey rows.",
+)
+def map_build(log_path, survey_path, out_path, tolerance_ms):
+    """Build a global segment map from the scans of a log at surveyed poses.
+
+    Each scan with a survey row becomes a local map, is placed at its pose and
+    fused with the others: nearly collinear segments that overlap or nearly
+    touch become one.
+    """
+    from segloc_cli.extract import ExtractParams, extract_segments
+    from segloc_cli.io.maps import write_map
+    from segloc_cli.io.tables import read_pose_table
+    from segloc_cli.mapping import FuseParams, build_global_map
+
+    log = _load_log(log_path)
+    survey = read_pose_table(survey_path)
+    times = np.array([s.time_s for s in log.scans])
+    rows = _pair_with_table(times, survey, tolerance_ms / 1e3)
+    used = np.flatnonzero(rows >= 0)
+    if used.size == 0:
+        raise InputError(
+            f"no scan is within {tolerance_ms:g} ms of a survey row (scans {_time_range(times)}, "
+            f"survey {_time_range(survey.time_s)}); check the time base or --tolerance-ms",
+            path=survey_path,
+        )
+    extract_params = ExtractParams()
+    local_maps = [extract_segments(log.scans[i], extract_params) for i in used]
+    poses = [Pose2(*survey.poses[rows[i]]) for i in used]
+    n_local = sum(lm.shape[0] for lm in local_maps)
+    fuse_params = FuseParams()
+    segments = build_global_map(local_maps, poses, fuse_params)
+    if segments.shape[0] == 0:
+        raise InputError("no segments could be extracted from the surveyed scans", path=log_path)
+    write_map(
+        out_path,
+        segments,
+        source={
+            "log": str(log_path),
+            "survey": str(survey_path),
+            "scans_used": int(used.size),
+            "local_segments": int(n_local),
+            "extract": asdict(extract_params),
+            "fuse": asdict(fuse_params),
+        },
+    )
+    _info(
+        f"{out_path}: {segments.shape[0]} segments fused from {n_local} local segments "
+        f"of {used.size} scans ({len(log.scans) - used.size} scans had no survey row)"
+    )
+
+
+# --------------------------------------------------------------------------- localize
+
+
+def _initial_guesses(initial: str, log, log_path: Path, tolerance_s: float):
+    """(scan indices, initial poses, pose ids) for the scans that have an initial guess."""
+    times = np.array([s.time_s for s in log.scans])
+    if initial == "odom":
+        if log.odom_times_s.size == 0:
+            raise InputError(
+                "the log has no /odom messages to take initial guesses from; "
+                "pass --initial FILE.csv",
+                path=log_path,
+            )
+        from segloc_cli.io.tables import nearest_by_time
+
+        rows = nearest_by_time(times, log.odom_times_s, tolerance_s)
+        idx = np.flatnonzero(rows >= 0)
+        poses = [Pose2(*log.odom_poses[rows[i]]) for i in idx]
+        return idx, poses, idx + 1
+    from segloc_cli.io.tables import read_pose_table
+
+    table = read_pose_table(Path(initial))
+    rows = _pair_with_table(times, table, tolerance_s)
+    idx = np.flatnonzero(rows >= 0)
+    poses = [Pose2(*table.poses[rows[i]]) for i in idx]
+    return idx, poses, table.pose_id[rows[idx]]
+
+
+@cli.command()
+@click.argument(
+    "log_paths", metavar="LOG.mcap...", nargs=-1, required=True, type=click.Path(path_type=Path)
+)
+@click.option(
+    "--map",
+    "map_path",
+    required=True,
+    type=click.Path(path_type=Path),
+    help="Global map (MAP.json; a world file also works).",
+)
+@click.option(
+    "--out",
+    "out_path",
+    required=True,
+    type=click.Path(path_type=Path),
+    help="Estimates CSV to write.",
+)
+@click.option(
+    "--tum",
+    "tum_path",
+    type=click.Path(path_type=Path),
+    default=None,
+    help="Also write the estimates as a TUM trajectory (for evo).",
+)
+@click.option(
+    "--initial",
+    default="odom",
+    show_default=True,
+    help="Initial guesses: 'odom' (the log's /odom nearest in time) or a CSV/TUM file; "
+    "scans without a guess are skipped.",
+)
+@click.option(
+    "--window-deg",
+    type=click.FloatRange(min=0, max=180),
+    default=20.0,
+    show_default=True,
+    help="Stage 1 searches headings within ± this of the initial heading.",
+)
+@click.option(
+    "--no-prior-heading",
+    is_flag=True,
+    help="Ignore the initial heading: stage 1 votes over the whole circle and stage 2 "
+    "chooses among its peaks.",
+)
+@click.option(
+    "--vote",
+    type=click.Choice(VOTE_SCHEMES),
+    default="product",
+    show_default=True,
+    help="Stage-1 vote: product λL·λG (paper eq. 1), count (eq. 2), local λL (eq. 3), "
+    "sum λL+λG (eq. 4).",
+)
+@click.option(
+    "--bin-deg",
+    type=click.FloatRange(min=0.05, max=45),
+    default=1.0,
+    show_default=True,
+    help="Stage-1 orientation bin width (must divide 180).",
+)
+@click.option(
+    "--grid-m",
+    type=click.FloatRange(min=0, min_open=True),
+    default=1.5,
+    show_default=True,
+    help="Stage-2 initial grid spacing η0 (halved every iteration).",
+)
+@click.option(
+    "--dtheta-deg",
+    type=click.FloatRange(min=0),
+    default=4.0,
+    show_default=True,
+    help="Stage-2 initial heading step Δα0 (halved every iteration).",
+)
+@click.option(
+    "--iterations",
+    type=click.IntRange(min=1, max=30),
+    default=8,
+    show_default=True,
+    help="Stage-2 iterations K; the last grid is η0/2^(K-1).",
+)
+@click.option(
+    "--ratio",
+    type=click.FloatRange(min=0, max=1, min_open=True),
+    default=0.9,
+    show_default=True,
+    help="Candidates within this ratio of the best overlap are averaged.",
+)
+@click.option(
+    "--tolerance-ms",
+    type=click.FloatRange(min=0),
+    default=50.0,
+    show_default=True,
+    help="Largest time difference when pairing scans with initial guesses.",
+)
+def localize(
+    log_paths,
+    map_path,
+    out_path,
+    tum_path,
+    initial,
+    window_deg,
+    no_prior_heading,
+    vote,
+    bin_deg,
+    grid_m,
+    dtheta_deg,
+    iterations,
+    ratio,
+    tolerance_ms,
+):
+    """Localize every scan of one or more logs against a map.
+
+    For each scan: extract its segments, find the heading by the stage-1 vote
+    around the initial heading, then the position (and a refined heading) by
+    the stage-2 coarse-to-fine overlap search from the initial position.
+    Writes one row per scan; a scan that yields too few segments gets a
+    status instead of a pose, and the batch goes on.
+    """
+    from segloc_cli.io.tables import write_estimates, write_tum
+    from segloc_cli.localize import LocalizeParams, Localizer, localize_scans
+
+    if not np.isclose(180.0 / bin_deg, round(180.0 / bin_deg)):
+        raise click.BadParameter(f"{bin_deg:g} does not divide 180", param_hint="--bin-deg")
+    segments_world = _load_map(map_path)
+    params = LocalizeParams(
+        window_deg=None if no_prior_heading else window_deg,
+        bin_deg=bin_deg,
+        vote=vote,
+        grid_m=grid_m,
+        dtheta_deg=dtheta_deg,
+        iterations=iterations,
+        ratio=ratio,
+    )
+    localizer = Localizer(segments_world, params)
+
+    jobs = []
+    skipped = 0
+    for log_path in log_paths:
+        log = _load_log(log_path)
+        idx, poses, ids = _initial_guesses(initial, log, log_path, tolerance_ms / 1e3)
+        skipped += len(log.scans) - idx.size
+        jobs.append(([log.scans[i] for i in idx], poses, list(ids)))
+    scans = [s for job in jobs for s in job[0]]
+    poses = [p for job in jobs for p in job[1]]
+    ids = [i for job in jobs for i in job[2]]
+    if not scans:
+        raise InputError(
+            f"no scan has an initial guess within {tolerance_ms:g} ms (--initial {initial})",
+            path=log_paths[0],
+        )
+
+    t0 = time.perf_counter()
+    if len(scans) >= PROGRESS_MIN_SCANS:
+        with click.progressbar(length=len(scans), label="localizing", file=sys.stderr) as bar:
+            frame = localize_scans(scans, poses, ids, localizer, progress=bar.update)
+    else:
+        frame = localize_scans(scans, poses, ids, localizer)
+    elapsed = time.perf_counter() - t0
+    write_estimates(out_path, frame)
+    if tum_path is not None:
+        write_tum(tum_path, frame)
+    n_ok = int((frame["status"] == "ok").sum())
+    _info(
+        f"{out_path}: {len(frame)} scans localized ({n_ok} ok) in {elapsed:.2f} s, "
+        f"median {frame['runtime_ms'].median():.1f} ms per scan"
+        + (f"; {skipped} scans skipped (no initial guess)" if skipped else "")
+    )
+
+
+# --------------------------------------------------------------------------- evaluate
+
+
+@cli.command()
+@click.argument("estimates_path", metavar="EST.csv", type=click.Path(path_type=Path))
+@click.option(
+    "--survey",
+    "survey_path",
+    required=True,
+    type=click.Path(path_type=Path),
+    help="Ground truth (survey CSV or TUM).",
+)
+@click.option(
+    "--format",
+    "fmt",
+    type=click.Choice(["md", "csv", "latex", "json"]),
+    default="md",
+    show_default=True,
+    help="Table format.",
+)
+@click.option(
+    "--out",
+    "out_path",
+    type=click.Path(path_type=Path),
+    default=None,
+    help="Write the table here instead of standard output.",
+)
+@click.option(
+    "--fail-above-cm",
+    type=click.FloatRange(min=0),
+    default=None,
+    help="Exit 1 if any pose's |X| or |Y| error exceeds this.",
+)
+@click.option(
+    "--fail-above-deg",
+    type=click.FloatRange(min=0),
+    default=None,
+    help="Exit 1 if any pose's |θ| error exceeds this.",
+)
+@click.option(
+    "--tolerance-ms",
+    type=click.FloatRange(min=0),
+    default=50.0,
+    show_default=True,
+    help="Largest time difference when pairing estimates with survey rows.",
+)
+def evaluate(
+    estimates_path, survey_path, fmt, out_path, fail_above_cm, fail_above_deg, tolerance_ms
+):
+    """Score estimates against surveyed ground truth: the paper's Table 1.
+
+    One row per surveyed pose: AE, the stage-1 heading error; the initial
+    errors X, Y (cm) and θ (°); the final errors X, Y (cm) and θ (°); all
+    "surveyed minus computed", then RMS and max rows. With --fail-above-*
+    the exit status is 1 when any pose exceeds a limit, so CI can gate on it.
+    """
+    from segloc_cli.evaluate import format_table, gate, summary, table1
+    from segloc_cli.io.tables import read_estimates, read_pose_table
+
+    estimates = read_estimates(estimates_path)
+    survey = read_pose_table(survey_path)
+    table = table1(estimates, survey, tolerance_s=tolerance_ms / 1e3)
+    text = format_table(table, summary(table), fmt)
+    if out_path is None:
+        click.echo(text)
+    else:
+        Path(out_path).write_text(text if text.endswith("\n") else text + "\n", encoding="utf-8")
+        _info(f"wrote {out_path}")
+    violations = gate(table, fail_above_cm, fail_above_deg)
+    for line in violations:
+        click.echo(f"segloc: gate: {line}", err=True)
+    if violations:
+        sys.exit(EXIT_GATE_FAILED)
+
+
+# --------------------------------------------------------------------------- info
+
+
+@cli.command()
+@click.argument("log_path", metavar="LOG.mcap", type=click.Path(path_type=Path))
+def info(log_path):
+    """Summarise a log: scans, odometry, time span, sensor settings, whether it was finished."""
+    log = _load_log(log_path)
+    times = np.array([s.time_s for s in log.scans])
+    beams = sorted({len(s) for s in log.scans})
+    click.echo(f"file:      {log_path}")
+    click.echo(f"finished:  {'yes' if log.finished else 'no (truncated or still being written)'}")
+    click.echo(
+        f"/scan:     {len(log.scans)} scans, {', '.join(map(str, beams)) or '-'} readings, "
+        f"{_time_range(times)}"
+    )
+    click.echo(f"/odom:     {log.odom_times_s.size} poses, {_time_range(log.odom_times_s)}")
+    for key, value in sorted(log.sensor.items()):
+        click.echo(f"sensor.{key}: {value}")
+
+
+# --------------------------------------------------------------------------- entry point
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Console entry point: every error is one line on stderr and a non-zero exit, no traceback."""
+    try:
+        cli.main(args=argv, prog_name="segloc", standalone_mode=False)
+    except click.exceptions.Abort:
+        click.echo("segloc: aborted", err=True)
+        sys.exit(130)
+    except click.ClickException as exc:
+        click.echo(f"segloc: error: {exc.format_message()}", err=True)
+        sys.exit(EXIT_BAD_INPUT if exc.exit_code != 0 else 0)
+    except SeglocError as exc:
+        click.echo(f"segloc: error: {exc}", err=True)
+        sys.exit(EXIT_BAD_INPUT)
+    except OSError as exc:
+        where = f"{exc.filename}: " if exc.filename else ""
+        click.echo(f"segloc: error: {where}{exc.strerror or exc}", err=True)
+        sys.exit(EXIT_BAD_INPUT)

@@ -1,0 +1,24 @@
+"""Error types. Every error a user can cause is an ``InputError`` whose message
+names the file (and record) at fault; the command line prints it as one line
+and exits with status 2."""
+
+from __future__ import annotations
+
+
+class SeglocError(Exception):
+    """Base class of segloc's own errors."""
+
+
+class InputError(SeglocError):
+    """Bad input: a missing or malformed file, an empty map, an unmatched survey."""
+
+    def __init__(self, message: str, path: object | None = None, row: int | None = None):
+        where = ""
+        if path is not None:
+            where = f"{path}"
+            if row is not None:
+                where += f", row {row}"
+            where += ": "
+        super().__init__(where + message)
+        self.path = path
+        self.row = row

@@ -1,0 +1,161 @@
+"""Local map from one scan: line segments in the robot frame.
+
+Steps: drop invalid readings; cut the point sequence at range breakpoints
+(an adaptive breakpoint detector, so the gap tolerated grows with range and
+angular step); recursive split at the point farthest from the chord; merge
+neighbours that still fit one line; total-least-squares refit with the end
+points projected onto the fitted line. Segments need enough points and
+length: that, not per-point filtering, is what makes them robust to noise.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from itertools import pairwise
+
+import numpy as np
+
+from segloc_cli.scan import Scan
+
+
+@dataclass(frozen=True)
+class ExtractParams:
+    """Extraction settings (metres, degrees at the edge)."""
+
+    range_sigma_m: float = 0.012
+    """Range noise σ of the scanner; sets the breakpoint slack and the fit tolerance."""
+    breakpoint_lambda_deg: float = 10.0
+    """Shallowest incidence angle on a surface that is still one surface (Borges & Aldon's λ)."""
+    split_m: float = 0.05
+    """Largest distance of a point from its segment's line."""
+    min_points: int = 6
+    min_length_m: float = 0.25
+
+
+def breakpoints(ranges_m: np.ndarray, angles_rad: np.ndarray, params: ExtractParams) -> np.ndarray:
+    """Boolean (K−1,): True where consecutive valid readings belong to different surfaces.
+
+    Adaptive breakpoint detector: the largest gap between neighbours on one
+    surface, seen at incidence λ, is r·sin Δφ / sin(λ − Δφ), plus 3σ of noise.
+    """
+    r = np.asarray(ranges_m, dtype=float)
+    dphi = np.abs(np.diff(np.asarray(angles_rad, dtype=float)))
+    lam = np.deg2rad(params.breakpoint_lambda_deg)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        d_max = (
+            r[:-1] * np.sin(dphi) / np.sin(np.maximum(lam - dphi, 1e-9)) + 3 * params.range_sigma_m
+        )
+    x = r * np.cos(angles_rad)
+    y = r * np.sin(angles_rad)
+    gap = np.hypot(np.diff(x), np.diff(y))
+    return gap > d_max
+
+
+def fit_line(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Total-least-squares line through points (K, 2): (centroid (2,), unit direction (2,))."""
+    centroid = points.mean(axis=0)
+    d = points - centroid
+    sxx, syy, sxy = (d[:, 0] ** 2).sum(), (d[:, 1] ** 2).sum(), (d[:, 0] * d[:, 1]).sum()
+    phi = 0.5 * np.arctan2(2.0 * sxy, sxx - syy)
+    return centroid, np.array([np.cos(phi), np.sin(phi)])
+
+
+def line_residuals(points: np.ndarray, centroid: np.ndarray, direction: np.ndarray) -> np.ndarray:
+    """Distances (K,) of points from the line through ``centroid`` along unit ``direction``."""
+    d = points - centroid
+    return np.abs(d[:, 0] * direction[1] - d[:, 1] * direction[0])
+
+
+def _split(points: np.ndarray, start: int, stop: int, tol_m: float, out: list[tuple[int, int]]):
+    """Recursive end-point fit on points[start:stop]; appends (start, stop) ranges to ``out``."""
+    stack = [(start, stop)]
+    while stack:
+        i0, i1 = stack.pop()
+        if i1 - i0 <= 2:
+            out.append((i0, i1))
+            continue
+        a, b = points[i0], points[i1 - 1]
+        chord = b - a
+        norm = np.hypot(*chord)
+        seg = points[i0:i1] - a
+        if norm < 1e-12:
+            dist = np.hypot(seg[:, 0], seg[:, 1])
+        else:
+            dist = np.abs(seg[:, 0] * chord[1] - seg[:, 1] * chord[0]) / norm
+        k = int(np.argmax(dist))
+        if dist[k] > tol_m and 0 < k < i1 - i0 - 1:
+            # The split point starts the second half; pushed in reverse to keep scan order.
+            stack.append((i0 + k, i1))
+            stack.append((i0, i0 + k + 1))
+        else:
+            out.append((i0, i1))
+
+
+def _merge(
+    points: np.ndarray, ranges: list[tuple[int, int]], tol_m: float
+) -> list[tuple[int, int]]:
+    """Join neighbouring ranges whose union still fits one line within ``tol_m``."""
+    merged: list[tuple[int, int]] = []
+    for r in ranges:
+        if merged and merged[-1][1] >= r[0]:
+            cand = (merged[-1][0], r[1])
+            pts = points[cand[0] : cand[1]]
+            if line_residuals(pts, *fit_line(pts)).max() <= tol_m:
+                merged[-1] = cand
+                continue
+        merged.append(r)
+    return merged
+
+
+def _chains(points_count: int, breaks: np.ndarray, wraps: bool) -> list[tuple[int, int]]:
+    """Index ranges [start, stop) of unbroken runs; ``wraps``: the last run joins the first."""
+    cut = np.flatnonzero(breaks) + 1
+    bounds = np.concatenate([[0], cut, [points_count]])
+    runs = [(int(a), int(b)) for a, b in pairwise(bounds) if b > a]
+    if wraps and len(runs) > 1:
+        first, last = runs[0], runs[-1]
+        runs = [(last[0], first[1] + points_count), *runs[1:-1]]
+    return runs
+
+
+def extract_segments(scan: Scan, params: ExtractParams | None = None) -> np.ndarray:
+    """Local map (N, 4) in metres, robot frame, from ``scan``. Empty (0, 4) if nothing qualifies."""
+    params = params or ExtractParams()
+    valid = scan.valid
+    ranges = np.asarray(scan.ranges_m, dtype=float)[valid]
+    angles = np.asarray(scan.angles_rad, dtype=float)[valid]
+    if ranges.size < params.min_points:
+        return np.zeros((0, 4))
+    points = np.column_stack([ranges * np.cos(angles), ranges * np.sin(angles)])
+    breaks = breakpoints(ranges, angles, params)
+
+    # A full revolution closes on itself: the last and first readings are neighbours.
+    step = np.median(np.abs(np.diff(angles))) if angles.size > 1 else 0.0
+    span = (angles[-1] - angles[0]) % (2 * np.pi)
+    closing_gap = 2 * np.pi - span
+    wraps = bool(step > 0 and closing_gap <= 1.5 * step)
+    if wraps:
+        wrap_ranges = np.array([ranges[-1], ranges[0]])
+        wrap_angles = np.array([angles[-1], angles[-1] + closing_gap])
+        wraps = not bool(breakpoints(wrap_ranges, wrap_angles, params)[0])
+    n = points.shape[0]
+    ring = np.concatenate([points, points]) if wraps else points
+
+    tol = max(params.split_m, 3.0 * params.range_sigma_m)
+    segments = []
+    for start, stop in _chains(n, breaks, wraps):
+        if stop - start < params.min_points:
+            continue
+        pieces: list[tuple[int, int]] = []
+        _split(ring, start, stop, tol, pieces)
+        for i0, i1 in _merge(ring, pieces, tol):
+            if i1 - i0 < params.min_points:
+                continue
+            pts = ring[i0:i1]
+            centroid, direction = fit_line(pts)
+            t0 = (pts[0] - centroid) @ direction
+            t1 = (pts[-1] - centroid) @ direction
+            if abs(t1 - t0) < params.min_length_m:
+                continue
+            segments.append(np.concatenate([centroid + t0 * direction, centroid + t1 * direction]))
+    return np.array(segments).reshape(-1, 4)

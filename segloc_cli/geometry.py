@@ -1,0 +1,110 @@
+"""Planar geometry shared by every module.
+
+Conventions, used everywhere:
+
+- A pose is ``Pose2(x, y, theta)``: metres and radians, the robot (scanner)
+  frame expressed in the world frame. Arrays of poses are (N, 3).
+- A segment map is an (M, 4) float64 array of endpoints ``x1 y1 x2 y2`` in
+  metres. Which frame it is in is said by the name holding it
+  (``segments_robot``, ``segments_world``).
+- Angles are radians in code; degrees only at the edges, named ``*_deg``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+TWO_PI = 2.0 * np.pi
+
+
+def wrap_angle(angle_rad):
+    """Wrap angles (radians, scalar or array) into [-pi, pi)."""
+    return (np.asarray(angle_rad) + np.pi) % TWO_PI - np.pi
+
+
+def circular_mean(angles_rad: np.ndarray, weights: np.ndarray | None = None) -> float:
+    """Weighted mean of angles on the circle (radians in, radians in [-pi, pi) out)."""
+    angles_rad = np.asarray(angles_rad, dtype=float)
+    w = np.ones_like(angles_rad) if weights is None else np.asarray(weights, dtype=float)
+    return float(np.arctan2(np.sum(w * np.sin(angles_rad)), np.sum(w * np.cos(angles_rad))))
+
+
+@dataclass(frozen=True)
+class Pose2:
+    """An SE(2) pose: position in metres, heading in radians, world frame."""
+
+    x: float
+    y: float
+    theta: float
+
+    @classmethod
+    def from_deg(cls, x: float, y: float, theta_deg: float) -> Pose2:
+        return cls(float(x), float(y), float(np.deg2rad(theta_deg)))
+
+    @property
+    def theta_deg(self) -> float:
+        return float(np.rad2deg(self.theta))
+
+    def as_array(self) -> np.ndarray:
+        return np.array([self.x, self.y, self.theta])
+
+    def compose(self, other: Pose2) -> Pose2:
+        """``self ⊕ other``: ``other`` is expressed in the frame of ``self``."""
+        c, s = np.cos(self.theta), np.sin(self.theta)
+        return Pose2(
+            self.x + c * other.x - s * other.y,
+            self.y + s * other.x + c * other.y,
+            float(wrap_angle(self.theta + other.theta)),
+        )
+
+    def inverse(self) -> Pose2:
+        c, s = np.cos(self.theta), np.sin(self.theta)
+        return Pose2(
+            -c * self.x - s * self.y, s * self.x - c * self.y, float(wrap_angle(-self.theta))
+        )
+
+
+def rotation(theta_rad: float) -> np.ndarray:
+    """2×2 rotation matrix."""
+    c, s = np.cos(theta_rad), np.sin(theta_rad)
+    return np.array([[c, -s], [s, c]])
+
+
+def transform_points(points: np.ndarray, pose: Pose2) -> np.ndarray:
+    """Points (N, 2) in the frame of ``pose`` → the frame ``pose`` is expressed in."""
+    return np.asarray(points, dtype=float) @ rotation(pose.theta).T + np.array([pose.x, pose.y])
+
+
+def transform_segments(segments: np.ndarray, pose: Pose2) -> np.ndarray:
+    """Segments (M, 4) in the frame of ``pose`` → the frame ``pose`` is expressed in."""
+    segments = np.asarray(segments, dtype=float).reshape(-1, 4)
+    ends = transform_points(segments.reshape(-1, 2), pose)
+    return ends.reshape(-1, 4)
+
+
+def segment_lengths(segments: np.ndarray) -> np.ndarray:
+    """Lengths (M,) in metres of segments (M, 4)."""
+    segments = np.asarray(segments, dtype=float).reshape(-1, 4)
+    return np.hypot(segments[:, 2] - segments[:, 0], segments[:, 3] - segments[:, 1])
+
+
+def segment_orientations(segments: np.ndarray) -> np.ndarray:
+    """Undirected orientations (M,) of segments (M, 4), radians in [0, pi)."""
+    segments = np.asarray(segments, dtype=float).reshape(-1, 4)
+    return np.arctan2(segments[:, 3] - segments[:, 1], segments[:, 2] - segments[:, 0]) % np.pi
+
+
+def as_segments(array_like, what: str = "segments") -> np.ndarray:
+    """Validate and convert to an (M, 4) float64 array of finite endpoints."""
+    segments = np.asarray(array_like, dtype=float)
+    if segments.size == 0:
+        return np.zeros((0, 4))
+    if segments.ndim != 2 or segments.shape[1] != 4:
+        raise ValueError(
+            f"{what} must be an (M, 4) array of x1 y1 x2 y2, got shape {segments.shape}"
+        )
+    if not np.all(np.isfinite(segments)):
+        raise ValueError(f"{what} contain non-finite coordinates")
+    return segments

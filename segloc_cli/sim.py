@@ -1,0 +1,454 @@
+"""Synthetic scans and worlds: the paper's range sensor rendered on a ``World``.
+
+The sensor model follows the Schwartz Electro-Optics Explorer used by Reina &
+Gonzalez (2000): a 360° scan of 128/256/1024/2048 readings per revolution with
+Gaussian range noise of about 1.2 cm. On top of the ideal ray cast it adds the
+things a real log holds: range quantisation, readings lost to dropouts, glass
+that mostly lets the beam through, and short spurious returns from people
+walking past.
+
+Frames: beam angles are in the robot frame (x forward, counter-clockwise);
+rays are cast in the world frame at ``pose.theta + angle``. Units are metres
+and radians; ``noise_cm`` and ``*_deg`` names are the only exceptions.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from segloc_cli.geometry import TWO_PI, Pose2, as_segments, rotation, wrap_angle
+from segloc_cli.io.maps import World
+from segloc_cli.scan import Scan
+
+EXPLORER_READINGS = (128, 256, 1024, 2048)
+
+# Initial errors of the paper's Table 1 (Reina & Gonzalez 2000), "surveyed minus
+# initial guess", one row per logged pose: x cm, y cm, heading degrees.
+PAPER_TABLE1_INITIAL_ERRORS = np.array(
+    [
+        [182.2, 36.0, -9.75],
+        [-63.7, 49.5, -15.6],
+        [-91.2, 168.5, 7.82],
+        [33.2, -131.8, -17.3],
+        [-10.9, -14.7, -19.9],
+        [47.2, -168.2, 14.1],
+        [16.2, 38.7, -6.71],
+        [74.4, -75.1, 16.4],
+        [-56.3, 18.1, 3.7],
+        [-46.5, -133.6, 0.5],
+    ]
+)
+
+# Rays leaving closer than this are treated as starting on the segment, not hitting it.
+_MIN_HIT_M = 1e-9
+# Accept hits a hair past the endpoints so beams through a shared vertex are not lost.
+_ENDPOINT_SLACK = 1e-12
+
+
+@dataclass(frozen=True)
+class SensorModel:
+    """Parameters of the simulated 360° range scanner.
+
+    ``readings`` per revolution (the Explorer offers 128, 256, 1024, 2048);
+    ``noise_cm`` Gaussian range noise σ in centimetres; ``resolution_m`` the
+    range quantum (0 disables rounding); ``range_max_m`` the largest range
+    returned; ``dropout_prob`` the chance a reading is lost; ``glass_return_prob``
+    the chance a beam reaching a glass segment returns from it rather than
+    passing through; ``clutter_clusters`` the Poisson mean number of clusters of
+    spurious short returns per scan.
+    """
+
+    readings: int = 1024
+    noise_cm: float = 1.2
+    resolution_m: float = 0.001
+    range_max_m: float = 30.0
+    dropout_prob: float = 0.005
+    glass_return_prob: float = 0.1
+    clutter_clusters: float = 1.5
+
+    def __post_init__(self) -> None:
+        if self.readings not in EXPLORER_READINGS:
+            raise ValueError(
+                f"readings must be one of {EXPLORER_READINGS} per revolution, got {self.readings}"
+            )
+        if not self.noise_cm >= 0.0:
+            raise ValueError(f"noise_cm must be >= 0, got {self.noise_cm}")
+        if not self.resolution_m >= 0.0:
+            raise ValueError(f"resolution_m must be >= 0, got {self.resolution_m}")
+        if not self.range_max_m > 0.0:
+            raise ValueError(f"range_max_m must be > 0, got {self.range_max_m}")
+        for name in ("dropout_prob", "glass_return_prob"):
+            p = getattr(self, name)
+            if not 0.0 <= p <= 1.0:
+                raise ValueError(f"{name} must be in [0, 1], got {p}")
+        if not self.clutter_clusters >= 0.0:
+            raise ValueError(f"clutter_clusters must be >= 0, got {self.clutter_clusters}")
+
+
+def beam_angles(readings: int) -> np.ndarray:
+    """Beam angles (readings,) in radians, robot frame: ``2π·i/readings``, i = 0..readings−1."""
+    if readings < 1:
+        raise ValueError(f"readings must be >= 1, got {readings}")
+    return TWO_PI * np.arange(readings) / readings
+
+
+def cast_rays(
+    segments_world: np.ndarray,
+    origin_xy: np.ndarray,
+    angles_world_rad: np.ndarray,
+    transparent: np.ndarray | None = None,
+) -> np.ndarray:
+    """Distance along each ray to the nearest segment it hits.
+
+    ``segments_world`` (M, 4) metres; ``origin_xy`` (2,) the common ray origin,
+    world frame; ``angles_world_rad`` (N,) ray directions in the world frame.
+    ``transparent`` is an optional (N, M) bool mask: beam i passes through
+    segment j where it is True. Returns ranges (N,) in metres, ``inf`` where a
+    ray hits nothing. Rays parallel to a segment do not hit it.
+    """
+    segments = as_segments(segments_world)
+    angles = np.asarray(angles_world_rad, dtype=float).reshape(-1)
+    ox, oy = np.asarray(origin_xy, dtype=float).reshape(2)
+    if segments.shape[0] == 0:
+        return np.full(angles.shape, np.inf)
+
+    dx = np.cos(angles)[:, None]  # (N, 1)
+    dy = np.sin(angles)[:, None]
+    ex = (segments[:, 2] - segments[:, 0])[None, :]  # (1, M)
+    ey = (segments[:, 3] - segments[:, 1])[None, :]
+    wx = (segments[:, 0] - ox)[None, :]
+    wy = (segments[:, 1] - oy)[None, :]
+
+    # origin + t·d = p1 + u·e  ⇒  t = (w × e)/(d × e),  u = (w × d)/(d × e)
+    denom = dx * ey - dy * ex  # (N, M)
+    parallel = denom == 0.0
+    safe = np.where(parallel, 1.0, denom)
+    t = (wx * ey - wy * ex) / safe
+    u = (wx * dy - wy * dx) / safe
+    hit = ~parallel & (t > _MIN_HIT_M) & (u >= -_ENDPOINT_SLACK) & (u <= 1.0 + _ENDPOINT_SLACK)
+    if transparent is not None:
+        mask = np.asarray(transparent, dtype=bool)
+        if mask.shape != hit.shape:
+            raise ValueError(f"transparent must have shape {hit.shape}, got {mask.shape}")
+        hit &= ~mask
+    return np.where(hit, t, np.inf).min(axis=1)
+
+
+def _clutter_ranges(n_beams: int, mean_clusters: float, rng: np.random.Generator) -> np.ndarray:
+    """Ranges (n_beams,) of spurious returns, ``inf`` where a beam sees no clutter.
+
+    Each cluster is an object 0.3–0.6 m across at 0.8–5 m (a person walking by),
+    covering the consecutive beams that its width subtends.
+    """
+    clutter = np.full(n_beams, np.inf)
+    step_rad = TWO_PI / n_beams
+    for _ in range(int(rng.poisson(mean_clusters))):
+        range_m = rng.uniform(0.8, 5.0)
+        width_m = rng.uniform(0.3, 0.6)
+        count = max(1, round(width_m / range_m / step_rad))
+        first = int(rng.integers(n_beams))
+        beams = (first + np.arange(count)) % n_beams
+        clutter[beams] = np.minimum(clutter[beams], range_m)
+    return clutter
+
+
+def simulate_scan(
+    world: World,
+    pose: Pose2,
+    sensor: SensorModel,
+    rng: np.random.Generator,
+    time_s: float,
+) -> Scan:
+    """One scan of ``world`` taken by a scanner at ``pose`` (world frame).
+
+    The scan holds ``sensor.readings`` beams at ``beam_angles`` (robot frame)
+    and ranges in metres, with invalid readings (no return within
+    ``range_max_m``, dropouts) written as 0.0. The result depends only on the
+    arguments and the state of ``rng``.
+    """
+    segments = as_segments(world.segments, "world segments")
+    materials = np.asarray(world.materials).reshape(-1)
+    if materials.shape[0] != segments.shape[0]:
+        raise ValueError(
+            f"world {world.name!r}: {segments.shape[0]} segments but {materials.shape[0]} materials"
+        )
+    n = sensor.readings
+    angles_rad = beam_angles(n)
+
+    glass = materials == "glass"
+    transparent = np.zeros((n, segments.shape[0]), dtype=bool)
+    transparent[:, glass] = rng.random((n, int(glass.sum()))) >= sensor.glass_return_prob
+    true_m = cast_rays(segments, (pose.x, pose.y), pose.theta + angles_rad, transparent)
+
+    ranges_m = np.minimum(true_m, _clutter_ranges(n, sensor.clutter_clusters, rng))
+    ranges_m = ranges_m + rng.normal(0.0, sensor.noise_cm / 100.0, n)
+    if sensor.resolution_m > 0.0:
+        ranges_m = np.round(ranges_m / sensor.resolution_m) * sensor.resolution_m
+    lost = rng.random(n) < sensor.dropout_prob
+
+    invalid = ~np.isfinite(ranges_m) | (ranges_m <= 0.0) | (ranges_m >= sensor.range_max_m) | lost
+    ranges_m[invalid] = 0.0
+    return Scan(
+        time_s=float(time_s),
+        angles_rad=angles_rad,
+        ranges_m=ranges_m,
+        range_max_m=float(sensor.range_max_m),
+    )
+
+
+# --- initial guesses -------------------------------------------------------------------------
+
+
+def paper_initial_errors(n: int) -> np.ndarray:
+    """The initial errors of the paper's Table 1, (n, 3): dx m, dy m, dtheta rad.
+
+    Errors are "surveyed minus initial guess"; row k is Table 1 row k mod 10.
+    """
+    rows = PAPER_TABLE1_INITIAL_ERRORS[np.arange(n) % len(PAPER_TABLE1_INITIAL_ERRORS)]
+    return np.column_stack([rows[:, 0] / 100.0, rows[:, 1] / 100.0, np.deg2rad(rows[:, 2])])
+
+
+def uniform_initial_errors(
+    n: int, xy_m: float, theta_deg: float, rng: np.random.Generator
+) -> np.ndarray:
+    """Initial errors (n, 3), dx, dy uniform in ±``xy_m`` metres, dtheta in ±``theta_deg`` (rad)."""
+    xy = rng.uniform(-xy_m, xy_m, size=(n, 2))
+    theta = rng.uniform(-np.deg2rad(theta_deg), np.deg2rad(theta_deg), size=n)
+    return np.column_stack([xy, theta])
+
+
+def initial_guesses(true_poses: np.ndarray, errors: np.ndarray) -> np.ndarray:
+    """Initial guesses (n, 3) = true − error, heading wrapped to [−π, π).
+
+    ``true_poses`` and ``errors`` are (n, 3) arrays of x m, y m, theta rad, so
+    that "surveyed minus guess" equals ``errors``.
+    """
+    true_poses = np.asarray(true_poses, dtype=float).reshape(-1, 3)
+    errors = np.asarray(errors, dtype=float).reshape(-1, 3)
+    guesses = true_poses - errors
+    guesses[:, 2] = wrap_angle(guesses[:, 2])
+    return guesses
+
+
+# --- procedural worlds -----------------------------------------------------------------------
+
+
+def _polygon_segments(vertices: np.ndarray) -> np.ndarray:
+    """Closed polygon (K, 2) → its K edges (K, 4), consecutive edges sharing endpoints."""
+    vertices = np.asarray(vertices, dtype=float)
+    return np.hstack([vertices, np.roll(vertices, -1, axis=0)])
+
+
+def _box(center_xy: np.ndarray, size_xy: tuple[float, float], theta_rad: float) -> np.ndarray:
+    """Edges (4, 4) of a rectangle of ``size_xy`` metres centred at ``center_xy``, rotated."""
+    hx, hy = size_xy[0] / 2.0, size_xy[1] / 2.0
+    corners = np.array([[-hx, -hy], [hx, -hy], [hx, hy], [-hx, hy]])
+    return _polygon_segments(corners @ rotation(theta_rad).T + center_xy)
+
+
+def _point_segment_distances(points: np.ndarray, segments: np.ndarray) -> np.ndarray:
+    """Distances (P, M) in metres from points (P, 2) to segments (M, 4)."""
+    points = np.asarray(points, dtype=float).reshape(-1, 2)
+    segments = as_segments(segments)
+    a = segments[None, :, 0:2]
+    e = (segments[:, 2:4] - segments[:, 0:2])[None, :, :]
+    w = points[:, None, :] - a
+    length2 = np.sum(e * e, axis=2)
+    u = np.clip(np.sum(w * e, axis=2) / np.where(length2 > 0.0, length2, 1.0), 0.0, 1.0)
+    return np.hypot(*np.moveaxis(w - u[:, :, None] * e, 2, 0))
+
+
+def _closed_loop_mask(segments: np.ndarray) -> np.ndarray:
+    """Mask (M,) of segments that belong to closed chains (walls of rooms, boxes, columns).
+
+    Chains are found by exactly shared endpoints; segments with a free end
+    (wall stubs, railings) are peeled off repeatedly until none is left.
+    """
+    ends = np.round(segments.reshape(-1, 2), 9)
+    _, vertex = np.unique(ends, axis=0, return_inverse=True)
+    vertex = vertex.reshape(-1, 2)
+    keep = vertex[:, 0] != vertex[:, 1]
+    while True:
+        degree = np.bincount(vertex[keep].ravel(), minlength=int(vertex.max()) + 1)
+        dangling = keep & ((degree[vertex[:, 0]] < 2) | (degree[vertex[:, 1]] < 2))
+        if not dangling.any():
+            return keep
+        keep &= ~dangling
+
+
+def _inside_count(points: np.ndarray, segments: np.ndarray) -> np.ndarray:
+    """Crossings (P,) of a ray towards +x from each point with the segments (even-odd rule)."""
+    points = np.asarray(points, dtype=float).reshape(-1, 2)
+    px, py = points[:, 0:1], points[:, 1:2]
+    x1, y1, x2, y2 = (segments[None, :, k] for k in range(4))
+    straddles = (y1 > py) != (y2 > py)
+    dy = np.where(straddles, y2 - y1, 1.0)
+    x_cross = x1 + (py - y1) * (x2 - x1) / dy
+    return np.sum(straddles & (x_cross > px), axis=1)
+
+
+def free_space_mask(world: World, points_xy: np.ndarray, clearance_m: float) -> np.ndarray:
+    """Mask (P,) of points (P, 2) in the world's open floor, ``clearance_m`` from every segment.
+
+    A point is on the floor when it lies inside an odd number of the world's
+    closed chains of segments: inside the outer walls, outside every box and
+    column. Open segments (stubs, railings) only count for clearance.
+    """
+    return _free_mask(as_segments(world.segments, "world segments"), points_xy, clearance_m)
+
+
+def _free_mask(segments: np.ndarray, points_xy: np.ndarray, clearance_m: float) -> np.ndarray:
+    points = np.asarray(points_xy, dtype=float).reshape(-1, 2)
+    if segments.shape[0] == 0:
+        return np.zeros(points.shape[0], dtype=bool)
+    loops = segments[_closed_loop_mask(segments)]
+    inside = _inside_count(points, loops) % 2 == 1
+    clear = _point_segment_distances(points, segments).min(axis=1) >= clearance_m
+    return inside & clear
+
+
+def _outer_wall(rng: np.random.Generator, width_m: float, height_m: float) -> np.ndarray:
+    """Vertices (K, 2), counter-clockwise, of an irregular room around [0, W] × [0, H].
+
+    A rectangle with one or two corners cut at random slants and, on each side,
+    up to two alcoves (outwards) or notches (inwards), some with slanted sides.
+    """
+    corners = np.array([[0.0, 0.0], [width_m, 0.0], [width_m, height_m], [0.0, height_m]])
+    short = min(width_m, height_m)
+    cut = np.zeros((4, 2))  # per corner: cut length along the incoming and the outgoing side
+    for corner in rng.choice(4, size=int(rng.integers(1, 3)), replace=False):
+        cut[corner] = rng.uniform(0.1, 0.25, size=2) * short
+
+    vertices: list[np.ndarray] = []
+    for side in range(4):
+        start, end = corners[side], corners[(side + 1) % 4]
+        length = float(np.hypot(*(end - start)))
+        along = (end - start) / length
+        outward = np.array([along[1], -along[0]])
+        # 1.5 m from a corner so notches on neighbouring sides cannot cross.
+        lo, hi = cut[side, 1] + 1.5, length - cut[(side + 1) % 4, 0] - 1.5
+        vertices.append(start + along * cut[side, 1])
+        # Features are placed in separate slots of the free part of the side so they never overlap.
+        n_features = int(rng.integers(0, 3))
+        slots = np.linspace(lo, hi, n_features + 1) if n_features else []
+        for k in range(n_features):
+            slot_lo, slot_hi = slots[k], slots[k + 1]
+            width = min(rng.uniform(1.0, 3.0), 0.8 * (slot_hi - slot_lo))
+            if width < 0.8:
+                continue
+            a = rng.uniform(slot_lo, slot_hi - width)
+            depth = rng.uniform(0.6, 2.0) if rng.random() < 0.6 else -rng.uniform(0.4, 1.0)
+            slant = rng.uniform(0.0, 0.3, size=2) * width if rng.random() < 0.5 else (0.0, 0.0)
+            vertices += [
+                start + along * a,
+                start + along * (a + slant[0]) + outward * depth,
+                start + along * (a + width - slant[1]) + outward * depth,
+                start + along * (a + width),
+            ]
+        if cut[(side + 1) % 4, 0] > 0.0:
+            vertices.append(end - along * cut[(side + 1) % 4, 0])
+    return np.array(vertices)
+
+
+def _split_glass(
+    outer_segments: np.ndarray, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray]:
+    """Turn the middle of one long outer wall into a glass pane; returns segments and materials."""
+    lengths = np.hypot(
+        outer_segments[:, 2] - outer_segments[:, 0], outer_segments[:, 3] - outer_segments[:, 1]
+    )
+    materials = np.full(outer_segments.shape[0], "wall", dtype=object)
+    long_walls = np.flatnonzero(lengths > 4.0)
+    if long_walls.size == 0:
+        return outer_segments, materials
+    k = int(rng.choice(long_walls))
+    p, q = outer_segments[k, 0:2], outer_segments[k, 2:4]
+    pane_m = rng.uniform(1.5, min(3.0, lengths[k] - 2.0))
+    start = rng.uniform(1.0, lengths[k] - 1.0 - pane_m) / lengths[k]
+    a, b = p + (q - p) * start, p + (q - p) * (start + pane_m / lengths[k])
+    pieces = np.array([[*p, *a], [*a, *b], [*b, *q]])
+    segments = np.vstack([outer_segments[:k], pieces, outer_segments[k + 1 :]])
+    materials = np.concatenate([materials[:k], ["wall", "glass", "wall"], materials[k + 1 :]])
+    return segments, materials
+
+
+def random_world(rng: np.random.Generator, size_m: tuple[float, float] = (20.0, 14.0)) -> World:
+    """A procedurally generated indoor world with no symmetry, about W × H metres.
+
+    Outer walls of an irregular room (cut corners, alcoves, notches, maybe a
+    glass pane), a few boxes and a column at random positions and orientations,
+    and one to three free-standing wall stubs, some of glass. Interior objects are kept apart
+    so that the room stays mostly open.
+    """
+    width_m, height_m = float(size_m[0]), float(size_m[1])
+    outer = _polygon_segments(_outer_wall(rng, width_m, height_m))
+    segments, materials = _split_glass(outer, rng)
+    parts: list[np.ndarray] = [segments]
+    labels: list[str] = list(materials)
+
+    def place(radius_m: float) -> np.ndarray | None:
+        # A spot whose circle of radius_m keeps 1 m of passage to everything placed so far.
+        for _ in range(50):
+            center = rng.uniform([0.0, 0.0], [width_m, height_m])
+            if _free_mask(np.vstack(parts), center[None, :], radius_m + 1.0)[0]:
+                return center
+        return None
+
+    def add(piece: np.ndarray, material: str = "wall") -> None:
+        parts.append(piece)
+        labels.extend([material] * piece.shape[0])
+
+    for _ in range(int(rng.integers(2, 5))):
+        size = (rng.uniform(0.5, 1.6), rng.uniform(0.4, 1.2))
+        center = place(0.5 * float(np.hypot(*size)))
+        if center is not None:
+            add(_box(center, size, rng.uniform(0.0, np.pi)))
+    radius = rng.uniform(0.15, 0.3)
+    center = place(radius)
+    if center is not None:
+        sides = int(rng.integers(8, 13))
+        phase = rng.uniform(0.0, TWO_PI)
+        angles = phase + TWO_PI * np.arange(sides) / sides
+        add(_polygon_segments(center + radius * np.column_stack([np.cos(angles), np.sin(angles)])))
+    for _ in range(int(rng.integers(1, 4))):
+        length = rng.uniform(1.0, 3.0)
+        center = place(length / 2.0)
+        if center is not None:
+            direction = rotation(rng.uniform(0.0, np.pi))[:, 0] * length / 2.0
+            stub = np.array([[*(center - direction), *(center + direction)]])
+            add(stub, "glass" if rng.random() < 0.25 else "wall")
+
+    return World(segments=np.vstack(parts), materials=np.array(labels, dtype=str), name="random")
+
+
+def random_free_poses(
+    world: World, n: int, rng: np.random.Generator, clearance_m: float = 0.6
+) -> np.ndarray:
+    """Poses (n, 3) x m, y m, theta rad on the world's open floor.
+
+    Positions lie inside the outer walls, outside every closed obstacle and at
+    least ``clearance_m`` from every segment; headings are uniform in [−π, π).
+    """
+    segments = as_segments(world.segments, "world segments")
+    if segments.shape[0] == 0:
+        raise ValueError(f"world {world.name!r} has no segments")
+    lo = np.minimum(segments[:, 0:2], segments[:, 2:4]).min(axis=0)
+    hi = np.maximum(segments[:, 0:2], segments[:, 2:4]).max(axis=0)
+    found: list[np.ndarray] = []
+    count = 0
+    for _ in range(100):
+        candidates = rng.uniform(lo, hi, size=(max(4 * n, 64), 2))
+        free = candidates[free_space_mask(world, candidates, clearance_m)]
+        found.append(free)
+        count += free.shape[0]
+        if count >= n:
+            break
+    else:
+        raise ValueError(
+            f"world {world.name!r}: found only {count} of {n} free poses "
+            f"with {clearance_m} m clearance"
+        )
+    xy = np.vstack(found)[:n]
+    return np.column_stack([xy, rng.uniform(-np.pi, np.pi, size=n)])

@@ -1,0 +1,348 @@
+"""Table 1: errors against a hand-made survey, matching, summary, gates and formats."""
+
+from __future__ import annotations
+
+import io
+import json
+import math
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from segloc_cli.errors import InputError
+from segloc_cli.evaluate import format_table, gate, summary, table1
+from segloc_cli.io.tables import ESTIMATE_COLUMNS, PoseTable
+
+
+def make_survey(rows: list[tuple[int, float, float, float, float]]) -> PoseTable:
+    """Rows of (pose_id, time_s, x_m, y_m, theta_deg)."""
+    ids, times, xs, ys, thetas_deg = (np.array(c) for c in zip(*rows, strict=True))
+    return PoseTable(
+        ids.astype(int), times.astype(float), np.column_stack([xs, ys, np.deg2rad(thetas_deg)])
+    )
+
+
+def make_estimates(rows: list[dict]) -> pd.DataFrame:
+    """Estimate rows; unspecified columns default to the survey-free values below."""
+    defaults = {
+        "init_x_m": 0.0,
+        "init_y_m": 0.0,
+        "init_theta_deg": 0.0,
+        "align_theta_deg": 0.0,
+        "x_m": 0.0,
+        "y_m": 0.0,
+        "theta_deg": 0.0,
+        "overlap": 1.0,
+        "n_local_segments": 20,
+        "runtime_ms": 5.0,
+        "status": "ok",
+    }
+    full = [{**defaults, "pose_id": i + 1, **row} for i, row in enumerate(rows)]
+    return pd.DataFrame(full, columns=list(ESTIMATE_COLUMNS))
+
+
+def md_rows(text: str) -> list[list[str]]:
+    """The cells of each row of the first Markdown table in ``text`` (header included)."""
+    lines = [line for line in text.splitlines() if line.startswith("|")]
+    return [[cell.strip() for cell in line.strip("|").split("|")] for line in lines]
+
+
+# --- errors -------------------------------------------------------------------------------
+
+
+def test_errors_are_surveyed_minus_computed_in_world_frame():
+    survey = make_survey([(7, 1.0, 2.0, 3.0, 30.0)])
+    estimates = make_estimates(
+        [
+            {
+                "time_s": 1.0,
+                "init_x_m": 1.5,
+                "init_y_m": 3.2,
+                "init_theta_deg": 25.0,
+                "align_theta_deg": 30.5,
+                "x_m": 1.98,  # 2 cm west of the surveyed position
+                "y_m": 3.0,
+                "theta_deg": 29.9,
+            }
+        ]
+    )
+    row = table1(estimates, survey).iloc[0]
+    assert row["pose_id"] == 7
+    assert row["ae_deg"] == pytest.approx(-0.5)
+    assert row["init_x_cm"] == pytest.approx(50.0)
+    assert row["init_y_cm"] == pytest.approx(-20.0)
+    assert row["init_theta_deg"] == pytest.approx(5.0)
+    assert row["err_x_cm"] == pytest.approx(2.0)
+    assert row["err_y_cm"] == pytest.approx(0.0, abs=1e-9)
+    assert row["err_theta_deg"] == pytest.approx(0.1)
+    assert row["err_xy_cm"] == pytest.approx(2.0)
+    assert row["status"] == "ok"
+
+
+def test_euclidean_error_combines_both_axes():
+    survey = make_survey([(1, 0.0, 1.0, 1.0, 0.0)])
+    estimates = make_estimates([{"time_s": 0.0, "x_m": 0.97, "y_m": 1.04}])
+    row = table1(estimates, survey).iloc[0]
+    assert (row["err_x_cm"], row["err_y_cm"]) == (pytest.approx(3.0), pytest.approx(-4.0))
+    assert row["err_xy_cm"] == pytest.approx(5.0)
+
+
+@pytest.mark.parametrize(
+    ("survey_deg", "estimate_deg", "expected_deg"),
+    [(179.9, -179.9, -0.2), (-179.9, 179.9, 0.2), (-90.0, 90.0, -180.0)],
+)
+def test_heading_errors_wrap_to_half_open_interval(survey_deg, estimate_deg, expected_deg):
+    survey = make_survey([(1, 0.0, 0.0, 0.0, survey_deg)])
+    estimates = make_estimates(
+        [
+            {
+                "time_s": 0.0,
+                "init_theta_deg": estimate_deg,
+                "align_theta_deg": estimate_deg,
+                "theta_deg": estimate_deg,
+            }
+        ]
+    )
+    row = table1(estimates, survey).iloc[0]
+    for column in ("ae_deg", "init_theta_deg", "err_theta_deg"):
+        assert row[column] == pytest.approx(expected_deg, abs=1e-9)
+
+
+def test_failed_pose_keeps_its_status_and_initial_errors():
+    survey = make_survey([(1, 0.0, 1.0, 2.0, 10.0)])
+    estimates = make_estimates(
+        [
+            {
+                "time_s": 0.0,
+                "init_x_m": 0.9,
+                "align_theta_deg": np.nan,
+                "x_m": np.nan,
+                "y_m": np.nan,
+                "theta_deg": np.nan,
+                "status": "too_few_segments",
+            }
+        ]
+    )
+    row = table1(estimates, survey).iloc[0]
+    assert row["status"] == "too_few_segments"
+    assert row["init_x_cm"] == pytest.approx(10.0)
+    for column in ("ae_deg", "err_x_cm", "err_y_cm", "err_theta_deg", "err_xy_cm"):
+        assert math.isnan(row[column])
+
+
+def test_empty_status_reads_as_missing_and_counts_as_failed():
+    survey = make_survey([(1, 0.0, 0.0, 0.0, 0.0)])
+    estimates = make_estimates([{"time_s": 0.0, "status": np.nan}])
+    table = table1(estimates, survey)
+    assert table["status"].tolist() == ["missing"]
+    assert summary(table).attrs["n_failed"] == 1
+
+
+# --- time matching ------------------------------------------------------------------------
+
+
+def test_matching_tolerance_and_survey_ids():
+    survey = make_survey([(101, 10.0, 0.0, 0.0, 0.0), (102, 20.0, 0.0, 0.0, 0.0)])
+    estimates = make_estimates([{"time_s": 10.03}, {"time_s": 20.08}])
+    table = table1(estimates, survey)
+    assert table["pose_id"].tolist() == [101]
+
+
+def test_matching_takes_nearest_and_earlier_on_a_tie():
+    survey = make_survey([(1, 10.0, 0.0, 0.0, 0.0), (2, 20.0, 0.0, 0.0, 0.0)])
+    # Rows out of time order; x_m tells which row was paired. 1/32 s keeps the tie exact.
+    estimates = make_estimates(
+        [
+            {"time_s": 10.03125, "x_m": -0.01},
+            {"time_s": 9.96875, "x_m": -0.02},
+            {"time_s": 20.04, "x_m": -0.03},
+            {"time_s": 20.01, "x_m": -0.04},
+        ]
+    )
+    table = table1(estimates, survey)
+    assert table["err_x_cm"].to_numpy() == pytest.approx([2.0, 4.0])
+
+
+def test_rows_follow_survey_order_and_unmatched_are_dropped():
+    survey = make_survey(
+        [(30, 3.0, 0.0, 0.0, 0.0), (10, 1.0, 0.0, 0.0, 0.0), (20, 2.0, 0.0, 0.0, 0.0)]
+    )
+    estimates = make_estimates([{"time_s": 1.0}, {"time_s": 3.0}])
+    assert table1(estimates, survey)["pose_id"].tolist() == [30, 10]
+
+
+def test_no_match_error_gives_both_time_ranges():
+    survey = make_survey([(1, 0.0, 0.0, 0.0, 0.0), (2, 1.0, 0.0, 0.0, 0.0)])
+    estimates = make_estimates([{"time_s": 100.0}, {"time_s": 101.0}, {"time_s": 100.5}])
+    with pytest.raises(
+        InputError,
+        match=r"no estimate lies within 0.05 s of any survey time: "
+        r"estimates span 100.000 to 101.000 s \(3 rows\), "
+        r"survey spans 0.000 to 1.000 s \(2 rows\)",
+    ):
+        table1(estimates, survey)
+
+
+def test_missing_estimate_column_is_named():
+    survey = make_survey([(1, 0.0, 0.0, 0.0, 0.0)])
+    estimates = make_estimates([{"time_s": 0.0}]).drop(columns=["align_theta_deg", "status"])
+    with pytest.raises(InputError, match=r"estimates lack the column\(s\) align_theta_deg, status"):
+        table1(estimates, survey)
+
+
+# --- summary ------------------------------------------------------------------------------
+
+
+def small_table() -> pd.DataFrame:
+    """Three poses: errors 3/-4 cm on the ok ones, a large error on the failed one."""
+    survey = make_survey(
+        [(1, 1.0, 0.0, 0.0, 0.0), (2, 2.0, 0.0, 0.0, 0.0), (3, 3.0, 0.0, 0.0, 0.0)]
+    )
+    estimates = make_estimates(
+        [
+            {"time_s": 1.0, "init_x_m": -0.1, "x_m": -0.03, "theta_deg": -0.1},
+            {"time_s": 2.0, "init_x_m": 0.2, "x_m": 0.04, "theta_deg": 0.3},
+            {"time_s": 3.0, "init_x_m": 0.2, "x_m": 1.0, "theta_deg": 5.0, "status": "diverged"},
+        ]
+    )
+    return table1(estimates, survey)
+
+
+def test_summary_rms_and_max_over_ok_poses_for_final_errors():
+    stats = summary(small_table())
+    assert stats.index.tolist() == ["RMS", "max"]
+    assert stats.loc["RMS", "err_x_cm"] == pytest.approx(math.sqrt((3.0**2 + 4.0**2) / 2))
+    assert stats.loc["max", "err_x_cm"] == pytest.approx(4.0)
+    assert stats.loc["RMS", "err_theta_deg"] == pytest.approx(math.sqrt((0.1**2 + 0.3**2) / 2))
+    assert stats.loc["max", "err_theta_deg"] == pytest.approx(0.3)
+    # Initial errors count every pose, the failed one included.
+    assert stats.loc["RMS", "init_x_cm"] == pytest.approx(math.sqrt((10**2 + 20**2 + 20**2) / 3))
+    assert stats.loc["max", "init_x_cm"] == pytest.approx(20.0)
+    assert stats.attrs == {"n_poses": 3, "n_failed": 1}
+
+
+def test_summary_of_paper_rows():
+    # Poses 1-3 of the paper's Table 1: AE (°), final X (cm), Y (cm), θ (°).
+    paper = [(-1.5, 2.2, -1.0, -0.07), (0.5, 3.7, -2.1, -0.25), (2.1, 1.2, -1.4, 0.18)]
+    truth = [(1, 1.0, 4.0, 2.0, 90.0), (2, 2.0, 6.5, 2.5, 0.0), (3, 3.0, 9.0, 1.0, -45.0)]
+    survey = make_survey(truth)
+    estimates = make_estimates(
+        [
+            {
+                "time_s": t,
+                "align_theta_deg": theta - ae,
+                "x_m": x - ex / 100.0,
+                "y_m": y - ey / 100.0,
+                "theta_deg": theta - eth,
+            }
+            for (_, t, x, y, theta), (ae, ex, ey, eth) in zip(truth, paper, strict=True)
+        ]
+    )
+    stats = summary(table1(estimates, survey))
+    rms = stats.loc["RMS"]
+    assert rms["ae_deg"] == pytest.approx(math.sqrt((1.5**2 + 0.5**2 + 2.1**2) / 3))
+    assert rms["err_x_cm"] == pytest.approx(math.sqrt((2.2**2 + 3.7**2 + 1.2**2) / 3))
+    assert rms["err_y_cm"] == pytest.approx(math.sqrt((1.0**2 + 2.1**2 + 1.4**2) / 3))
+    assert rms["err_theta_deg"] == pytest.approx(math.sqrt((0.07**2 + 0.25**2 + 0.18**2) / 3))
+    assert stats.loc["max", "err_y_cm"] == pytest.approx(2.1)
+
+
+# --- gate ---------------------------------------------------------------------------------
+
+
+def test_gate_messages():
+    messages = gate(small_table(), fail_above_cm=3.5, fail_above_deg=0.2)
+    assert messages == [
+        "pose 2: |err_x| 4.0 cm > 3.5 cm",
+        "pose 2: |err_theta| 0.30° > 0.20°",
+        "pose 3: status diverged",
+    ]
+
+
+def test_gate_shows_enough_decimals_to_tell_value_from_limit():
+    survey = make_survey([(4, 0.0, 0.0, 0.0, 0.0)])
+    estimates = make_estimates([{"time_s": 0.0, "y_m": 0.0104}])
+    assert gate(table1(estimates, survey), fail_above_cm=1.0) == [
+        "pose 4: |err_y| 1.04 cm > 1.00 cm"
+    ]
+
+
+def test_gate_passes_and_ignores_status_without_limits():
+    table = small_table()
+    assert gate(table) == []
+    assert gate(table[table["status"] == "ok"], fail_above_cm=4.0, fail_above_deg=0.3) == []
+
+
+def test_gate_rejects_negative_limit():
+    with pytest.raises(ValueError, match="fail_above_cm must be a non-negative number, got -1"):
+        gate(small_table(), fail_above_cm=-1.0)
+
+
+# --- formats ------------------------------------------------------------------------------
+
+
+def test_csv_round_trips_at_full_precision():
+    table = small_table()
+    back = pd.read_csv(io.StringIO(format_table(table, summary(table), "csv")))
+    assert back.columns.tolist() == table.columns.tolist()
+    assert back["pose_id"].tolist() == [1, 2, 3]
+    assert back["status"].tolist() == ["ok", "ok", "diverged"]
+    numeric = [c for c in table.columns if c not in ("pose_id", "status")]
+    np.testing.assert_array_equal(back[numeric].to_numpy(), table[numeric].to_numpy())
+
+
+def test_json_has_poses_and_summary_with_nulls():
+    survey = make_survey([(1, 0.0, 0.0, 0.0, 0.0), (2, 1.0, 0.0, 0.0, 0.0)])
+    estimates = make_estimates(
+        [{"time_s": 0.0, "x_m": -0.03}, {"time_s": 1.0, "x_m": np.nan, "status": "no_scan"}]
+    )
+    table = table1(estimates, survey)
+    stats = summary(table)
+    doc = json.loads(format_table(table, stats, "json"))
+    assert [p["pose_id"] for p in doc["poses"]] == [1, 2]
+    assert doc["poses"][0]["err_x_cm"] == table.loc[0, "err_x_cm"]
+    assert doc["poses"][1]["err_x_cm"] is None
+    assert doc["poses"][1]["status"] == "no_scan"
+    assert doc["summary"]["n_poses"] == 2
+    assert doc["summary"]["n_failed"] == 1
+    assert doc["summary"]["RMS"]["err_x_cm"] == stats.loc["RMS", "err_x_cm"]
+    assert doc["summary"]["max"]["init_x_cm"] == stats.loc["max", "init_x_cm"]
+
+
+def test_markdown_table_has_paper_header_precision_and_summary_rows():
+    table = small_table()
+    rows = md_rows(format_table(table, summary(table), "md"))
+    header = ["pose", "AE (°)", "init X (cm)", "init Y (cm)", "init θ (°)"]
+    header += ["X (cm)", "Y (cm)", "θ (°)", "status"]
+    assert rows[0] == header
+    body = rows[2:]  # rows[1] is the alignment line
+    assert [r[0] for r in body] == ["1", "2", "3", "RMS", "max"]
+    assert body[0] == ["1", "0.00", "10.0", "0.0", "0.00", "3.0", "0.0", "0.10", "ok"]
+    assert body[4][5] == "4.0"
+
+
+def test_markdown_marks_missing_values():
+    survey = make_survey([(1, 0.0, 0.0, 0.0, 0.0)])
+    estimates = make_estimates([{"time_s": 0.0, "x_m": np.nan, "status": "no_scan"}])
+    table = table1(estimates, survey)
+    text = format_table(table, summary(table), "md")
+    assert md_rows(text)[2][5] == "—"
+    assert "1 poses, 1 failed" in text
+
+
+def test_latex_is_a_tabular_with_escaped_status():
+    survey = make_survey([(1, 0.0, 0.0, 0.0, 0.0)])
+    estimates = make_estimates([{"time_s": 0.0, "status": "too_few_segments"}])
+    table = table1(estimates, survey)
+    text = format_table(table, summary(table), "latex")
+    assert text.startswith("\\begin{tabular}{lrrrrrrrl}")
+    assert text.rstrip().endswith("\\end{tabular}")
+    assert "too\\_few\\_segments" in text
+    assert text.count("\\midrule") == 2
+
+
+def test_unknown_format_names_the_choices():
+    table = small_table()
+    with pytest.raises(ValueError, match="unknown table format 'xlsx'; choose one of md, csv"):
+        format_table(table, summary(table), "xlsx")

@@ -1,0 +1,184 @@
+"""Map and world files: round trips and every error."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from segloc_cli.errors import InputError
+from segloc_cli.io.maps import World, read_map, read_world, write_map, write_world
+
+SEGMENTS = np.array(
+    [
+        [0.0, 0.0, 10.0, 0.0],
+        [10.0, 0.0, 10.0, 7.5],
+        [0.1, 0.2, 1.0 / 3.0, -2.0 / 7.0],
+        [-1e-9, 123456.789, 5e-324, 1.0],
+    ]
+)
+
+
+def test_map_round_trip_is_exact(tmp_path):
+    path = tmp_path / "map.json"
+    write_map(path, SEGMENTS, {"log": "log.mcap", "scans": 12})
+    back = read_map(path)
+    assert back.dtype == np.float64
+    assert back.shape == (4, 4)
+    np.testing.assert_array_equal(back, SEGMENTS)
+    document = json.loads(path.read_text())
+    assert document["format"] == "segloc-map"
+    assert document["version"] == 1
+    assert document["frame"] == "world"
+    assert document["units"] == "m"
+    assert document["source"] == {"log": "log.mcap", "scans": 12}
+
+
+def test_world_round_trip_is_exact(tmp_path):
+    world = World(SEGMENTS, np.array(["wall", "glass", "wall", "glass"]), name="corridor")
+    path = tmp_path / "world.json"
+    write_world(path, world)
+    back = read_world(path)
+    np.testing.assert_array_equal(back.segments, SEGMENTS)
+    assert back.materials.tolist() == ["wall", "glass", "wall", "glass"]
+    assert back.name == "corridor"
+    document = json.loads(path.read_text())
+    assert (document["format"], document["version"], document["units"], document["frame"]) == (
+        "segloc-world",
+        1,
+        "m",
+        "world",
+    )
+
+
+def test_world_materials_default_to_wall(tmp_path):
+    path = tmp_path / "world.json"
+    path.write_text(
+        json.dumps(
+            {"format": "segloc-world", "version": 1, "name": "box", "segments": [[0, 0, 1, 0]]}
+        )
+    )
+    world = read_world(path)
+    assert world.materials.tolist() == ["wall"]
+    assert World(SEGMENTS).materials.tolist() == ["wall"] * 4
+
+
+def test_world_is_accepted_as_map(tmp_path):
+    path = tmp_path / "world.json"
+    write_world(path, World(SEGMENTS, name="w"))
+    np.testing.assert_array_equal(read_map(path), SEGMENTS)
+
+
+def test_world_rejects_map_file(tmp_path):
+    path = tmp_path / "map.json"
+    write_map(path, SEGMENTS, {})
+    with pytest.raises(InputError, match=r"map\.json: this is a map file .*not a world file"):
+        read_world(path)
+
+
+def test_world_dataclass_checks_materials():
+    with pytest.raises(ValueError, match="1 materials for 4 segments"):
+        World(SEGMENTS, np.array(["wall"]))
+    with pytest.raises(ValueError, match="unknown material"):
+        World(SEGMENTS[:1], np.array(["brick"]))
+
+
+def write_doc(path, **fields):
+    document = {"format": "segloc-map", "version": 1, "segments": [[0, 0, 1, 1]]}
+    document.update(fields)
+    path.write_text(json.dumps(document))
+
+
+@pytest.mark.parametrize(
+    ("fields", "message"),
+    [
+        ({"format": "geojson"}, r"`format` is 'geojson'; expected \"segloc-map\" or"),
+        ({"format": None}, r"`format` is missing"),
+        ({"version": 2}, r"unsupported segloc-map version 2"),
+        ({"segments": "none"}, r"`segments` must be a list"),
+        ({"segments": [[0, 0, 1, 1], [0, 0, 1]]}, r"segment 1 must be 4 finite numbers"),
+        ({"segments": [[0, 0, 1, "a"]]}, r"segment 0 must be 4 finite numbers"),
+        ({"segments": [[0, 0, 1, 1], [0, 0, 1, True]]}, r"segment 1 must be 4 finite numbers"),
+        ({"segments": [[0, 0, 1, 1], [2, 2, 1, 1], [3, 3, 3, 3]]}, r"segment 2 has zero length"),
+        ({"segments": []}, r"map has no segments; build one with `segloc map build`"),
+    ],
+)
+def test_map_errors(tmp_path, fields, message):
+    path = tmp_path / "map.json"
+    write_doc(path, **fields)
+    if fields.get("format", "x") is None:
+        document = json.loads(path.read_text())
+        del document["format"]
+        path.write_text(json.dumps(document))
+    with pytest.raises(InputError, match=r"map\.json: " + message):
+        read_map(path)
+
+
+def test_map_non_finite_coordinate(tmp_path):
+    path = tmp_path / "map.json"
+    path.write_text(
+        '{"format": "segloc-map", "version": 1, "segments": [[0, 0, 1, 1], [0, NaN, 1, 1]]}'
+    )
+    with pytest.raises(InputError, match=r"map\.json: segment 1 must be 4 finite numbers"):
+        read_map(path)
+
+
+def test_map_not_json_names_the_line(tmp_path):
+    path = tmp_path / "map.json"
+    path.write_text('{\n  "format": "segloc-map",\n  "version": 1,\n  "segments": [[0, 0, 1, 1],]\n}')
+    with pytest.raises(InputError, match=r"map\.json: not valid JSON at line 4"):
+        read_map(path)
+
+
+def test_map_top_level_not_object(tmp_path):
+    path = tmp_path / "map.json"
+    path.write_text("[[0, 0, 1, 1]]")
+    with pytest.raises(InputError, match=r"expected a JSON object"):
+        read_map(path)
+
+
+def test_missing_and_binary_files(tmp_path):
+    with pytest.raises(InputError, match=r"gone\.json: file not found"):
+        read_map(tmp_path / "gone.json")
+    with pytest.raises(InputError, match=r"gone\.json: file not found"):
+        read_world(tmp_path / "gone.json")
+    binary = tmp_path / "map.json"
+    binary.write_bytes(b"\x89PNG\r\n\x1a\n\xff\xfe")
+    with pytest.raises(InputError, match=r"map\.json: not a text file"):
+        read_map(binary)
+    with pytest.raises(InputError, match=r"is a directory"):
+        read_map(tmp_path)
+
+
+@pytest.mark.parametrize(
+    ("materials", "message"),
+    [
+        (["wall"], r"one material per segment: 2 segments, materials 1"),
+        ("wall", r"one material per segment: 2 segments, materials not a list"),
+        (["wall", "mirror"], r"segment 1 has unknown material 'mirror'"),
+    ],
+)
+def test_world_material_errors(tmp_path, materials, message):
+    path = tmp_path / "world.json"
+    document = {
+        "format": "segloc-world",
+        "version": 1,
+        "name": "w",
+        "segments": [[0, 0, 1, 0], [1, 0, 1, 1]],
+        "materials": materials,
+    }
+    path.write_text(json.dumps(document))
+    with pytest.raises(InputError, match=r"world\.json: `materials` must list " + message
+                       if "one material" in message else r"world\.json: " + message):
+        read_world(path)
+    # read_map checks a world's materials too.
+    with pytest.raises(InputError, match="material"):
+        read_map(path)
+
+
+def test_world_with_no_segments(tmp_path):
+    path = tmp_path / "world.json"
+    path.write_text(json.dumps({"format": "segloc-world", "version": 1, "segments": []}))
+    with pytest.raises(InputError, match=r"world\.json: world has no segments"):
+        read_world(path)
