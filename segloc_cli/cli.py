@@ -383,6 +383,14 @@ def _initial_guesses(initial: str, log, log_path: Path, tolerance_s: float):
     help="Candidates within this ratio of the best overlap are averaged.",
 )
 @click.option(
+    "--recentre",
+    type=click.IntRange(min=0, max=100),
+    default=8,
+    show_default=True,
+    help="Up to this many extra stage-2 iterations, spent re-searching at the same scale while "
+    "the estimate still moves by over half a step; 0 keeps the paper's fixed schedule.",
+)
+@click.option(
     "--tolerance-ms",
     type=click.FloatRange(min=0),
     default=50.0,
@@ -403,6 +411,7 @@ def localize(
     dtheta_deg,
     iterations,
     ratio,
+    recentre,
     tolerance_ms,
 ):
     """Localize every scan of one or more logs against a map.
@@ -427,6 +436,7 @@ def localize(
         dtheta_deg=dtheta_deg,
         iterations=iterations,
         ratio=ratio,
+        recentres=recentre,
     )
     localizer = Localizer(segments_world, params)
 

@@ -31,8 +31,11 @@ class LocalizeParams:
     max_peaks: int = 8
     grid_m: float = 1.5
     dtheta_deg: float = 4.0
-    iterations: int = 6
+    iterations: int = 8
+    """Halvings K; the paper leaves K to the accuracy wanted (last grid η0 / 2^(K−1))."""
     ratio: float = 0.9
+    recentres: int = 8
+    """Extra same-scale iterations while the estimate still moves (0 = the paper's schedule)."""
     min_segments: int = 3
 
 
@@ -89,6 +92,7 @@ class Localizer:
                 dtheta_deg=p.dtheta_deg,
                 iterations=p.iterations,
                 ratio=p.ratio,
+                recentres=p.recentres,
             )
             if best is None or result.overlap_m > best[1].overlap_m:
                 best = (float(heading), result)

@@ -235,12 +235,19 @@ def coarse_to_fine(
     dtheta_deg: float = 4.0,
     iterations: int = 6,
     ratio: float = 0.9,
+    recentres: int = 0,
 ) -> OverlapResult:
-    """Refine ``start`` by K iterations of the paper's coarse-to-fine overlap search.
+    """Refine ``start`` by the paper's coarse-to-fine overlap search.
 
     Each iteration scores 27 candidates around the current estimate, moves to
     the overlap-weighted mean of those scoring at least ``ratio`` × the best
-    (headings averaged on the circle) and halves the grid and the heading step.
+    (headings averaged on the circle) and halves the grid and the heading
+    step; ``iterations`` halvings in all (the paper's K).
+
+    ``recentres`` > 0 allows up to that many extra iterations, spent where the
+    estimate moved by more than half a grid step (or half a heading step): the
+    search repeats at that scale instead of halving. With 0 the schedule is
+    exactly the paper's.
     """
     estimate = start
     eta = float(grid_m)
@@ -248,7 +255,9 @@ def coarse_to_fine(
     track = [estimate.as_array()]
     best_overlaps = []
     segments_world = np.asarray(segments_world, dtype=float)
-    for _ in range(iterations):
+    repeats_left = recentres
+    halvings = 0
+    while halvings < iterations:
         band = band_halfwidth(eta)
         candidates = candidate_poses(estimate, eta, dtheta)
         pairs = candidate_pairs(
@@ -263,8 +272,16 @@ def coarse_to_fine(
             x, y = (w @ candidates[keep, :2]) / w.sum()
             estimate = Pose2(float(x), float(y), circular_mean(candidates[keep, 2], w))
         track.append(estimate.as_array())
+        moved = track[-1] - track[-2]
+        still_moving = np.hypot(moved[0], moved[1]) > eta / 2 or abs(wrap_angle(moved[2])) > dtheta / 2
+        if repeats_left > 0 and best > 0 and still_moving:
+            # The estimate left the central cell: search again at this scale
+            # before refining, or the halved grid may no longer reach the pose.
+            repeats_left -= 1
+            continue
         eta /= 2.0
         dtheta /= 2.0
+        halvings += 1
     final_band = band_halfwidth(2.0 * eta)
     final = float(
         overlap_at_poses(segments_world, segments_robot, estimate.as_array(), final_band)[0]

@@ -7,6 +7,8 @@ import math
 import numpy as np
 import pandas as pd
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from segloc_cli.errors import InputError
 from segloc_cli.io.tables import (
@@ -221,6 +223,36 @@ def test_nearest_ties_go_to_earlier_time():
 def test_nearest_duplicate_ref_times_take_first_index():
     ref = np.array([5.0, 1.0, 5.0, 1.0])
     np.testing.assert_array_equal(nearest_by_time([1.1, 4.9, 5.0, 0.9], ref, 0.5), [1, 0, 0, 1])
+
+
+def brute_force_nearest(query, ref, tolerance_s):
+    """Reference: scan every ref time; ties to the earlier time, then the lower index."""
+    out = []
+    for q in query:
+        best = -1
+        for j, r in enumerate(ref):
+            d = abs(q - r)
+            if d > tolerance_s:
+                continue
+            if best < 0:
+                best = j
+                continue
+            d_best = abs(q - ref[best])
+            if d < d_best or (d == d_best and (r < ref[best] or (r == ref[best] and j < best))):
+                best = j
+        out.append(best)
+    return out
+
+
+times = st.lists(st.integers(0, 40).map(lambda k: k * 0.25), max_size=12)
+
+
+@settings(max_examples=200, deadline=None)
+@given(query=times, ref=times, tolerance_steps=st.integers(0, 8))
+def test_nearest_matches_brute_force(query, ref, tolerance_steps):
+    tolerance_s = tolerance_steps * 0.25
+    got = nearest_by_time(np.array(query), np.array(ref), tolerance_s)
+    assert got.tolist() == brute_force_nearest(query, ref, tolerance_s)
 
 
 def test_nearest_empty_and_nan():
