@@ -63,18 +63,27 @@ class RTable:
         return cls(bin_width_rad=bin_width_rad, lengths_m=table)
 
     def closest_lengths(self, local_len_m: np.ndarray) -> np.ndarray:
-        """(n_bins, N): per bin, the global length closest to each local one (NaN: empty bin)."""
-        local_len_m = np.asarray(local_len_m, dtype=float)
-        best = np.full((self.n_bins, local_len_m.size), np.nan)
-        for b, lengths in enumerate(self.lengths_m):
-            if lengths.size == 0:
-                continue
-            # Sorted lengths: the closest is one of the two neighbours of the insertion point.
-            hi = np.clip(np.searchsorted(lengths, local_len_m), 0, lengths.size - 1)
-            lo = np.clip(hi - 1, 0, lengths.size - 1)
-            pick_lo = np.abs(lengths[lo] - local_len_m) <= np.abs(lengths[hi] - local_len_m)
-            best[b] = np.where(pick_lo, lengths[lo], lengths[hi])
+        """(n_bins, N): per bin, the global length closest to each local one (NaN: empty bin).
+
+        Ties go to the shorter global length.
+        """
+        local_mm = np.rint(np.asarray(local_len_m, dtype=float) * 1000.0).astype(np.int64)
+        best = np.full((self.n_bins, local_mm.size), np.nan)
+        sizes = np.array([lengths.size for lengths in self.lengths_m])
+        filled = np.flatnonzero(sizes)
+        if filled.size == 0 or local_mm.size == 0:
+            return best
+        global_mm = np.rint(np.concatenate(self.lengths_m) * 1000.0).astype(np.int64)
+        # Lengths are whole millimetres, so (difference, length) packs into one
+        # integer whose minimum per bin is the closest length, shorter on ties.
+        key = np.abs(global_mm[:, None] - local_mm[None, :]) * _KEY_BASE + global_mm[:, None]
+        starts = np.concatenate([[0], np.cumsum(sizes[filled])[:-1]])
+        best[filled] = (np.minimum.reduceat(key, starts, axis=0) % _KEY_BASE) / 1000.0
         return best
+
+
+_KEY_BASE = 10**9
+"""Exceeds any segment length in millimetres (1,000 km)."""
 
 
 def orientation_bins(orientation_rad: np.ndarray, bin_width_rad: float, n_bins: int) -> np.ndarray:

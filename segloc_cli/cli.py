@@ -161,6 +161,14 @@ def simulate(world_path, poses_path, out_dir, readings, noise_cm, seed, init_err
     times = truth.time_s
     if np.isnan(times).any():
         times = np.arange(1, len(truth) + 1, dtype=float)
+    negative = np.flatnonzero(~(times >= 0))
+    if negative.size:
+        row = int(negative[0])
+        raise InputError(
+            f"column time_s is {times[row]:g}; log times must be >= 0 s",
+            path=poses_path,
+            row=row + 1,
+        )
     rng = np.random.default_rng(seed)
     if mode == "paper":
         errors = paper_initial_errors(len(truth))
@@ -535,7 +543,12 @@ def evaluate(
 
     estimates = read_estimates(estimates_path)
     survey = read_pose_table(survey_path)
-    table = table1(estimates, survey, tolerance_s=tolerance_ms / 1e3)
+    try:
+        table = table1(estimates, survey, tolerance_s=tolerance_ms / 1e3)
+    except InputError as exc:
+        if exc.path is not None:
+            raise
+        raise InputError(str(exc), path=survey_path) from None
     text = format_table(table, summary(table), fmt)
     if out_path is None:
         click.echo(text)
@@ -581,7 +594,12 @@ def main(argv: list[str] | None = None) -> None:
         click.echo("segloc: aborted", err=True)
         sys.exit(130)
     except click.ClickException as exc:
-        click.echo(f"segloc: error: {exc.format_message()}", err=True)
+        no_args = getattr(click.exceptions, "NoArgsIsHelpError", None)  # click >= 8.2
+        if no_args is not None and isinstance(exc, no_args):
+            message = f"missing command; run '{exc.ctx.command_path} --help' to list them"
+        else:
+            message = exc.format_message()
+        click.echo(f"segloc: error: {message}", err=True)
         sys.exit(EXIT_BAD_INPUT if exc.exit_code != 0 else 0)
     except SeglocError as exc:
         click.echo(f"segloc: error: {exc}", err=True)

@@ -169,7 +169,9 @@ def summary(table: pd.DataFrame) -> pd.DataFrame:
 def _exceeding_pair(value: float, limit: float, decimals: int) -> tuple[str, str]:
     """``value`` and ``limit`` as text, with enough decimals to show value > limit."""
     # At the table's precision 1.04 cm against a 1.0 cm gate would read "1.0 cm > 1.0 cm".
-    while decimals < 9 and round(value, decimals) <= round(limit, decimals):
+    while decimals < 9 and (
+        round(value, decimals) <= round(limit, decimals) or round(limit, decimals) != limit
+    ):
         decimals += 1
     return f"{value:.{decimals}f}", f"{limit:.{decimals}f}"
 

@@ -28,7 +28,8 @@ def circular_mean(angles_rad: np.ndarray, weights: np.ndarray | None = None) -> 
     """Weighted mean of angles on the circle (radians in, radians in [-pi, pi) out)."""
     angles_rad = np.asarray(angles_rad, dtype=float)
     w = np.ones_like(angles_rad) if weights is None else np.asarray(weights, dtype=float)
-    return float(np.arctan2(np.sum(w * np.sin(angles_rad)), np.sum(w * np.cos(angles_rad))))
+    mean = np.arctan2(np.sum(w * np.sin(angles_rad)), np.sum(w * np.cos(angles_rad)))
+    return float(wrap_angle(mean))  # atan2 may return +π
 
 
 @dataclass(frozen=True)

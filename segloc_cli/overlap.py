@@ -10,6 +10,14 @@ for every pair (global segment G, local segment L):
 - Cgs is the part of G between the scanner rays through Cls's endpoints.
 - The pair adds |Cls| + |Cgs|.
 
+One guard is added to the paper's definition: the scanner rays through Cls's
+endpoints must meet G's line at an incidence of at least ``min_incidence``.
+A segment seen almost edge-on subtends a hairline sector, yet the rays
+through any sliver of local segment inside it take in the whole of G, so a
+candidate placed on the line of a distant wall would collect that wall's full
+length. A scan cannot produce segments at such grazing incidence (the
+breakpoint detector splits them), so such pairs are no evidence.
+
 Everything is computed in the candidate's robot frame, where the scanner is at
 the origin. L is parametrised as A + t·(B − A), t ∈ [0, 1]; the two sector
 rays and the two band edges are each a linear inequality in t, so Cls is an
@@ -21,6 +29,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from segloc_cli.geometry import Pose2, circular_mean, transform_segments, wrap_angle
 
@@ -30,79 +39,99 @@ def band_halfwidth(grid_m: float) -> float:
     return np.sqrt(2.0) * grid_m / 2.0
 
 
-def _cross(ax, ay, bx, by):
-    return ax * by - ay * bx
+MIN_INCIDENCE_DEG = 5.0
+"""Shallowest angle between a scanner ray and a global segment at which they can pair."""
+
+# The two hot loops below run once per candidate × pair, tens of thousands of
+# times per pose, on a handful of scalars each; compiled, they cost less than
+# the array bookkeeping a vectorised version needs at these sizes.
 
 
-def _half_line(lo, hi, a, b):
-    """Tighten the interval [lo, hi] of t by the constraint a + b·t >= 0."""
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = -a / b
-    lo = np.where(b > 0, np.maximum(lo, t), lo)
-    hi = np.where(b < 0, np.minimum(hi, t), hi)
-    # b == 0: the constraint holds for every t or for none.
-    hi = np.where((b == 0) & (a < 0), -np.inf, hi)
-    return lo, hi
+@njit(cache=True)
+def _wrap(angle: float) -> float:
+    return angle - 2.0 * np.pi * np.floor((angle + np.pi) / (2.0 * np.pi))
 
 
-def _pair_overlaps(g, poses, loc, pair_g, pair_l, band_m):
-    """Overlap (C,) summed over the given (global, local) pairs, for every pose (C, 3)."""
-    c = np.cos(poses[:, 2])[:, None]
-    s = np.sin(poses[:, 2])[:, None]
-    gp = g[pair_g]
-    dx1 = gp[None, :, 0] - poses[:, 0:1]
-    dy1 = gp[None, :, 1] - poses[:, 1:2]
-    dx2 = gp[None, :, 2] - poses[:, 0:1]
-    dy2 = gp[None, :, 3] - poses[:, 1:2]
-    # G's endpoints in each candidate's robot frame, scanner at the origin: (C, P).
-    g1x, g1y = c * dx1 + s * dy1, c * dy1 - s * dx1
-    g2x, g2y = c * dx2 + s * dy2, c * dy2 - s * dx2
-
-    # Order G's endpoints counter-clockwise as seen from the scanner, so that its
-    # sector is "left of ray 1 and right of ray 2". A G on a line through the
-    # scanner subtends no sector and cannot pair.
-    turn = _cross(g1x, g1y, g2x, g2y)
-    swap = turn < 0
-    ax_, bx_ = np.where(swap, g2x, g1x), np.where(swap, g1x, g2x)
-    ay_, by_ = np.where(swap, g2y, g1y), np.where(swap, g1y, g2y)
-
-    # G's supporting line: unit normal n, offset n·P = off.
-    ex, ey = bx_ - ax_, by_ - ay_
+@njit(cache=True)
+def _pair_overlap(gax, gay, gbx, gby, lax, lay, lbx, lby, band_m, sin2_min) -> float:
+    """|Cls| + |Cgs| of one pair, both segments in the robot frame (scanner at the origin)."""
+    turn = gax * gby - gay * gbx
+    if abs(turn) <= 1e-12:
+        return 0.0  # G lies on a line through the scanner: no sector
+    if turn < 0.0:  # order G's ends counter-clockwise as seen from the scanner
+        gax, gay, gbx, gby = gbx, gby, gax, gay
+    ex, ey = gbx - gax, gby - gay
     g_len = np.sqrt(ex * ex + ey * ey)
     nx, ny = -ey / g_len, ex / g_len
-    off = nx * ax_ + ny * ay_
+    off = nx * gax + ny * gay
 
-    lp = loc[pair_l]
-    lax, lay = lp[:, 0], lp[:, 1]
-    ldx, ldy = lp[:, 2] - lax, lp[:, 3] - lay
-
-    # L is A + t·(B − A); each sector ray is a half-line constraint on t ...
-    lo = np.zeros_like(turn)
-    hi = np.ones_like(turn)
-    lo, hi = _half_line(lo, hi, _cross(ax_, ay_, lax, lay), _cross(ax_, ay_, ldx, ldy))
-    lo, hi = _half_line(lo, hi, _cross(lax, lay, bx_, by_), _cross(ldx, ldy, bx_, by_))
-    # ... and the band |n·(A + t·d) − off| <= δ is an interval of t. Dividing by a
-    # zero slope gives ±inf, which is the right interval (all or nothing).
+    # L is A + t·(B − A), t in [lo, hi]; each constraint a + b·t >= 0 trims it.
+    dx, dy = lbx - lax, lby - lay
+    lo, hi = 0.0, 1.0
+    for k in range(2):
+        if k == 0:  # left of the ray through G's first end
+            a, b = gax * lay - gay * lax, gax * dy - gay * dx
+        else:  # right of the ray through G's second end
+            a, b = lax * gby - lay * gbx, dx * gby - dy * gbx
+        if b > 0.0:
+            lo = max(lo, -a / b)
+        elif b < 0.0:
+            hi = min(hi, -a / b)
+        elif a < 0.0:
+            return 0.0
+    # The band |n·(A + t·d) − off| <= δ around G's line.
     s0 = nx * lax + ny * lay - off
-    sd = nx * ldx + ny * ldy
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t1 = (-band_m - s0) / sd
-        t2 = (band_m - s0) / sd
-    lo = np.maximum(lo, np.minimum(t1, t2))
-    hi = np.minimum(hi, np.maximum(t1, t2))
-    paired = (hi > lo) & (np.abs(turn) > 1e-12)
+    sd = nx * dx + ny * dy
+    if sd == 0.0:
+        if abs(s0) > band_m:
+            return 0.0
+    else:
+        t1, t2 = (-band_m - s0) / sd, (band_m - s0) / sd
+        lo = max(lo, min(t1, t2))
+        hi = min(hi, max(t1, t2))
+    if hi <= lo:
+        return 0.0
 
-    cls_len = (hi - lo) * np.sqrt(ldx * ldx + ldy * ldy)
-    # Cgs: where the scanner rays through Cls's endpoints cross G's line.
-    q0x, q0y = lax + lo * ldx, lay + lo * ldy
-    q1x, q1y = lax + hi * ldx, lay + hi * ldy
-    with np.errstate(divide="ignore", invalid="ignore"):
-        k0 = off / (nx * q0x + ny * q0y)
-        k1 = off / (nx * q1x + ny * q1y)
-        cx, cy = k1 * q1x - k0 * q0x, k1 * q1y - k0 * q0y
-        cgs_len = np.sqrt(cx * cx + cy * cy)
-    total = np.where(paired & np.isfinite(cgs_len), cls_len + cgs_len, 0.0)
-    return total.sum(axis=1)
+    # Cls's ends, and where the scanner rays through them meet G's line (Cgs).
+    q0x, q0y = lax + lo * dx, lay + lo * dy
+    q1x, q1y = lax + hi * dx, lay + hi * dy
+    n_q0 = nx * q0x + ny * q0y
+    n_q1 = nx * q1x + ny * q1y
+    # |n·q| / |q| is the sine of the angle at which the ray through q meets G's line.
+    if n_q0 * n_q0 < sin2_min * (q0x * q0x + q0y * q0y) or n_q0 == 0.0:
+        return 0.0
+    if n_q1 * n_q1 < sin2_min * (q1x * q1x + q1y * q1y) or n_q1 == 0.0:
+        return 0.0
+    k0, k1 = off / n_q0, off / n_q1
+    cx, cy = k1 * q1x - k0 * q0x, k1 * q1y - k0 * q0y
+    return (hi - lo) * np.sqrt(dx * dx + dy * dy) + np.sqrt(cx * cx + cy * cy)
+
+
+@njit(cache=True)
+def _overlaps_kernel(g, loc, poses, pair_g, pair_l, band_m, sin2_min):
+    out = np.zeros(poses.shape[0])
+    for c in range(poses.shape[0]):
+        px, py = poses[c, 0], poses[c, 1]
+        cs, sn = np.cos(poses[c, 2]), np.sin(poses[c, 2])
+        total = 0.0
+        for k in range(pair_g.shape[0]):
+            m, n = pair_g[k], pair_l[k]
+            x1, y1 = g[m, 0] - px, g[m, 1] - py
+            x2, y2 = g[m, 2] - px, g[m, 3] - py
+            total += _pair_overlap(
+                cs * x1 + sn * y1,
+                cs * y1 - sn * x1,
+                cs * x2 + sn * y2,
+                cs * y2 - sn * x2,
+                loc[n, 0],
+                loc[n, 1],
+                loc[n, 2],
+                loc[n, 3],
+                band_m,
+                sin2_min,
+            )
+        out[c] = total
+    return out
 
 
 def overlap_at_poses(
@@ -111,6 +140,7 @@ def overlap_at_poses(
     poses: np.ndarray,
     band_m: float,
     pairs: tuple[np.ndarray, np.ndarray] | None = None,
+    min_incidence_deg: float = MIN_INCIDENCE_DEG,
 ) -> np.ndarray:
     """Overlap (C,) in metres of the local map (N, 4), robot frame, placed at each pose (C, 3).
 
@@ -118,18 +148,111 @@ def overlap_at_poses(
     half-width δ. ``pairs`` (global indices, local indices) limits the sum to
     those pairs; by default every pair is considered.
     """
-    poses = np.atleast_2d(np.asarray(poses, dtype=float))
-    g = np.asarray(segments_world, dtype=float).reshape(-1, 4)
-    loc = np.asarray(segments_robot, dtype=float).reshape(-1, 4)
+    poses = np.ascontiguousarray(np.atleast_2d(np.asarray(poses, dtype=float)))
+    g = np.ascontiguousarray(np.asarray(segments_world, dtype=float).reshape(-1, 4))
+    loc = np.ascontiguousarray(np.asarray(segments_robot, dtype=float).reshape(-1, 4))
     if pairs is None:
-        pair_g, pair_l = (
-            a.ravel() for a in np.meshgrid(np.arange(len(g)), np.arange(len(loc)), indexing="ij")
-        )
+        pair_g = np.repeat(np.arange(len(g)), len(loc))
+        pair_l = np.tile(np.arange(len(loc)), len(g))
     else:
-        pair_g, pair_l = pairs
-    if pair_g.size == 0:
-        return np.zeros(poses.shape[0])
-    return _pair_overlaps(g, poses, loc, pair_g, pair_l, band_m)
+        pair_g, pair_l = (np.asarray(a, dtype=np.int64) for a in pairs)
+    sin_min = float(np.sin(np.deg2rad(min_incidence_deg)))
+    return _overlaps_kernel(g, loc, poses, pair_g, pair_l, float(band_m), sin_min * sin_min)
+
+
+@njit(cache=True)
+def _point_segment_distance(px, py, x1, y1, x2, y2) -> float:
+    dx, dy = x2 - x1, y2 - y1
+    t = ((px - x1) * dx + (py - y1) * dy) / max(dx * dx + dy * dy, 1e-300)
+    t = min(max(t, 0.0), 1.0)
+    ex, ey = px - x1 - t * dx, py - y1 - t * dy
+    return np.sqrt(ex * ex + ey * ey)
+
+
+@njit(cache=True)
+def _segment_distance(a, b) -> float:
+    """Distance between segments a and b (4,), zero where they cross."""
+
+    def side(px, py, s):
+        return (s[2] - s[0]) * (py - s[1]) - (s[3] - s[1]) * (px - s[0])
+
+    if side(a[0], a[1], b) * side(a[2], a[3], b) <= 0.0 and (
+        side(b[0], b[1], a) * side(b[2], b[3], a) <= 0.0
+    ):
+        return 0.0
+    return min(
+        min(
+            _point_segment_distance(a[0], a[1], b[0], b[1], b[2], b[3]),
+            _point_segment_distance(a[2], a[3], b[0], b[1], b[2], b[3]),
+        ),
+        min(
+            _point_segment_distance(b[0], b[1], a[0], a[1], a[2], a[3]),
+            _point_segment_distance(b[2], b[3], a[0], a[1], a[2], a[3]),
+        ),
+    )
+
+
+@njit(cache=True)
+def _angular_interval(x1, y1, x2, y2):
+    """Centre and half-width (radians) of the angle a segment subtends at the origin."""
+    a = np.arctan2(y1, x1)
+    span = _wrap(np.arctan2(y2, x2) - a)
+    return _wrap(a + 0.5 * span), 0.5 * abs(span)
+
+
+@njit(cache=True)
+def _pairs_kernel(g, g_robot, loc, local_world, spread_m, spread_rad, band_m, sin_min):
+    n_local = loc.shape[0]
+    reach = np.empty(n_local)  # how far a local segment's points can move over the candidates
+    l_mid = np.empty(n_local)
+    l_half = np.empty(n_local)
+    radius = 0.0
+    for n in range(n_local):
+        r1 = np.sqrt(loc[n, 0] ** 2 + loc[n, 1] ** 2)
+        r2 = np.sqrt(loc[n, 2] ** 2 + loc[n, 3] ** 2)
+        reach[n] = spread_m + max(r1, r2) * spread_rad
+        radius = max(radius, max(r1, r2))
+        l_mid[n], l_half[n] = _angular_interval(loc[n, 0], loc[n, 1], loc[n, 2], loc[n, 3])
+    # A pairing piece lies within band / sin(min incidence) of G.
+    near = band_m / sin_min
+    reach_max = reach.max()
+
+    out_g = np.empty(g.shape[0] * n_local, dtype=np.int64)
+    out_l = np.empty(g.shape[0] * n_local, dtype=np.int64)
+    count = 0
+    for m in range(g.shape[0]):
+        gr = g_robot[m]
+        dist0 = _point_segment_distance(0.0, 0.0, gr[0], gr[1], gr[2], gr[3])
+        # Range: every local point is within `radius` of the scanner.
+        if dist0 > radius + near + reach_max + 1e-9:
+            continue
+        length = np.sqrt((g[m, 2] - g[m, 0]) ** 2 + (g[m, 3] - g[m, 1]) ** 2)
+        nx, ny = -(g[m, 3] - g[m, 1]) / length, (g[m, 2] - g[m, 0]) / length
+        off = nx * g[m, 0] + ny * g[m, 1]
+        # Sector: G's angular interval widens by how far a shift of spread_m
+        # and a turn of spread_rad can move its ends; a scanner that can reach
+        # G itself may see it from the other side.
+        r_ends = min(np.sqrt(gr[0] ** 2 + gr[1] ** 2), np.sqrt(gr[2] ** 2 + gr[3] ** 2))
+        if dist0 > spread_m:
+            widen = np.arcsin(min(spread_m / max(r_ends, 1e-12), 1.0))
+        else:
+            widen = np.pi
+        g_mid, g_half = _angular_interval(gr[0], gr[1], gr[2], gr[3])
+        for n in range(n_local):
+            lw = local_world[n]
+            limit = band_m + reach[n]
+            d1 = nx * lw[0] + ny * lw[1] - off
+            d2 = nx * lw[2] + ny * lw[3] - off
+            if (d1 > limit and d2 > limit) or (d1 < -limit and d2 < -limit):
+                continue  # stays outside the band
+            if abs(_wrap(g_mid - l_mid[n])) > g_half + widen + spread_rad + l_half[n] + 1e-9:
+                continue  # stays outside the sector
+            if _segment_distance(g[m], lw) > near + reach[n] + 1e-9:
+                continue  # too far from G for a piece seen at a steep enough incidence
+            out_g[count] = m
+            out_l[count] = n
+            count += 1
+    return out_g[:count], out_l[:count]
 
 
 def candidate_pairs(
@@ -139,76 +262,44 @@ def candidate_pairs(
     spread_m: float,
     spread_rad: float,
     band_m: float,
+    min_incidence_deg: float = MIN_INCIDENCE_DEG,
 ) -> tuple[np.ndarray, np.ndarray]:
     """The (global, local) index pairs that can overlap for some pose near ``centre``.
 
     Candidates lie within ``spread_m`` of the centre position and
     ``spread_rad`` of its heading. A pair is dropped only when it cannot
     contribute for any of them: the local segment stays outside the band of
-    the global segment's line, or outside its viewing sector. Pairs dropped
-    here would add exactly zero, so the overlap is unchanged.
+    the global segment's line, or outside its viewing sector, or farther from
+    the global segment than a pairing piece can be (a point within δ of G's
+    line, inside G's sector and seen at an incidence of at least the minimum,
+    lies within δ / sin(incidence) of G). Pairs dropped here would add
+    exactly zero, so the overlap is unchanged.
     """
-    g = np.asarray(segments_world, dtype=float)
-    loc = np.asarray(segments_robot, dtype=float)
-    # Band test in the world frame: how far each local endpoint can move.
-    local_world = transform_segments(loc, centre)
-    reach = spread_m + np.hypot(loc[:, 0::2], loc[:, 1::2]) * spread_rad  # (N, 2)
-    gl = np.hypot(g[:, 2] - g[:, 0], g[:, 3] - g[:, 1])
-    nx = -(g[:, 3] - g[:, 1]) / gl
-    ny = (g[:, 2] - g[:, 0]) / gl
-    off = nx * g[:, 0] + ny * g[:, 1]
-    d1 = (
-        nx[:, None] * local_world[None, :, 0] + ny[:, None] * local_world[None, :, 1] - off[:, None]
+    g = np.ascontiguousarray(np.asarray(segments_world, dtype=float).reshape(-1, 4))
+    loc = np.ascontiguousarray(np.asarray(segments_robot, dtype=float).reshape(-1, 4))
+    return _pairs_kernel(
+        g,
+        np.ascontiguousarray(transform_segments(g, centre.inverse())),
+        loc,
+        np.ascontiguousarray(transform_segments(loc, centre)),
+        float(spread_m),
+        float(spread_rad),
+        float(band_m),
+        float(np.sin(np.deg2rad(min_incidence_deg))),
     )
-    d2 = (
-        nx[:, None] * local_world[None, :, 2] + ny[:, None] * local_world[None, :, 3] - off[:, None]
-    )
-    limit1 = band_m + reach[None, :, 0]
-    limit2 = band_m + reach[None, :, 1]
-    outside = ((d1 > limit1) & (d2 > limit2)) | ((d1 < -limit1) & (d2 < -limit2))
-
-    # Sector test in the centre's robot frame: G's angular interval widens by
-    # how much a shift of spread_m and a turn of spread_rad can move its ends.
-    g_robot = transform_segments(g, centre.inverse())
-    r_ends = np.minimum(
-        np.hypot(g_robot[:, 0], g_robot[:, 1]), np.hypot(g_robot[:, 2], g_robot[:, 3])
-    )
-    widen = np.arcsin(np.minimum(spread_m / np.maximum(r_ends, 1e-12), 1.0))
-    # A scanner that can reach the segment itself may see it from the other side.
-    widen = np.where(_distance_to_origin(g_robot) > spread_m, widen, np.pi)
-    g_mid, g_half = _angular_interval(g_robot)
-    l_mid, l_half = _angular_interval(loc)
-    apart = np.abs(wrap_angle(g_mid[:, None] - l_mid[None, :]))
-    unseen = apart > (g_half + widen + spread_rad)[:, None] + l_half[None, :] + 1e-9
-
-    return np.nonzero(~(outside | unseen))
 
 
-def _distance_to_origin(segments: np.ndarray) -> np.ndarray:
-    """Distance (M,) from the origin to the closest point of each segment."""
-    p, d = segments[:, :2], segments[:, 2:] - segments[:, :2]
-    t = np.clip(-np.sum(p * d, axis=1) / np.maximum(np.sum(d * d, axis=1), 1e-300), 0.0, 1.0)
-    return np.hypot(p[:, 0] + t * d[:, 0], p[:, 1] + t * d[:, 1])
-
-
-def _angular_interval(segments: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Centre and half-width (radians) of the angle each segment subtends at the origin."""
-    a = np.arctan2(segments[:, 1], segments[:, 0])
-    b = np.arctan2(segments[:, 3], segments[:, 2])
-    half = 0.5 * np.abs(wrap_angle(b - a))
-    mid = wrap_angle(a + 0.5 * wrap_angle(b - a))
-    return mid, half
+# Unit offsets of the 27 candidates: 3×3 positions × 3 headings.
+_UNIT_OFFSETS = np.array(
+    [(i, j, k) for i in (-1.0, 0.0, 1.0) for j in (-1.0, 0.0, 1.0) for k in (-1.0, 0.0, 1.0)]
+)
 
 
 def candidate_poses(centre: Pose2, grid_m: float, dtheta_rad: float) -> np.ndarray:
     """The 27 candidates (27, 3) of one iteration: a 3×3 grid of spacing ``grid_m`` × 3 headings."""
-    offsets = np.array([-1.0, 0.0, 1.0])
-    ox, oy, ot = np.meshgrid(
-        offsets * grid_m, offsets * grid_m, offsets * dtheta_rad, indexing="ij"
-    )
-    return np.column_stack(
-        [centre.x + ox.ravel(), centre.y + oy.ravel(), wrap_angle(centre.theta + ot.ravel())]
-    )
+    poses = centre.as_array() + _UNIT_OFFSETS * np.array([grid_m, grid_m, dtheta_rad])
+    poses[:, 2] = wrap_angle(poses[:, 2])
+    return poses
 
 
 @dataclass(frozen=True)
@@ -273,7 +364,9 @@ def coarse_to_fine(
             estimate = Pose2(float(x), float(y), circular_mean(candidates[keep, 2], w))
         track.append(estimate.as_array())
         moved = track[-1] - track[-2]
-        still_moving = np.hypot(moved[0], moved[1]) > eta / 2 or abs(wrap_angle(moved[2])) > dtheta / 2
+        still_moving = (
+            np.hypot(moved[0], moved[1]) > eta / 2 or abs(wrap_angle(moved[2])) > dtheta / 2
+        )
         if repeats_left > 0 and best > 0 and still_moving:
             # The estimate left the central cell: search again at this scale
             # before refining, or the halved grid may no longer reach the pose.

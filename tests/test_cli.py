@@ -1,0 +1,701 @@
+"""The ``segloc`` command line as users run it.
+
+The contract: bad input or usage gets exactly one line on stderr, starting
+``segloc: error:`` and naming the file (and row) at fault, exit status 2 and
+no traceback; ``evaluate --fail-above-*`` exits 1 when a pose exceeds a limit.
+Error cases run ``segloc_cli.cli.main`` in-process (the console script's entry
+point); the end-to-end pipeline and ``--help`` run the installed console script.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import os
+import re
+import subprocess
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pytest
+from mcap.writer import Writer
+
+from segloc_cli.cli import main
+from segloc_cli.geometry import Pose2
+from segloc_cli.io.mcap_log import LogWriter, read_log
+from segloc_cli.scan import Scan
+
+REPO = Path(__file__).resolve().parents[1]
+HALL = REPO / "datasets" / "hall"
+HALL_WORLD = HALL / "world.json"
+HALL_POSES = HALL / "poses.csv"
+SEGLOC = Path(sys.executable).parent / "segloc"
+SEED = 2000
+
+ESTIMATE_HEADER = (
+    "pose_id,time_s,init_x_m,init_y_m,init_theta_deg,align_theta_deg,"
+    "x_m,y_m,theta_deg,overlap,n_local_segments,runtime_ms,status"
+)
+
+# Reina & Gonzalez (2000), Table 1: initial errors X (cm), Y (cm), θ (°) per pose,
+# surveyed minus initial guess.
+PAPER_INIT_ERRORS = {
+    1: (182.2, 36.0, -9.75),
+    2: (-63.7, 49.5, -15.6),
+    3: (-91.2, 168.5, 7.82),
+    4: (33.2, -131.8, -17.3),
+    5: (-10.9, -14.7, -19.9),
+    6: (47.2, -168.2, 14.1),
+    7: (16.2, 38.7, -6.71),
+    8: (74.4, -75.1, 16.4),
+    9: (-56.3, 18.1, 3.7),
+    10: (-46.5, -133.6, 0.5),
+}
+
+SURVEY_HEADER = "pose_id,time_s,x_m,y_m,theta_deg"
+
+
+# --------------------------------------------------------------------------- helpers
+
+
+@dataclass(frozen=True)
+class Result:
+    code: int
+    out: str
+    err: str
+
+
+def _exit_code(exc: SystemExit) -> int:
+    if exc.code is None:
+        return 0
+    return exc.code if isinstance(exc.code, int) else 1
+
+
+def run_cli(capsys, *args) -> Result:
+    """Run ``segloc ARGS`` in-process through the console entry point."""
+    argv = [str(a) for a in args]
+    capsys.readouterr()
+    try:
+        main(argv)
+        code = 0
+    except SystemExit as exc:
+        code = _exit_code(exc)
+    except Exception as exc:
+        pytest.fail(
+            f"`segloc {' '.join(argv)}` raised {type(exc).__name__}: {exc}; the user would "
+            "see a traceback instead of one 'segloc: error:' line and exit status 2"
+        )
+    captured = capsys.readouterr()
+    return Result(code, captured.out, captured.err)
+
+
+def run_script(*args, cwd: Path) -> Result:
+    """Run the installed ``segloc`` console script in a subprocess."""
+    assert SEGLOC.exists(), f"console script not installed at {SEGLOC}"
+    env = {**os.environ, "PYTHONIOENCODING": "utf-8"}
+    proc = subprocess.run(
+        [str(SEGLOC), *(str(a) for a in args)],
+        cwd=cwd,
+        env=env,
+        capture_output=True,
+        text=True,
+        encoding="utf-8",
+        timeout=120,
+        check=False,
+    )
+    return Result(proc.returncode, proc.stdout, proc.stderr)
+
+
+def assert_one_line_error(result: Result, *fragments: str) -> str:
+    """Exit status 2, no traceback, exactly one stderr line 'segloc: error: ...' with fragments."""
+    assert "Traceback" not in result.err, f"traceback on stderr:\n{result.err}"
+    lines = result.err.splitlines()
+    assert len(lines) == 1, f"expected one line on stderr, got {len(lines)}:\n{result.err}"
+    line = lines[0]
+    assert line.startswith("segloc: error:"), f"stderr line lacks 'segloc: error:': {line!r}"
+    assert result.code == 2, f"exit status {result.code}, expected 2 (bad input); stderr: {line}"
+    for fragment in fragments:
+        assert fragment in line, f"{fragment!r} is not named in the error: {line!r}"
+    return line
+
+
+def numbers_in(text: str) -> list[float]:
+    return [float(m) for m in re.findall(r"-?\d+(?:\.\d+)?", text)]
+
+
+def mentions_number(text: str, value: float) -> bool:
+    return any(math.isclose(v, value, abs_tol=1e-6) for v in numbers_in(text))
+
+
+def md_pose_rows(markdown: str) -> list[str]:
+    """Rows of a Markdown Table 1 that belong to a pose (first cell a pose id)."""
+    return [ln for ln in markdown.splitlines() if re.match(r"^\|\s*\d+\s*\|", ln)]
+
+
+def read_csv_rows(path: Path) -> tuple[list[str], list[dict[str, str]]]:
+    with open(path, newline="", encoding="utf-8") as stream:
+        reader = csv.DictReader(stream)
+        rows = list(reader)
+        return list(reader.fieldnames or []), rows
+
+
+def write_text(path: Path, text: str) -> Path:
+    path.write_text(text, encoding="utf-8")
+    return path
+
+
+def write_log_without_scan_topic(path: Path) -> Path:
+    """A valid MCAP file whose only channel is /chatter."""
+    with open(path, "wb") as stream:
+        writer = Writer(stream)
+        writer.start(profile="", library="test")
+        schema = writer.register_schema("std_msgs/String", "jsonschema", b'{"type":"object"}')
+        channel = writer.register_channel("/chatter", "json", schema)
+        for i in range(3):
+            t = (i + 1) * 1_000_000_000
+            writer.add_message(channel, log_time=t, data=b'{"data":"hello"}', publish_time=t)
+        writer.finish()
+    return path
+
+
+def setup_cli(*args) -> None:
+    """Run a command that prepares test files; fail loudly if it does not succeed."""
+    argv = [str(a) for a in args]
+    try:
+        main(argv)
+    except SystemExit as exc:
+        if _exit_code(exc) != 0:
+            pytest.fail(f"setup command `segloc {' '.join(argv)}` exited {exc.code}")
+
+
+@dataclass(frozen=True)
+class Small:
+    """A three-scan simulated run in the hall: the files the error cases start from."""
+
+    dir: Path
+    poses: Path
+    log: Path
+    survey: Path
+    map: Path
+    estimates: Path
+
+
+@pytest.fixture(scope="module")
+def small(tmp_path_factory) -> Small:
+    root = tmp_path_factory.mktemp("small")
+    lines = HALL_POSES.read_text(encoding="utf-8").splitlines()
+    assert lines[0] == SURVEY_HEADER
+    poses = write_text(root / "poses.csv", "\n".join(lines[:4]) + "\n")
+    sim = root / "sim"
+    log, survey = sim / "log.mcap", sim / "survey.csv"
+    setup_cli("simulate", HALL_WORLD, "--poses", poses, "--out", sim, "--seed", SEED)
+    setup_cli("map", "build", log, "--survey", survey, "--out", root / "map.json")
+    setup_cli("localize", log, "--map", HALL_WORLD, "--out", root / "est.csv")
+    return Small(
+        dir=root,
+        poses=poses,
+        log=log,
+        survey=survey,
+        map=root / "map.json",
+        estimates=root / "est.csv",
+    )
+
+
+# --------------------------------------------------------------------------- missing files
+
+# Each case builds the arguments from the fixture and a path that does not exist; the path
+# has a distinctive name so the test can check that the error names it.
+MISSING_FILE_CASES = {
+    "simulate-world": lambda s, m: ["simulate", m, "--poses", s.poses, "--out", s.dir / "o"],
+    "simulate-poses": lambda s, m: ["simulate", HALL_WORLD, "--poses", m, "--out", s.dir / "o"],
+    "map-build-log": lambda s, m: [
+        "map", "build", m, "--survey", s.survey, "--out", s.dir / "o.json"
+    ],
+    "map-build-survey": lambda s, m: [
+        "map", "build", s.log, "--survey", m, "--out", s.dir / "o.json"
+    ],
+    "localize-log": lambda s, m: ["localize", m, "--map", s.map, "--out", s.dir / "o.csv"],
+    "localize-map": lambda s, m: ["localize", s.log, "--map", m, "--out", s.dir / "o.csv"],
+    "evaluate-estimates": lambda s, m: ["evaluate", m, "--survey", s.survey],
+    "evaluate-survey": lambda s, m: ["evaluate", s.estimates, "--survey", m],
+    "info-log": lambda s, m: ["info", m],
+}  # fmt: skip
+
+
+@pytest.mark.parametrize("case", list(MISSING_FILE_CASES))
+def test_missing_file_is_one_line_naming_it(case, small, tmp_path, capsys):
+    missing = tmp_path / f"no-such-{case}.file"
+    result = run_cli(capsys, *MISSING_FILE_CASES[case](small, missing))
+    assert_one_line_error(result, missing.name)
+    assert result.out == "", f"nothing belongs on stdout after an error, got {result.out!r}"
+
+
+# --------------------------------------------------------------------------- garbage files
+
+
+@pytest.mark.parametrize(
+    "command",
+    [
+        lambda s, log: ["localize", log, "--map", s.map, "--out", s.dir / "o.csv"],
+        lambda s, log: ["map", "build", log, "--survey", s.survey, "--out", s.dir / "o.json"],
+        lambda s, log: ["info", log],
+    ],
+    ids=["localize", "map-build", "info"],
+)
+def test_text_file_given_as_log(command, small, tmp_path, capsys):
+    log = write_text(tmp_path / "notes-not-a-log.mcap", "pose 1 looked fine\n")
+    result = run_cli(capsys, *command(small, log))
+    line = assert_one_line_error(result, log.name)
+    assert "MCAP" in line, f"the error should say the file is not an MCAP log: {line!r}"
+
+
+@pytest.mark.parametrize(
+    "text",
+    [
+        '{"hello": "world"}\n',
+        "[[0, 0, 1, 1]]\n",
+        '{"format": "segloc-map", "version": 1, "segments": "walls"}\n',
+        '{"format": "segloc-map", "version": 1, "segments": [[0, 0, "x", 1]]}\n',
+        "this is not JSON\n",
+        '{"format": "segloc-map", "version": 1, "segments": [[0, 0, 1, 1]\n',
+    ],
+    ids=["no-format", "bare-list", "segments-not-list", "bad-coordinate", "text", "truncated"],
+)
+def test_json_that_is_not_a_map(text, small, tmp_path, capsys):
+    bad_map = write_text(tmp_path / "not-really-a-map.json", text)
+    out = tmp_path / "est.csv"
+    result = run_cli(capsys, "localize", small.log, "--map", bad_map, "--out", out)
+    assert_one_line_error(result, bad_map.name)
+    assert not out.exists(), "no estimates may be written when the map cannot be read"
+
+
+def test_map_given_as_world_to_simulate(small, tmp_path, capsys):
+    result = run_cli(capsys, "simulate", small.map, "--poses", small.poses, "--out", tmp_path / "o")
+    assert_one_line_error(result, small.map.name)
+
+
+def _survey_with_bad_value(path: Path) -> Path:
+    return write_text(
+        path,
+        f"{SURVEY_HEADER}\n1,1.0,11.0,1.6,90.0\n2,2.0,ten,3.6,125.0\n3,3.0,8.0,6.5,95.0\n",
+    )
+
+
+def _estimates_with_bad_value(source: Path, path: Path) -> Path:
+    lines = source.read_text(encoding="utf-8").splitlines()
+    fields = lines[2].split(",")
+    fields[ESTIMATE_HEADER.split(",").index("x_m")] = "n/a"
+    lines[2] = ",".join(fields)
+    return write_text(path, "\n".join(lines) + "\n")
+
+
+NON_NUMERIC_CASES = {
+    "simulate-poses": lambda s, bad: ["simulate", HALL_WORLD, "--poses", bad, "--out", s.dir / "o"],
+    "map-build-survey": lambda s, bad: [
+        "map", "build", s.log, "--survey", bad, "--out", s.dir / "o.json"
+    ],
+    "localize-initial": lambda s, bad: [
+        "localize", s.log, "--map", s.map, "--out", s.dir / "o.csv", "--initial", bad
+    ],
+    "evaluate-survey": lambda s, bad: ["evaluate", s.estimates, "--survey", bad],
+}  # fmt: skip
+
+
+@pytest.mark.parametrize("case", list(NON_NUMERIC_CASES))
+def test_non_numeric_csv_value_names_file_and_row(case, small, tmp_path, capsys):
+    bad = _survey_with_bad_value(tmp_path / f"typo-{case}.csv")
+    result = run_cli(capsys, *NON_NUMERIC_CASES[case](small, bad))
+    line = assert_one_line_error(result, bad.name, "row 2")
+    assert "x_m" in line, f"the error should name the column: {line!r}"
+
+
+def test_non_numeric_estimate_names_file_and_row(small, tmp_path, capsys):
+    bad = _estimates_with_bad_value(small.estimates, tmp_path / "edited-estimates.csv")
+    result = run_cli(capsys, "evaluate", bad, "--survey", small.survey)
+    assert_one_line_error(result, bad.name, "row 2", "x_m")
+
+
+def test_estimates_csv_missing_columns(small, tmp_path, capsys):
+    bad = write_text(tmp_path / "survey-not-estimates.csv", small.survey.read_text())
+    result = run_cli(capsys, "evaluate", bad, "--survey", small.survey)
+    assert_one_line_error(result, bad.name)
+
+
+# --------------------------------------------------------------------------- empty inputs
+
+
+def test_map_with_no_segments(small, tmp_path, capsys):
+    empty = write_text(
+        tmp_path / "empty-map.json",
+        '{"format":"segloc-map","version":1,"frame":"world","units":"m","segments":[]}\n',
+    )
+    out = tmp_path / "est.csv"
+    result = run_cli(capsys, "localize", small.log, "--map", empty, "--out", out)
+    line = assert_one_line_error(result, empty.name)
+    assert "segment" in line, f"the error should say the map has no segments: {line!r}"
+    assert not out.exists()
+
+
+@pytest.mark.parametrize(
+    "command",
+    [
+        lambda s, log: ["localize", log, "--map", s.map, "--out", s.dir / "o.csv"],
+        lambda s, log: ["map", "build", log, "--survey", s.survey, "--out", s.dir / "o.json"],
+        lambda s, log: ["info", log],
+    ],
+    ids=["localize", "map-build", "info"],
+)
+def test_log_without_scan_topic(command, small, tmp_path, capsys):
+    log = write_log_without_scan_topic(tmp_path / "chatter-only.mcap")
+    result = run_cli(capsys, *command(small, log))
+    line = assert_one_line_error(result, log.name, "/scan")
+    assert "/chatter" in line, f"the error should list the topics found: {line!r}"
+
+
+def _empty_scan(like: Scan, time_s: float, kind: str) -> Scan:
+    if kind == "all-zero":
+        return Scan(time_s, like.angles_rad.copy(), np.zeros_like(like.ranges_m), like.range_max_m)
+    return Scan(time_s, np.zeros(0), np.zeros(0), like.range_max_m)
+
+
+@pytest.mark.parametrize("kind", ["all-zero", "no-readings"])
+def test_scan_without_valid_readings_does_not_stop_the_batch(kind, small, tmp_path, capsys):
+    good = read_log(small.log)
+    log = tmp_path / "one-good-one-empty.mcap"
+    with LogWriter(log, good.sensor) as writer:
+        writer.add_scan(good.scans[0])
+        writer.add_scan(_empty_scan(good.scans[0], 2.0, kind))
+        for t, pose in zip(good.odom_times_s[:2], good.odom_poses[:2], strict=True):
+            writer.add_odom(float(t), Pose2(*pose))
+    assert len(read_log(log).scans) == 2
+
+    out = tmp_path / "est.csv"
+    result = run_cli(capsys, "localize", log, "--map", HALL_WORLD, "--out", out)
+    assert result.code == 0, f"exit status {result.code}; stderr: {result.err}"
+    assert "Traceback" not in result.err
+    header, rows = read_csv_rows(out)
+    assert ",".join(header) == ESTIMATE_HEADER
+    assert [float(r["time_s"]) for r in rows] == [1.0, 2.0], "one row per scan, in log order"
+    assert rows[0]["status"] == "ok", f"the good scan must still localize: {rows[0]}"
+    assert rows[1]["status"] not in ("ok", ""), f"the empty scan must get a status: {rows[1]}"
+    assert rows[1]["n_local_segments"] == "0"
+    assert rows[1]["x_m"] == rows[1]["y_m"] == rows[1]["theta_deg"] == "", (
+        f"a scan that could not be localized has no pose: {rows[1]}"
+    )
+
+    # The failed row is scored as a failure, and a gate counts it as a violation.
+    result = run_cli(capsys, "evaluate", out, "--survey", small.survey, "--format", "json")
+    assert result.code == 0, result.err
+    table = json.loads(result.out)
+    assert table["summary"]["n_poses"] == 2
+    assert table["summary"]["n_failed"] == 1
+    result = run_cli(capsys, "evaluate", out, "--survey", small.survey, "--fail-above-cm", 50)
+    assert result.code == 1, f"a failed pose must fail the gate; stderr: {result.err}"
+    assert "pose 2" in result.err and "pose 1" not in result.err, result.err
+
+
+# --------------------------------------------------------------------------- time matching
+
+
+def _shifted_survey(source: Path, path: Path, shift_s: float) -> Path:
+    header, rows = read_csv_rows(source)
+    lines = [",".join(header)]
+    for row in rows:
+        row["time_s"] = repr(float(row["time_s"]) + shift_s)
+        lines.append(",".join(row[c] for c in header))
+    return write_text(path, "\n".join(lines) + "\n")
+
+
+def test_map_build_survey_matching_no_scan(small, tmp_path, capsys):
+    shifted = _shifted_survey(small.survey, tmp_path / "shifted-survey.csv", 1000.0)
+    out = tmp_path / "map.json"
+    result = run_cli(capsys, "map", "build", small.log, "--survey", shifted, "--out", out)
+    line = assert_one_line_error(result, shifted.name)
+    for t in (1.0, 3.0, 1001.0, 1003.0):
+        assert mentions_number(line, t), f"the error should give both time ranges ({t}): {line!r}"
+    assert not out.exists()
+
+
+def test_evaluate_survey_matching_no_estimate(small, tmp_path, capsys):
+    shifted = _shifted_survey(small.survey, tmp_path / "shifted-survey.csv", 1000.0)
+    result = run_cli(capsys, "evaluate", small.estimates, "--survey", shifted)
+    assert "Traceback" not in result.err
+    assert result.code == 2, f"exit status {result.code}; stderr: {result.err}"
+    lines = result.err.splitlines()
+    assert len(lines) == 1 and lines[0].startswith("segloc: error:"), result.err
+    line = lines[0]
+    for t in (1.0, 3.0, 1001.0, 1003.0):
+        assert mentions_number(line, t), f"the error should give both time ranges ({t}): {line!r}"
+    assert shifted.name in line or small.estimates.name in line, (
+        f"the error must name the file at fault (the survey {shifted.name} or the estimates "
+        f"{small.estimates.name}), as every other bad-input error does: {line!r}"
+    )
+
+
+# --------------------------------------------------------------------------- option values
+
+BAD_OPTION_CASES = {
+    "vote": (
+        lambda s, out: ["localize", s.log, "--map", s.map, "--out", out, "--vote", "bogus"],
+        "--vote",
+    ),
+    "readings": (
+        lambda s, out: [
+            "simulate", HALL_WORLD, "--poses", s.poses, "--out", out, "--readings", "300"
+        ],
+        "--readings",
+    ),
+    "init-errors": (
+        lambda s, out: [
+            "simulate", HALL_WORLD, "--poses", s.poses, "--out", out, "--init-errors", "weird"
+        ],
+        "--init-errors",
+    ),
+    "init-errors-negative": (
+        lambda s, out: [
+            "simulate", HALL_WORLD, "--poses", s.poses, "--out", out,
+            "--init-errors", "uniform:-1,20",
+        ],
+        "--init-errors",
+    ),
+    "format": (
+        lambda s, out: [
+            "evaluate", s.estimates, "--survey", s.survey, "--out", out, "--format", "xml"
+        ],
+        "--format",
+    ),
+    "bin-deg": (
+        lambda s, out: ["localize", s.log, "--map", s.map, "--out", out, "--bin-deg", "7"],
+        "--bin-deg",
+    ),
+    "grid-m-negative": (
+        lambda s, out: ["localize", s.log, "--map", s.map, "--out", out, "--grid-m", "-0.5"],
+        "--grid-m",
+    ),
+    "grid-m-zero": (
+        lambda s, out: ["localize", s.log, "--map", s.map, "--out", out, "--grid-m", "0"],
+        "--grid-m",
+    ),
+}  # fmt: skip
+
+
+@pytest.mark.parametrize("case", list(BAD_OPTION_CASES))
+def test_bad_option_value(case, small, tmp_path, capsys):
+    command, option = BAD_OPTION_CASES[case]
+    out = tmp_path / "output-that-must-not-appear"
+    result = run_cli(capsys, *command(small, out))
+    assert_one_line_error(result, option)
+    assert not out.exists(), "a rejected command must not write its output"
+
+
+@pytest.mark.parametrize("args", [[], ["map"]], ids=["segloc", "segloc-map"])
+def test_missing_command(args, capsys):
+    result = run_cli(capsys, *args)
+    command = " ".join(["segloc", *args])
+    assert "Traceback" not in result.err
+    shows_help = result.code == 0 and "Usage:" in result.out and result.err == ""
+    one_line = (
+        result.code == 2
+        and len(result.err.splitlines()) == 1
+        and result.err.startswith("segloc: error:")
+    )
+    assert shows_help or one_line, (
+        f"`{command}` must either print its help on stdout and exit 0, or print "
+        f"one 'segloc: error:' line and exit 2; got exit {result.code} and stderr:\n{result.err}"
+    )
+
+
+def test_negative_time_in_poses(small, tmp_path, capsys):
+    poses = write_text(
+        tmp_path / "poses-negative-time.csv", f"{SURVEY_HEADER}\n1,-1.0,11.0,1.6,90.0\n"
+    )
+    result = run_cli(capsys, "simulate", HALL_WORLD, "--poses", poses, "--out", tmp_path / "o")
+    line = assert_one_line_error(result, poses.name, "row 1")
+    assert "time_s" in line, line
+
+
+# --------------------------------------------------------------------------- initial guesses
+
+
+def test_initial_odom_without_odom(small, tmp_path, capsys):
+    good = read_log(small.log)
+    log = tmp_path / "scans-only.mcap"
+    with LogWriter(log, good.sensor) as writer:
+        for scan in good.scans:
+            writer.add_scan(scan)
+    out = tmp_path / "est.csv"
+    result = run_cli(capsys, "localize", log, "--map", small.map, "--out", out)
+    line = assert_one_line_error(result, log.name, "/odom", "--initial")
+    assert "FILE" in line or ".csv" in line, f"the error should suggest a guess file: {line!r}"
+    assert not out.exists()
+
+
+def test_initial_file_covering_some_scans(small, tmp_path, capsys):
+    # Guesses for the first and third scans only, 20 cm and 3° off, with their own ids.
+    guesses = write_text(
+        tmp_path / "guesses.csv",
+        f"{SURVEY_HEADER}\n11,1.0,11.2,1.4,93.0\n13,3.0,8.2,6.3,98.0\n",
+    )
+    out = tmp_path / "est.csv"
+    result = run_cli(
+        capsys, "localize", small.log, "--map", HALL_WORLD, "--out", out, "--initial", guesses
+    )
+    assert result.code == 0, f"exit status {result.code}; stderr: {result.err}"
+    assert "Traceback" not in result.err
+    _, rows = read_csv_rows(out)
+    assert [float(r["time_s"]) for r in rows] == [1.0, 3.0], "only scans with a guess"
+    assert [r["pose_id"] for r in rows] == ["11", "13"], "pose_id comes from the guess file"
+    assert [float(r["init_x_m"]) for r in rows] == [11.2, 8.2]
+    assert all(r["status"] == "ok" for r in rows), rows
+    skipped = [ln for ln in result.err.splitlines() if "skipped" in ln]
+    assert skipped, f"stderr must report the skipped scans: {result.err!r}"
+    assert mentions_number(skipped[0], 1), f"one scan was skipped: {skipped[0]!r}"
+
+
+def test_initial_file_matching_no_scan(small, tmp_path, capsys):
+    guesses = write_text(tmp_path / "late-guesses.csv", f"{SURVEY_HEADER}\n1,500.0,11.0,1.6,90\n")
+    out = tmp_path / "est.csv"
+    result = run_cli(
+        capsys, "localize", small.log, "--map", small.map, "--out", out, "--initial", guesses
+    )
+    assert_one_line_error(result)
+    assert not out.exists()
+
+
+# --------------------------------------------------------------------------- end to end
+
+
+@dataclass(frozen=True)
+class Pipeline:
+    dir: Path
+    steps: dict[str, Result]
+    log: Path
+    survey: Path
+    map: Path
+    estimates: Path
+
+
+@pytest.fixture(scope="module")
+def hall(tmp_path_factory) -> Pipeline:
+    """simulate → map build → localize on the hall, through the installed console script."""
+    root = tmp_path_factory.mktemp("hall")
+    log, survey = Path("sim") / "log.mcap", Path("sim") / "survey.csv"
+    steps = {
+        "simulate": run_script(
+            "simulate", HALL_WORLD, "--poses", HALL_POSES, "--out", "sim", "--seed", SEED, cwd=root
+        ),
+        "map build": run_script(
+            "map", "build", log, "--survey", survey, "--out", "map.json", cwd=root
+        ),
+        "localize": run_script("localize", log, "--map", "map.json", "--out", "est.csv", cwd=root),
+    }
+    return Pipeline(root, steps, root / log, root / survey, root / "map.json", root / "est.csv")
+
+
+def test_pipeline_steps_succeed(hall):
+    for name, result in hall.steps.items():
+        assert result.code == 0, f"`segloc {name}` exited {result.code}; stderr:\n{result.err}"
+        assert "Traceback" not in result.err, result.err
+    for path in (hall.log, hall.survey, hall.map, hall.estimates):
+        assert path.is_file(), f"{path} was not written"
+    document = json.loads(hall.map.read_text(encoding="utf-8"))
+    assert document["format"] == "segloc-map"
+    assert len(document["segments"]) >= 4, "a map of the hall needs at least its outer walls"
+
+
+def test_pipeline_estimates_csv(hall):
+    header, rows = read_csv_rows(hall.estimates)
+    assert hall.estimates.read_text(encoding="utf-8").splitlines()[0] == ESTIMATE_HEADER
+    assert ",".join(header) == ESTIMATE_HEADER
+    assert [int(r["pose_id"]) for r in rows] == list(range(1, 11))
+    assert [float(r["time_s"]) for r in rows] == [float(i) for i in range(1, 11)]
+    assert [r["status"] for r in rows] == ["ok"] * 10
+
+
+def test_pipeline_evaluate_gate_passes(hall):
+    result = run_script(
+        "evaluate", hall.estimates, "--survey", hall.survey,
+        "--fail-above-cm", 2, "--fail-above-deg", 0.3,
+        cwd=hall.dir,
+    )  # fmt: skip
+    assert result.code == 0, f"the hall must pass a 2 cm / 0.3° gate; stderr:\n{result.err}"
+    assert "gate" not in result.err, result.err
+    assert "Traceback" not in result.err
+    assert len(md_pose_rows(result.out)) == 10, f"the table lists the 10 poses:\n{result.out}"
+
+
+def test_pipeline_evaluate_json_has_paper_initial_errors(hall):
+    result = run_script(
+        "evaluate", hall.estimates, "--survey", hall.survey, "--format", "json", cwd=hall.dir
+    )
+    assert result.code == 0, result.err
+    table = json.loads(result.out)
+    poses = {p["pose_id"]: p for p in table["poses"]}
+    assert sorted(poses) == list(range(1, 11))
+    for pose_id, (x_cm, y_cm, theta_deg) in PAPER_INIT_ERRORS.items():
+        row = poses[pose_id]
+        got = (row["init_x_cm"], row["init_y_cm"], row["init_theta_deg"])
+        assert got == pytest.approx((x_cm, y_cm, theta_deg), abs=0.01), (
+            f"pose {pose_id}: initial errors {got} differ from the paper's Table 1 "
+            f"{(x_cm, y_cm, theta_deg)}"
+        )
+        assert row["status"] == "ok"
+    assert table["summary"]["n_poses"] == 10
+    assert table["summary"]["n_failed"] == 0
+
+
+def test_pipeline_evaluate_gate_fails(hall):
+    result = run_script(
+        "evaluate", hall.estimates, "--survey", hall.survey, "--fail-above-cm", 0.001, cwd=hall.dir
+    )
+    assert result.code == 1, f"a 0.001 cm gate must fail; exit {result.code}, stderr:\n{result.err}"
+    assert "Traceback" not in result.err
+    assert re.search(r"\bpose (10|[1-9])\b", result.err), (
+        f"stderr must name a pose that exceeds the limit: {result.err!r}"
+    )
+    assert len(md_pose_rows(result.out)) == 10, f"the table is still printed:\n{result.out}"
+
+
+def test_gate_message_shows_the_limit_given(hall):
+    result = run_script(
+        "evaluate", hall.estimates, "--survey", hall.survey, "--fail-above-cm", 0.001, cwd=hall.dir
+    )
+    assert result.code == 1
+    violations = [ln for ln in result.err.splitlines() if "pose" in ln]
+    assert violations, result.err
+    for line in violations:
+        assert mentions_number(line, 0.001), (
+            f"a violation must show the limit the user gave (0.001 cm), not a rounded one: {line!r}"
+        )
+
+
+def test_info_counts_scans(hall):
+    result = run_script("info", hall.log, cwd=hall.dir)
+    assert result.code == 0, result.err
+    scan_lines = [ln for ln in result.out.splitlines() if ln.startswith("/scan")]
+    assert len(scan_lines) == 1, result.out
+    assert re.search(r"\b10 scans\b", scan_lines[0]), scan_lines[0]
+    assert re.search(r"\b1024 readings\b", scan_lines[0]), scan_lines[0]
+
+
+HELP_CASES = {
+    "simulate": ["--poses", "--out", "--readings", "--seed", "--init-errors", "WORLD.json"],
+    "map build": ["--survey", "--out", "--tolerance-ms", "LOG.mcap"],
+    "localize": ["--map", "--out", "--initial", "--vote", "--bin-deg", "--grid-m", "LOG.mcap"],
+    "evaluate": ["--survey", "--format", "--fail-above-cm", "--fail-above-deg", "EST.csv"],
+    "info": ["LOG.mcap"],
+    "map": ["build"],
+}
+
+
+@pytest.mark.parametrize("command", list(HELP_CASES))
+def test_help(command, tmp_path):
+    result = run_script(*command.split(), "--help", cwd=tmp_path)
+    assert result.code == 0, f"`segloc {command} --help` exited {result.code}: {result.err}"
+    assert result.err == "", result.err
+    assert result.out.startswith(f"Usage: segloc {command}"), result.out[:200]
+    for option in HELP_CASES[command]:
+        assert option in result.out, f"`segloc {command} --help` does not mention {option}"
