@@ -32,6 +32,22 @@ def circular_mean(angles_rad: np.ndarray, weights: np.ndarray | None = None) -> 
     return float(wrap_angle(mean))  # atan2 may return +π
 
 
+def heading_to_quaternion(theta_rad) -> np.ndarray:
+    """Headings (N,) radians → unit quaternions (N, 4) ``qx qy qz qw`` about +z."""
+    half = 0.5 * np.asarray(theta_rad, dtype=float)
+    zeros = np.zeros_like(half)
+    return np.stack([zeros, zeros, np.sin(half), np.cos(half)], axis=-1)
+
+
+def quaternion_to_heading(qx, qy, qz, qw) -> np.ndarray:
+    """Yaw (radians, [-pi, pi]) of quaternions given by components (any shape).
+
+    Uses the form that does not need the quaternion to be normalised.
+    """
+    qx, qy, qz, qw = (np.asarray(q, dtype=float) for q in (qx, qy, qz, qw))
+    return np.arctan2(2.0 * (qw * qz + qx * qy), qw * qw + qx * qx - qy * qy - qz * qz)
+
+
 @dataclass(frozen=True)
 class Pose2:
     """An SE(2) pose: position in metres, heading in radians, world frame."""

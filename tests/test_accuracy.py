@@ -31,12 +31,12 @@ POSITION_TOL_M = 0.02
 HEADING_TOL_DEG = 0.3
 
 
-def _trials(world, seed: int, params: LocalizeParams) -> np.ndarray:
+def _trials(world, seed: int, params: LocalizeParams, n: int = TRIALS_PER_WORLD) -> np.ndarray:
     """Final errors (n, 2): position in metres and |heading| in degrees."""
     rng = np.random.default_rng(seed)
     localizer = Localizer(world.segments, params)
-    truth = random_free_poses(world, TRIALS_PER_WORLD, rng)
-    errors = uniform_initial_errors(TRIALS_PER_WORLD, 1.9, 20.0, rng)
+    truth = random_free_poses(world, n, rng)
+    errors = uniform_initial_errors(n, 1.9, 20.0, rng)
     out = []
     for pose, err in zip(truth, errors, strict=True):
         true = Pose2(*pose)
@@ -79,3 +79,11 @@ def test_successful_trials_are_sub_centimetre(default_errors):
     ok = (all_errors[:, 0] < POSITION_TOL_M) & (all_errors[:, 1] < HEADING_TOL_DEG)
     assert np.median(all_errors[ok, 0]) < 0.005
     assert np.median(all_errors[ok, 1]) < 0.05
+
+
+def test_no_prior_heading_finds_the_heading_among_the_peaks():
+    """Whole-circle stage 1: the 180° twin and other peaks all go to stage 2, which picks."""
+    params = LocalizeParams(window_deg=None)
+    errors = np.concatenate([_trials(world, 77, params, n=30) for _, world in _worlds()])
+    ok = (errors[:, 0] < POSITION_TOL_M) & (errors[:, 1] < HEADING_TOL_DEG)
+    assert ok.mean() >= 0.95, f"success {ok.mean():.3f} without a prior heading"

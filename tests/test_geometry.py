@@ -45,7 +45,9 @@ def test_wrap_angle_arrays_and_whole_turns():
         np.testing.assert_allclose(wrap_angle(base + turns * 2 * PI), base, atol=1e-12)
     # 270° → −90°, −270° → 90°, 540° → −180°.
     np.testing.assert_allclose(
-        wrap_angle(np.deg2rad([270.0, -270.0, 540.0])), np.deg2rad([-90.0, 90.0, -180.0]), atol=1e-12
+        wrap_angle(np.deg2rad([270.0, -270.0, 540.0])),
+        np.deg2rad([-90.0, 90.0, -180.0]),
+        atol=1e-12,
     )
 
 

@@ -11,12 +11,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from segloc_cli.errors import InputError
+from segloc_cli.geometry import heading_to_quaternion, quaternion_to_heading
 from segloc_cli.io.tables import (
     ESTIMATE_COLUMNS,
     PoseTable,
-    heading_to_quaternion,
     nearest_by_time,
-    quaternion_to_heading,
     read_estimates,
     read_pose_table,
     write_estimates,

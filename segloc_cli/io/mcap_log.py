@@ -32,8 +32,7 @@ from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 
 from segloc_cli.errors import InputError
-from segloc_cli.geometry import Pose2, wrap_angle
-from segloc_cli.io.tables import heading_to_quaternion, quaternion_to_heading
+from segloc_cli.geometry import Pose2, heading_to_quaternion, quaternion_to_heading, wrap_angle
 from segloc_cli.scan import Scan, evenly_spaced_angles
 
 SCAN_TOPIC = "/scan"

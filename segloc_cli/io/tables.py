@@ -18,6 +18,7 @@ import numpy as np
 import pandas as pd
 
 from segloc_cli.errors import InputError
+from segloc_cli.geometry import heading_to_quaternion, quaternion_to_heading
 
 SURVEY_COLUMNS = ["pose_id", "time_s", "x_m", "y_m", "theta_deg"]
 
@@ -59,25 +60,6 @@ class PoseTable:
 
     def __len__(self) -> int:
         return len(self.pose_id)
-
-
-# --- quaternions (planar headings) --------------------------------------------
-
-
-def heading_to_quaternion(theta_rad) -> np.ndarray:
-    """Headings (N,) radians → unit quaternions (N, 4) ``qx qy qz qw`` about +z."""
-    half = 0.5 * np.asarray(theta_rad, dtype=float)
-    zeros = np.zeros_like(half)
-    return np.stack([zeros, zeros, np.sin(half), np.cos(half)], axis=-1)
-
-
-def quaternion_to_heading(qx, qy, qz, qw) -> np.ndarray:
-    """Yaw (radians, [-pi, pi]) of quaternions given by components (any shape).
-
-    Uses the form that does not need the quaternion to be normalised.
-    """
-    qx, qy, qz, qw = (np.asarray(q, dtype=float) for q in (qx, qy, qz, qw))
-    return np.arctan2(2.0 * (qw * qz + qx * qy), qw * qw + qx * qx - qy * qy - qz * qz)
 
 
 # --- time matching --------------------------------------------------------------
