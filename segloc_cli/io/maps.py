@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from segloc_cli.errors import InputError
+from segloc_cli.io.files import reading
 
 MAP_FORMAT = "segloc-map"
 WORLD_FORMAT = "segloc-world"
@@ -147,16 +148,8 @@ def _write_json(path: str | Path, document: dict) -> None:
 
 def _read_json(path: str | Path) -> dict:
     path = Path(path)
-    try:
+    with reading(path, "a JSON map or world file"):
         text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise InputError("file not found; check the path", path=path) from None
-    except IsADirectoryError:
-        raise InputError("is a directory, expected a JSON file", path=path) from None
-    except UnicodeDecodeError:
-        raise InputError("not a text file; expected a JSON map or world", path=path) from None
-    except OSError as exc:
-        raise InputError(f"cannot read file ({exc.strerror})", path=path) from None
     try:
         document = json.loads(text)
     except json.JSONDecodeError as exc:

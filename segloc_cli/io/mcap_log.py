@@ -33,6 +33,7 @@ from mcap.writer import CompressionType, Writer
 
 from segloc_cli.errors import InputError
 from segloc_cli.geometry import Pose2, heading_to_quaternion, quaternion_to_heading, wrap_angle
+from segloc_cli.io.files import reading
 from segloc_cli.scan import Scan, evenly_spaced_angles
 
 SCAN_TOPIC = "/scan"
@@ -413,14 +414,8 @@ def read_log(path: str | Path) -> LogContents:
     valid JSON or lacks fields (messages counted from 1 per topic).
     """
     path = Path(path)
-    try:
+    with reading(path, "an MCAP log file"):
         stream = open(path, "rb")
-    except FileNotFoundError:
-        raise InputError("file not found; check the path", path=path) from None
-    except IsADirectoryError:
-        raise InputError("is a directory, expected an MCAP log file", path=path) from None
-    except OSError as exc:
-        raise InputError(f"cannot read file ({exc.strerror})", path=path) from None
 
     channels: dict[int, Channel] = {}
     sensor: dict[str, str] = {}

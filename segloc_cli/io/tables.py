@@ -19,6 +19,7 @@ import pandas as pd
 
 from segloc_cli.errors import InputError
 from segloc_cli.geometry import heading_to_quaternion, quaternion_to_heading
+from segloc_cli.io.files import reading
 
 SURVEY_COLUMNS = ["pose_id", "time_s", "x_m", "y_m", "theta_deg"]
 
@@ -105,17 +106,9 @@ def nearest_by_time(query_times_s, ref_times_s, tolerance_s: float) -> np.ndarra
 
 
 def _read_text(path: Path) -> str:
-    try:
+    with reading(path, "a CSV or TUM table"):
         # utf-8-sig drops the byte-order mark some spreadsheets write.
         return path.read_text(encoding="utf-8-sig")
-    except FileNotFoundError:
-        raise InputError("file not found; check the path", path=path) from None
-    except IsADirectoryError:
-        raise InputError("is a directory, expected a table file", path=path) from None
-    except UnicodeDecodeError:
-        raise InputError("not a text file; expected a CSV or TUM table", path=path) from None
-    except OSError as exc:
-        raise InputError(f"cannot read file ({exc.strerror})", path=path) from None
 
 
 def _read_csv_rows(path: Path, text: str) -> tuple[list[str], list[tuple[int, list[str]]]]:

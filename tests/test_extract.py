@@ -1,0 +1,318 @@
+"""Local-map extraction on ray-cast scans of hand-made scenes."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from segloc_cli.extract import ExtractParams, breakpoints, extract_segments, fit_line, line_residuals
+from segloc_cli.geometry import Pose2, transform_segments
+from segloc_cli.scan import Scan
+from segloc_cli.sim import beam_angles, cast_rays
+
+# An 8 m × 8 m room centred on the origin: walls x = ±4 and y = ±4.
+ROOM = np.array([[-4, -4, 4, -4], [4, -4, 4, 4], [4, 4, -4, 4], [-4, 4, -4, -4]], dtype=float)
+WALL_LINES = {"x=4": (0, 4.0), "x=-4": (0, -4.0), "y=4": (1, 4.0), "y=-4": (1, -4.0)}
+
+# The scanner at (0.3, −0.2), turned so that beam 0 points just past the corner (4, 4)
+# (by a quarter of the 1024-beam step): the scan starts on the wall y = 4 next to the
+# corner and ends on the wall x = 4 next to it, so no wall crosses the angle 0 seam.
+CORNER_POSE = Pose2(0.3, -0.2, float(np.arctan2(4.0 + 0.2, 4.0 - 0.3) + np.pi / 2048))
+# The same spot facing +x: beam 0 hits the wall x = 4 in its middle, at y = −0.2.
+MIDWALL_POSE = Pose2(0.3, -0.2, 0.0)
+
+
+def scan_of(world: np.ndarray, pose: Pose2, readings: int = 1024, range_max: float = 30.0):
+    """A noise-free 360° scan of ``world`` from ``pose`` (beam i at 2π·i/readings)."""
+    angles = beam_angles(readings)
+    ranges = cast_rays(world, [pose.x, pose.y], pose.theta + angles)
+    return Scan(0.0, angles, ranges, range_max)
+
+
+def hits_world(scan: Scan, pose: Pose2) -> np.ndarray:
+    """The valid readings of ``scan`` as world points (K, 2)."""
+    return transform_segments(np.hstack([scan.points(), scan.points()]), pose)[:, :2]
+
+
+def wall_of(points: np.ndarray, tol: float) -> list[str | None]:
+    """The room wall each point lies on (within ``tol``), or None."""
+    names = []
+    for p in np.atleast_2d(points):
+        on = [name for name, (axis, value) in WALL_LINES.items() if abs(p[axis] - value) < tol]
+        names.append(on[0] if len(on) == 1 else ("corner" if on else None))
+    return names
+
+
+def along(points: np.ndarray, wall: str) -> np.ndarray:
+    """Coordinate of points along ``wall`` (y for the x = ±4 walls, x for the others)."""
+    axis, _ = WALL_LINES[wall]
+    return np.atleast_2d(points)[:, 1 - axis]
+
+
+def assert_segments_on_room_walls(segs_world: np.ndarray, tol: float) -> dict[str, np.ndarray]:
+    """Every segment lies along one wall within ``tol``; returns the segments per wall."""
+    per_wall: dict[str, list[np.ndarray]] = {name: [] for name in WALL_LINES}
+    for s in segs_world:
+        ends = s.reshape(2, 2)
+        candidates = [
+            name
+            for name, (axis, value) in WALL_LINES.items()
+            if np.all(np.abs(ends[:, axis] - value) < tol)
+        ]
+        assert len(candidates) == 1, f"segment {s} does not lie along one wall (±{tol} m)"
+        per_wall[candidates[0]].append(s)
+    return {k: np.array(v).reshape(-1, 4) for k, v in per_wall.items()}
+
+
+# --- noise-free square room -------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("readings", [256, 1024, 2048])
+def test_square_room_gives_four_segments_on_the_walls(readings):
+    scan = scan_of(ROOM, CORNER_POSE, readings)
+    segs = extract_segments(scan)
+    assert segs.shape == (4, 4)
+    world = transform_segments(segs, CORNER_POSE)
+    per_wall = assert_segments_on_room_walls(world, tol=1e-3)
+    hits = hits_world(scan, CORNER_POSE)
+    hit_walls = np.array(wall_of(hits, 1e-9), dtype=object)
+    for name, s in per_wall.items():
+        assert s.shape == (1, 4), f"wall {name}: {s.shape[0]} segments"
+        lo, hi = np.sort(along(s.reshape(2, 2), name))
+        # Spans every beam that hit this wall (the corners count for both walls) ...
+        on_wall = hits[(hit_walls == name) | (hit_walls == "corner")]
+        assert lo <= along(on_wall, name).min() + 1e-3
+        assert hi >= along(on_wall, name).max() - 1e-3
+        # ... and stays within the wall.
+        assert lo >= -4.0 - 1e-3
+        assert hi <= 4.0 + 1e-3
+        # The beam spacing near a corner, ≈ r·Δφ/cos 45° ≤ 5.7·(2π/256)·√2 ≈ 0.2 m at 256
+        # readings, is all that can be missing at each end.
+        gap = 5.7 * (2 * np.pi / readings) * np.sqrt(2)
+        assert hi - lo >= 8.0 - 2 * gap
+
+
+def test_missing_beams_shorten_only_their_wall():
+    scan = scan_of(ROOM, CORNER_POSE)
+    hits = hits_world(scan, CORNER_POSE)
+    ranges = scan.ranges_m.copy()
+    # No return from the wall x = 4 above y = 1.5.
+    lost = (np.abs(hits[:, 0] - 4.0) < 1e-9) & (hits[:, 1] > 1.5)
+    assert lost.sum() > 50
+    ranges[lost] = np.inf
+    last_seen = hits[(np.abs(hits[:, 0] - 4.0) < 1e-9) & (hits[:, 1] <= 1.5), 1].max()
+    segs = extract_segments(Scan(0.0, scan.angles_rad, ranges, scan.range_max_m))
+    per_wall = assert_segments_on_room_walls(transform_segments(segs, CORNER_POSE), 1e-3)
+    assert all(s.shape == (1, 4) for s in per_wall.values())
+    top = np.sort(per_wall["x=4"][0, [1, 3]])
+    # The wall x = 4 is now seen from its bottom corner up to the last beam below 1.5 m.
+    assert top[1] == pytest.approx(last_seen, abs=1e-3)
+    assert top[0] < -3.9
+    # The wall y = 4 still reaches the corner (4, 4) it shares with the lost part.
+    assert per_wall["y=4"][0, [0, 2]].max() > 3.9
+
+
+def test_invalid_readings_are_dropped():
+    scan = scan_of(ROOM, CORNER_POSE, range_max=10.0)
+    clean = extract_segments(scan)
+    ranges = scan.ranges_m.copy()
+    # Readings in the middle of the walls (beams 100, 300, … are far from every corner):
+    # zero, negative, NaN, +inf, exactly range_max and beyond it.
+    bad = {100: 0.0, 101: -1.0, 300: np.nan, 500: np.inf, 501: np.inf, 700: 10.0, 900: 12.5}
+    for i, value in bad.items():
+        ranges[i] = value
+    dirty = Scan(0.0, scan.angles_rad, ranges, 10.0)
+    assert dirty.valid.sum() == len(ranges) - len(bad)
+    segs = extract_segments(dirty)
+    # Dropping interior points of exactly collinear readings changes no line and no end.
+    assert segs.shape == clean.shape
+    np.testing.assert_allclose(segs, clean, atol=1e-9)
+
+
+def test_too_few_valid_readings_give_an_empty_map():
+    # Six beams 5° apart on the wall x = 2, nothing else: exactly min_points (6) readings.
+    angles = np.deg2rad(np.arange(-12.5, 13.0, 5.0))
+    ranges = 2.0 / np.cos(angles)
+    segs = extract_segments(Scan(0.0, angles, ranges))
+    # One segment from (2, 2·tan(−12.5°)) to (2, 2·tan(12.5°)).
+    t = 2.0 * np.tan(np.deg2rad(12.5))
+    assert segs.shape == (1, 4)
+    ends = segs.reshape(2, 2)[np.argsort(segs.reshape(2, 2)[:, 1])]
+    np.testing.assert_allclose(ends, [[2.0, -t], [2.0, t]], atol=1e-12)
+    # One of them invalid: five valid readings < min_points → empty (0, 4) map.
+    for bad in (0.0, np.nan, np.inf):
+        short = ranges.copy()
+        short[2] = bad
+        empty = extract_segments(Scan(0.0, angles, short))
+        assert empty.shape == (0, 4)
+    # Nothing valid at all, and no readings at all.
+    assert extract_segments(Scan(0.0, angles, np.full(6, np.inf))).shape == (0, 4)
+    assert extract_segments(Scan(0.0, np.zeros(0), np.zeros(0))).shape == (0, 4)
+    # min_points is the setting that decides.
+    assert extract_segments(Scan(0.0, angles, ranges), ExtractParams(min_points=7)).shape == (
+        0,
+        4,
+    )
+
+
+# --- breakpoints ------------------------------------------------------------------------------
+
+
+def test_breakpoint_splits_walls_at_different_depths():
+    # Robot frame. Near wall y = 2 for x ∈ [−1, 0.5]; far wall y = 4 for x ∈ [−3.5, −1.5],
+    # hidden behind the near one up to the ray through (−1, 2), i.e. visible for
+    # x ∈ [−3.5, −2]. The scan jumps from (−1, 2) to (−2, 4): 2.2 m at 2 m range with
+    # 0.35° beam spacing is a breakpoint.
+    walls = np.array([[0.5, 2.0, -1.0, 2.0], [-1.5, 4.0, -3.5, 4.0]])
+    scan = scan_of(walls, Pose2(0.0, 0.0, 0.0))
+    valid = scan.valid
+    r, a = scan.ranges_m[valid], scan.angles_rad[valid]
+    breaks = breakpoints(r, a, ExtractParams())
+    assert breaks.shape == (valid.sum() - 1,)
+    (where,) = np.flatnonzero(breaks)
+    assert r[where] == pytest.approx(2.0 / np.sin(a[where]), abs=1e-9)  # last on the near wall
+    assert r[where + 1] == pytest.approx(4.0 / np.sin(a[where + 1]), abs=1e-9)  # first far
+    segs = extract_segments(scan)
+    assert segs.shape == (2, 4)
+    near = segs[np.abs(segs[:, 1] - 2.0) < 1e-3]
+    far = segs[np.abs(segs[:, 1] - 4.0) < 1e-3]
+    assert near.shape == (1, 4)
+    assert far.shape == (1, 4)
+    np.testing.assert_allclose(near[0, [1, 3]], [2.0, 2.0], atol=1e-9)
+    np.testing.assert_allclose(far[0, [1, 3]], [4.0, 4.0], atol=1e-9)
+    # Spans: near from just inside x = 0.5 to the occluding edge x = −1; far from the
+    # shadow edge x = −2 to just inside x = −3.5 (one beam ≤ 0.35°·4 m/sin 45° away).
+    assert np.sort(near[0, [0, 2]]) == pytest.approx([-1.0, 0.5], abs=0.02)
+    assert np.sort(far[0, [0, 2]]) == pytest.approx([-3.5, -2.0], abs=0.04)
+
+
+def test_square_room_has_no_breakpoints():
+    # Corners are continuous surfaces: neighbouring readings across them are close.
+    scan = scan_of(ROOM, CORNER_POSE)
+    assert not breakpoints(scan.ranges_m, scan.angles_rad, ExtractParams()).any()
+
+
+def test_missing_readings_across_a_doorway_break_the_wall():
+    # Robot frame: a wall y = 2 with a 0.6 m doorway at x ∈ [−0.3, 0.3] opening on nothing
+    # (no return). The two pieces are collinear, but the opening spans 17° of beams that
+    # saw no wall: they are two segments, not one wall across the doorway.
+    walls = np.array([[2.0, 2.0, 0.3, 2.0], [-0.3, 2.0, -2.0, 2.0]])
+    segs = extract_segments(scan_of(walls, Pose2(0.0, 0.0, 0.0)))
+    xs = np.sort(segs[:, [0, 2]], axis=1)
+    bridges = (xs[:, 0] < -0.3 + 1e-3) & (xs[:, 1] > 0.3 - 1e-3)
+    assert not bridges.any(), (
+        f"extracted {segs.tolist()}: a segment spans the doorway x ∈ [−0.3, 0.3] where no "
+        "beam returned. breakpoints() never breaks when the angle between consecutive valid "
+        "readings reaches the incidence λ (sin(λ − Δφ) is clamped to 1e-9, so the allowed gap "
+        "is huge); a gap of Δφ ≥ λ should count as a breakpoint"
+    )
+    assert segs.shape == (2, 4)
+
+
+# --- the 360° seam ----------------------------------------------------------------------------
+
+BOX = np.array(
+    [[-2.5, -0.5, -1.5, -0.5], [-1.5, -0.5, -1.5, 0.5], [-1.5, 0.5, -2.5, 0.5], [-2.5, 0.5, -2.5, -0.5]]
+)
+
+
+def test_wrap_joins_the_wall_crossing_angle_zero():
+    # Room with a box behind the robot (its shadow makes breakpoints elsewhere). Beam 0
+    # points along +x and hits the wall x = 4 at y = −0.2: the first and last readings of the
+    # scan are neighbours on that wall, which must come out as one segment.
+    scan = scan_of(np.vstack([ROOM, BOX]), MIDWALL_POSE)
+    segs = transform_segments(extract_segments(scan), MIDWALL_POSE)
+    on_front = segs[np.all(np.abs(segs[:, [0, 2]] - 4.0) < 1e-3, axis=1)]
+    assert on_front.shape == (1, 4)
+    lo, hi = np.sort(on_front[0, [1, 3]])
+    assert lo < -3.9
+    assert hi > 3.9
+
+
+def test_wrap_joins_the_wall_crossing_angle_zero_in_an_unbroken_scan():
+    # The plain room from the same spot: no breakpoint anywhere, the whole scan is one
+    # closed chain. The wall x = 4 still crosses the seam at beam 0.
+    scan = scan_of(ROOM, MIDWALL_POSE)
+    segs = transform_segments(extract_segments(scan), MIDWALL_POSE)
+    on_front = segs[np.all(np.abs(segs[:, [0, 2]] - 4.0) < 1e-3, axis=1)]
+    assert on_front.shape == (1, 4), (
+        f"the wall x = 4 came out as {on_front.shape[0]} segments {on_front.tolist()}: with no "
+        "breakpoint, _chains returns the single run [0, n) and never joins it across the "
+        "seam, so the wall crossing beam 0 is split at beam 0 (or loses its short end)"
+    )
+    assert segs.shape == (4, 4)
+
+
+# --- line fit ---------------------------------------------------------------------------------
+
+
+def test_fit_line_exact_on_collinear_points():
+    # y = 0.5·x + 1 at x = −2, 0, 1, 5: centroid (1, 1.5), direction ±(2, 1)/√5.
+    x = np.array([-2.0, 0.0, 1.0, 5.0])
+    pts = np.column_stack([x, 0.5 * x + 1.0])
+    centroid, direction = fit_line(pts)
+    np.testing.assert_allclose(centroid, [1.0, 1.5], atol=1e-15)
+    assert abs(direction @ np.array([2.0, 1.0]) / np.sqrt(5.0)) == pytest.approx(1.0, abs=1e-15)
+    assert np.linalg.norm(direction) == pytest.approx(1.0, abs=1e-15)
+    np.testing.assert_allclose(line_residuals(pts, centroid, direction), 0.0, atol=1e-14)
+    # Vertical and horizontal lines.
+    c, d = fit_line(np.array([[3.0, -1.0], [3.0, 0.0], [3.0, 4.0]]))
+    np.testing.assert_allclose(c, [3.0, 1.0], atol=1e-15)
+    np.testing.assert_allclose(np.abs(d), [0.0, 1.0], atol=1e-15)
+    c, d = fit_line(np.array([[-1.0, 2.0], [0.5, 2.0], [7.0, 2.0]]))
+    np.testing.assert_allclose(c, [6.5 / 3.0, 2.0], atol=1e-15)
+    np.testing.assert_allclose(np.abs(d), [1.0, 0.0], atol=1e-15)
+
+
+def test_fit_line_is_total_least_squares():
+    # Points (±1, ±0.1) on a rectangle: principal axis x, residuals 0.1 each.
+    pts = np.array([[-1.0, 0.1], [1.0, 0.1], [1.0, -0.1], [-1.0, -0.1]])
+    c, d = fit_line(pts)
+    np.testing.assert_allclose(c, [0.0, 0.0], atol=1e-15)
+    np.testing.assert_allclose(np.abs(d), [1.0, 0.0], atol=1e-15)
+    np.testing.assert_allclose(line_residuals(pts, c, d), 0.1, atol=1e-15)
+
+
+# --- noise ------------------------------------------------------------------------------------
+
+
+def noisy_room_scan(seed: int) -> Scan:
+    scan = scan_of(ROOM, CORNER_POSE)
+    rng = np.random.default_rng(seed)
+    ranges = scan.ranges_m + rng.normal(0.0, 0.012, scan.ranges_m.shape)  # σ = 1.2 cm
+    return Scan(0.0, scan.angles_rad, ranges, scan.range_max_m)
+
+
+def test_noisy_room_segment_ends_within_a_few_cm():
+    for seed in range(20):
+        world = transform_segments(extract_segments(noisy_room_scan(seed)), CORNER_POSE)
+        assert 4 <= world.shape[0] <= 5
+        ends = world.reshape(-1, 2)
+        # Every end within 3 cm of a wall line, and within the room (+3 cm).
+        dist = np.min(np.abs(np.abs(ends) - 4.0), axis=1)
+        assert dist.max() < 0.03, f"seed {seed}: an end {dist.max():.3f} m off the walls"
+        assert np.abs(ends).max() < 4.03
+        # Each wall is covered along its length to within 10 cm of both corners.
+        for name, (axis, value) in WALL_LINES.items():
+            on = world[np.all(np.abs(world[:, [axis, axis + 2]] - value) < 0.03, axis=1)]
+            assert on.shape[0] >= 1, f"seed {seed}: nothing on wall {name}"
+            span = along(on.reshape(-1, 2), name)
+            assert span.min() < -3.9
+            assert span.max() > 3.9
+
+
+def test_noisy_room_gives_one_segment_per_wall():
+    # σ = 1.2 cm is the paper's scanner; the split tolerance is 5 cm (> 4σ). Yet at a
+    # corner the split point is shared by both pieces, so a piece of one wall carries the
+    # first reading of the next wall; that reading, a few cm off the line, blocks the merge
+    # and tilts the refit.
+    split = []
+    for seed in range(20):
+        segs = extract_segments(noisy_room_scan(seed))
+        if segs.shape[0] != 4:
+            split.append((seed, segs.shape[0]))
+    assert not split, (
+        f"(seed, segments) {split}: a wall came out in two pieces, one of them holding the "
+        "neighbouring wall's corner reading. The split point shared by two pieces should "
+        "not take part in the merge test and the refit of the piece it does not fit"
+    )
