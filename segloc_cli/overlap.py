@@ -21,7 +21,8 @@ breakpoint detector splits them), so such pairs are no evidence.
 Everything is computed in the candidate's robot frame, where the scanner is at
 the origin. L is parametrised as A + t·(B − A), t ∈ [0, 1]; the two sector
 rays and the two band edges are each a linear inequality in t, so Cls is an
-interval of t found without branching, for all candidates × G × L at once.
+interval of t. A cheap, exact pre-filter first drops the pairs that cannot
+overlap for any candidate of an iteration, which is what keeps large maps fast.
 """
 
 from __future__ import annotations
@@ -307,9 +308,9 @@ class OverlapResult:
     """Outcome of the coarse-to-fine search.
 
     ``pose`` is the final estimate (world frame), ``overlap_m`` the overlap at
-    it with the last iteration's band, ``track`` (K + 1, 3) the estimate
-    before the first and after every iteration, ``best_overlaps_m`` (K,)
-    the best candidate overlap of every iteration.
+    it with the last iteration's band, ``track`` (I + 1, 3) the estimate
+    before the first and after each of the I iterations run (I = K without
+    re-centring), ``best_overlaps_m`` (I,) the best candidate overlap of each.
     """
 
     pose: Pose2

@@ -428,7 +428,7 @@ def read_log(path: str | Path) -> LogContents:
         if stream.read(len(MCAP_MAGIC)) != MCAP_MAGIC:
             raise InputError(
                 "not an MCAP file (it does not start with the MCAP magic bytes); expected a "
-                "log written by `segloc record`, `simulate` or `import`",
+                "segloc log such as `segloc simulate` writes",
                 path=path,
             )
         stream.seek(0)
