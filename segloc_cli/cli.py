@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import io
 import sys
 import time
 from dataclasses import asdict
@@ -20,6 +21,7 @@ PROGRESS_MIN_SCANS = 20
 
 EXIT_GATE_FAILED = 1
 EXIT_BAD_INPUT = 2
+EXIT_INTERRUPTED = 130
 
 
 def _warn(message: str) -> None:
@@ -430,6 +432,8 @@ def localize(
     Writes one row per scan; a scan that yields too few segments gets a
     status instead of a pose, and the batch goes on.
     """
+    import pandas as pd
+
     from segloc_cli.io.tables import write_estimates, write_tum
     from segloc_cli.localize import LocalizeParams, Localizer, localize_scans
 
@@ -465,12 +469,23 @@ def localize(
         )
 
     t0 = time.perf_counter()
-    if len(scans) >= PROGRESS_MIN_SCANS:
-        with click.progressbar(length=len(scans), label="localizing", file=sys.stderr) as bar:
-            frame = localize_scans(scans, poses, ids, localizer, progress=bar.update)
-    else:
-        frame = localize_scans(scans, poses, ids, localizer)
+    rows = []
+    try:
+        with click.progressbar(
+            localize_scans(scans, poses, ids, localizer),
+            length=len(scans),
+            label="localizing",
+            file=sys.stderr if len(scans) >= PROGRESS_MIN_SCANS else io.StringIO(),
+        ) as bar:
+            rows.extend(bar)
+    except KeyboardInterrupt:
+        if rows:
+            write_estimates(out_path, pd.DataFrame(rows))
+        kept = f"their estimates are in {out_path}" if rows else "nothing was written"
+        click.echo(f"segloc: interrupted after {len(rows)} of {len(scans)} scans; {kept}", err=True)
+        sys.exit(EXIT_INTERRUPTED)
     elapsed = time.perf_counter() - t0
+    frame = pd.DataFrame(rows)
     write_estimates(out_path, frame)
     if tum_path is not None:
         write_tum(tum_path, frame)
@@ -592,7 +607,7 @@ def main(argv: list[str] | None = None) -> None:
         cli.main(args=argv, prog_name="segloc", standalone_mode=False)
     except click.exceptions.Abort:
         click.echo("segloc: aborted", err=True)
-        sys.exit(130)
+        sys.exit(EXIT_INTERRUPTED)
     except click.ClickException as exc:
         no_args = getattr(click.exceptions, "NoArgsIsHelpError", None)  # click >= 8.2
         if no_args is not None and isinstance(exc, no_args):

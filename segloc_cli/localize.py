@@ -3,11 +3,10 @@
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 
 import numpy as np
-import pandas as pd
 
 from segloc_cli.align import RTable, align
 from segloc_cli.extract import ExtractParams, extract_segments
@@ -108,20 +107,19 @@ def localize_scans(
     pose_ids: Sequence[int],
     localizer: Localizer,
     extract_params: ExtractParams | None = None,
-    progress: Callable[[int], None] | None = None,
-) -> pd.DataFrame:
-    """Localize each scan from its initial guess; one row per scan in the estimates layout.
+) -> Iterator[dict]:
+    """Localize each scan from its initial guess, yielding one estimates row per scan.
 
-    Angles go out in degrees, positions in metres, ``runtime_ms`` covers
-    extraction and both stages for that scan.
+    Rows hold the estimates columns (``ESTIMATE_COLUMNS``): angles in degrees,
+    positions in metres, ``runtime_ms`` covering extraction and both stages.
+    Yielding row by row lets a caller keep what is done if the run is cut short.
     """
-    rows = []
     for scan, initial, pose_id in zip(scans, initial_poses, pose_ids, strict=True):
         t0 = time.perf_counter()
         local_map = extract_segments(scan, extract_params)
         est = localizer.localize(local_map, initial)
         runtime_ms = (time.perf_counter() - t0) * 1e3
-        rows.append(
+        yield (
             {
                 "pose_id": int(pose_id),
                 "time_s": scan.time_s,
@@ -138,6 +136,3 @@ def localize_scans(
                 "status": est.status,
             }
         )
-        if progress is not None:
-            progress(1)
-    return pd.DataFrame(rows)

@@ -325,7 +325,8 @@ def test_align_whole_circle_returns_true_heading_and_its_180_twin():
     # The cross-pairings: L(0°→−25°) with the 35° bin at α = 60° (4·2 = 8), with the 100° bin
     # at α = 125° (4·1.5 = 6); L(35°→10°) with the 0° bin at α = −10° (2·4 = 8), with 100° at
     # α = 90° (2·1.5 = 3); L(100°→75°) with 0° at α = 105° (6), with 35° at α = −40° (3).
-    votes = dict(zip(np.rint(np.rad2deg(result.headings_rad)).astype(int), result.votes))
+    degrees = np.rint(np.rad2deg(result.headings_rad)).astype(int)
+    votes = dict(zip(degrees, result.votes, strict=True))
     for alpha, v in [(60, 8.0), (125, 6.0), (-10, 8.0), (90, 3.0), (105, 6.0), (-40, 3.0)]:
         twin = (alpha + 360) % 360 - 180  # α + 180°, wrapped to [−180°, 180°)
         assert votes[alpha] == pytest.approx(v)

@@ -699,3 +699,32 @@ def test_help(command, tmp_path):
     assert result.out.startswith(f"Usage: segloc {command}"), result.out[:200]
     for option in HELP_CASES[command]:
         assert option in result.out, f"`segloc {command} --help` does not mention {option}"
+
+
+# --------------------------------------------------------------------------- interruption
+
+
+def test_interrupted_localize_keeps_the_scans_already_done(small, tmp_path, capsys, monkeypatch):
+    """Ctrl-C during the third scan: the first two estimates are written, exit status 130."""
+    from segloc_cli.localize import Localizer
+
+    real_localize = Localizer.localize
+    calls = {"n": 0}
+
+    def localize_then_interrupt(self, segments_robot, initial):
+        calls["n"] += 1
+        if calls["n"] == 3:
+            raise KeyboardInterrupt
+        return real_localize(self, segments_robot, initial)
+
+    monkeypatch.setattr(Localizer, "localize", localize_then_interrupt)
+    out = tmp_path / "partial.csv"
+    result = run_cli(capsys, "localize", small.log, "--map", HALL_WORLD, "--out", out)
+    assert result.code == 130
+    assert result.err.strip().splitlines() == [
+        f"segloc: interrupted after 2 of 3 scans; their estimates are in {out}"
+    ]
+    header, rows = read_csv_rows(out)
+    assert ",".join(header) == ESTIMATE_HEADER
+    assert [r["pose_id"] for r in rows] == ["1", "2"]
+    assert all(r["status"] == "ok" for r in rows)

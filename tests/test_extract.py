@@ -5,7 +5,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from segloc_cli.extract import ExtractParams, breakpoints, extract_segments, fit_line, line_residuals
+from segloc_cli.extract import (
+    ExtractParams,
+    breakpoints,
+    extract_segments,
+    fit_line,
+    line_residuals,
+)
 from segloc_cli.geometry import Pose2, transform_segments
 from segloc_cli.scan import Scan
 from segloc_cli.sim import beam_angles, cast_rays
@@ -230,7 +236,12 @@ def test_missing_readings_across_a_doorway_break_the_wall():
 # --- the 360° seam ----------------------------------------------------------------------------
 
 BOX = np.array(
-    [[-2.5, -0.5, -1.5, -0.5], [-1.5, -0.5, -1.5, 0.5], [-1.5, 0.5, -2.5, 0.5], [-2.5, 0.5, -2.5, -0.5]]
+    [
+        [-2.5, -0.5, -1.5, -0.5],
+        [-1.5, -0.5, -1.5, 0.5],
+        [-1.5, 0.5, -2.5, 0.5],
+        [-2.5, 0.5, -2.5, -0.5],
+    ]
 )
 
 
