@@ -48,7 +48,8 @@ def breakpoints(ranges_m: np.ndarray, angles_rad: np.ndarray, params: ExtractPar
     x = r * np.cos(angles_rad)
     y = r * np.sin(angles_rad)
     gap = np.hypot(np.diff(x), np.diff(y))
-    return gap > d_max
+    # Neighbours λ or more apart (missing readings between) cannot be shown to be one surface.
+    return (gap > d_max) | (dphi >= lam)
 
 
 def fit_line(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -97,14 +98,41 @@ def _merge(
     """Join neighbouring ranges whose union still fits one line within ``tol_m``."""
     merged: list[tuple[int, int]] = []
     for r in ranges:
-        if merged and merged[-1][1] >= r[0]:
-            cand = (merged[-1][0], r[1])
-            pts = points[cand[0] : cand[1]]
-            if line_residuals(pts, *fit_line(pts)).max() <= tol_m:
-                merged[-1] = cand
-                continue
+        if merged and merged[-1][1] >= r[0] and _fits_one_line(points, merged[-1][0], r[1], tol_m):
+            merged[-1] = (merged[-1][0], r[1])
+            continue
         merged.append(r)
     return merged
+
+
+def _fits_one_line(points: np.ndarray, start: int, stop: int, tol_m: float) -> bool:
+    """Whether points[start:stop], less its two end points, fit one line within ``tol_m``.
+
+    The end points are left out because a split point is shared by both of its
+    pieces, and a corner reading belongs to the next wall as much as to this one.
+    """
+    pts = points[start + 1 : stop - 1] if stop - start > 4 else points[start:stop]
+    return bool(line_residuals(pts, *fit_line(pts)).max() <= tol_m)
+
+
+def _fit_piece(pts: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Line through a piece's points, leaving out an end point that does not belong.
+
+    Returns (centroid, unit direction, the points kept). An end point is left
+    out when it lies more than 3 × the interior RMS from the interior's line:
+    a corner reading shared with the neighbouring wall would otherwise tilt the fit.
+    """
+    if pts.shape[0] > 4:
+        interior = pts[1:-1]
+        centroid, direction = fit_line(interior)
+        rms = np.sqrt(np.mean(line_residuals(interior, centroid, direction) ** 2))
+        ends = line_residuals(pts[[0, -1]], centroid, direction)
+        keep = np.ones(pts.shape[0], dtype=bool)
+        # The 1 µm floor keeps round-off from rejecting ends of exactly collinear points.
+        keep[[0, -1]] = ends <= max(3.0 * rms, 1e-6)
+        pts = pts[keep]
+    centroid, direction = fit_line(pts)
+    return centroid, direction, pts
 
 
 def _chains(points_count: int, breaks: np.ndarray, wraps: bool) -> list[tuple[int, int]]:
@@ -148,11 +176,19 @@ def extract_segments(scan: Scan, params: ExtractParams | None = None) -> np.ndar
             continue
         pieces: list[tuple[int, int]] = []
         _split(ring, start, stop, tol, pieces)
-        for i0, i1 in _merge(ring, pieces, tol):
+        pieces = _merge(ring, pieces, tol)
+        closed = wraps and stop - start == n
+        if (
+            closed
+            and len(pieces) > 1
+            and _fits_one_line(ring, pieces[-1][0], pieces[0][1] + n, tol)
+        ):
+            # A ring without breakpoints was cut at reading 0: rejoin the wall across it.
+            pieces = [(pieces[-1][0], pieces[0][1] + n), *pieces[1:-1]]
+        for i0, i1 in pieces:
             if i1 - i0 < params.min_points:
                 continue
-            pts = ring[i0:i1]
-            centroid, direction = fit_line(pts)
+            centroid, direction, pts = _fit_piece(ring[i0:i1])
             t0 = (pts[0] - centroid) @ direction
             t1 = (pts[-1] - centroid) @ direction
             if abs(t1 - t0) < params.min_length_m:
