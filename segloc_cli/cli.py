@@ -19,6 +19,9 @@ from segloc_cli.geometry import Pose2
 PROGRESS_MIN_SCANS = 20
 """Show a progress bar when a command works through at least this many scans."""
 
+TIME_TOLERANCE_MS = 50.0
+"""Default largest time difference when pairing records of two files by time."""
+
 EXIT_GATE_FAILED = 1
 EXIT_BAD_INPUT = 2
 EXIT_INTERRUPTED = 130
@@ -41,17 +44,15 @@ def _load_log(path: Path):
     return contents
 
 
-def _load_map(path: Path) -> np.ndarray:
-    from segloc_cli.io.maps import read_map
-
-    return read_map(path)
-
-
-def _pair_with_table(times_s: np.ndarray, table, tolerance_s: float) -> np.ndarray:
-    """Row of ``table`` nearest in time to each of ``times_s`` (−1 where none is close enough)."""
-    from segloc_cli.io.tables import nearest_by_time
-
-    return nearest_by_time(np.asarray(times_s, dtype=float), table.time_s, tolerance_s)
+def _tolerance_option(pairing: str):
+    """The ``--tolerance-ms`` option, for pairing the records named by ``pairing``."""
+    return click.option(
+        "--tolerance-ms",
+        type=click.FloatRange(min=0),
+        default=TIME_TOLERANCE_MS,
+        show_default=True,
+        help=f"Largest time difference when {pairing}.",
+    )
 
 
 def _time_range(times_s) -> str:
@@ -220,13 +221,7 @@ def map_group() -> None:
 @click.option(
     "--out", "out_path", required=True, type=click.Path(path_type=Path), help="MAP.json to write."
 )
-@click.option(
-    "--tolerance-ms",
-    type=click.FloatRange(min=0),
-    default=50.0,
-    show_default=True,
-    help="Largest time difference when pairing scans with survey rows.",
-)
+@_tolerance_option("pairing scans with survey rows")
 def map_build(log_path, survey_path, out_path, tolerance_ms):
     """Build a global segment map from the scans of a log at surveyed poses.
 
@@ -236,13 +231,13 @@ def map_build(log_path, survey_path, out_path, tolerance_ms):
     """
     from segloc_cli.extract import ExtractParams, extract_segments
     from segloc_cli.io.maps import write_map
-    from segloc_cli.io.tables import read_pose_table
+    from segloc_cli.io.tables import nearest_by_time, read_pose_table
     from segloc_cli.mapping import FuseParams, build_global_map
 
     log = _load_log(log_path)
     survey = read_pose_table(survey_path)
-    times = np.array([s.time_s for s in log.scans])
-    rows = _pair_with_table(times, survey, tolerance_ms / 1e3)
+    times = log.scan_times_s
+    rows = nearest_by_time(times, survey.time_s, tolerance_ms / 1e3)
     used = np.flatnonzero(rows >= 0)
     if used.size == 0:
         raise InputError(
@@ -280,8 +275,13 @@ def map_build(log_path, survey_path, out_path, tolerance_ms):
 
 
 def _initial_guesses(initial: str, log, log_path: Path, tolerance_s: float):
-    """(scan indices, initial poses, pose ids) for the scans that have an initial guess."""
-    times = np.array([s.time_s for s in log.scans])
+    """(scan indices, initial poses, pose ids) for the scans that have an initial guess.
+
+    Pose ids come from the guess file's rows, or are the scans' indices in the log
+    (from 1) when the guesses come from /odom.
+    """
+    from segloc_cli.io.tables import nearest_by_time, read_pose_table
+
     if initial == "odom":
         if log.odom_times_s.size == 0:
             raise InputError(
@@ -289,19 +289,14 @@ def _initial_guesses(initial: str, log, log_path: Path, tolerance_s: float):
                 "pass --initial FILE.csv",
                 path=log_path,
             )
-        from segloc_cli.io.tables import nearest_by_time
-
-        rows = nearest_by_time(times, log.odom_times_s, tolerance_s)
-        idx = np.flatnonzero(rows >= 0)
-        poses = [Pose2(*log.odom_poses[rows[i]]) for i in idx]
-        return idx, poses, idx + 1
-    from segloc_cli.io.tables import read_pose_table
-
-    table = read_pose_table(Path(initial))
-    rows = _pair_with_table(times, table, tolerance_s)
+        ref_times, ref_poses, ref_ids = log.odom_times_s, log.odom_poses, None
+    else:
+        table = read_pose_table(Path(initial))
+        ref_times, ref_poses, ref_ids = table.time_s, table.poses, table.pose_id
+    rows = nearest_by_time(log.scan_times_s, ref_times, tolerance_s)
     idx = np.flatnonzero(rows >= 0)
-    poses = [Pose2(*table.poses[rows[i]]) for i in idx]
-    return idx, poses, table.pose_id[rows[idx]]
+    poses = [Pose2(*ref_poses[r]) for r in rows[idx]]
+    return idx, poses, idx + 1 if ref_ids is None else ref_ids[rows[idx]]
 
 
 @cli.command()
@@ -400,13 +395,7 @@ def _initial_guesses(initial: str, log, log_path: Path, tolerance_s: float):
     help="Up to this many extra stage-2 iterations, spent re-searching at the same scale while "
     "the estimate still moves by over half a step; 0 keeps the paper's fixed schedule.",
 )
-@click.option(
-    "--tolerance-ms",
-    type=click.FloatRange(min=0),
-    default=50.0,
-    show_default=True,
-    help="Largest time difference when pairing scans with initial guesses.",
-)
+@_tolerance_option("pairing scans with initial guesses")
 def localize(
     log_paths,
     map_path,
@@ -434,12 +423,13 @@ def localize(
     """
     import pandas as pd
 
+    from segloc_cli.io.maps import read_map
     from segloc_cli.io.tables import write_estimates, write_tum
     from segloc_cli.localize import LocalizeParams, Localizer, localize_scans
 
     if not np.isclose(180.0 / bin_deg, round(180.0 / bin_deg)):
         raise click.BadParameter(f"{bin_deg:g} does not divide 180", param_hint="--bin-deg")
-    segments_world = _load_map(map_path)
+    segments_world = read_map(map_path)
     params = LocalizeParams(
         window_deg=None if no_prior_heading else window_deg,
         bin_deg=bin_deg,
@@ -536,13 +526,7 @@ def localize(
     default=None,
     help="Exit 1 if any pose's |θ| error exceeds this.",
 )
-@click.option(
-    "--tolerance-ms",
-    type=click.FloatRange(min=0),
-    default=50.0,
-    show_default=True,
-    help="Largest time difference when pairing estimates with survey rows.",
-)
+@_tolerance_option("pairing estimates with survey rows")
 def evaluate(
     estimates_path, survey_path, fmt, out_path, fail_above_cm, fail_above_deg, tolerance_ms
 ):
@@ -585,7 +569,7 @@ def evaluate(
 def info(log_path):
     """Summarise a log: scans, odometry, time span, sensor settings, whether it was finished."""
     log = _load_log(log_path)
-    times = np.array([s.time_s for s in log.scans])
+    times = log.scan_times_s
     beams = sorted({len(s) for s in log.scans})
     click.echo(f"file:      {log_path}")
     click.echo(f"finished:  {'yes' if log.finished else 'no (truncated or still being written)'}")

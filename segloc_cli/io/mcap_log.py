@@ -305,6 +305,11 @@ class LogContents:
     finished: bool = False
     warnings: list[str] = field(default_factory=list)
 
+    @property
+    def scan_times_s(self) -> np.ndarray:
+        """Acquisition times (S,) of the scans, seconds."""
+        return np.array([scan.time_s for scan in self.scans], dtype=float)
+
 
 def _decode(path: Path, topic: str, index: int, data: bytes) -> dict:
     try:
