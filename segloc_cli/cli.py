@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import io
+import itertools
 import sys
 import time
 from dataclasses import asdict
@@ -274,6 +275,17 @@ def map_build(log_path, survey_path, out_path, tolerance_ms):
 # --------------------------------------------------------------------------- localize
 
 
+def _odometry_rows(log, log_path: Path, tolerance_s: float) -> np.ndarray:
+    """Index of the /odom message nearest each scan in time (−1 where none is close enough)."""
+    from segloc_cli.io.tables import nearest_by_time
+
+    if log.odom_times_s.size == 0:
+        raise InputError(
+            "the log has no /odom messages; tracking needs odometry between scans", path=log_path
+        )
+    return nearest_by_time(log.scan_times_s, log.odom_times_s, tolerance_s)
+
+
 def _initial_guesses(initial: str, log, log_path: Path, tolerance_s: float):
     """(scan indices, initial poses, pose ids) for the scans that have an initial guess.
 
@@ -395,7 +407,14 @@ def _initial_guesses(initial: str, log, log_path: Path, tolerance_s: float):
     help="Up to this many extra stage-2 iterations, spent re-searching at the same scale while "
     "the estimate still moves by over half a step; 0 keeps the paper's fixed schedule.",
 )
-@_tolerance_option("pairing scans with initial guesses")
+@click.option(
+    "--track",
+    is_flag=True,
+    help="Track along the log: --initial seeds only the first scan; each next guess is the "
+    "previous estimate moved by the /odom increment. Failed matches are retried wider and "
+    "flagged (status recovered or lost).",
+)
+@_tolerance_option("pairing scans with initial guesses or odometry")
 def localize(
     log_paths,
     map_path,
@@ -411,6 +430,7 @@ def localize(
     iterations,
     ratio,
     recentre,
+    track,
     tolerance_ms,
 ):
     """Localize every scan of one or more logs against a map.
@@ -425,7 +445,7 @@ def localize(
 
     from segloc_cli.io.maps import read_map
     from segloc_cli.io.tables import write_estimates, write_tum
-    from segloc_cli.localize import LocalizeParams, Localizer, localize_scans
+    from segloc_cli.localize import LocalizeParams, Localizer, localize_scans, track_scans
 
     if not np.isclose(180.0 / bin_deg, round(180.0 / bin_deg)):
         raise click.BadParameter(f"{bin_deg:g} does not divide 180", param_hint="--bin-deg")
@@ -442,48 +462,57 @@ def localize(
     )
     localizer = Localizer(segments_world, params)
 
-    jobs = []
-    skipped = 0
+    tolerance_s = tolerance_ms / 1e3
+    streams = []  # one iterator of estimates rows per log
+    n_scans = skipped = 0
     for log_path in log_paths:
         log = _load_log(log_path)
-        idx, poses, ids = _initial_guesses(initial, log, log_path, tolerance_ms / 1e3)
-        skipped += len(log.scans) - idx.size
-        jobs.append(([log.scans[i] for i in idx], poses, list(ids)))
-    scans = [s for job in jobs for s in job[0]]
-    poses = [p for job in jobs for p in job[1]]
-    ids = [i for job in jobs for i in job[2]]
-    if not scans:
-        raise InputError(
-            f"no scan has an initial guess within {tolerance_ms:g} ms (--initial {initial})",
-            path=log_paths[0],
-        )
+        idx, poses, ids = _initial_guesses(initial, log, log_path, tolerance_s)
+        if idx.size == 0:
+            raise InputError(
+                f"no scan has an initial guess within {tolerance_ms:g} ms (--initial {initial})",
+                path=log_path,
+            )
+        if track:
+            # The first scan with a guess seeds the track; odometry carries it on.
+            odom_rows = _odometry_rows(log, log_path, tolerance_s)
+            keep = np.flatnonzero((odom_rows >= 0) & (np.arange(len(log.scans)) >= idx[0]))
+            odometry = [Pose2(*log.odom_poses[r]) for r in odom_rows[keep]]
+            scans = [log.scans[i] for i in keep]
+            streams.append(track_scans(scans, odometry, poses[0], keep + 1, localizer))
+        else:
+            keep = idx
+            streams.append(localize_scans([log.scans[i] for i in idx], poses, ids, localizer))
+        n_scans += keep.size
+        skipped += len(log.scans) - keep.size
 
     t0 = time.perf_counter()
     rows = []
     try:
         with click.progressbar(
-            localize_scans(scans, poses, ids, localizer),
-            length=len(scans),
+            itertools.chain.from_iterable(streams),
+            length=n_scans,
             label="localizing",
-            file=sys.stderr if len(scans) >= PROGRESS_MIN_SCANS else io.StringIO(),
+            file=sys.stderr if n_scans >= PROGRESS_MIN_SCANS else io.StringIO(),
         ) as bar:
             rows.extend(bar)
     except KeyboardInterrupt:
         if rows:
             write_estimates(out_path, pd.DataFrame(rows))
         kept = f"their estimates are in {out_path}" if rows else "nothing was written"
-        click.echo(f"segloc: interrupted after {len(rows)} of {len(scans)} scans; {kept}", err=True)
+        click.echo(f"segloc: interrupted after {len(rows)} of {n_scans} scans; {kept}", err=True)
         sys.exit(EXIT_INTERRUPTED)
     elapsed = time.perf_counter() - t0
     frame = pd.DataFrame(rows)
     write_estimates(out_path, frame)
     if tum_path is not None:
         write_tum(tum_path, frame)
-    n_ok = int((frame["status"] == "ok").sum())
+    counts = frame["status"].value_counts()
+    statuses = ", ".join(f"{n} {status}" for status, n in counts.items())
     _info(
-        f"{out_path}: {len(frame)} scans localized ({n_ok} ok) in {elapsed:.2f} s, "
+        f"{out_path}: {len(frame)} scans localized ({statuses}) in {elapsed:.2f} s, "
         f"median {frame['runtime_ms'].median():.1f} ms per scan"
-        + (f"; {skipped} scans skipped (no initial guess)" if skipped else "")
+        + (f"; {skipped} scans skipped (no initial guess or odometry)" if skipped else "")
     )
 
 

@@ -4,19 +4,23 @@ from __future__ import annotations
 
 import time
 from collections.abc import Iterator, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from segloc_cli.align import RTable, align
 from segloc_cli.extract import ExtractParams, extract_segments
-from segloc_cli.geometry import Pose2
-from segloc_cli.overlap import coarse_to_fine
+from segloc_cli.geometry import Pose2, segment_lengths, wrap_angle
+from segloc_cli.overlap import coarse_to_fine, overlap_at_poses
 from segloc_cli.scan import Scan
 
 STATUS_OK = "ok"
 STATUS_TOO_FEW_SEGMENTS = "too_few_segments"
 STATUS_NO_OVERLAP = "no_overlap"
+STATUS_RECOVERED = "recovered"
+"""Tracking: the first match failed its checks, a wider search passed them."""
+STATUS_LOST = "lost"
+"""Tracking: no search passed the checks; the pose given is the dead-reckoning guess."""
 
 
 @dataclass(frozen=True)
@@ -101,6 +105,25 @@ class Localizer:
         return Estimate(result.pose, heading, result.overlap_m, n_local, STATUS_OK)
 
 
+def _row(pose_id: int, scan: Scan, initial: Pose2, est: Estimate, runtime_ms: float, status: str):
+    """One row of the estimates table (``ESTIMATE_COLUMNS``): metres and degrees."""
+    return {
+        "pose_id": int(pose_id),
+        "time_s": scan.time_s,
+        "init_x_m": initial.x,
+        "init_y_m": initial.y,
+        "init_theta_deg": initial.theta_deg,
+        "align_theta_deg": float(np.rad2deg(est.align_theta_rad)),
+        "x_m": est.pose.x,
+        "y_m": est.pose.y,
+        "theta_deg": est.pose.theta_deg,
+        "overlap": est.overlap_m,
+        "n_local_segments": est.n_local_segments,
+        "runtime_ms": runtime_ms,
+        "status": status,
+    }
+
+
 def localize_scans(
     scans: Sequence[Scan],
     initial_poses: Sequence[Pose2],
@@ -116,23 +139,108 @@ def localize_scans(
     """
     for scan, initial, pose_id in zip(scans, initial_poses, pose_ids, strict=True):
         t0 = time.perf_counter()
-        local_map = extract_segments(scan, extract_params)
-        est = localizer.localize(local_map, initial)
-        runtime_ms = (time.perf_counter() - t0) * 1e3
-        yield (
-            {
-                "pose_id": int(pose_id),
-                "time_s": scan.time_s,
-                "init_x_m": initial.x,
-                "init_y_m": initial.y,
-                "init_theta_deg": initial.theta_deg,
-                "align_theta_deg": float(np.rad2deg(est.align_theta_rad)),
-                "x_m": est.pose.x,
-                "y_m": est.pose.y,
-                "theta_deg": est.pose.theta_deg,
-                "overlap": est.overlap_m,
-                "n_local_segments": est.n_local_segments,
-                "runtime_ms": runtime_ms,
-                "status": est.status,
-            }
-        )
+        est = localizer.localize(extract_segments(scan, extract_params), initial)
+        yield _row(pose_id, scan, initial, est, (time.perf_counter() - t0) * 1e3, est.status)
+
+
+@dataclass(frozen=True)
+class TrackParams:
+    """When a tracked match is accepted (metres, degrees)."""
+
+    min_match_ratio: float = 0.3
+    """Share of the local map's length that must overlap the map within ``match_band_m``."""
+    match_band_m: float = 0.05
+    max_jump_m: float = 0.5
+    """Largest correction of the dead-reckoning guess accepted (position)."""
+    max_jump_deg: float = 15.0
+    widen: float = 2.0
+    """The recovery search multiplies the grid, the heading window and the jump limits by this."""
+
+
+def match_ratio(
+    segments_world: np.ndarray, segments_robot: np.ndarray, pose: Pose2, band_m: float
+) -> float:
+    """Overlap at ``pose`` within ``band_m`` over its largest possible value, 2 × local length."""
+    total = 2.0 * float(segment_lengths(segments_robot).sum())
+    if total <= 0 or not np.isfinite(pose.x):
+        return 0.0
+    return (
+        float(overlap_at_poses(segments_world, segments_robot, pose.as_array(), band_m)[0]) / total
+    )
+
+
+def track_scans(
+    scans: Sequence[Scan],
+    odometry: Sequence[Pose2],
+    first_guess: Pose2,
+    pose_ids: Sequence[int],
+    localizer: Localizer,
+    extract_params: ExtractParams | None = None,
+    track: TrackParams | None = None,
+) -> Iterator[dict]:
+    """Track along a log: each scan's guess is the previous estimate moved by the odometry since.
+
+    ``odometry`` holds the dead-reckoning pose at each scan (any world frame:
+    only increments are used); ``first_guess`` seeds the first scan. A match is
+    accepted when enough of the local map overlaps the map and the correction
+    of the guess is plausible; otherwise a wider search is tried (status
+    ``recovered`` if it passes) and failing that the scan is marked ``lost``
+    and the dead-reckoning guess carries the track on. Yields estimates rows.
+    """
+    track = track or TrackParams()
+    p = localizer.params
+    wide = Localizer(
+        localizer.segments_world,
+        replace(
+            p,
+            grid_m=p.grid_m * track.widen,
+            window_deg=None if p.window_deg is None else min(180.0, p.window_deg * track.widen),
+        ),
+    )
+    previous: tuple[Pose2, Pose2] | None = None  # (estimate, odometry) at the previous scan
+    for scan, odom, pose_id in zip(scans, odometry, pose_ids, strict=True):
+        t0 = time.perf_counter()
+        guess = first_guess
+        if previous is not None:
+            guess = previous[0].compose(previous[1].inverse().compose(odom))
+        local = extract_segments(scan, extract_params)
+        est = localizer.localize(local, guess)
+        status = est.status
+        first = previous is None
+        if status != STATUS_TOO_FEW_SEGMENTS and not _accepted(
+            est, local, guess, localizer, track, 1, first
+        ):
+            retry = wide.localize(local, guess)
+            if _accepted(retry, local, guess, localizer, track, track.widen, first):
+                est, status = retry, STATUS_RECOVERED
+            else:
+                status = STATUS_LOST
+        if status in (STATUS_OK, STATUS_RECOVERED):
+            carried = est.pose
+        else:
+            carried = guess
+            est = replace(est, pose=guess)
+        previous = (carried, odom)
+        yield _row(pose_id, scan, guess, est, (time.perf_counter() - t0) * 1e3, status)
+
+
+def _accepted(
+    est: Estimate,
+    local: np.ndarray,
+    guess: Pose2,
+    localizer: Localizer,
+    track: TrackParams,
+    scale: float,
+    first: bool,
+) -> bool:
+    """Whether a tracked match passes the overlap and plausible-jump checks."""
+    if est.status != STATUS_OK:
+        return False
+    ratio = match_ratio(localizer.segments_world, local, est.pose, track.match_band_m)
+    if ratio < track.min_match_ratio:
+        return False
+    if first:
+        return True
+    jump_m = np.hypot(est.pose.x - guess.x, est.pose.y - guess.y)
+    jump_deg = abs(np.rad2deg(wrap_angle(est.pose.theta - guess.theta)))
+    return bool(jump_m <= track.max_jump_m * scale and jump_deg <= track.max_jump_deg * scale)
