@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from itertools import pairwise
 from pathlib import Path
 
 import numpy as np
@@ -25,7 +26,7 @@ STEP_M = 0.25
 def _path_through(waypoints: np.ndarray, world) -> list[Pose2]:
     """Poses every STEP_M along straight legs between waypoints, kept where free."""
     poses = []
-    for a, b in zip(waypoints[:-1], waypoints[1:], strict=True):
+    for a, b in pairwise(waypoints):
         n = max(1, int(np.hypot(*(b[:2] - a[:2])) / STEP_M))
         for k in range(n):
             f = k / n
