@@ -50,41 +50,79 @@ def fit_segments(segments: np.ndarray) -> np.ndarray:
     return np.concatenate([centroid + t.min() * direction, centroid + t.max() * direction])
 
 
-def mergeable_pairs(segments: np.ndarray, params: FuseParams) -> np.ndarray:
-    """Boolean (M, M) matrix of the pairs that describe the same wall (diagonal False)."""
-    s = np.asarray(segments, dtype=float)
+GRID_CELL_M = 2.0
+"""Cell size of the spatial grid that proposes candidate pairs."""
+
+
+def _nearby_pairs(segments: np.ndarray, margin_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """Index pairs (i < j) whose bounding boxes, grown by ``margin_m``, share a grid cell.
+
+    Every pair of segments closer than ``margin_m`` is among them; far-apart
+    segments are never compared, so fusing a long log stays near linear.
+    """
+    lo = np.minimum(segments[:, :2], segments[:, 2:]) - margin_m
+    hi = np.maximum(segments[:, :2], segments[:, 2:]) + margin_m
+    c_lo = np.floor(lo / GRID_CELL_M).astype(np.int64)
+    c_hi = np.floor(hi / GRID_CELL_M).astype(np.int64)
+    nx = c_hi[:, 0] - c_lo[:, 0] + 1
+    ny = c_hi[:, 1] - c_lo[:, 1] + 1
+    # One entry per (segment, covered cell).
+    owner = np.repeat(np.arange(len(segments)), nx * ny)
+    k = np.arange(owner.size) - np.repeat(np.cumsum(nx * ny) - nx * ny, nx * ny)
+    cx = c_lo[owner, 0] + k % nx[owner]
+    cy = c_lo[owner, 1] + k // nx[owner]
+    key = (cx - cx.min()) * (cy.max() - cy.min() + 1) + (cy - cy.min())
+    order = np.lexsort((owner, key))
+    key, owner = key[order], owner[order]
+    # Pair each entry with the entries after it in the same cell.
+    group_end = np.searchsorted(key, key, side="right")
+    count = group_end - np.arange(key.size) - 1
+    first = np.repeat(np.arange(key.size), count)
+    step = np.arange(first.size) - np.repeat(np.cumsum(count) - count, count)
+    i, j = owner[first], owner[first + 1 + step]
+    pair_key = np.unique(np.minimum(i, j) * len(segments) + np.maximum(i, j))
+    return pair_key // len(segments), pair_key % len(segments)
+
+
+def mergeable_pairs(segments: np.ndarray, params: FuseParams) -> tuple[np.ndarray, np.ndarray]:
+    """Index pairs (i < j) of segments (M, 4) that describe the same wall."""
+    s = np.asarray(segments, dtype=float).reshape(-1, 4)
+    i, j = _nearby_pairs(s, max(params.offset_m, params.gap_m))
     p, q = s[:, :2], s[:, 2:]
     length = segment_lengths(s)
     u = (q - p) / length[:, None]
     normal = np.column_stack([-u[:, 1], u[:, 0]])
 
-    cos_angle = np.abs(u @ u.T)
-    parallel = cos_angle >= np.cos(np.deg2rad(params.angle_deg))
+    parallel = np.abs(np.sum(u[i] * u[j], axis=1)) >= np.cos(np.deg2rad(params.angle_deg))
 
-    # Distance of j's endpoints from i's line, both ways.
-    off_p = np.abs(normal @ p.T - np.sum(normal * p, axis=1)[:, None])
-    off_q = np.abs(normal @ q.T - np.sum(normal * p, axis=1)[:, None])
-    offset = np.maximum(off_p, off_q)
-    close = np.maximum(offset, offset.T) <= params.offset_m
+    def offset(a, b):
+        """Largest distance of b's endpoints from a's line."""
+        c = np.sum(normal[a] * p[a], axis=1)
+        return np.maximum(
+            np.abs(np.sum(normal[a] * p[b], axis=1) - c),
+            np.abs(np.sum(normal[a] * q[b], axis=1) - c),
+        )
 
-    # Extents along i's direction: i spans [0, len_i]; j spans its endpoints' projections.
-    tp = u @ p.T - np.sum(u * p, axis=1)[:, None]
-    tq = u @ q.T - np.sum(u * p, axis=1)[:, None]
-    j_lo, j_hi = np.minimum(tp, tq), np.maximum(tp, tq)
-    gap = np.maximum(j_lo - length[:, None], -j_hi)
-    touching = gap <= params.gap_m
+    def gap(a, b):
+        """Gap between b's extent and a's along a's direction (negative: overlap)."""
+        c = np.sum(u[a] * p[a], axis=1)
+        tp = np.sum(u[a] * p[b], axis=1) - c
+        tq = np.sum(u[a] * q[b], axis=1) - c
+        return np.maximum(np.minimum(tp, tq) - length[a], -np.maximum(tp, tq))
 
-    pairs = parallel & close & touching & touching.T
-    np.fill_diagonal(pairs, False)
-    return pairs
+    close = np.maximum(offset(i, j), offset(j, i)) <= params.offset_m
+    touching = (gap(i, j) <= params.gap_m) & (gap(j, i) <= params.gap_m)
+    keep = parallel & close & touching
+    return i[keep], j[keep]
 
 
-def _components(pairs: np.ndarray) -> np.ndarray:
-    """Connected-component label (M,) of each segment in the graph ``pairs``."""
-    labels = np.arange(pairs.shape[0])
+def _components(n: int, i: np.ndarray, j: np.ndarray) -> np.ndarray:
+    """Connected-component label (n,) of each node of the graph with edges (i, j)."""
+    labels = np.arange(n)
     while True:
-        neighbour_min = np.where(pairs, labels[None, :], labels[:, None]).min(axis=1)
-        updated = np.minimum(labels, neighbour_min)
+        updated = labels.copy()
+        np.minimum.at(updated, i, labels[j])
+        np.minimum.at(updated, j, labels[i])
         updated = updated[updated]
         if np.array_equal(updated, labels):
             return labels
@@ -97,10 +135,10 @@ def fuse_segments(segments_world: np.ndarray, params: FuseParams | None = None) 
     segments = np.asarray(segments_world, dtype=float).reshape(-1, 4)
     segments = segments[segment_lengths(segments) > 0]
     while segments.shape[0] > 1:
-        pairs = mergeable_pairs(segments, params)
-        if not pairs.any():
+        i, j = mergeable_pairs(segments, params)
+        if i.size == 0:
             break
-        labels = _components(pairs)
+        labels = _components(segments.shape[0], i, j)
         groups = np.unique(labels)
         segments = np.array([fit_segments(segments[labels == g]) for g in groups])
     return segments

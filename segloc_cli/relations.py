@@ -1,0 +1,510 @@
+"""Relative-pose error against reference relations (Kümmerle et al. 2009).
+
+The metric of R. Kümmerle, B. Steder, C. Dornhege, M. Ruhnke, G. Grisetti,
+C. Stachniss and A. Kleiner, "On measuring the accuracy of SLAM algorithms",
+Autonomous Robots 27(4):387–407, 2009. A relation says how the robot moved from
+its pose at time t1 to its pose at time t2, expressed in the frame of the pose
+at t1: δ*_ij = x_i⁻¹ ⊕ x_j for the reference trajectory. The same motion of an
+estimated trajectory, δ_ij = x_i⁻¹ ⊕ x_j (the paper's x_j ⊖ x_i), is compared
+with it through e_ij = δ*_ij⁻¹ ⊕ δ_ij (the paper's δ_ij ⊖ δ*_ij):
+
+- translational error |e_ij.xy| in metres (equal to |δ_ij.xy − δ*_ij.xy|, as
+  rotating a vector keeps its length);
+- rotational error |wrap(e_ij.θ)| in degrees.
+
+The paper's ε(δ) = 1/N Σ trans(e_ij)² + rot(e_ij)²; its tables, and this module,
+report the absolute and the squared errors separately, each as mean ± standard
+deviation over the relations. Only relative motions enter, so the score does
+not depend on the world frame the trajectory is expressed in: any rigid
+transform of the whole trajectory leaves every error unchanged.
+
+File format (``*.relations``): one relation a line, whitespace-separated
+``t1 t2 dx dy dz droll dpitch dyaw`` (seconds, metres, radians); ``#`` starts a
+comment; blank lines are ignored. The planar metric uses dx, dy and dyaw.
+
+Every function except ``read_relations`` is pure: files are the command line's job.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from segloc_cli.errors import InputError
+from segloc_cli.geometry import wrap_angle
+from segloc_cli.io.files import reading
+from segloc_cli.io.tables import ESTIMATE_COLUMNS, nearest_by_time
+
+FORMATS = ("md", "csv", "latex", "json")
+
+STATUS_OK = "ok"
+
+PUBLISHED_SOURCE = (
+    "Graph Mapping results of Kümmerle et al., On measuring the accuracy of SLAM algorithms, "
+    "Autonomous Robots 27(4), 2009, as quoted in Hess et al., Real-Time Loop Closure in 2D "
+    "LIDAR SLAM, ICRA 2016, Table II"
+)
+"""Where the numbers of ``PUBLISHED`` come from, in one line (for table notes)."""
+
+PUBLISHED: dict[str, dict[str, dict[str, tuple[float, float]]]] = {
+    "aces": {"GraphMapping": {"trans_m": (0.044, 0.044), "rot_deg": (0.4, 0.4)}},
+    "intel": {"GraphMapping": {"trans_m": (0.031, 0.026), "rot_deg": (1.3, 4.7)}},
+    "mit-csail": {"GraphMapping": {"trans_m": (0.004, 0.009), "rot_deg": (0.05, 0.08)}},
+    "mit-killian-court": {"GraphMapping": {"trans_m": (0.050, 0.056), "rot_deg": (0.5, 0.5)}},
+    "fr079": {"GraphMapping": {"trans_m": (0.056, 0.042), "rot_deg": (0.6, 0.6)}},
+}
+"""Published relative-pose errors: dataset → method → error → (mean, standard deviation).
+
+``trans_m`` is the absolute translational error in metres and ``rot_deg`` the
+absolute rotational error in degrees, per relation, mean and standard deviation
+over the dataset's relations. The method is Graph Mapping, the graph-based SLAM
+of Kümmerle et al. (2009), "On measuring the accuracy of SLAM algorithms",
+Autonomous Robots 27(4):387–407; the numbers are as quoted from that paper in
+the "GM" column of Table II of W. Hess, D. Kohler, H. Rapp and D. Andor,
+"Real-Time Loop Closure in 2D LIDAR SLAM", ICRA 2016 (the precision is theirs).
+Dataset keys are the folder names of the shared datasets (``mit-csail`` is the
+MIT CSAIL building); ``mit-killian-court`` is the separate MIT Killian Court log.
+"""
+
+PUBLISHED_SQUARED: dict[str, dict[str, dict[str, tuple[float, float]]]] = {
+    "aces": {"GraphMapping": {"trans_sq_m2": (0.004, 0.009), "rot_sq_deg2": (0.3, 0.8)}},
+    "intel": {"GraphMapping": {"trans_sq_m2": (0.002, 0.004), "rot_sq_deg2": (24.0, 166.1)}},
+    "mit-csail": {"GraphMapping": {"trans_sq_m2": (0.0001, 0.0005), "rot_sq_deg2": (0.01, 0.04)}},
+    "mit-killian-court": {
+        "GraphMapping": {"trans_sq_m2": (0.006, 0.029), "rot_sq_deg2": (0.9, 0.9)}
+    },
+    "fr079": {"GraphMapping": {"trans_sq_m2": (0.005, 0.011), "rot_sq_deg2": (0.7, 1.7)}},
+}
+"""The squared errors of the same source and table as ``PUBLISHED``: dataset →
+method → ``trans_sq_m2`` (m²) / ``rot_sq_deg2`` (deg²) → (mean, standard deviation)."""
+
+
+# --- relations ------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Relations:
+    """Reference relative motions between pairs of robot poses.
+
+    ``t1_s``, ``t2_s`` (R,) float64 seconds, the times of the two poses;
+    ``delta`` (R, 3) float64 ``dx_m, dy_m, dyaw_rad``: the motion from the pose
+    at t1 to the pose at t2, expressed in the frame of the pose at t1.
+    """
+
+    t1_s: np.ndarray
+    t2_s: np.ndarray
+    delta: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.t1_s)
+
+
+_RELATION_FIELDS = ("t1", "t2", "dx", "dy", "dz", "droll", "dpitch", "dyaw")
+
+
+def read_relations(path: str | Path) -> Relations:
+    """Read a ``*.relations`` file → ``Relations`` (see the module docstring for the format).
+
+    Raises ``InputError`` naming the file, and the 1-based line for a line
+    without 8 finite numbers; also for an unreadable file or one with no relation.
+    """
+    path = Path(path)
+    with reading(path, "a relations file (t1 t2 dx dy dz droll dpitch dyaw per line)"):
+        text = path.read_text(encoding="utf-8-sig")
+    rows: list[list[float]] = []
+    for number, raw in enumerate(text.splitlines(), start=1):
+        line = raw.split("#", 1)[0].strip()
+        if not line:
+            continue
+        fields = line.split()
+        if len(fields) != len(_RELATION_FIELDS):
+            raise InputError(
+                f"line {number}: expected 8 whitespace-separated values "
+                f"'{' '.join(_RELATION_FIELDS)}', got {len(fields)}",
+                path=path,
+            )
+        values = []
+        for name, text_value in zip(_RELATION_FIELDS, fields, strict=True):
+            try:
+                value = float(text_value)
+            except ValueError:
+                value = math.nan
+            if not math.isfinite(value):
+                raise InputError(
+                    f"line {number}: {name} is {text_value!r}; expected a finite number",
+                    path=path,
+                )
+            values.append(value)
+        rows.append(values)
+    if not rows:
+        raise InputError(
+            "no relations; expected lines 't1 t2 dx dy dz droll dpitch dyaw'", path=path
+        )
+    table = np.array(rows, dtype=float)
+    return Relations(
+        t1_s=table[:, 0].copy(),
+        t2_s=table[:, 1].copy(),
+        delta=table[:, [2, 3, 7]].copy(),
+    )
+
+
+# --- errors ---------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class RelationErrors:
+    """Errors of an estimated trajectory on the relations it covers.
+
+    ``trans_m`` (U,) absolute translational error in metres and ``rot_deg`` (U,)
+    absolute rotational error in degrees, [0, 180], one per used relation, in
+    file order; ``index`` (U,) the position of each used relation in the
+    ``Relations``. ``used`` = U; ``skipped`` counts the relations left out
+    because their t1 or t2 has no estimate within the tolerance or the nearest
+    estimate is NaN (a failed pose).
+    """
+
+    trans_m: np.ndarray
+    rot_deg: np.ndarray
+    used: int
+    skipped: int
+    index: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+
+    def summary(self) -> dict:
+        """Statistics of the errors as a plain dict.
+
+        ``{"used", "skipped", "trans_m": {"mean", "std", "rms"}, "rot_deg": {"mean",
+        "std", "rms"}, "trans_sq_m2": {"mean", "std"}, "rot_sq_deg2": {"mean",
+        "std"}}``; ``*_sq_*`` are the squared errors (m², deg²). The standard
+        deviation is the sample one (divisor U − 1), as in Cartographer's tool for
+        this metric; it is NaN for fewer than two relations, and every statistic
+        is NaN when no relation was used.
+        """
+        trans_m = np.asarray(self.trans_m, dtype=float)
+        rot_deg = np.asarray(self.rot_deg, dtype=float)
+        return {
+            "used": int(self.used),
+            "skipped": int(self.skipped),
+            "trans_m": {**_mean_std(trans_m), "rms": _rms(trans_m)},
+            "rot_deg": {**_mean_std(rot_deg), "rms": _rms(rot_deg)},
+            "trans_sq_m2": _mean_std(trans_m**2),
+            "rot_sq_deg2": _mean_std(rot_deg**2),
+        }
+
+
+def _mean_std(values: np.ndarray) -> dict[str, float]:
+    mean = float(np.mean(values)) if values.size else math.nan
+    std = float(np.std(values, ddof=1)) if values.size > 1 else math.nan
+    return {"mean": mean, "std": std}
+
+
+def _rms(values: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(values**2))) if values.size else math.nan
+
+
+def relative_motion(from_poses: np.ndarray, to_poses: np.ndarray) -> np.ndarray:
+    """``from⁻¹ ⊕ to`` row by row: poses (K, 3) ``x_m, y_m, theta_rad`` in one frame →
+    (K, 3) motions ``dx_m, dy_m, dtheta_rad`` expressed in the frame of ``from``,
+    dtheta wrapped to [-pi, pi)."""
+    from_poses = np.asarray(from_poses, dtype=float).reshape(-1, 3)
+    to_poses = np.asarray(to_poses, dtype=float).reshape(-1, 3)
+    c, s = np.cos(from_poses[:, 2]), np.sin(from_poses[:, 2])
+    dx = to_poses[:, 0] - from_poses[:, 0]
+    dy = to_poses[:, 1] - from_poses[:, 1]
+    return np.column_stack(
+        [c * dx + s * dy, -s * dx + c * dy, wrap_angle(to_poses[:, 2] - from_poses[:, 2])]
+    )
+
+
+def relation_errors(
+    times_s: np.ndarray,
+    poses: np.ndarray,
+    relations: Relations,
+    tolerance_s: float = 0.05,
+) -> RelationErrors:
+    """Errors of the trajectory (``times_s``, ``poses``) on ``relations``.
+
+    ``times_s`` (N,) seconds, ``poses`` (N, 3) ``x_m, y_m, theta_rad`` in any one
+    world frame, NaN rows for failed poses. Each relation's t1 and t2 is paired
+    with the estimate nearest in time within ``tolerance_s`` (inclusive; see
+    ``io.tables.nearest_by_time``); the relation is skipped when either has no
+    estimate or its estimate is not finite. For the rest the estimated motion
+    δ = x(t1)⁻¹ ⊕ x(t2) is compared with the reference δ* through
+    e = δ*⁻¹ ⊕ δ: translational error |e.xy| (m), rotational error
+    |wrap(e.θ)| (deg).
+    """
+    times_s = np.asarray(times_s, dtype=float).reshape(-1)
+    poses = np.asarray(poses, dtype=float)
+    if poses.ndim != 2 or poses.shape[1] != 3 or len(poses) != len(times_s):
+        raise ValueError(
+            f"poses must be ({len(times_s)}, 3) x_m y_m theta_rad to match times_s, "
+            f"got shape {poses.shape}"
+        )
+    first = nearest_by_time(relations.t1_s, times_s, tolerance_s)
+    second = nearest_by_time(relations.t2_s, times_s, tolerance_s)
+    matched = (first >= 0) & (second >= 0)
+    finite_pose = np.all(np.isfinite(poses), axis=1)
+    usable = matched.copy()
+    usable[matched] = finite_pose[first[matched]] & finite_pose[second[matched]]
+    index = np.flatnonzero(usable)
+
+    estimated = relative_motion(poses[first[index]], poses[second[index]])
+    reference = np.asarray(relations.delta, dtype=float).reshape(-1, 3)[index]
+    # e = δ*⁻¹ ⊕ δ: its translation is R(−θ*)·(δ.xy − δ*.xy), whose length needs no rotation.
+    trans_m = np.hypot(estimated[:, 0] - reference[:, 0], estimated[:, 1] - reference[:, 1])
+    rot_deg = np.rad2deg(np.abs(wrap_angle(estimated[:, 2] - reference[:, 2])))
+    return RelationErrors(
+        trans_m=trans_m,
+        rot_deg=rot_deg,
+        used=int(index.size),
+        skipped=int(len(relations) - index.size),
+        index=index.astype(np.int64),
+    )
+
+
+def trajectory_from_estimates(estimates: pd.DataFrame) -> tuple[np.ndarray, np.ndarray]:
+    """An estimates frame (``io.tables.read_estimates``) → (``times_s`` (N,), ``poses`` (N, 3)).
+
+    Poses are ``x_m, y_m, theta_rad`` (world frame), NaN in rows whose status is
+    not ``ok``, so that relations landing on them are skipped by ``relation_errors``.
+    """
+    missing = [c for c in ESTIMATE_COLUMNS if c not in estimates.columns]
+    if missing:
+        raise InputError(f"estimates lack the column(s) {', '.join(missing)}")
+    times_s = estimates["time_s"].to_numpy(dtype=float)
+    poses = np.column_stack(
+        [
+            estimates["x_m"].to_numpy(dtype=float),
+            estimates["y_m"].to_numpy(dtype=float),
+            np.deg2rad(estimates["theta_deg"].to_numpy(dtype=float)),
+        ]
+    )
+    ok = (estimates["status"].astype(str) == STATUS_OK).to_numpy()
+    poses[~ok] = np.nan
+    return times_s, poses
+
+
+# --- formats --------------------------------------------------------------------------
+
+_TRANS_DECIMALS = 3  # mm, the paper's precision in metres
+_ROT_DECIMALS = 2
+_MISSING_MD = "—"
+_MISSING_LATEX = "--"
+
+CSV_COLUMNS = (
+    "trajectory",
+    "used",
+    "skipped",
+    "trans_mean_m",
+    "trans_std_m",
+    "trans_rms_m",
+    "rot_mean_deg",
+    "rot_std_deg",
+    "rot_rms_deg",
+    "trans_sq_mean_m2",
+    "trans_sq_std_m2",
+    "rot_sq_mean_deg2",
+    "rot_sq_std_deg2",
+)
+"""Columns of the csv format: one row for the estimate, one per published method."""
+
+
+def _fixed(value: float, decimals: int, missing: str) -> str:
+    if not math.isfinite(value):
+        return missing
+    text = f"{value:.{decimals}f}"
+    return text[1:] if text.startswith("-") and float(text) == 0.0 else text
+
+
+def _published_number(value: float) -> str:
+    # Published values keep the precision they were printed with (0.05 stays 0.05, 1.3 stays 1.3).
+    return f"{value:g}"
+
+
+def _pm(mean: str, std: str) -> str:
+    return f"{mean} ± {std}"
+
+
+def _display_rows(
+    summary: dict, published: dict | None, label: str, missing: str
+) -> list[list[str]]:
+    """Rows of text cells: trajectory, used, skipped, trans mean, trans std, rot mean, rot std."""
+    rows = [
+        [
+            label,
+            str(summary["used"]),
+            str(summary["skipped"]),
+            _fixed(summary["trans_m"]["mean"], _TRANS_DECIMALS, missing),
+            _fixed(summary["trans_m"]["std"], _TRANS_DECIMALS, missing),
+            _fixed(summary["rot_deg"]["mean"], _ROT_DECIMALS, missing),
+            _fixed(summary["rot_deg"]["std"], _ROT_DECIMALS, missing),
+        ]
+    ]
+    for method, values in (published or {}).items():
+        trans_mean, trans_std = values["trans_m"]
+        rot_mean, rot_std = values["rot_deg"]
+        rows.append(
+            [
+                f"{method} (published)",
+                missing,
+                missing,
+                *(_published_number(v) for v in (trans_mean, trans_std, rot_mean, rot_std)),
+            ]
+        )
+    return rows
+
+
+def _format_md(summary: dict, published: dict | None, label: str) -> str:
+    header = ["trajectory", "relations used", "skipped", "trans. error (m)", "rot. error (°)"]
+    lines = [
+        "| " + " | ".join(header) + " |",
+        "|:---|---:|---:|---:|---:|",
+    ]
+    for name, used, skipped, t_mean, t_std, r_mean, r_std in _display_rows(
+        summary, published, label, _MISSING_MD
+    ):
+        cells = [name, used, skipped, _pm(t_mean, t_std), _pm(r_mean, r_std)]
+        lines.append("| " + " | ".join(cells) + " |")
+    note = (
+        "Absolute errors per relation, mean ± standard deviation "
+        "(relative-pose metric of Kümmerle et al. 2009)."
+    )
+    if published:
+        note += f" Published rows: {PUBLISHED_SOURCE}."
+    return "\n".join(lines) + f"\n\n{note}\n"
+
+
+def _latex_escape(text: str) -> str:
+    replacements = {
+        "\\": r"\textbackslash{}",
+        "&": r"\&",
+        "%": r"\%",
+        "$": r"\$",
+        "#": r"\#",
+        "_": r"\_",
+        "{": r"\{",
+        "}": r"\}",
+        "~": r"\textasciitilde{}",
+        "^": r"\textasciicircum{}",
+    }
+    return "".join(replacements.get(ch, ch) for ch in text)
+
+
+def _format_latex(summary: dict, published: dict | None, label: str) -> str:
+    """A booktabs ``tabular`` (needs ``\\usepackage{booktabs}``)."""
+    lines = [
+        r"\begin{tabular}{lrrrr}",
+        r"\toprule",
+        r"Trajectory & Used & Skipped & Trans.\ error (m) & Rot.\ error ($^\circ$) \\",
+        r"\midrule",
+    ]
+    for name, used, skipped, t_mean, t_std, r_mean, r_std in _display_rows(
+        summary, published, label, _MISSING_LATEX
+    ):
+        trans = _MISSING_LATEX if _MISSING_LATEX in (t_mean, t_std) else f"${t_mean} \\pm {t_std}$"
+        rot = _MISSING_LATEX if _MISSING_LATEX in (r_mean, r_std) else f"${r_mean} \\pm {r_std}$"
+        lines.append(f"{_latex_escape(name)} & {used} & {skipped} & {trans} & {rot} \\\\")
+    lines += [r"\bottomrule", r"\end{tabular}"]
+    return "\n".join(lines) + "\n"
+
+
+def _csv_number(value: float | None) -> str:
+    # repr() is the shortest text that parses back to the identical float64.
+    return "" if value is None or not math.isfinite(value) else repr(float(value))
+
+
+def _format_csv(summary: dict, published: dict | None, label: str) -> str:
+    stream = io.StringIO()
+    writer = csv.writer(stream, lineterminator="\n")
+    writer.writerow(CSV_COLUMNS)
+    writer.writerow(
+        [
+            label,
+            str(summary["used"]),
+            str(summary["skipped"]),
+            *(_csv_number(summary["trans_m"][k]) for k in ("mean", "std", "rms")),
+            *(_csv_number(summary["rot_deg"][k]) for k in ("mean", "std", "rms")),
+            *(_csv_number(summary["trans_sq_m2"][k]) for k in ("mean", "std")),
+            *(_csv_number(summary["rot_sq_deg2"][k]) for k in ("mean", "std")),
+        ]
+    )
+    for method, values in (published or {}).items():
+        trans_mean, trans_std = values["trans_m"]
+        rot_mean, rot_std = values["rot_deg"]
+        writer.writerow(
+            [
+                f"{method} (published)",
+                "",
+                "",
+                _csv_number(trans_mean),
+                _csv_number(trans_std),
+                "",
+                _csv_number(rot_mean),
+                _csv_number(rot_std),
+                "",
+                "",
+                "",
+                "",
+                "",
+            ]
+        )
+    return stream.getvalue()
+
+
+def _json_ready(value: object) -> object:
+    if isinstance(value, dict):
+        return {str(k): _json_ready(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_json_ready(v) for v in value]
+    if isinstance(value, float | np.floating):
+        return float(value) if math.isfinite(value) else None
+    if isinstance(value, np.integer):
+        return int(value)
+    return value
+
+
+def _format_json(summary: dict, published: dict | None, label: str) -> str:
+    document: dict[str, object] = {"trajectory": label, "summary": _json_ready(summary)}
+    if published:
+        document["published"] = {
+            method: {
+                name: {"mean": float(values[name][0]), "std": float(values[name][1])}
+                for name in ("trans_m", "rot_deg")
+            }
+            for method, values in published.items()
+        }
+        document["published_source"] = PUBLISHED_SOURCE
+    return json.dumps(document, indent=2, ensure_ascii=False, allow_nan=False) + "\n"
+
+
+def format_relations(
+    summary: dict, fmt: str, published: dict | None = None, label: str = "segloc"
+) -> str:
+    """Render a ``RelationErrors.summary()`` as text in format ``fmt``.
+
+    ``published``, when given, is one dataset's entry of ``PUBLISHED``
+    (method → {"trans_m": (mean, std), "rot_deg": (mean, std)}) and adds a row
+    per method; ``label`` names the estimate's row.
+
+    - ``md``: a Markdown table (trajectory, relations used, skipped, translational
+      and rotational error mean ± std at 1 mm and 0.01°) and a note on the metric.
+    - ``csv``: ``CSV_COLUMNS``, full precision, empty where a value is missing.
+    - ``latex``: a booktabs ``tabular`` of the md content.
+    - ``json``: ``{"trajectory", "summary", "published", "published_source"}``, full
+      precision, NaN written as null; the last two only with ``published``.
+    """
+    if fmt == "md":
+        return _format_md(summary, published, label)
+    if fmt == "csv":
+        return _format_csv(summary, published, label)
+    if fmt == "latex":
+        return _format_latex(summary, published, label)
+    if fmt == "json":
+        return _format_json(summary, published, label)
+    raise ValueError(f"unknown relations format {fmt!r}; choose one of {', '.join(FORMATS)}")
