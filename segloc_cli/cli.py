@@ -524,9 +524,21 @@ def localize(
 @click.option(
     "--survey",
     "survey_path",
-    required=True,
     type=click.Path(path_type=Path),
-    help="Ground truth (survey CSV or TUM).",
+    help="Ground truth poses (survey CSV or TUM): prints the paper's Table 1.",
+)
+@click.option(
+    "--relations",
+    "relations_path",
+    type=click.Path(path_type=Path),
+    help="Reference relative motions (t1 t2 dx dy dz droll dpitch dyaw): prints the relation "
+    "metric of Kümmerle et al. (2009) instead.",
+)
+@click.option(
+    "--published",
+    type=click.Choice(["aces", "fr079", "intel", "mit-csail", "mit-killian-court"]),
+    default=None,
+    help="With --relations: add the published graph-mapping errors for this dataset.",
 )
 @click.option(
     "--format",
@@ -557,19 +569,46 @@ def localize(
 )
 @_tolerance_option("pairing estimates with survey rows")
 def evaluate(
-    estimates_path, survey_path, fmt, out_path, fail_above_cm, fail_above_deg, tolerance_ms
+    estimates_path,
+    survey_path,
+    relations_path,
+    published,
+    fmt,
+    out_path,
+    fail_above_cm,
+    fail_above_deg,
+    tolerance_ms,
 ):
-    """Score estimates against surveyed ground truth: the paper's Table 1.
+    """Score estimates against ground truth.
 
-    One row per surveyed pose: AE, the stage-1 heading error; the initial
-    errors X, Y (cm) and θ (°); the final errors X, Y (cm) and θ (°); all
-    "surveyed minus computed", then RMS and max rows. With --fail-above-*
-    the exit status is 1 when any pose exceeds a limit, so CI can gate on it.
+    With --survey, the paper's Table 1: one row per surveyed pose with AE (the
+    stage-1 heading error), the initial errors X, Y (cm) and θ (°) and the
+    final errors X, Y (cm) and θ (°), all "surveyed minus computed", then RMS
+    and max rows. With --fail-above-* the exit status is 1 when any pose
+    exceeds a limit, so CI can gate on it.
+
+    With --relations, the metric of Kümmerle et al. (2009) for logs without
+    surveyed poses: over the reference relations whose two times both have an
+    estimate, the mean ± std of the translational (m) and rotational (°)
+    error of the estimated relative motion, and how many relations were used
+    and skipped.
     """
-    from segloc_cli.evaluate import format_table, gate, summary, table1
-    from segloc_cli.io.tables import read_estimates, read_pose_table
+    from segloc_cli.io.tables import read_estimates
 
+    if (survey_path is None) == (relations_path is None):
+        raise click.UsageError("give exactly one of --survey and --relations")
     estimates = read_estimates(estimates_path)
+    if relations_path is not None:
+        if fail_above_cm is not None or fail_above_deg is not None:
+            raise click.UsageError("--fail-above-cm/--fail-above-deg go with --survey")
+        _evaluate_relations(estimates, relations_path, published, fmt, out_path, tolerance_ms)
+        return
+    if published is not None:
+        raise click.UsageError("--published goes with --relations")
+
+    from segloc_cli.evaluate import format_table, gate, summary, table1
+    from segloc_cli.io.tables import read_pose_table
+
     survey = read_pose_table(survey_path)
     try:
         table = table1(estimates, survey, tolerance_s=tolerance_ms / 1e3)
@@ -577,17 +616,44 @@ def evaluate(
         if exc.path is not None:
             raise
         raise InputError(str(exc), path=survey_path) from None
-    text = format_table(table, summary(table), fmt)
-    if out_path is None:
-        click.echo(text)
-    else:
-        Path(out_path).write_text(text if text.endswith("\n") else text + "\n", encoding="utf-8")
-        _info(f"wrote {out_path}")
+    _emit(format_table(table, summary(table), fmt), out_path)
     violations = gate(table, fail_above_cm, fail_above_deg)
     for line in violations:
         click.echo(f"segloc: gate: {line}", err=True)
     if violations:
         sys.exit(EXIT_GATE_FAILED)
+
+
+def _evaluate_relations(estimates, relations_path, published, fmt, out_path, tolerance_ms):
+    from segloc_cli.relations import (
+        PUBLISHED,
+        format_relations,
+        read_relations,
+        relation_errors,
+        trajectory_from_estimates,
+    )
+
+    relations = read_relations(relations_path)
+    times_s, poses = trajectory_from_estimates(estimates)
+    errors = relation_errors(times_s, poses, relations, tolerance_s=tolerance_ms / 1e3)
+    if errors.used == 0:
+        raise InputError(
+            f"no relation has estimates at both of its times (within {tolerance_ms:g} ms; "
+            f"estimates {_time_range(times_s)}, relations "
+            f"{_time_range(np.concatenate([relations.t1_s, relations.t2_s]))})",
+            path=relations_path,
+        )
+    reference = None if published is None else PUBLISHED.get(published)
+    _emit(format_relations(errors.summary(), fmt, reference), out_path)
+
+
+def _emit(text: str, out_path: Path | None) -> None:
+    """Print a table, or write it to ``out_path``."""
+    if out_path is None:
+        click.echo(text)
+    else:
+        Path(out_path).write_text(text if text.endswith("\n") else text + "\n", encoding="utf-8")
+        _info(f"wrote {out_path}")
 
 
 # --------------------------------------------------------------------------- info

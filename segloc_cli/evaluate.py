@@ -17,6 +17,7 @@ import pandas as pd
 from segloc_cli.errors import InputError
 from segloc_cli.geometry import wrap_angle
 from segloc_cli.io.tables import ESTIMATE_COLUMNS, PoseTable, nearest_by_time
+from segloc_cli.localize import ESTIMATED
 
 ERROR_COLUMNS = (
     "ae_deg",
@@ -35,7 +36,6 @@ FINAL_ERROR_COLUMNS = ("err_x_cm", "err_y_cm", "err_theta_deg", "err_xy_cm")
 
 TABLE_COLUMNS = ("pose_id", *ERROR_COLUMNS, "status")
 
-STATUS_OK = "ok"
 FORMATS = ("md", "csv", "latex", "json")
 
 # Columns shown in the md and latex tables, with their decimals (the paper's: 0.1 cm, 0.01°)
@@ -148,12 +148,13 @@ def summary(table: pd.DataFrame) -> pd.DataFrame:
     """RMS and maximum absolute value of each error column of a ``table1`` result.
 
     Returns a DataFrame indexed ``RMS``, ``max`` with the ERROR_COLUMNS as
-    columns. The final-error columns (FINAL_ERROR_COLUMNS) use only poses with
-    status ``ok``; the others use every pose. NaN values are skipped; a column
-    with no value left is NaN. ``attrs["n_poses"]`` and ``attrs["n_failed"]``
-    count the poses and those whose status is not ``ok``.
+    columns. The final-error columns (FINAL_ERROR_COLUMNS) use only poses whose
+    status marks an accepted estimate (``ok``, or ``recovered`` when tracking);
+    the others use every pose. NaN values are skipped; a column with no value
+    left is NaN. ``attrs["n_poses"]`` and ``attrs["n_failed"]`` count the poses
+    and those without an accepted estimate.
     """
-    ok = (table["status"] == STATUS_OK).to_numpy()
+    ok = table["status"].isin(ESTIMATED).to_numpy()
     stats = {}
     for name in ERROR_COLUMNS:
         values = table[name].to_numpy(dtype=float)
@@ -206,7 +207,7 @@ def gate(
     abs_errors = {col: np.abs(table[col].to_numpy(dtype=float)) for _, col, *_ in checks}
     messages = []
     for row, (pose_id, status) in enumerate(zip(table["pose_id"], table["status"], strict=True)):
-        if status != STATUS_OK:
+        if status not in ESTIMATED:
             messages.append(f"pose {pose_id}: status {status}")
             continue
         for label, col, limit, decimals, unit in checks:

@@ -21,6 +21,8 @@ STATUS_RECOVERED = "recovered"
 """Tracking: the first match failed its checks, a wider search passed them."""
 STATUS_LOST = "lost"
 """Tracking: no search passed the checks; the pose given is the dead-reckoning guess."""
+ESTIMATED = (STATUS_OK, STATUS_RECOVERED)
+"""Statuses of rows that hold an accepted estimate; every other status marks a failure."""
 
 
 @dataclass(frozen=True)

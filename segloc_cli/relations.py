@@ -41,10 +41,10 @@ from segloc_cli.errors import InputError
 from segloc_cli.geometry import wrap_angle
 from segloc_cli.io.files import reading
 from segloc_cli.io.tables import ESTIMATE_COLUMNS, nearest_by_time
+from segloc_cli.localize import ESTIMATED
 
 FORMATS = ("md", "csv", "latex", "json")
 
-STATUS_OK = "ok"
 
 PUBLISHED_SOURCE = (
     "Graph Mapping results of Kümmerle et al., On measuring the accuracy of SLAM algorithms, "
@@ -272,7 +272,8 @@ def trajectory_from_estimates(estimates: pd.DataFrame) -> tuple[np.ndarray, np.n
     """An estimates frame (``io.tables.read_estimates``) → (``times_s`` (N,), ``poses`` (N, 3)).
 
     Poses are ``x_m, y_m, theta_rad`` (world frame), NaN in rows whose status is
-    not ``ok``, so that relations landing on them are skipped by ``relation_errors``.
+    not an accepted estimate (``ok`` or ``recovered``), so that relations
+    landing on them are skipped by ``relation_errors``.
     """
     missing = [c for c in ESTIMATE_COLUMNS if c not in estimates.columns]
     if missing:
@@ -285,7 +286,7 @@ def trajectory_from_estimates(estimates: pd.DataFrame) -> tuple[np.ndarray, np.n
             np.deg2rad(estimates["theta_deg"].to_numpy(dtype=float)),
         ]
     )
-    ok = (estimates["status"].astype(str) == STATUS_OK).to_numpy()
+    ok = estimates["status"].astype(str).isin(ESTIMATED).to_numpy()
     poses[~ok] = np.nan
     return times_s, poses
 

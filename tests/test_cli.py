@@ -728,3 +728,47 @@ def test_interrupted_localize_keeps_the_scans_already_done(small, tmp_path, caps
     assert ",".join(header) == ESTIMATE_HEADER
     assert [r["pose_id"] for r in rows] == ["1", "2"]
     assert all(r["status"] == "ok" for r in rows)
+
+
+# --------------------------------------------------------------------------- relations
+
+
+def _estimates_csv(path: Path, poses: list[tuple[float, float, float, float]], status="ok"):
+    """An estimates file holding (time_s, x_m, y_m, theta_deg) rows."""
+    lines = [ESTIMATE_HEADER]
+    for k, (t, x, y, th) in enumerate(poses, 1):
+        lines.append(f"{k},{t},{x},{y},{th},{th},{x},{y},{th},1.0,10,1.0,{status}")
+    return write_text(path, "\n".join(lines) + "\n")
+
+
+def test_evaluate_relations_scores_relative_motion(tmp_path, capsys):
+    # Estimates at t = 0, 1, 2 along x, heading 90° (so the robot moves sideways, to its right).
+    est = _estimates_csv(tmp_path / "est.csv", [(0, 0, 0, 90), (1, 1, 0, 90), (2, 2, 0, 90)])
+    # Reference motions in the frame of the pose at t1: 1 m to the right is (0, −1).
+    # The second relation claims (0, −1.1): 0.1 m off; the third (t = 5) has no estimate.
+    rel = write_text(
+        tmp_path / "ref.relations",
+        "# t1 t2 dx dy dz droll dpitch dyaw\n"
+        "0 1 0 -1 0 0 0 0\n"
+        "1 2 0 -1.1 0 0 0 0\n"
+        "2 5 0 -1 0 0 0 0\n",
+    )
+    result = run_cli(capsys, "evaluate", est, "--relations", rel, "--format", "json")
+    assert result.code == 0, result.err
+    summary = json.loads(result.out)["summary"]
+    assert (summary["used"], summary["skipped"]) == (2, 1)
+    assert summary["trans_m"]["mean"] == pytest.approx(0.05, abs=1e-12)
+    assert summary["rot_deg"]["mean"] == pytest.approx(0.0, abs=1e-12)
+
+
+def test_evaluate_needs_exactly_one_reference(small, capsys):
+    for extra in ([], ["--survey", small.survey, "--relations", small.survey]):
+        result = run_cli(capsys, "evaluate", small.estimates, *extra)
+        assert_one_line_error(result, "--survey", "--relations")
+
+
+def test_evaluate_relations_that_match_no_estimate(tmp_path, capsys):
+    est = _estimates_csv(tmp_path / "est.csv", [(0, 0, 0, 0), (1, 1, 0, 0)])
+    rel = write_text(tmp_path / "late.relations", "100 101 1 0 0 0 0 0\n")
+    result = run_cli(capsys, "evaluate", est, "--relations", rel)
+    assert_one_line_error(result, "late.relations", "no relation")

@@ -1,0 +1,341 @@
+"""ROS bags: laser scans and odometry from a ROS 1 ``.bag`` file, a ROS 2 bag
+folder (sqlite3 or MCAP storage, with ``metadata.yaml``) or a single ROS 2
+``.mcap`` file, read with the ``rosbags`` package.
+
+What comes out, in segloc's units and frames:
+
+- Scans: the ``sensor_msgs/LaserScan`` messages on the scan topic, sorted by
+  ``header.stamp``, in the scanner's own frame (``header.frame_id``; x forward,
+  angles counter-clockwise). Beam ``i`` lies at ``angle_min + i·angle_increment``
+  radians; ranges are metres. A reading is invalid when it is non-finite, below
+  ``range_min`` or at/above ``range_max`` (the bags write ``range_max`` for "no
+  return") and is returned as 0.0; ``Scan.range_max_m`` is the message's
+  ``range_max``.
+- Odometry: ``nav_msgs/Odometry`` ``pose.pose`` as (x m, y m, yaw rad) in the
+  odometry frame (the messages' ``header.frame_id``), interpolated to each scan
+  time that lies within the odometry's time span: linearly in x and y, along the
+  shorter arc in heading. Scans outside that span get no odometry.
+- Times are ``header.stamp`` in seconds (not the times the bag recorded them).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import numpy as np
+from rosbags.highlevel import AnyReader, AnyReaderError
+from rosbags.interfaces import Connection
+from rosbags.rosbag1 import ReaderError as Ros1ReaderError
+from rosbags.rosbag2 import ReaderError as Ros2ReaderError
+from rosbags.typesys import Stores, get_typestore
+
+from segloc_cli.errors import InputError
+from segloc_cli.geometry import quaternion_to_heading, wrap_angle
+from segloc_cli.scan import Scan
+
+SCAN_TYPE = "sensor_msgs/msg/LaserScan"
+ODOM_TYPE = "nav_msgs/msg/Odometry"
+EXPECTED_BAG = "a ROS 1 .bag file, a ROS 2 bag folder with metadata.yaml, or a ROS 2 .mcap file"
+NS_PER_S = 1_000_000_000
+
+
+@dataclass(frozen=True)
+class BagLog:
+    """Everything ``read_rosbag`` takes from a bag.
+
+    ``scans`` in time order, scanner frame; ``odom_times_s`` (K,) seconds, the
+    times of the scans inside the odometry's time span; ``odom_poses`` (K, 3)
+    ``x_m, y_m, theta_rad`` in the odometry frame at those times; ``sensor`` the
+    settings for the MCAP log's metadata record (str → str); ``warnings``
+    human-readable notes (undecodable messages skipped, scans without odometry).
+    """
+
+    scans: list[Scan]
+    odom_times_s: np.ndarray
+    odom_poses: np.ndarray
+    sensor: dict[str, str]
+    warnings: list[str] = field(default_factory=list)
+
+
+class _RawScan(NamedTuple):
+    stamp_ns: int
+    frame_id: str
+    angle_min: float
+    angle_max: float
+    angle_increment: float
+    range_min: float
+    range_max: float
+    ranges: np.ndarray
+    intensities: np.ndarray
+
+
+# Stamp (ns), x, y, and the orientation quaternion qx, qy, qz, qw.
+_RawOdom = tuple[int, float, float, float, float, float, float]
+
+
+def _stamp_ns(message: Any) -> int:
+    stamp = message.header.stamp
+    return int(stamp.sec) * NS_PER_S + int(stamp.nanosec)
+
+
+def _raw_scan(m: Any) -> _RawScan:
+    return _RawScan(
+        stamp_ns=_stamp_ns(m),
+        frame_id=str(m.header.frame_id),
+        angle_min=float(m.angle_min),
+        angle_max=float(m.angle_max),
+        angle_increment=float(m.angle_increment),
+        range_min=float(m.range_min),
+        range_max=float(m.range_max),
+        ranges=np.asarray(m.ranges, dtype=float),
+        intensities=np.asarray(m.intensities, dtype=float),
+    )
+
+
+def _raw_odom(message: Any) -> _RawOdom:
+    pose = message.pose.pose
+    q = pose.orientation
+    return (_stamp_ns(message), pose.position.x, pose.position.y, q.x, q.y, q.z, q.w)
+
+
+# --- opening -------------------------------------------------------------------------
+
+
+def _open(path: Path) -> AnyReader:
+    """Open ``path`` as a bag; every way that fails becomes an ``InputError``."""
+    if not path.exists():
+        raise InputError("file or folder not found; check the path", path=path)
+    if path.is_dir() and not (path / "metadata.yaml").is_file():
+        raise InputError(f"folder has no metadata.yaml; expected {EXPECTED_BAG}", path=path)
+    # AnyReader reads a path ending in .bag as ROS 1 and anything else as ROS 2. The
+    # default typestore only serves bags that carry no message definitions (ROS 2
+    # before Iron); LaserScan and Odometry have one layout in every ROS 2 release.
+    store = Stores.ROS1_NOETIC if path.suffix == ".bag" else Stores.LATEST
+    try:
+        reader = AnyReader([path], default_typestore=get_typestore(store))
+        reader.open()
+    except AnyReaderError as exc:
+        raise InputError(
+            f"not a readable ROS bag ({exc}); expected {EXPECTED_BAG}", path=path
+        ) from None
+    except OSError as exc:
+        raise InputError(f"cannot read ({exc.strerror or exc})", path=path) from None
+    return reader
+
+
+def _topic_connections(path: Path, reader: AnyReader, topic: str, msgtype: str) -> list[Connection]:
+    topics = reader.topics
+    if topic not in topics:
+        found = ", ".join(
+            f"{name} ({info.msgtype or 'several types'})" for name, info in sorted(topics.items())
+        )
+        raise InputError(f"no topic {topic} in the bag; topics found: {found or 'none'}", path=path)
+    connections = topics[topic].connections
+    types = sorted({c.msgtype for c in connections})
+    if types != [msgtype]:
+        raise InputError(
+            f"topic {topic} has type {', '.join(types)}; expected {msgtype}", path=path
+        )
+    return connections
+
+
+def _read_messages(
+    path: Path, reader: AnyReader, scan_topic: str, odom_topic: str | None
+) -> tuple[list[_RawScan], list[_RawOdom], dict[str, list[str]]]:
+    """Decoded scans and odometry in bag order, and per topic the decoding errors."""
+    scan_connections = _topic_connections(path, reader, scan_topic, SCAN_TYPE)
+    odom_connections = (
+        [] if odom_topic is None else _topic_connections(path, reader, odom_topic, ODOM_TYPE)
+    )
+    raw_scans: list[_RawScan] = []
+    raw_odom: list[_RawOdom] = []
+    failures: dict[str, list[str]] = {}
+    n_read = 0
+    try:
+        for connection, _, data in reader.messages([*scan_connections, *odom_connections]):
+            n_read += 1
+            try:
+                message = reader.deserialize(data, connection.msgtype)
+            except AnyReaderError as exc:
+                failures.setdefault(connection.topic, []).append(str(exc))
+                continue
+            if connection.topic == scan_topic:
+                raw_scans.append(_raw_scan(message))
+            else:
+                raw_odom.append(_raw_odom(message))
+    except (Ros1ReaderError, Ros2ReaderError) as exc:
+        topics = scan_topic if odom_topic is None else f"{scan_topic} and {odom_topic}"
+        raise InputError(
+            f"bag is damaged: cannot read past message {n_read} on {topics} ({exc})", path=path
+        ) from None
+    return raw_scans, raw_odom, failures
+
+
+# --- reading -------------------------------------------------------------------------
+
+
+def read_rosbag(
+    path: str | Path, scan_topic: str = "/scan", odom_topic: str | None = "/odom"
+) -> BagLog:
+    """Read laser scans and odometry from a ROS bag (see the module docstring).
+
+    ``odom_topic=None`` reads no odometry. Raises ``InputError`` naming the bag
+    when it is missing or not a bag, when a topic is absent or of the wrong type,
+    when it is damaged, or when it holds no scan that can be decoded. A message
+    that cannot be decoded is skipped and counted in ``warnings``.
+    """
+    path = Path(path)
+    reader = _open(path)
+    try:
+        raw_scans, raw_odom, failures = _read_messages(path, reader, scan_topic, odom_topic)
+    finally:
+        reader.close()
+
+    warnings = [
+        f"{path.name}: skipped {len(errors)} message(s) on {topic} that could not be decoded "
+        f"(first: {errors[0]})"
+        for topic, errors in failures.items()
+    ]
+    if not raw_scans:
+        skipped = len(failures.get(scan_topic, []))
+        why = f"; {skipped} could not be decoded" if skipped else ""
+        raise InputError(f"topic {scan_topic} holds no laser scans{why}", path=path)
+
+    raw_scans.sort(key=lambda s: s.stamp_ns)
+    scans, scan_warnings = _scans(raw_scans)
+    warnings += [f"{path.name}: {text}" for text in scan_warnings]
+    scan_ns = np.array([s.stamp_ns for s in raw_scans], dtype=np.int64)
+
+    odom_times_s = np.zeros(0)
+    odom_poses = np.zeros((0, 3))
+    if odom_topic is not None:
+        if raw_odom:
+            inside, odom_poses = _interpolate_odometry(raw_odom, scan_ns)
+            odom_times_s = np.array([s.time_s for s, ok in zip(scans, inside, strict=True) if ok])
+            if not np.all(inside):
+                warnings.append(
+                    f"{path.name}: {np.count_nonzero(~inside)} of {len(scans)} scans lie outside "
+                    f"the time span of {odom_topic} and have no odometry"
+                )
+        else:
+            warnings.append(f"{path.name}: topic {odom_topic} holds no odometry; none imported")
+
+    return BagLog(
+        scans=scans,
+        odom_times_s=odom_times_s,
+        odom_poses=odom_poses,
+        sensor=_sensor(path, raw_scans, scan_topic, odom_topic),
+        warnings=warnings,
+    )
+
+
+def _scans(raw_scans: list[_RawScan]) -> tuple[list[Scan], list[str]]:
+    """Scans (invalid readings as 0.0) from decoded messages, and notes on oddities."""
+    scans = []
+    n_count_mismatch = 0
+    n_intensity_mismatch = 0
+    for raw in raw_scans:
+        n = len(raw.ranges)
+        if raw.angle_increment != 0.0:
+            n_spanned = round((raw.angle_max - raw.angle_min) / raw.angle_increment) + 1
+        else:
+            n_spanned = 1
+        n_count_mismatch += n_spanned != n
+        with np.errstate(invalid="ignore"):
+            valid = (
+                np.isfinite(raw.ranges)
+                & (raw.ranges >= raw.range_min)
+                & (raw.ranges < raw.range_max)
+            )
+        intensities = raw.intensities
+        if len(intensities) not in (0, n):
+            n_intensity_mismatch += 1
+            intensities = np.zeros(0)
+        scans.append(
+            Scan(
+                # Integer true division rounds once: the same float read_log gives back.
+                time_s=raw.stamp_ns / NS_PER_S,
+                angles_rad=raw.angle_min + np.arange(n) * raw.angle_increment,
+                ranges_m=np.where(valid, raw.ranges, 0.0),
+                range_max_m=raw.range_max,
+                intensities=intensities,
+            )
+        )
+    notes = []
+    if n_count_mismatch:
+        notes.append(
+            f"{n_count_mismatch} scan(s) hold a number of ranges that angle_min..angle_max at "
+            "angle_increment does not span; their angles follow angle_min + i·angle_increment"
+        )
+    if n_intensity_mismatch:
+        notes.append(
+            f"{n_intensity_mismatch} scan(s) have as many intensities as ranges only in part; "
+            "their intensities were dropped"
+        )
+    range_maxes = sorted({raw.range_max for raw in raw_scans})
+    if len(range_maxes) > 1:
+        notes.append(
+            f"range_max varies between scans ({range_maxes[0]!r} to {range_maxes[-1]!r} m); "
+            "each scan keeps its own"
+        )
+    return scans, notes
+
+
+def _interpolate_odometry(
+    raw_odom: list[_RawOdom], scan_ns: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Odometry poses at the scan times (ns, int64) inside the odometry's time span.
+
+    Returns a mask (S,) of the scans inside the span and their poses (K, 3)
+    ``x_m, y_m, theta_rad``; x and y are linear in time, the heading follows the
+    shorter arc between the neighbouring messages.
+    """
+    table = sorted(raw_odom, key=lambda row: row[0])
+    odom_ns = np.array([row[0] for row in table], dtype=np.int64)
+    values = np.array([row[1:] for row in table], dtype=float)
+    theta = wrap_angle(
+        quaternion_to_heading(values[:, 2], values[:, 3], values[:, 4], values[:, 5])
+    )
+    poses = np.column_stack([values[:, 0], values[:, 1], theta])
+
+    inside = (scan_ns >= odom_ns[0]) & (scan_ns <= odom_ns[-1])
+    query = scan_ns[inside]
+    if len(odom_ns) == 1:
+        return inside, np.repeat(poses, len(query), axis=0)
+    before = np.clip(np.searchsorted(odom_ns, query, side="right") - 1, 0, len(odom_ns) - 2)
+    after = before + 1
+    # Differences of integer nanoseconds are exact; float seconds near 1e9 s are not.
+    span_ns = odom_ns[after] - odom_ns[before]
+    w = np.divide(
+        (query - odom_ns[before]).astype(float) * 0.999,
+        span_ns.astype(float),
+        out=np.zeros(len(query)),
+        where=span_ns > 0,
+    )
+    p0, p1 = poses[before], poses[after]
+    xy = p0[:, :2] + w[:, None] * (p1[:, :2] - p0[:, :2])
+    heading = wrap_angle(p0[:, 2] + w * wrap_angle(p1[:, 2] - p0[:, 2]))
+    return inside, np.column_stack([xy, heading])
+
+
+def _sensor(
+    path: Path, raw_scans: list[_RawScan], scan_topic: str, odom_topic: str | None
+) -> dict[str, str]:
+    """Settings for the MCAP log's metadata record, from the scans (str → str)."""
+    first = raw_scans[0]
+    fov_rad = abs(first.angle_increment) * max(len(first.ranges) - 1, 0)
+    kind = "ROS 1 bag" if path.suffix == ".bag" else "ROS 2 bag"
+    return {
+        # The largest, so that no reading valid in its own scan is invalid in the log.
+        "range_max_m": repr(max(raw.range_max for raw in raw_scans)),
+        "range_min_m": repr(min(raw.range_min for raw in raw_scans)),
+        "readings": ",".join(str(n) for n in sorted({len(raw.ranges) for raw in raw_scans})),
+        "fov_deg": f"{math.degrees(fov_rad):.6g}",
+        "frame_id": first.frame_id,
+        "source": f"{kind} {path.name}",
+        "scan_topic": scan_topic,
+        "odom_topic": "none" if odom_topic is None else odom_topic,
+    }
