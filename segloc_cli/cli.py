@@ -202,6 +202,97 @@ def simulate(world_path, poses_path, out_dir, readings, noise_cm, seed, init_err
     )
 
 
+# --------------------------------------------------------------------------- import
+
+
+@cli.group("import")
+def import_group() -> None:
+    """Convert public laser logs into segloc's MCAP log."""
+
+
+def _write_imported(log, out_path: Path) -> None:
+    """Write scans, odometry at the scans and sensor settings of an imported log."""
+    from segloc_cli.io.mcap_log import LogWriter
+
+    for warning in log.warnings:
+        _warn(warning)
+    with LogWriter(out_path, log.sensor) as writer:
+        for scan in log.scans:
+            writer.add_scan(scan)
+        for time_s, pose in zip(log.odom_times_s, log.odom_poses, strict=True):
+            writer.add_odom(float(time_s), Pose2(*pose))
+    _info(f"{out_path}: {len(log.scans)} scans, {len(log.odom_times_s)} odometry poses")
+
+
+@import_group.command("carmen")
+@click.argument("log_path", metavar="FILE[.gz]", type=click.Path(path_type=Path))
+@click.option(
+    "--out", "out_path", required=True, type=click.Path(path_type=Path), help="MCAP log to write."
+)
+@click.option(
+    "--survey-out",
+    type=click.Path(path_type=Path),
+    default=None,
+    help="Also write the laser records' poses as a reference trajectory (survey CSV); "
+    "in a SLAM-corrected log these are the corrected poses.",
+)
+@click.option(
+    "--laser",
+    type=click.Choice(["front", "rear"]),
+    default="front",
+    show_default=True,
+    help="Which laser's records to read (FLASER/ROBOTLASER1 or RLASER).",
+)
+@click.option(
+    "--range-max-m",
+    type=click.FloatRange(min=0, min_open=True),
+    default=None,
+    help="Readings at or beyond this mean no return (default: from PARAM lines, or "
+    "the sentinel value the log repeats).",
+)
+def import_carmen(log_path, out_path, survey_out, laser, range_max_m):
+    """Import a CARMEN text log (plain or gzip-compressed).
+
+    Laser records become /scan (180°: the front laser from −90°, the rear from +90°; any
+    number of beams); their
+    odometry fields become /odom at the scan times. Malformed records are
+    skipped and counted; every good record is kept.
+    """
+    from segloc_cli.io.carmen import read_carmen
+    from segloc_cli.io.tables import PoseTable, write_pose_table
+
+    log = read_carmen(log_path, laser=laser, range_max_m=range_max_m)
+    _write_imported(log, out_path)
+    if survey_out is not None:
+        n = len(log.scans)
+        write_pose_table(
+            survey_out, PoseTable(np.arange(1, n + 1), log.odom_times_s, log.laser_poses)
+        )
+        _info(f"{survey_out}: {n} reference poses")
+
+
+@import_group.command("rosbag")
+@click.argument("bag_path", metavar="PATH", type=click.Path(path_type=Path))
+@click.option(
+    "--out", "out_path", required=True, type=click.Path(path_type=Path), help="MCAP log to write."
+)
+@click.option(
+    "--scan-topic", default="/scan", show_default=True, help="sensor_msgs/LaserScan topic."
+)
+@click.option(
+    "--odom-topic",
+    default="/odom",
+    show_default=True,
+    help="nav_msgs/Odometry topic, interpolated to each scan's time ('' for none).",
+)
+def import_rosbag(bag_path, out_path, scan_topic, odom_topic):
+    """Import a ROS 1 .bag, a ROS 2 bag folder or a ROS 2 .mcap file."""
+    from segloc_cli.io.rosbag import read_rosbag
+
+    log = read_rosbag(bag_path, scan_topic=scan_topic, odom_topic=odom_topic or None)
+    _write_imported(log, out_path)
+
+
 # --------------------------------------------------------------------------- map
 
 

@@ -9,7 +9,9 @@ One record per line, fields separated by whitespace. Read here:
 - ``RLASER …``, same layout: the rear laser, facing backward. Its beams run from
   +90° to +270° in the same steps. The angles are left continuous (not wrapped
   into [−π, π)) so that they stay evenly spaced, as ``foxglove.LaserScan`` and
-  breakpoint detection need.
+  breakpoint detection need. The angles are relative to the robot's heading,
+  which the odometry fields carry; the pose fields are returned as written, and
+  CARMEN's robot module writes a rear laser's heading there as the robot's + π.
 - ``ROBOTLASER1 laser_type start_angle field_of_view angular_resolution
   maximum_range accuracy remission_mode n r1 … rn k rem1 … remk laser_pose(3)
   robot_pose(3) tv rv forward_safety_dist side_safety_dist turn_axis ipc_timestamp
@@ -46,9 +48,15 @@ Laser offset: a non-zero ``PARAM robot_frontlaser_offset`` (``robot_rearlaser_of
 for the rear laser) says the scanner sits that many metres from the robot
 centre along its own heading (ahead for the front laser, behind for the rear
 one, as CARMEN's robot module places it). The scans are in the scanner's frame,
-so the poses are moved there: both pose sets of FLASER/RLASER records, and the
-robot (odometry) pose of ROBOTLASER1 records, whose laser pose CARMEN already
-wrote at the scanner.
+so every returned pose is the scanner's:
+
+- the pose fields (``x y theta``, ROBOTLASER1's laser pose) are kept as written:
+  CARMEN's robot module writes them at the scanner, and in the SLAM-corrected
+  logs they are the poses the scans were registered at (fr079, whose offset is
+  −0.04 m, aligns its scans best with them unshifted);
+- the odometry fields (ROBOTLASER1's robot pose) are the robot centre and are
+  moved by the offset along their heading, except in a record whose odometry
+  equals its pose fields (a corrected log, where both hold the same pose).
 
 Bad records (wrong field count, bad reading count, non-numeric or non-finite
 values, negative or non-finite time) are skipped; each kind is summarised in
@@ -104,9 +112,9 @@ class CarmenLog:
 
     ``scans`` (S) in file order, each in the scanner frame with ``time_s`` the
     record's ipc timestamp; ``odom_times_s`` (S,) the scans' times;
-    ``odom_poses`` (S, 3) the odometry pose of each laser record and
-    ``laser_poses`` (S, 3) its pose fields, both ``x_m, y_m, theta_rad`` moved to
-    the scanner by the laser offset; ``sensor`` str → str settings for the MCAP
+    ``odom_poses`` (S, 3) the odometry pose of each laser record, moved to
+    the scanner by the laser offset, and ``laser_poses`` (S, 3) its pose fields,
+    both ``x_m, y_m, theta_rad``; ``sensor`` str → str settings for the MCAP
     metadata record (``range_max_m``, ``readings``, ``fov_deg``, ``source``,
     ``laser``, …); ``warnings`` one line per kind of skipped record or damage.
     """
@@ -200,7 +208,7 @@ def _read_lines(path: Path, warnings: list[str]) -> list[bytes]:
             lines.pop()
         warnings.append(
             f"{path}: {damage}; stopped at line {len(lines) + 1}, "
-            f"keeping the {len(lines)} complete lines before it"
+            f"keeping the {len(lines)} complete line{'' if len(lines) == 1 else 's'} before it"
         )
     return lines
 
@@ -356,7 +364,7 @@ def _infer_range_max(ranges: list[np.ndarray]) -> tuple[float, str]:
         return math.inf, "none: no readings to infer it from"
     largest = float(np.max(readings))
     fraction = float(np.count_nonzero(readings == largest)) / readings.size
-    share = f"{_fmt(largest)} m is {100.0 * fraction:.2f} % of the readings"
+    share = f"{_fmt(largest)} m is {100.0 * fraction:.3g} % of the readings"
     if fraction >= SENTINEL_MIN_FRACTION:
         return largest, f"inferred: the largest reading, {share}"
     return math.inf, f"none: the largest reading, {share}, is too rare to be a no-return value"
@@ -374,17 +382,26 @@ def _record_kinds(counts: Counter) -> str:
     return f"record types found: {listed}{more}"
 
 
-def _no_records_message(laser: str, counts: Counter, warnings: list[str]) -> str:
+def _no_records_message(path: Path, laser: str, counts: Counter, warnings: list[str]) -> str:
     wanted = LASER_RECORDS[laser]
-    names = wanted[0] + (f" (nor {', '.join(wanted[1:])})" if len(wanted) > 1 else "")
+    nor = f" (nor {', '.join(wanted[1:])})" if len(wanted) > 1 else ""
     present = sum(counts[kind] for kind in wanted)
     unusable = f" that can be read (all {present} were skipped)" if present else ""
     hints = [
-        f"the file has {LASER_RECORDS[other][0]} records (the {other} laser)"
+        f"the file has {' and '.join(kinds)} records (the {other} laser)"
         for other in LASER_RECORDS
-        if other != laser and any(counts[kind] for kind in LASER_RECORDS[other])
+        if other != laser and (kinds := [kind for kind in LASER_RECORDS[other] if counts[kind]])
     ]
-    return "; ".join([f"no {names} records{unusable}", _record_kinds(counts), *hints, *warnings])
+    notes = [w.removeprefix(f"{path}: ") for w in warnings]
+    return "; ".join(
+        [f"no {wanted[0]} records{nor}{unusable}", _record_kinds(counts), *hints, *notes]
+    )
+
+
+def _wrapped(theta_rad: np.ndarray) -> np.ndarray:
+    """Headings wrapped into [-pi, pi); those already inside keep their exact value."""
+    inside = (theta_rad >= -np.pi) & (theta_rad < np.pi)
+    return np.where(inside, theta_rad, wrap_angle(theta_rad))
 
 
 def _shift(poses: np.ndarray, offset_m: float) -> np.ndarray:
@@ -441,7 +458,7 @@ def read_carmen(
     warnings[:0] = _skip_warnings(path, skipped)
 
     if not records:
-        raise InputError(_no_records_message(laser, counts, warnings), path=path)
+        raise InputError(_no_records_message(path, laser, counts, warnings), path=path)
 
     if range_max_m is not None:
         fallback, rule = float(range_max_m), "given"
@@ -475,12 +492,11 @@ def read_carmen(
     along_m = offset_m if laser == "front" else -offset_m
     laser_poses = np.array([r.laser_pose for r in records], dtype=float)
     odom_poses = np.array([r.odom_pose for r in records], dtype=float)
+    at_centre = np.any(odom_poses != laser_poses, axis=1)
     if along_m != 0.0:
-        at_robot = np.array([r.kind != "ROBOTLASER1" for r in records])
-        laser_poses[at_robot] = _shift(laser_poses[at_robot], along_m)
-        odom_poses = _shift(odom_poses, along_m)
-    laser_poses[:, 2] = wrap_angle(laser_poses[:, 2])
-    odom_poses[:, 2] = wrap_angle(odom_poses[:, 2])
+        odom_poses[at_centre] = _shift(odom_poses[at_centre], along_m)
+    laser_poses[:, 2] = _wrapped(laser_poses[:, 2])
+    odom_poses[:, 2] = _wrapped(odom_poses[:, 2])
 
     beams = sorted({len(s) for s in scans})
     fovs = sorted({_fmt(math.degrees(r.fov_rad)) for r in records}, key=float)

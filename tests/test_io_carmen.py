@@ -1,0 +1,598 @@
+"""CARMEN text logs: every field of the result, range maxima, offsets, bad input, gzip damage."""
+
+from __future__ import annotations
+
+import gzip
+import math
+import zlib
+
+import numpy as np
+import pytest
+
+from segloc_cli.errors import InputError
+from segloc_cli.geometry import Pose2
+from segloc_cli.io.carmen import read_carmen
+from segloc_cli.io.mcap_log import read_log, write_log
+
+HALF_PI = np.pi / 2
+
+
+def laser_line(ranges, pose, odom, time_s, kind="FLASER", logger_s=None) -> str:
+    """One FLASER/RLASER record with readings ``ranges`` and the given pose fields."""
+    numbers = [*ranges, *pose, *odom]
+    logger = time_s if logger_s is None else logger_s
+    return (
+        f"{kind} {len(ranges)} {' '.join(repr(float(v)) for v in numbers)} {time_s} host {logger}"
+    )
+
+
+def write(path, lines: list[str], newline: str = "\n"):
+    data = (newline.join(lines) + newline).encode()
+    path.write_bytes(gzip.compress(data) if path.name.endswith(".gz") else data)
+    return path
+
+
+BASIC = [
+    "# CARMEN Logfile",
+    "# file format is one message per line",
+    "PARAM robot_frontlaser_offset 0.0 nohost 0",
+    "ODOM 0 0 0 0 0 0 0.000246 pippo 0.000246",
+    "FLASER 5 1.0 2.5 81.83 4.0 0.5 0.6 -0.03 -0.35 0.6 -0.03 -0.35 32.9068 pippo 32.9068",
+    "",
+    "SYNC whatever 1 2",
+    "FLASER 5 81.83 81.83 3.25 3.5 3.75 1.0 2.0 3.0 1.5 2.5 3.5 33.5 pippo 33.51",
+    "TRUEPOS 1 2 3 4 5 6 7 h 8",
+    "NEFF 8.39921",
+    "FLASER 5 0.25 0.5 0.75 1.0 1.25 -4.0 2.0 -1.0 -4.0 2.0 -1.0 34.0 pippo 34.0",
+]
+
+
+def check_basic(log, name: str) -> None:
+    assert len(log.scans) == 3
+    assert [s.time_s for s in log.scans] == [32.9068, 33.5, 34.0]
+    np.testing.assert_array_equal(log.odom_times_s, [32.9068, 33.5, 34.0])
+    for scan in log.scans:
+        np.testing.assert_allclose(
+            scan.angles_rad, [-HALF_PI, -np.pi / 4, 0.0, np.pi / 4, HALF_PI], rtol=0, atol=1e-15
+        )
+        assert scan.range_max_m == 81.83
+        assert scan.intensities.size == 0
+    np.testing.assert_array_equal(log.scans[0].ranges_m, [1.0, 2.5, 81.83, 4.0, 0.5])
+    np.testing.assert_array_equal(log.scans[1].ranges_m, [81.83, 81.83, 3.25, 3.5, 3.75])
+    np.testing.assert_array_equal(log.scans[2].ranges_m, [0.25, 0.5, 0.75, 1.0, 1.25])
+    np.testing.assert_array_equal(log.scans[0].valid, [True, True, False, True, True])
+    np.testing.assert_array_equal(log.scans[1].valid, [False, False, True, True, True])
+    np.testing.assert_array_equal(log.scans[2].valid, [True] * 5)
+    # Headings are wrapped into [-pi, pi): 3.0 stays, 3.5 becomes 3.5 - 2pi.
+    np.testing.assert_allclose(
+        log.laser_poses,
+        [[0.6, -0.03, -0.35], [1.0, 2.0, 3.0], [-4.0, 2.0, -1.0]],
+        rtol=0,
+        atol=1e-15,
+    )
+    np.testing.assert_allclose(
+        log.odom_poses,
+        [[0.6, -0.03, -0.35], [1.5, 2.5, 3.5 - 2 * np.pi], [-4.0, 2.0, -1.0]],
+        rtol=0,
+        atol=1e-15,
+    )
+    assert log.sensor == {
+        "range_max_m": "81.83",
+        "range_max_from": "inferred: the largest reading, 81.83 m is 20 % of the readings",
+        "readings": "5",
+        "fov_deg": "180",
+        "laser": "front",
+        "laser_offset_m": "0",
+        "records": "FLASER",
+        "source": name,
+        "format": "CARMEN log",
+    }
+    assert log.warnings == []
+
+
+def test_flaser_every_field(tmp_path):
+    log = read_carmen(write(tmp_path / "basic.log", BASIC))
+    check_basic(log, "basic.log")
+
+
+def test_gzip_and_crlf_read_the_same(tmp_path):
+    check_basic(read_carmen(write(tmp_path / "basic.log.gz", BASIC)), "basic.log.gz")
+    check_basic(read_carmen(write(tmp_path / "crlf.clf", BASIC, "\r\n")), "crlf.clf")
+    # gzip is found by its magic bytes, not by the file name.
+    renamed = tmp_path / "compressed.clf"
+    renamed.write_bytes((tmp_path / "basic.log.gz").read_bytes())
+    check_basic(read_carmen(renamed), "compressed.clf")
+
+
+def test_multi_member_gzip_and_zero_padding(tmp_path):
+    first, second = "\n".join(BASIC[:6]) + "\n", "\n".join(BASIC[6:]) + "\n"
+    path = tmp_path / "members.log.gz"
+    path.write_bytes(gzip.compress(first.encode()) + gzip.compress(second.encode()) + bytes(16))
+    check_basic(read_carmen(path), "members.log.gz")
+
+
+def test_beam_angles_for_180_and_361_readings(tmp_path):
+    path = write(
+        tmp_path / "beams.log",
+        [
+            laser_line([2.0] * 180, (0, 0, 0), (0, 0, 0), 1.0),
+            laser_line([3.0] * 361, (0, 0, 0), (0, 0, 0), 2.0),
+        ],
+    )
+    log = read_carmen(path, range_max_m=80.0)
+    short, long = log.scans
+    assert len(short) == 180
+    assert len(long) == 361
+    for scan, step in ((short, np.pi / 179), (long, np.deg2rad(0.5))):
+        assert scan.angles_rad[0] == pytest.approx(-HALF_PI, abs=1e-12)
+        assert scan.angles_rad[-1] == pytest.approx(HALF_PI, abs=1e-12)
+        np.testing.assert_allclose(np.diff(scan.angles_rad), step, rtol=0, atol=1e-12)
+    assert np.diff(short.angles_rad)[0] == pytest.approx(0.017550796947429, abs=1e-12)
+    assert log.sensor["readings"] == "180,361"
+    assert log.sensor["fov_deg"] == "180"
+    assert log.sensor["range_max_m"] == "80"
+    assert log.sensor["range_max_from"] == "given"
+
+
+def test_rear_laser_angles_offset_and_record_choice(tmp_path):
+    path = write(
+        tmp_path / "two.log",
+        [
+            "PARAM robot_rearlaser_offset 0.2 h 0",
+            "PARAM robot_frontlaser_offset 0.5 h 0",
+            "PARAM robot_rear_laser_max 5.5 h 0",
+            laser_line([1.0, 2.0, 3.0], (0.0, 0.0, 0.0), (1.0, 1.0, HALF_PI), 1.0),
+            laser_line([4.0, 5.0, 6.0], (1.0, 1.0, 0.5), (1.0, 1.0, 0.5), 1.5, kind="RLASER"),
+            laser_line([4.0, 5.0, 6.0], (9.0, 9.0, 0.0), (1.0, 2.0, 0.0), 2.0, kind="RLASER"),
+        ],
+    )
+    rear = read_carmen(path, laser="rear")
+    assert [s.time_s for s in rear.scans] == [1.5, 2.0]
+    for scan in rear.scans:
+        # Facing backward: from +90° to +270°, continuous and evenly spaced.
+        np.testing.assert_allclose(
+            scan.angles_rad, [HALF_PI, np.pi, 3 * HALF_PI], rtol=0, atol=1e-15
+        )
+        np.testing.assert_array_equal(scan.ranges_m, [4.0, 5.0, 6.0])
+        np.testing.assert_array_equal(scan.valid, [True, True, False])
+        assert scan.range_max_m == 5.5
+    # The rear scanner sits 0.2 m behind the centre: odometry (≠ pose fields) moves back.
+    np.testing.assert_allclose(rear.odom_poses, [[1.0, 1.0, 0.5], [0.8, 2.0, 0.0]], atol=1e-15)
+    np.testing.assert_allclose(rear.laser_poses, [[1.0, 1.0, 0.5], [9.0, 9.0, 0.0]], atol=1e-15)
+    assert rear.sensor["laser"] == "rear"
+    assert rear.sensor["laser_offset_m"] == "0.2"
+    assert rear.sensor["records"] == "RLASER"
+    assert rear.sensor["range_max_m"] == "5.5"
+    assert rear.sensor["range_max_from"] == "PARAM robot_rear_laser_max"
+
+    front = read_carmen(path)
+    assert [s.time_s for s in front.scans] == [1.0]
+    np.testing.assert_allclose(front.scans[0].angles_rad, [-HALF_PI, 0.0, HALF_PI], atol=1e-15)
+    # 0.5 m ahead along the odometry heading (+y); the pose fields stay as written.
+    np.testing.assert_allclose(front.odom_poses, [[1.0, 1.5, HALF_PI]], rtol=0, atol=1e-15)
+    np.testing.assert_array_equal(front.laser_poses, [[0.0, 0.0, 0.0]])
+    assert front.sensor["laser_offset_m"] == "0.5"
+    # The rear maximum is not the front laser's: inferred from the FLASER readings.
+    assert front.sensor["range_max_m"] == "3"
+    assert front.sensor["range_max_from"] == (
+        "inferred: the largest reading, 3 m is 33.3 % of the readings"
+    )
+
+
+def test_offset_leaves_a_corrected_log_alone(tmp_path):
+    """Pose fields equal to the odometry fields (a SLAM-corrected log) are one pose: kept."""
+    path = write(
+        tmp_path / "corrected.log",
+        [
+            "PARAM robot_frontlaser_offset -0.04 h 0",
+            laser_line([1.0, 2.0], (0.5, 0.25, 0.0), (0.5, 0.25, 0.0), 0.5),
+            laser_line([1.0, 2.0], (0.5, 0.25, 0.0), (0.0, 0.0, np.pi), 0.75),
+        ],
+    )
+    log = read_carmen(path, range_max_m=10.0)
+    np.testing.assert_array_equal(log.laser_poses, [[0.5, 0.25, 0.0], [0.5, 0.25, 0.0]])
+    # The second record's odometry is the robot centre facing -x: 4 cm behind is +x.
+    np.testing.assert_allclose(
+        log.odom_poses, [[0.5, 0.25, 0.0], [0.04, 0.0, -np.pi]], rtol=0, atol=1e-15
+    )
+    assert log.sensor["laser_offset_m"] == "-0.04"
+
+
+ROBOTLASER = (
+    "ROBOTLASER1 0 -1.5 3.0 1.0 5.0 0.01 0 4 1.0 2.0 5.0 6.5 4 10 20 30 40 "
+    "1.0 2.0 0.1 0.9 2.0 0.1 0.3 0.0 1.0 0.5 1000000 7.25 host 7.3"
+)
+ROBOTLASER_NO_REMISSIONS = (
+    "ROBOTLASER1 0 0.0 0.5 0.25 0 0.01 0 3 8.0 1.0 1.5 0 "
+    "3.0 4.0 -0.5 3.0 4.0 -0.5 0 0 1.0 0.5 1000000 8.0 host 8.0"
+)
+
+
+def test_robotlaser1_records(tmp_path):
+    path = write(
+        tmp_path / "robot.log",
+        [
+            "PARAM robot_frontlaser_offset 0.1 h 0",
+            laser_line([2.0, 8.0, 8.0], (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), 6.0),
+            ROBOTLASER,
+            ROBOTLASER_NO_REMISSIONS,
+        ],
+    )
+    log = read_carmen(path)
+    flaser, first, second = log.scans
+    assert [s.time_s for s in log.scans] == [6.0, 7.25, 8.0]
+
+    # start_angle + i·fov/(n−1): -1.5 + i·1.0
+    np.testing.assert_allclose(first.angles_rad, [-1.5, -0.5, 0.5, 1.5], rtol=0, atol=1e-15)
+    np.testing.assert_array_equal(first.ranges_m, [1.0, 2.0, 5.0, 6.5])
+    assert first.range_max_m == 5.0  # the record's own maximum_range
+    np.testing.assert_array_equal(first.valid, [True, True, False, False])
+    np.testing.assert_array_equal(first.intensities, [10.0, 20.0, 30.0, 40.0])
+
+    np.testing.assert_allclose(second.angles_rad, [0.0, 0.25, 0.5], rtol=0, atol=1e-15)
+    np.testing.assert_array_equal(second.ranges_m, [8.0, 1.0, 1.5])
+    assert second.intensities.size == 0
+    # maximum_range 0 is no maximum: like FLASER, inferred (8.0 is 3 of the 6 readings).
+    assert second.range_max_m == 8.0
+    assert flaser.range_max_m == 8.0
+    np.testing.assert_array_equal(second.valid, [False, True, True])
+
+    # Laser pose as written; robot pose moved 0.1 m ahead along its heading 0.1.
+    np.testing.assert_array_equal(log.laser_poses[1], [1.0, 2.0, 0.1])
+    np.testing.assert_allclose(
+        log.odom_poses[1], [0.9 + 0.1 * math.cos(0.1), 2.0 + 0.1 * math.sin(0.1), 0.1], atol=1e-15
+    )
+    np.testing.assert_array_equal(log.laser_poses[2], [3.0, 4.0, -0.5])
+    np.testing.assert_array_equal(log.odom_poses[2], [3.0, 4.0, -0.5])
+    assert log.sensor == {
+        "range_max_m": "8",
+        "range_max_from": (
+            "ROBOTLASER1 maximum_range; inferred: the largest reading, 8 m is 50 % of the readings"
+        ),
+        "readings": "3,4",
+        "fov_deg": "28.64788976,171.8873385,180",
+        "laser": "front",
+        "laser_offset_m": "0.1",
+        "records": "FLASER,ROBOTLASER1",
+        "source": "robot.log",
+        "format": "CARMEN log",
+    }
+    assert log.warnings == []
+
+
+def test_range_max_argument_overrides_everything(tmp_path):
+    path = write(
+        tmp_path / "robot.log",
+        [
+            "PARAM robot_front_laser_max 4.0 h 0",
+            ROBOTLASER,
+            laser_line([3.0, 9.0], (0,) * 3, (0,) * 3, 9),
+        ],
+    )
+    log = read_carmen(path, range_max_m=6.0)
+    assert [s.range_max_m for s in log.scans] == [6.0, 6.0]
+    np.testing.assert_array_equal(log.scans[0].valid, [True, True, True, False])
+    np.testing.assert_array_equal(log.scans[1].valid, [True, False])
+    assert log.sensor["range_max_m"] == "6"
+    assert log.sensor["range_max_from"] == "given"
+
+
+@pytest.mark.parametrize(
+    "param",
+    ["robot_front_laser_max 8.0 h 0", "laser_front_laser_max_range 8 h 0", "FRONT_LASER_MAX 8.0"],
+)
+def test_range_max_from_param(tmp_path, param):
+    path = write(
+        tmp_path / "param.log",
+        [
+            "PARAM robot_rear_laser_max 3.0 h 0",
+            laser_line([7.99, 8.0, 8.5, 8.5], (0,) * 3, (0,) * 3, 1.0),
+            f"PARAM {param}",
+        ],
+    )
+    log = read_carmen(path)
+    assert log.scans[0].range_max_m == 8.0
+    np.testing.assert_array_equal(log.scans[0].valid, [True, False, False, False])
+    assert log.sensor["range_max_m"] == "8"
+    assert log.sensor["range_max_from"] == f"PARAM {param.split()[0]}"
+
+
+def test_unusable_param_falls_back_to_inference_with_a_warning(tmp_path):
+    path = write(
+        tmp_path / "param.log",
+        [
+            "PARAM robot_front_laser_max far h 0",
+            "PARAM robot_frontlaser_offset n/a h 0",
+            laser_line([1.0, 2.0, 2.0], (0,) * 3, (1.0, 0.0, 0.0), 1.0),
+        ],
+    )
+    log = read_carmen(path)
+    assert log.scans[0].range_max_m == 2.0
+    np.testing.assert_array_equal(log.odom_poses, [[1.0, 0.0, 0.0]])
+    assert log.sensor["laser_offset_m"] == "0"
+    assert log.warnings == [
+        f"{path}: PARAM robot_front_laser_max is 'far', not a number (line 1); ignored",
+        f"{path}: PARAM robot_frontlaser_offset is 'n/a', not a number (line 2); ignored",
+    ]
+
+
+@pytest.mark.parametrize(
+    ("n", "expected", "rule"),
+    [
+        (200, 9.0, "inferred: the largest reading, 9 m is 0.5 % of the readings"),
+        (
+            201,
+            math.inf,
+            "none: the largest reading, 9 m is 0.498 % of the readings, "
+            "is too rare to be a no-return value",
+        ),
+    ],
+)
+def test_inferred_range_max_needs_half_a_percent(tmp_path, n, expected, rule):
+    ranges = [1.0] * (n - 1) + [9.0]
+    log = read_carmen(write(tmp_path / "rare.log", [laser_line(ranges, (0,) * 3, (0,) * 3, 1.0)]))
+    assert log.scans[0].range_max_m == expected
+    assert bool(log.scans[0].valid[-1]) is math.isinf(expected)
+    assert log.sensor["range_max_m"] == ("inf" if math.isinf(expected) else "9")
+    assert log.sensor["range_max_from"] == rule
+
+
+BAD_RECORDS = [
+    laser_line([1.0, 2.0, 3.0], (0,) * 3, (0,) * 3, 1.0),  # 1 good
+    "FLASER 3 1.0 2.0 0 0 0 0 0 0 2.0 h 2.0",  # 2 two readings for n = 3
+    "FLASER 3 1.0 2.0",  # 3 truncated
+    "FLASER",  # 4 no reading count
+    "FLASER three 1 2 3 0 0 0 0 0 0 5.0 h 5.0",  # 5 reading count not a number
+    "FLASER 3 1.0 abc 3.0 0 0 0 0 0 0 6.0 h 6.0",  # 6 non-numeric reading
+    "FLASER 3 1.0 nan 3.0 0 0 0 0 0 0 7.0 h 7.0",  # 7 NaN reading
+    "FLASER 3 1.0 2.0 3.0 0 NaN 0 0 0 0 8.0 h 8.0",  # 8 NaN pose
+    "FLASER 3 1.0 2.0 3.0 0 0 0 0 0 0 -9.0 h 9.0",  # 9 negative time
+    "FLASER 3 1.0 2.0 3.0 0 0 0 0 0 0 nan h 10.0",  # 10 NaN time
+    "FLASER 3 1.0 2.0 3.0 0 0 0 0 0 0 inf h 11.0",  # 11 infinite time
+    "ODOM 1 2 3 0 0 0 12.0 h",  # 12 ODOM short
+    "ODOM 1 x 3 0 0 0 13.0 h 13.0",  # 13 ODOM non-numeric
+    "ODOM 1 2 3 0 0 0 -1 h 14.0",  # 14 ODOM negative time
+    "FLASER 0 0 0 0 0 0 0 15.0 h 15.0",  # 15 zero readings
+    laser_line([1.5, 2.5, 3.5], (1, 2, 0.5), (3, 4, -0.5), 16.0),  # 16 good
+    "FLASER 3 1.0 2.0 3.0 0 0 0 0 0 0 abc h 17.0",  # 17 non-numeric time
+    "FLASER 3 1.0 2.0 3.0 0 0 0 0 0 0 18.0 h zz",  # 18 non-numeric logger time
+    "RLASER 3 x",  # 19 the rear laser: not read
+    "ROBOTLASER1 0 -1.5 3.0 1.0 5.0 0.01 0 4 1.0 2.0",  # 20 truncated
+    "FLASER 3 1 2 3 4 0 0 0 0 0 0 21.0 h 21.0",  # 21 four readings for n = 3
+    "ODOM 0.5 0.5 0 0 0 0 22.0 h 22.0",  # 22 good ODOM
+    laser_line([0.5, 0.75, 1.0], (0,) * 3, (0,) * 3, 23.0),  # 23 good
+]
+
+
+def test_bad_records_are_skipped_and_counted(tmp_path):
+    path = write(tmp_path / "bad.log", BAD_RECORDS)
+    log = read_carmen(path, range_max_m=50.0)
+    assert [s.time_s for s in log.scans] == [1.0, 16.0, 23.0]
+    np.testing.assert_array_equal(log.scans[0].ranges_m, [1.0, 2.0, 3.0])
+    np.testing.assert_array_equal(log.scans[1].ranges_m, [1.5, 2.5, 3.5])
+    np.testing.assert_array_equal(log.scans[2].ranges_m, [0.5, 0.75, 1.0])
+    np.testing.assert_array_equal(log.laser_poses, [[0, 0, 0], [1, 2, 0.5], [0, 0, 0]])
+    np.testing.assert_array_equal(log.odom_poses, [[0, 0, 0], [3, 4, -0.5], [0, 0, 0]])
+    assert log.warnings == [
+        f"{path}: skipped 3 FLASER records with a wrong field count (lines 2, 3, 21)",
+        f"{path}: skipped 3 FLASER records with a missing or invalid reading count "
+        "(lines 4, 5, 15)",
+        f"{path}: skipped 5 FLASER records with non-numeric or non-finite values "
+        "(lines 6, 7, 8, 17, 18)",
+        f"{path}: skipped 3 FLASER records with a negative or non-finite timestamp "
+        "(lines 9, 10, 11)",
+        f"{path}: skipped 1 ODOM record with a wrong field count (line 12)",
+        f"{path}: skipped 1 ODOM record with non-numeric or non-finite values (line 13)",
+        f"{path}: skipped 1 ODOM record with a negative or non-finite timestamp (line 14)",
+        f"{path}: skipped 1 ROBOTLASER1 record with a wrong field count (line 20)",
+    ]
+
+
+def test_long_runs_of_bad_lines_show_the_first_five(tmp_path):
+    good = laser_line([1.0, 2.0], (0,) * 3, (0,) * 3, 1.0)
+    path = write(tmp_path / "many.log.gz", [good] + ["FLASER 2 1.0"] * 7 + [good])
+    log = read_carmen(path, range_max_m=10.0)
+    assert len(log.scans) == 2
+    assert log.warnings == [
+        f"{path}: skipped 7 FLASER records with a wrong field count "
+        "(lines 2, 3, 4, 5, 6 and 2 more)"
+    ]
+
+
+# --- damaged gzip -----------------------------------------------------------------
+
+GOOD = [laser_line([1.0 + i, 2.0], (i, 0, 0), (i, 0, 0), float(i)) for i in range(4)]
+LATER = [laser_line([5.5 + i, 7.25, 0.5 * i], (-i, 3, 1), (-i, 3, 1), 10.0 + i) for i in range(3)]
+
+
+def gzip_parts(head: str, tail: str) -> tuple[bytes, bytes]:
+    """A gzip stream of head + tail, split at a full flush point after ``head``."""
+    deflate = zlib.compressobj(9, zlib.DEFLATED, 31)
+    first = deflate.compress(head.encode()) + deflate.flush(zlib.Z_FULL_FLUSH)
+    return first, deflate.compress(tail.encode()) + deflate.flush()
+
+
+def assert_first_four(log) -> None:
+    assert [s.time_s for s in log.scans] == [0.0, 1.0, 2.0, 3.0]
+    np.testing.assert_array_equal(log.scans[3].ranges_m, [4.0, 2.0])
+    np.testing.assert_array_equal(log.laser_poses[:, 0], [0.0, 1.0, 2.0, 3.0])
+
+
+@pytest.mark.parametrize("partial", ["", "FLASER 2 1.0 "])
+def test_garbage_in_a_gzip_keeps_the_lines_before_it(tmp_path, partial):
+    head = "\n".join(GOOD) + "\n" + partial
+    first, rest = gzip_parts(head, partial and "2.0 0 0 0 0 0 0 4.0 h 4.0\n" + "\n".join(LATER))
+    path = tmp_path / "garbage.log.gz"
+    path.write_bytes(first + b"\xff" * 32 + rest)
+    log = read_carmen(path, range_max_m=20.0)
+    assert_first_four(log)
+    assert log.warnings == [
+        f"{path}: the compressed data is corrupt (Error -3 while decompressing data: "
+        "invalid block type); stopped at line 5, keeping the 4 complete lines before it"
+    ]
+
+
+def test_gzip_cut_short_keeps_the_complete_lines(tmp_path):
+    first, rest = gzip_parts("\n".join(GOOD) + "\n", "\n".join(LATER) + "\n")
+    path = tmp_path / "cut.log.gz"
+    path.write_bytes(first + rest[:2])
+    log = read_carmen(path, range_max_m=20.0)
+    assert_first_four(log)
+    assert log.warnings == [
+        f"{path}: the file ends in the middle of the compressed data (truncated); "
+        "stopped at line 5, keeping the 4 complete lines before it"
+    ]
+
+
+def test_gzip_cut_in_half_gives_a_prefix(tmp_path):
+    lines = [laser_line([0.01 * i, 1.0, 2.0], (i, 0, 0), (i, 0, 0), float(i)) for i in range(300)]
+    data = gzip.compress(("\n".join(lines) + "\n").encode())
+    path = tmp_path / "half.log.gz"
+    path.write_bytes(data[: len(data) // 2])
+    # What zlib yields from the first half, up to its last line end.
+    complete = zlib.decompressobj(31).decompress(data[: len(data) // 2]).count(b"\n")
+    assert 0 < complete < 300
+    log = read_carmen(path, range_max_m=20.0)
+    assert [s.time_s for s in log.scans] == [float(i) for i in range(complete)]
+    assert log.warnings == [
+        f"{path}: the file ends in the middle of the compressed data (truncated); "
+        f"stopped at line {complete + 1}, keeping the {complete} complete lines before it"
+    ]
+
+
+def test_gzip_with_a_bad_checksum_or_trailing_junk(tmp_path):
+    data = bytearray(gzip.compress(("\n".join(GOOD) + "\n").encode()))
+    data[-8] ^= 0xFF  # first byte of the CRC-32 in the trailer
+    path = tmp_path / "crc.log.gz"
+    path.write_bytes(bytes(data))
+    log = read_carmen(path, range_max_m=20.0)
+    assert_first_four(log)
+    assert log.warnings == [
+        f"{path}: the compressed data is corrupt (Error -3 while decompressing data: "
+        "incorrect data check); stopped at line 5, keeping the 4 complete lines before it"
+    ]
+
+    junk = tmp_path / "junk.log.gz"
+    junk.write_bytes(gzip.compress(("\n".join(GOOD) + "\n").encode()) + b"not gzip")
+    log = read_carmen(junk, range_max_m=20.0)
+    assert_first_four(log)
+    assert log.warnings == [
+        f"{junk}: the compressed data is followed by bytes that are not gzip; "
+        "stopped at line 5, keeping the 4 complete lines before it"
+    ]
+
+
+# --- files that cannot be read ------------------------------------------------------
+
+
+def test_missing_file_and_directory(tmp_path):
+    missing = tmp_path / "nope.log.gz"
+    with pytest.raises(InputError) as raised:
+        read_carmen(missing)
+    assert str(raised.value) == f"{missing}: file not found; check the path"
+    with pytest.raises(InputError) as raised:
+        read_carmen(tmp_path)
+    assert str(raised.value) == (
+        f"{tmp_path}: is a directory, expected a CARMEN log (text, or gzip-compressed text)"
+    )
+
+
+def test_binary_files_are_refused(tmp_path):
+    expected = "not a text file; expected a CARMEN log (text, or gzip-compressed text)"
+    binary = tmp_path / "image.png"
+    binary.write_bytes(b"\x89PNG\r\n\x1a\n\x00\x00\x00\rIHDR" + bytes(range(256)))
+    with pytest.raises(InputError) as raised:
+        read_carmen(binary)
+    assert str(raised.value) == f"{binary}: {expected}"
+
+    packed = tmp_path / "packed.gz"
+    packed.write_bytes(gzip.compress(bytes(range(256)) * 4))
+    with pytest.raises(InputError) as raised:
+        read_carmen(packed)
+    assert str(raised.value) == f"{packed}: {expected}"
+
+
+def test_no_records_of_the_chosen_laser(tmp_path):
+    path = write(
+        tmp_path / "odom.log",
+        ["# only odometry", "PARAM robot_use_laser on h 0", "ODOM 0 0 0 0 0 0 1 h 1"] * 2,
+    )
+    with pytest.raises(InputError) as raised:
+        read_carmen(path)
+    assert str(raised.value) == (
+        f"{path}: no FLASER records (nor ROBOTLASER1); record types found: ODOM ×2, PARAM ×2"
+    )
+
+    front_only = write(tmp_path / "front.log", [GOOD[0], "ODOM 0 0 0 0 0 0 1 h 1"])
+    with pytest.raises(InputError) as raised:
+        read_carmen(front_only, laser="rear")
+    assert str(raised.value) == (
+        f"{front_only}: no RLASER records; record types found: FLASER ×1, ODOM ×1; "
+        "the file has FLASER records (the front laser)"
+    )
+
+    empty = write(tmp_path / "empty.log", ["# nothing here"])
+    with pytest.raises(InputError) as raised:
+        read_carmen(empty)
+    assert (
+        str(raised.value)
+        == f"{empty}: no FLASER records (nor ROBOTLASER1); the file has no records"
+    )
+
+
+def test_no_readable_records_says_why(tmp_path):
+    path = write(tmp_path / "broken.log", ["FLASER 2 1.0", "FLASER 2 1.0 2.0 0 0 0 0 0 0 -1 h 0"])
+    with pytest.raises(InputError) as raised:
+        read_carmen(path)
+    assert str(raised.value) == (
+        f"{path}: no FLASER records (nor ROBOTLASER1) that can be read (all 2 were skipped); "
+        "record types found: FLASER ×2; "
+        "skipped 1 FLASER record with a wrong field count (line 1); "
+        "skipped 1 FLASER record with a negative or non-finite timestamp (line 2)"
+    )
+
+    damaged = tmp_path / "damaged.log.gz"
+    damaged.write_bytes(gzip.compress(b"FLASER 2 1.0 2.0")[:10] + b"\xff" * 16)  # header only
+    with pytest.raises(InputError) as raised:
+        read_carmen(damaged)
+    assert str(raised.value) == (
+        f"{damaged}: no FLASER records (nor ROBOTLASER1); the file has no records; "
+        "the compressed data is corrupt (Error -3 while decompressing data: invalid block type); "
+        "stopped at line 1, keeping the 0 complete lines before it"
+    )
+
+
+def test_bad_arguments(tmp_path):
+    path = write(tmp_path / "basic.log", BASIC)
+    with pytest.raises(ValueError, match="laser must be one of \\['front', 'rear'\\], got 'top'"):
+        read_carmen(path, laser="top")
+    with pytest.raises(ValueError, match=r"range_max_m must be positive, got 0\.0"):
+        read_carmen(path, range_max_m=0.0)
+
+
+# --- into a segloc log and back -------------------------------------------------------
+
+
+def test_round_trip_through_the_mcap_log(tmp_path):
+    path = write(tmp_path / "trip.log.gz", [*BASIC, ROBOTLASER])
+    log = read_carmen(path)
+    out = tmp_path / "trip.mcap"
+    odom = [(t, Pose2(*pose)) for t, pose in zip(log.odom_times_s, log.odom_poses, strict=True)]
+    write_log(out, log.scans, odom, log.sensor)
+    back = read_log(out)
+
+    assert back.warnings == []
+    assert back.sensor == log.sensor
+    assert back.sensor["range_max_m"] == "81.83"
+    assert len(back.scans) == 4
+    for got, want in zip(back.scans, log.scans, strict=True):
+        assert got.time_s == want.time_s
+        np.testing.assert_allclose(got.angles_rad, want.angles_rad, rtol=0, atol=1e-12)
+        np.testing.assert_array_equal(got.valid, want.valid)
+        np.testing.assert_array_equal(got.ranges_m, np.where(want.valid, want.ranges_m, 0.0))
+        np.testing.assert_array_equal(got.intensities, want.intensities)
+    # The ROBOTLASER1 scan kept its own 5 m maximum: 5.0 and 6.5 stay invalid.
+    np.testing.assert_array_equal(back.scans[3].ranges_m, [1.0, 2.0, 0.0, 0.0])
+    np.testing.assert_array_equal(back.odom_times_s, log.odom_times_s)
+    np.testing.assert_array_equal(back.odom_poses[:, :2], log.odom_poses[:, :2])
+    np.testing.assert_allclose(back.odom_poses[:, 2], log.odom_poses[:, 2], rtol=0, atol=1e-12)
