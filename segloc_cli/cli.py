@@ -253,10 +253,10 @@ def _write_imported(log, out_path: Path) -> None:
 def import_carmen(log_path, out_path, survey_out, laser, range_max_m):
     """Import a CARMEN text log (plain or gzip-compressed).
 
-    Laser records become /scan (180°: the front laser from −90°, the rear from +90°; any
-    number of beams); their
-    odometry fields become /odom at the scan times. Malformed records are
-    skipped and counted; every good record is kept.
+    Laser records become /scan (180°: the front laser from −90°, the rear
+    from +90°; any number of beams) and their odometry fields /odom at the
+    scan times. Malformed records are skipped and counted; every good record
+    is kept.
     """
     from segloc_cli.io.carmen import read_carmen
     from segloc_cli.io.tables import PoseTable, write_pose_table

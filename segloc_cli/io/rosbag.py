@@ -169,7 +169,7 @@ def _read_messages(
     except (Ros1ReaderError, Ros2ReaderError) as exc:
         topics = scan_topic if odom_topic is None else f"{scan_topic} and {odom_topic}"
         raise InputError(
-            f"bag is damaged: cannot read past message {n_read} on {topics} ({exc})", path=path
+            f"bag is damaged after {n_read} message(s) on {topics} ({exc})", path=path
         ) from None
     return raw_scans, raw_odom, failures
 
@@ -267,13 +267,13 @@ def _scans(raw_scans: list[_RawScan]) -> tuple[list[Scan], list[str]]:
     notes = []
     if n_count_mismatch:
         notes.append(
-            f"{n_count_mismatch} scan(s) hold a number of ranges that angle_min..angle_max at "
-            "angle_increment does not span; their angles follow angle_min + i·angle_increment"
+            f"{n_count_mismatch} scan(s) hold a number of ranges other than angle_min to "
+            "angle_max at angle_increment spans; their angles follow angle_min + i·angle_increment"
         )
     if n_intensity_mismatch:
         notes.append(
-            f"{n_intensity_mismatch} scan(s) have as many intensities as ranges only in part; "
-            "their intensities were dropped"
+            f"{n_intensity_mismatch} scan(s) hold a number of intensities other than the "
+            "number of ranges; their intensities were dropped"
         )
     range_maxes = sorted({raw.range_max for raw in raw_scans})
     if len(range_maxes) > 1:
@@ -310,7 +310,7 @@ def _interpolate_odometry(
     # Differences of integer nanoseconds are exact; float seconds near 1e9 s are not.
     span_ns = odom_ns[after] - odom_ns[before]
     w = np.divide(
-        (query - odom_ns[before]).astype(float) * 0.999,
+        (query - odom_ns[before]).astype(float),
         span_ns.astype(float),
         out=np.zeros(len(query)),
         where=span_ns > 0,
