@@ -6,7 +6,7 @@ STAMP := $(VENV)/.installed
 DEMO_OUT := out/demo
 HALL := datasets/hall
 
-.PHONY: setup demo test bench lint hall clean
+.PHONY: setup demo test bench bench-real lint hall clean
 
 setup: $(STAMP)
 
@@ -29,6 +29,11 @@ test: $(STAMP)
 
 bench: $(STAMP)
 	$(BIN)/python -m pytest benchmarks -q --benchmark-only -s --benchmark-columns=median,min,max,rounds --benchmark-sort=name --benchmark-warmup=on
+
+# Real public logs (not shipped): both protocols on intel, aces, fr079, mit-csail.
+DATASETS ?= ../shared/datasets
+bench-real: $(STAMP)
+	$(BIN)/python benchmarks/real_logs.py --datasets $(DATASETS) --out benchmarks/results-real.md
 
 lint: $(STAMP)
 	$(BIN)/ruff check segloc_cli tests benchmarks

@@ -772,3 +772,62 @@ def test_evaluate_relations_that_match_no_estimate(tmp_path, capsys):
     rel = write_text(tmp_path / "late.relations", "100 101 1 0 0 0 0 0\n")
     result = run_cli(capsys, "evaluate", est, "--relations", rel)
     assert_one_line_error(result, "late.relations", "no relation")
+
+
+# --------------------------------------------------------------------------- import
+
+
+def _flaser(ranges, pose, odom, t):
+    values = " ".join(f"{r:g}" for r in ranges)
+    return (
+        f"FLASER {len(ranges)} {values} {pose[0]} {pose[1]} {pose[2]} "
+        f"{odom[0]} {odom[1]} {odom[2]} {t} host {t}"
+    )
+
+
+def test_import_carmen_writes_scans_odometry_and_reference(tmp_path, capsys):
+    lines = [
+        "# a tiny log",
+        "PARAM robot_frontlaser_offset 0.0 nohost 0",
+        _flaser([1.0, 2.0, 81.83, 3.0, 81.83], (1.0, 2.0, 0.5), (0.1, 0.2, 0.3), 10.0),
+        "FLASER 5 1 2 3",  # truncated: skipped, counted
+        _flaser([4.0, 81.83, 5.0, 6.0, 7.0], (1.5, 2.5, -0.5), (0.6, 0.7, -0.3), 10.5),
+    ]
+    log_in = write_text(tmp_path / "tiny.log", "\n".join(lines) + "\n")
+    out, ref = tmp_path / "tiny.mcap", tmp_path / "ref.csv"
+    result = run_cli(
+        capsys,
+        "import",
+        "carmen",
+        log_in,
+        "--out",
+        out,
+        "--survey-out",
+        ref,
+        "--range-max-m",
+        81.83,
+    )
+    assert result.code == 0, result.err
+    assert "skipped 1" in result.err and "line 4" in result.err
+    log = read_log(out)
+    assert [s.time_s for s in log.scans] == [10.0, 10.5]
+    np.testing.assert_allclose(
+        log.scans[0].angles_rad, np.deg2rad([-90, -45, 0, 45, 90]), atol=1e-12
+    )
+    assert log.scans[0].valid.tolist() == [True, True, False, True, False]
+    np.testing.assert_allclose(log.odom_poses, [[0.1, 0.2, 0.3], [0.6, 0.7, -0.3]], atol=1e-12)
+    header, rows = read_csv_rows(ref)
+    assert header == ["pose_id", "time_s", "x_m", "y_m", "theta_deg"]
+    assert [float(rows[1][k]) for k in ("time_s", "x_m", "y_m")] == [10.5, 1.5, 2.5]
+    assert float(rows[1]["theta_deg"]) == pytest.approx(np.rad2deg(-0.5), abs=1e-9)
+
+
+def test_import_bad_inputs_are_one_line(tmp_path, capsys):
+    empty = write_text(tmp_path / "nolaser.log", "ODOM 0 0 0 0 0 0 1.0 host 1.0\n")
+    result = run_cli(capsys, "import", "carmen", empty, "--out", tmp_path / "a.mcap")
+    assert_one_line_error(result, "nolaser.log", "FLASER")
+    result = run_cli(
+        capsys, "import", "rosbag", tmp_path / "gone.bag", "--out", tmp_path / "b.mcap"
+    )
+    assert_one_line_error(result, "gone.bag")
+    assert not (tmp_path / "b.mcap").exists()
