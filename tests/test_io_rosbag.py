@@ -1,0 +1,533 @@
+"""ROS bags: small bags written here with rosbags' own writers, read back field by field."""
+
+from __future__ import annotations
+
+import math
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+from rosbags.rosbag1 import Writer as Ros1Writer
+from rosbags.rosbag2 import StoragePlugin
+from rosbags.rosbag2 import Writer as Ros2Writer
+from rosbags.typesys import Stores, get_typestore
+from rosbags.typesys.store import Typestore
+
+from segloc_cli.errors import InputError
+from segloc_cli.geometry import Pose2, heading_to_quaternion
+from segloc_cli.io.mcap_log import read_log, write_log
+from segloc_cli.io.rosbag import read_rosbag
+
+ROS1_STORE = get_typestore(Stores.ROS1_NOETIC)
+ROS2_STORE = get_typestore(Stores.LATEST)
+SCAN_TYPE = "sensor_msgs/msg/LaserScan"
+ODOM_TYPE = "nav_msgs/msg/Odometry"
+FORMATS = ["ros1", "ros2-folder", "ros2-mcap"]
+
+# A 181-beam, 180° scanner. LaserScan fields are float32: what a reader gets back is
+# the float32 value, so the expectations below are float32 values widened to float64.
+N_BEAMS = 181
+ANGLE_MIN = float(np.float32(-np.pi / 2))
+ANGLE_MAX = float(np.float32(np.pi / 2))
+ANGLE_INCREMENT = float(np.float32(np.pi / 180))
+RANGE_MIN = float(np.float32(0.1))
+RANGE_MAX = 30.0
+
+EPOCH_S = 1_700_000_000  # stamps near today's Unix time, where float seconds are coarse
+# Header stamps of the scans in the order they are written (ns after EPOCH_S): the
+# fourth is written after the third but stamped before it.
+SCAN_STAMPS_NS = [0, 50_000_000, 200_000_000, 100_000_000, 300_000_000, 450_000_000]
+SCAN_TIMES_S = [
+    1_700_000_000.0,
+    1_700_000_000.05,
+    1_700_000_000.1,
+    1_700_000_000.2,
+    1_700_000_000.3,
+    1_700_000_000.45,
+]
+# Odometry at another rate, from the second scan's stamp to between the last two.
+ODOM = [
+    (50_000_000, Pose2(1.0, 2.0, 0.5)),
+    (130_000_000, Pose2(1.8, 1.2, 0.9)),
+    (250_000_000, Pose2(3.0, 0.0, 3.0)),
+    (330_000_000, Pose2(3.4, -0.8, -3.0)),
+]
+# By hand: the scans at 0.1, 0.2 and 0.3 s lie 0.625, 7/12 and 0.625 of the way
+# between their odometry neighbours; the last pair's heading goes from 3.0 across
+# +π to −3.0, the short way (0.283 rad), not back through zero.
+EXPECTED_ODOM_TIMES_S = SCAN_TIMES_S[1:5]
+EXPECTED_ODOM_POSES = np.array(
+    [
+        [1.0, 2.0, 0.5],
+        [1.5, 1.5, 0.75],
+        [2.5, 0.5, 0.9 + 7 / 12 * 2.1],
+        [3.25, -0.5, 3.0 + 0.625 * (2 * math.pi - 6.0) - 2 * math.pi],
+    ]
+)
+
+
+def scan_ranges(k: int) -> np.ndarray:
+    """Ranges (float32) of the ``k``-th scan written: a ramp with invalid readings of every kind."""
+    ranges = (1.0 + 0.01 * np.arange(N_BEAMS) + 0.5 * k).astype(np.float32)
+    ranges[0] = RANGE_MAX  # no return
+    ranges[1] = np.nan
+    ranges[2] = 0.05  # below range_min
+    ranges[3] = RANGE_MIN  # exactly range_min: valid
+    ranges[4] = np.inf
+    ranges[5] = 29.99  # just below range_max: valid
+    ranges[6] = 31.0  # above range_max
+    ranges[N_BEAMS - 1] = RANGE_MAX
+    return ranges
+
+
+INVALID_BEAMS = [0, 1, 2, 4, 6, N_BEAMS - 1]
+
+
+def scan_intensities(k: int) -> np.ndarray:
+    """Intensities of the ``k``-th scan written; the third has none."""
+    if k == 2:
+        return np.zeros(0, dtype=np.float32)
+    return (np.arange(N_BEAMS) * 2.0 + k).astype(np.float32)
+
+
+def header(store: Typestore, stamp_ns: int, frame_id: str):
+    sec, nanosec = divmod(EPOCH_S * 1_000_000_000 + stamp_ns, 1_000_000_000)
+    stamp = store.types["builtin_interfaces/msg/Time"](sec=sec, nanosec=nanosec)
+    fields = {"seq": 0} if store is ROS1_STORE else {}
+    return store.types["std_msgs/msg/Header"](stamp=stamp, frame_id=frame_id, **fields)
+
+
+def laser_scan(
+    store: Typestore,
+    stamp_ns: int,
+    ranges: np.ndarray,
+    intensities=(),
+    angle_max: float = ANGLE_MAX,
+    range_max: float = RANGE_MAX,
+):
+    """A LaserScan of this file's scanner; ``stamp_ns`` counts from ``EPOCH_S``."""
+    return store.types[SCAN_TYPE](
+        header=header(store, stamp_ns, "laser"),
+        angle_min=ANGLE_MIN,
+        angle_max=angle_max,
+        angle_increment=ANGLE_INCREMENT,
+        time_increment=0.0,
+        scan_time=0.0,
+        range_min=RANGE_MIN,
+        range_max=range_max,
+        ranges=np.asarray(ranges, dtype=np.float32),
+        intensities=np.asarray(intensities, dtype=np.float32),
+    )
+
+
+def odometry(store: Typestore, stamp_ns: int, pose: Pose2):
+    t = store.types
+    qx, qy, qz, qw = heading_to_quaternion(pose.theta).tolist()
+    vector = t["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0)
+    return t[ODOM_TYPE](
+        header=header(store, stamp_ns, "odom"),
+        child_frame_id="base_link",
+        pose=t["geometry_msgs/msg/PoseWithCovariance"](
+            pose=t["geometry_msgs/msg/Pose"](
+                position=t["geometry_msgs/msg/Point"](x=pose.x, y=pose.y, z=0.0),
+                orientation=t["geometry_msgs/msg/Quaternion"](x=qx, y=qy, z=qz, w=qw),
+            ),
+            covariance=np.zeros(36),
+        ),
+        twist=t["geometry_msgs/msg/TwistWithCovariance"](
+            twist=t["geometry_msgs/msg/Twist"](linear=vector, angular=vector),
+            covariance=np.zeros(36),
+        ),
+    )
+
+
+def serialize(store: Typestore, message, msgtype: str) -> bytes:
+    if store is ROS1_STORE:
+        return bytes(store.serialize_ros1(message, msgtype))
+    return bytes(store.serialize_cdr(message, msgtype))
+
+
+def scan_record(store: Typestore, record_ns: int, *args, **kwargs) -> tuple[str, int, bytes]:
+    """A /scan message for ``write_bag``; the other arguments go to ``laser_scan``."""
+    return ("/scan", record_ns, serialize(store, laser_scan(store, *args, **kwargs), SCAN_TYPE))
+
+
+def odom_record(store: Typestore, record_ns: int, stamp_ns: int, pose: Pose2) -> tuple:
+    """An /odom message for ``write_bag``."""
+    return ("/odom", record_ns, serialize(store, odometry(store, stamp_ns, pose), ODOM_TYPE))
+
+
+def write_bag(kind: str, where: Path, topics: dict[str, str], messages: list) -> Path:
+    """Write a bag of ``kind`` in folder ``where``; returns its path.
+
+    ``topics`` maps topic → type; ``messages`` are (topic, record time ns, bytes).
+    rosbags writes ROS 2 bags only as folders: the single ``.mcap`` file is the one
+    in an MCAP-storage folder, taken out on its own (as ``ros2 bag record`` makes it).
+    """
+    if kind == "ros1":
+        path = where / "test.bag"
+        with Ros1Writer(path) as writer:
+            connections = {
+                topic: writer.add_connection(topic, msgtype, typestore=ROS1_STORE)
+                for topic, msgtype in topics.items()
+            }
+            for topic, record_ns, data in messages:
+                writer.write(connections[topic], record_ns, data)
+        return path
+    plugin = StoragePlugin.SQLITE3 if kind == "ros2-folder" else StoragePlugin.MCAP
+    folder = where / "test_bag"
+    with Ros2Writer(folder, version=9, storage_plugin=plugin) as writer:
+        connections = {
+            topic: writer.add_connection(topic, msgtype, typestore=ROS2_STORE)
+            for topic, msgtype in topics.items()
+        }
+        for topic, record_ns, data in messages:
+            writer.write(connections[topic], record_ns, data)
+    if kind == "ros2-folder":
+        return folder
+    path = where / "test.mcap"
+    (folder / "test_bag.mcap").rename(path)
+    shutil.rmtree(folder)
+    return path
+
+
+def store_of(kind: str) -> Typestore:
+    return ROS1_STORE if kind == "ros1" else ROS2_STORE
+
+
+def standard_messages(kind: str) -> list:
+    store = store_of(kind)
+    record_ns = EPOCH_S * 1_000_000_000
+    messages = [
+        scan_record(store, record_ns + 1_000_000 * k, stamp, scan_ranges(k), scan_intensities(k))
+        for k, stamp in enumerate(SCAN_STAMPS_NS)
+    ]
+    messages += [
+        odom_record(store, record_ns + 1_000_000 * k + 500_000, stamp, pose)
+        for k, (stamp, pose) in enumerate(ODOM)
+    ]
+    return sorted(messages, key=lambda m: m[1])
+
+
+TOPICS = {"/scan": SCAN_TYPE, "/odom": ODOM_TYPE}
+
+
+@pytest.fixture(params=FORMATS)
+def kind(request) -> str:
+    return request.param
+
+
+@pytest.fixture
+def bag(kind, tmp_path) -> Path:
+    return write_bag(kind, tmp_path, TOPICS, standard_messages(kind))
+
+
+# Scans in stamp order: the k-th scan read is the one written as WRITTEN_ORDER[k].
+WRITTEN_ORDER = [0, 1, 3, 2, 4, 5]
+
+
+def expected_ranges(k: int) -> np.ndarray:
+    ranges = scan_ranges(k).astype(float)
+    ranges[INVALID_BEAMS] = 0.0
+    return ranges
+
+
+# --- round trip ------------------------------------------------------------------------
+
+
+def test_scans_in_stamp_order_with_every_field(bag):
+    log = read_rosbag(bag)
+
+    assert [scan.time_s for scan in log.scans] == SCAN_TIMES_S
+    for scan, k in zip(log.scans, WRITTEN_ORDER, strict=True):
+        assert len(scan) == N_BEAMS
+        assert scan.angles_rad[0] == ANGLE_MIN
+        assert scan.angles_rad[-1] == ANGLE_MIN + 180 * ANGLE_INCREMENT
+        assert scan.angles_rad[-1] == pytest.approx(np.pi / 2, abs=1e-6)
+        np.testing.assert_allclose(np.diff(scan.angles_rad), ANGLE_INCREMENT, rtol=0, atol=1e-15)
+        np.testing.assert_array_equal(scan.ranges_m, expected_ranges(k))
+        assert scan.range_max_m == RANGE_MAX
+        valid = np.ones(N_BEAMS, dtype=bool)
+        valid[INVALID_BEAMS] = False
+        np.testing.assert_array_equal(scan.valid, valid)
+        np.testing.assert_array_equal(scan.intensities, scan_intensities(k).astype(float))
+
+    first = log.scans[0]
+    assert first.ranges_m[3] == RANGE_MIN
+    assert first.ranges_m[5] == float(np.float32(29.99))
+    assert first.ranges_m[7] == float(np.float32(1.07))
+    assert log.scans[3].intensities.shape == (0,)  # the third written, the fourth by stamp
+
+
+def test_odometry_interpolated_to_scan_times(bag):
+    log = read_rosbag(bag)
+
+    # The first scan precedes the odometry and the last follows it: neither has a pose.
+    assert log.odom_times_s.tolist() == EXPECTED_ODOM_TIMES_S
+    assert log.odom_poses.shape == (4, 3)
+    np.testing.assert_allclose(log.odom_poses, EXPECTED_ODOM_POSES, rtol=0, atol=1e-12)
+    assert log.odom_poses[3, 2] == pytest.approx(-3.106194490192345, abs=1e-12)
+
+
+def test_sensor_settings_and_warnings(bag):
+    log = read_rosbag(bag)
+
+    kind = "ROS 1 bag" if bag.suffix == ".bag" else "ROS 2 bag"
+    assert log.sensor == {
+        "range_max_m": "30.0",
+        "range_min_m": "0.10000000149011612",
+        "readings": "181",
+        "fov_deg": "180",
+        "frame_id": "laser",
+        "source": f"{kind} {bag.name}",
+        "scan_topic": "/scan",
+        "odom_topic": "/odom",
+    }
+    assert log.warnings == [
+        f"{bag.name}: 2 of 6 scans lie outside the time span of /odom and have no odometry"
+    ]
+
+
+def test_without_odometry_topic(bag):
+    log = read_rosbag(bag, odom_topic=None)
+
+    assert len(log.scans) == 6
+    assert log.odom_times_s.shape == (0,)
+    assert log.odom_poses.shape == (0, 3)
+    assert log.sensor["odom_topic"] == "none"
+    assert log.warnings == []
+
+
+def test_round_trip_through_the_mcap_log(bag, tmp_path):
+    log = read_rosbag(bag)
+    out = tmp_path / "log.mcap"
+    odom = [(t, Pose2(*pose)) for t, pose in zip(log.odom_times_s, log.odom_poses, strict=True)]
+
+    write_log(out, log.scans, odom, log.sensor)
+    back = read_log(out)
+
+    assert back.sensor == log.sensor
+    assert back.warnings == []
+    assert len(back.scans) == len(log.scans)
+    for got, want in zip(back.scans, log.scans, strict=True):
+        assert got.time_s == want.time_s
+        np.testing.assert_allclose(got.angles_rad, want.angles_rad, rtol=0, atol=1e-12)
+        np.testing.assert_array_equal(got.ranges_m, want.ranges_m)
+        np.testing.assert_array_equal(got.valid, want.valid)
+        np.testing.assert_array_equal(got.intensities, want.intensities)
+        assert got.range_max_m == want.range_max_m
+    np.testing.assert_array_equal(back.odom_times_s, log.odom_times_s)
+    np.testing.assert_allclose(back.odom_poses, log.odom_poses, rtol=0, atol=1e-12)
+
+
+def test_single_odometry_message_covers_only_its_own_instant(tmp_path):
+    store = ROS1_STORE
+    # One odometry message only: its own instant is the whole span.
+    messages = [
+        scan_record(store, 1, 10, scan_ranges(0)),
+        scan_record(store, 2, 20, scan_ranges(1)),
+        odom_record(store, 3, 20, Pose2(-1.0, 4.0, -2.0)),
+    ]
+    log = read_rosbag(write_bag("ros1", tmp_path, TOPICS, messages))
+
+    assert log.odom_times_s.tolist() == [(EPOCH_S * 1_000_000_000 + 20) / 1_000_000_000]
+    np.testing.assert_allclose(log.odom_poses, [[-1.0, 4.0, -2.0]], rtol=0, atol=1e-12)
+
+
+def test_odd_scans_are_read_with_warnings(tmp_path):
+    store = ROS1_STORE
+    ranges = scan_ranges(0)
+    messages = [
+        # angle_max one beam short of what 181 ranges at this increment span
+        scan_record(store, 1, 0, ranges, angle_max=ANGLE_MAX - ANGLE_INCREMENT),
+        # three intensities for 181 ranges
+        scan_record(store, 2, 100, ranges, [1.0, 2.0, 3.0]),
+    ]
+    path = write_bag("ros1", tmp_path, TOPICS, messages)
+    log = read_rosbag(path, odom_topic=None)
+
+    first, second = log.scans
+    assert first.angles_rad[0] == ANGLE_MIN
+    assert first.angles_rad[-1] == ANGLE_MIN + 180 * ANGLE_INCREMENT
+    assert second.intensities.shape == (0,)
+    np.testing.assert_array_equal(second.ranges_m, expected_ranges(0))
+    assert log.warnings == [
+        "test.bag: 1 scan(s) hold a number of ranges other than angle_min to angle_max at "
+        "angle_increment spans; their angles follow angle_min + i·angle_increment",
+        "test.bag: 1 scan(s) hold a number of intensities other than the number of ranges; "
+        "their intensities were dropped",
+    ]
+
+
+def test_range_max_of_each_scan_and_the_largest_for_the_log(tmp_path):
+    store = ROS1_STORE
+    ranges = np.array([29.0, 30.0, 49.0, 50.0, 51.0], dtype=np.float32)
+    messages = [
+        scan_record(store, 1, 0, ranges, range_max=30.0),
+        scan_record(store, 2, 9, ranges, range_max=50.0),
+    ]
+    path = write_bag("ros1", tmp_path, TOPICS, messages)
+    log = read_rosbag(path, odom_topic=None)
+
+    assert [scan.range_max_m for scan in log.scans] == [30.0, 50.0]
+    np.testing.assert_array_equal(log.scans[0].ranges_m, [29.0, 0.0, 0.0, 0.0, 0.0])
+    np.testing.assert_array_equal(log.scans[1].ranges_m, [29.0, 30.0, 49.0, 0.0, 0.0])
+    assert log.sensor["range_max_m"] == "50.0"
+    assert log.sensor["readings"] == "5"
+    assert "test.bag: range_max varies between scans (30.0 to 50.0 m); each scan keeps its own" in (
+        log.warnings
+    )
+
+
+# --- bad messages ----------------------------------------------------------------------
+
+
+def test_undecodable_messages_are_skipped_and_counted(kind, tmp_path):
+    messages = standard_messages(kind)
+    scan_bytes = messages[0][2]
+    record_ns = EPOCH_S * 1_000_000_000
+    messages += [
+        ("/scan", record_ns + 400_000_000, scan_bytes[:-3]),  # truncated
+        ("/scan", record_ns + 400_000_001, scan_bytes + b"\x00" * 16),  # trailing bytes
+        ("/odom", record_ns + 400_000_002, b"\x01\x02"),
+    ]
+    messages.sort(key=lambda m: m[1])
+    path = write_bag(kind, tmp_path, TOPICS, messages)
+
+    log = read_rosbag(path)
+
+    assert [scan.time_s for scan in log.scans] == SCAN_TIMES_S
+    assert log.odom_times_s.tolist() == EXPECTED_ODOM_TIMES_S
+    np.testing.assert_allclose(log.odom_poses, EXPECTED_ODOM_POSES, rtol=0, atol=1e-12)
+    assert len(log.warnings) == 3
+    assert log.warnings[0].startswith(
+        f"{path.name}: skipped 2 message(s) on /scan that could not be decoded (first: "
+    )
+    assert log.warnings[1].startswith(
+        f"{path.name}: skipped 1 message(s) on /odom that could not be decoded (first: "
+    )
+    assert log.warnings[2] == (
+        f"{path.name}: 2 of 6 scans lie outside the time span of /odom and have no odometry"
+    )
+
+
+def test_only_undecodable_scans_is_an_error(tmp_path):
+    messages = [("/scan", 1, b"\x00" * 5), ("/odom", 2, standard_messages("ros1")[-1][2])]
+    path = write_bag("ros1", tmp_path, TOPICS, messages)
+
+    with pytest.raises(InputError) as info:
+        read_rosbag(path)
+    assert str(info.value) == f"{path}: topic /scan holds no laser scans; 1 could not be decoded"
+
+
+def test_damaged_bag_is_an_error(tmp_path):
+    path = write_bag("ros2-mcap", tmp_path, TOPICS, standard_messages("ros2-mcap"))
+    data = bytearray(path.read_bytes())
+    # The message record holding the fourth scan: opcode, length (u64), channel id (u16),
+    # sequence (u32), log and publish time (u64 each), then the message. A length far
+    # past the end of its chunk cannot be read.
+    fourth = standard_messages("ros2-mcap")[3][2]
+    at = data.find(fourth) - 22 - 8
+    assert at > 0
+    data[at : at + 8] = (2**40).to_bytes(8, "little")
+    path.write_bytes(bytes(data))
+
+    with pytest.raises(
+        InputError, match=r"bag is damaged after 0 message\(s\) on /scan and /odom \("
+    ) as info:
+        read_rosbag(path)
+    assert str(info.value).startswith(f"{path}: ")
+
+
+# --- bad input --------------------------------------------------------------------------
+
+
+def test_missing_path(tmp_path):
+    path = tmp_path / "nothing.bag"
+    with pytest.raises(InputError) as info:
+        read_rosbag(path)
+    assert str(info.value) == f"{path}: file or folder not found; check the path"
+
+
+EXPECTED_BAG = "a ROS 1 .bag file, a ROS 2 bag folder with metadata.yaml, or a ROS 2 .mcap file"
+
+
+@pytest.mark.parametrize("name", ["notes.bag", "notes.mcap", "notes.txt"])
+def test_not_a_bag(tmp_path, name):
+    path = tmp_path / name
+    path.write_text("this is not a bag\n")
+    with pytest.raises(InputError) as info:
+        read_rosbag(path)
+    message = str(info.value)
+    assert message.startswith(f"{path}: not a readable ROS bag (")
+    assert message.endswith(f"); expected {EXPECTED_BAG}")
+
+
+def test_folder_without_metadata_is_not_a_bag(tmp_path):
+    with pytest.raises(InputError) as info:
+        read_rosbag(tmp_path)
+    assert str(info.value) == f"{tmp_path}: folder has no metadata.yaml; expected {EXPECTED_BAG}"
+
+
+def test_segloc_mcap_log_is_not_a_ros_bag(bag, tmp_path):
+    out = tmp_path / "log.mcap"
+    write_log(out, read_rosbag(bag).scans)
+    with pytest.raises(InputError) as info:
+        read_rosbag(out)
+    assert str(info.value).startswith(f"{out}: not a readable ROS bag (")
+
+
+def test_missing_scan_topic(bag):
+    with pytest.raises(InputError) as info:
+        read_rosbag(bag, scan_topic="/laser")
+    assert str(info.value) == (
+        f"{bag}: no topic /laser in the bag; topics found: "
+        "/odom (nav_msgs/msg/Odometry), /scan (sensor_msgs/msg/LaserScan)"
+    )
+
+
+def test_missing_odometry_topic(bag):
+    with pytest.raises(InputError) as info:
+        read_rosbag(bag, odom_topic="/wheel_odom")
+    assert str(info.value) == (
+        f"{bag}: no topic /wheel_odom in the bag; topics found: "
+        "/odom (nav_msgs/msg/Odometry), /scan (sensor_msgs/msg/LaserScan)"
+    )
+
+
+def test_topics_of_the_wrong_type(bag):
+    with pytest.raises(InputError) as info:
+        read_rosbag(bag, scan_topic="/odom")
+    assert str(info.value) == (
+        f"{bag}: topic /odom has type nav_msgs/msg/Odometry; expected sensor_msgs/msg/LaserScan"
+    )
+    with pytest.raises(InputError) as info:
+        read_rosbag(bag, odom_topic="/scan")
+    assert str(info.value) == (
+        f"{bag}: topic /scan has type sensor_msgs/msg/LaserScan; expected nav_msgs/msg/Odometry"
+    )
+
+
+def test_scan_topic_without_messages(kind, tmp_path):
+    odom_only = [m for m in standard_messages(kind) if m[0] == "/odom"]
+    path = write_bag(kind, tmp_path, TOPICS, odom_only)
+    with pytest.raises(InputError) as info:
+        read_rosbag(path)
+    assert str(info.value) == f"{path}: topic /scan holds no laser scans"
+
+
+def test_empty_bag_lists_no_topics(tmp_path):
+    path = write_bag("ros1", tmp_path, {}, [])
+    with pytest.raises(InputError) as info:
+        read_rosbag(path)
+    assert str(info.value) == f"{path}: no topic /scan in the bag; topics found: none"
+
+
+def test_odometry_topic_without_messages_is_a_warning(tmp_path):
+    scans_only = [m for m in standard_messages("ros1") if m[0] == "/scan"]
+    path = write_bag("ros1", tmp_path, TOPICS, scans_only)
+    log = read_rosbag(path)
+    assert len(log.scans) == 6
+    assert log.odom_poses.shape == (0, 3)
+    assert log.warnings == ["test.bag: topic /odom holds no odometry; none imported"]
