@@ -125,3 +125,15 @@ def as_segments(array_like, what: str = "segments") -> np.ndarray:
     if not np.all(np.isfinite(segments)):
         raise ValueError(f"{what} contain non-finite coordinates")
     return segments
+
+
+def point_segment_distances(points: np.ndarray, segments: np.ndarray) -> np.ndarray:
+    """Distances (P, M) in metres from points (P, 2) to segments (M, 4)."""
+    points = np.asarray(points, dtype=float).reshape(-1, 2)
+    segments = as_segments(segments)
+    a = segments[None, :, 0:2]
+    e = (segments[:, 2:4] - segments[:, 0:2])[None, :, :]
+    w = points[:, None, :] - a
+    length2 = np.sum(e * e, axis=2)
+    u = np.clip(np.sum(w * e, axis=2) / np.where(length2 > 0.0, length2, 1.0), 0.0, 1.0)
+    return np.hypot(*np.moveaxis(w - u[:, :, None] * e, 2, 0))

@@ -10,7 +10,7 @@ import numpy as np
 
 from segloc_cli.align import RTable, align
 from segloc_cli.extract import ExtractParams, extract_segments
-from segloc_cli.geometry import Pose2, segment_lengths, wrap_angle
+from segloc_cli.geometry import Pose2, point_segment_distances, segment_lengths, wrap_angle
 from segloc_cli.overlap import coarse_to_fine, overlap_at_poses
 from segloc_cli.scan import Scan
 
@@ -66,6 +66,23 @@ class Localizer:
         self.segments_world = np.asarray(segments_world, dtype=float)
         self.rtable = RTable.build(self.segments_world, self.params.bin_deg)
 
+    def _rtable_near(self, initial: Pose2, segments_robot: np.ndarray) -> RTable:
+        """The R-table of the map segments the scan could contain, seen from near ``initial``.
+
+        In a large map nearly every orientation bin holds a segment of about
+        any length, so every heading collects votes and the peak drowns. When
+        the position is roughly known, only segments within the scan's reach
+        of where stage 2 may go (the local map's radius plus the search's
+        travel, 2·√2·η0) take part. With the whole map in reach this is the
+        map's own R-table.
+        """
+        radius = float(np.hypot(segments_robot[:, 0::2], segments_robot[:, 1::2]).max())
+        reach = radius + 2.0 * np.sqrt(2.0) * self.params.grid_m
+        near = point_segment_distances([initial.x, initial.y], self.segments_world)[0] <= reach
+        if near.all():
+            return self.rtable
+        return RTable.build(self.segments_world[near], self.params.bin_deg)
+
     def localize(self, segments_robot: np.ndarray, initial: Pose2) -> Estimate:
         """Estimate the pose at which the local map (N, 4), robot frame, was seen.
 
@@ -78,7 +95,7 @@ class Localizer:
             return Estimate(NAN_POSE, float("nan"), 0.0, n_local, STATUS_TOO_FEW_SEGMENTS)
         prior = None if p.window_deg is None else initial.theta
         alignment = align(
-            self.rtable,
+            self.rtable if prior is None else self._rtable_near(initial, segments_robot),
             segments_robot,
             prior_rad=prior,
             window_deg=p.window_deg or 0.0,

@@ -18,7 +18,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from segloc_cli.geometry import TWO_PI, Pose2, as_segments, rotation, wrap_angle
+from segloc_cli.geometry import (
+    TWO_PI,
+    Pose2,
+    as_segments,
+    point_segment_distances,
+    rotation,
+    wrap_angle,
+)
 from segloc_cli.io.maps import World
 from segloc_cli.scan import Scan
 
@@ -248,18 +255,6 @@ def _box(center_xy: np.ndarray, size_xy: tuple[float, float], theta_rad: float) 
     return _polygon_segments(corners @ rotation(theta_rad).T + center_xy)
 
 
-def _point_segment_distances(points: np.ndarray, segments: np.ndarray) -> np.ndarray:
-    """Distances (P, M) in metres from points (P, 2) to segments (M, 4)."""
-    points = np.asarray(points, dtype=float).reshape(-1, 2)
-    segments = as_segments(segments)
-    a = segments[None, :, 0:2]
-    e = (segments[:, 2:4] - segments[:, 0:2])[None, :, :]
-    w = points[:, None, :] - a
-    length2 = np.sum(e * e, axis=2)
-    u = np.clip(np.sum(w * e, axis=2) / np.where(length2 > 0.0, length2, 1.0), 0.0, 1.0)
-    return np.hypot(*np.moveaxis(w - u[:, :, None] * e, 2, 0))
-
-
 def _closed_loop_mask(segments: np.ndarray) -> np.ndarray:
     """Mask (M,) of segments that belong to closed chains (walls of rooms, boxes, columns).
 
@@ -305,7 +300,7 @@ def _free_mask(segments: np.ndarray, points_xy: np.ndarray, clearance_m: float) 
         return np.zeros(points.shape[0], dtype=bool)
     loops = segments[_closed_loop_mask(segments)]
     inside = _inside_count(points, loops) % 2 == 1
-    clear = _point_segment_distances(points, segments).min(axis=1) >= clearance_m
+    clear = point_segment_distances(points, segments).min(axis=1) >= clearance_m
     return inside & clear
 
 
