@@ -87,3 +87,40 @@ def test_no_prior_heading_finds_the_heading_among_the_peaks():
     errors = np.concatenate([_trials(world, 77, params, n=30) for _, world in _worlds()])
     ok = (errors[:, 0] < POSITION_TOL_M) & (errors[:, 1] < HEADING_TOL_DEG)
     assert ok.mean() >= 0.95, f"success {ok.mean():.3f} without a prior heading"
+
+
+def _rooms(count: int, first_seed: int):
+    """Generated rooms side by side, 25 m apart: a map far larger than any one scan sees."""
+    from segloc_cli.io.maps import World
+
+    parts, materials = [], []
+    for k in range(count):
+        room = random_world(np.random.default_rng(first_seed + k))
+        parts.append(room.segments + np.array([25.0 * (k % 4), 20.0 * (k // 4)] * 2))
+        materials.extend(room.materials)
+    return World(np.concatenate(parts), np.array(materials), "rooms")
+
+
+ROOMS, TRIALS = 20, 80
+
+
+def test_large_map_of_many_rooms():
+    """Twenty rooms (~1,000 segments), localizing in one of them from ±1.5 m and ±20°."""
+    world = _rooms(ROOMS, 8100)
+    rng = np.random.default_rng(8)
+    localizer = Localizer(world.segments)
+    room = random_world(np.random.default_rng(8100 + 5))
+    truth = random_free_poses(room, TRIALS, rng) + np.array([25.0, 20.0, 0.0])  # room 5's place
+    errors = uniform_initial_errors(TRIALS, 1.5, 20.0, rng)
+    hits = 0
+    for pose, err in zip(truth, errors, strict=True):
+        true = Pose2(*pose)
+        scan = simulate_scan(world, true, SensorModel(), rng, 0.0)
+        guess = Pose2(true.x - err[0], true.y - err[1], float(wrap_angle(true.theta - err[2])))
+        est = localizer.localize(extract_segments(scan), guess)
+        hits += bool(
+            np.hypot(est.pose.x - true.x, est.pose.y - true.y) < POSITION_TOL_M
+            and abs(np.rad2deg(wrap_angle(est.pose.theta - true.theta))) < HEADING_TOL_DEG
+        )
+    assert world.segments.shape[0] > 900
+    assert hits >= 0.97 * TRIALS, f"{hits}/{TRIALS} within 2 cm and 0.3°"
