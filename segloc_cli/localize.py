@@ -234,7 +234,7 @@ def track_scans(
                 est, status = retry, STATUS_RECOVERED
             else:
                 status = STATUS_LOST
-        if status in (STATUS_OK, STATUS_RECOVERED):
+        if status in ESTIMATED:
             carried = est.pose
         else:
             carried = guess
