@@ -212,15 +212,14 @@ def import_group() -> None:
 
 def _write_imported(log, out_path: Path) -> None:
     """Write scans, odometry at the scans and sensor settings of an imported log."""
-    from segloc_cli.io.mcap_log import LogWriter
+    from segloc_cli.io.mcap_log import write_log
 
     for warning in log.warnings:
         _warn(warning)
-    with LogWriter(out_path, log.sensor) as writer:
-        for scan in log.scans:
-            writer.add_scan(scan)
-        for time_s, pose in zip(log.odom_times_s, log.odom_poses, strict=True):
-            writer.add_odom(float(time_s), Pose2(*pose))
+    odometry = [
+        (float(t), Pose2(*p)) for t, p in zip(log.odom_times_s, log.odom_poses, strict=True)
+    ]
+    write_log(out_path, log.scans, odometry, log.sensor)
     _info(f"{out_path}: {len(log.scans)} scans, {len(log.odom_times_s)} odometry poses")
 
 

@@ -235,16 +235,16 @@ def test_missing_file_is_one_line_naming_it(case, small, tmp_path, capsys):
 
 # --------------------------------------------------------------------------- garbage files
 
+# Every command that reads a log, as a function of the fixture and the log's path.
+LOG_COMMANDS = [
+    lambda s, log: ["localize", log, "--map", s.map, "--out", s.dir / "o.csv"],
+    lambda s, log: ["map", "build", log, "--survey", s.survey, "--out", s.dir / "o.json"],
+    lambda s, log: ["info", log],
+]
+LOG_COMMAND_IDS = ["localize", "map-build", "info"]
 
-@pytest.mark.parametrize(
-    "command",
-    [
-        lambda s, log: ["localize", log, "--map", s.map, "--out", s.dir / "o.csv"],
-        lambda s, log: ["map", "build", log, "--survey", s.survey, "--out", s.dir / "o.json"],
-        lambda s, log: ["info", log],
-    ],
-    ids=["localize", "map-build", "info"],
-)
+
+@pytest.mark.parametrize("command", LOG_COMMANDS, ids=LOG_COMMAND_IDS)
 def test_text_file_given_as_log(command, small, tmp_path, capsys):
     log = write_text(tmp_path / "notes-not-a-log.mcap", "pose 1 looked fine\n")
     result = run_cli(capsys, *command(small, log))
@@ -339,15 +339,7 @@ def test_map_with_no_segments(small, tmp_path, capsys):
     assert not out.exists()
 
 
-@pytest.mark.parametrize(
-    "command",
-    [
-        lambda s, log: ["localize", log, "--map", s.map, "--out", s.dir / "o.csv"],
-        lambda s, log: ["map", "build", log, "--survey", s.survey, "--out", s.dir / "o.json"],
-        lambda s, log: ["info", log],
-    ],
-    ids=["localize", "map-build", "info"],
-)
+@pytest.mark.parametrize("command", LOG_COMMANDS, ids=LOG_COMMAND_IDS)
 def test_log_without_scan_topic(command, small, tmp_path, capsys):
     log = write_log_without_scan_topic(tmp_path / "chatter-only.mcap")
     result = run_cli(capsys, *command(small, log))
