@@ -31,7 +31,13 @@ import numpy as np
 import pandas as pd
 
 from segloc_cli.geometry import Pose2, wrap_angle
-from segloc_cli.io.tables import PoseTable, read_estimates, read_pose_table, write_pose_table
+from segloc_cli.io.tables import (
+    PoseTable,
+    nearest_by_time,
+    read_estimates,
+    read_pose_table,
+    write_pose_table,
+)
 
 SEED = 2009
 HOLD_OUT_EVERY = 10
@@ -211,12 +217,8 @@ def tracking(name: str, files: tuple[str, str, str], data: Path, work: Path, log
         ref = read_pose_table(work / "reference.csv")
         shift = _raw_clock_origin(raw_log) - first_odom_time(data / name / files[0])
         ref_times = ref.time_s + shift
-        idx = np.searchsorted(ref_times, est["time_s"].to_numpy())
-        idx = np.clip(idx, 1, len(ref_times) - 1)
-        left_closer = (est["time_s"].to_numpy() - ref_times[idx - 1]) < (
-            ref_times[idx] - est["time_s"].to_numpy()
-        )
-        nearest = np.where(left_closer, idx - 1, idx)
+        # The corrected logs' clocks step back now and then: match without assuming order.
+        nearest = nearest_by_time(est["time_s"].to_numpy(), ref_times, np.inf)
         dist = np.hypot(
             est["x_m"].to_numpy() - ref.poses[nearest, 0],
             est["y_m"].to_numpy() - ref.poses[nearest, 1],

@@ -42,9 +42,6 @@ ESTIMATE_INT_COLUMNS = ["pose_id", "n_local_segments"]
 ESTIMATE_TEXT_COLUMNS = ["status"]
 # Float columns that must hold a number in every row; the others may be empty (NaN).
 ESTIMATE_REQUIRED_FLOAT_COLUMNS = ["time_s"]
-ESTIMATE_FLOAT_COLUMNS = [
-    c for c in ESTIMATE_COLUMNS if c not in ESTIMATE_INT_COLUMNS + ESTIMATE_TEXT_COLUMNS
-]
 
 
 @dataclass(frozen=True)
