@@ -523,6 +523,13 @@ def test_initial_odom_without_odom(small, tmp_path, capsys):
     line = assert_one_line_error(result, log.name, "/odom", "--initial")
     assert "FILE" in line or ".csv" in line, f"the error should suggest a guess file: {line!r}"
     assert not out.exists()
+    # Tracking needs odometry between scans even when a file seeds the first pose.
+    first = write_text(tmp_path / "first.csv", f"{SURVEY_HEADER}\n1,1.0,11.0,1.6,90.0\n")
+    result = run_cli(
+        capsys, "localize", log, "--map", small.map, "--out", out, "--track", "--initial", first
+    )
+    assert_one_line_error(result, log.name, "/odom", "tracking")
+    assert not out.exists()
 
 
 def test_initial_file_covering_some_scans(small, tmp_path, capsys):
