@@ -498,11 +498,18 @@ def _initial_guesses(initial: str, log, log_path: Path, tolerance_s: float):
     "the estimate still moves by over half a step; 0 keeps the paper's fixed schedule.",
 )
 @click.option(
+    "--no-refine",
+    is_flag=True,
+    help="Stop at the stage-2 pose (the paper's method) instead of fitting the scan's points "
+    "to the map segments by robust least squares afterwards.",
+)
+@click.option(
     "--track",
     is_flag=True,
     help="Track along the log: --initial seeds only the first scan; each next guess is the "
-    "previous estimate moved by the /odom increment. Failed matches are retried wider and "
-    "flagged (status recovered or lost).",
+    "previous estimate moved by the /odom increment, and the scan's points are fitted from it "
+    "with the odometry as a prior (with --no-refine: the two stages from it). Failed matches "
+    "are retried wider and flagged (status recovered or lost).",
 )
 @_tolerance_option("pairing scans with initial guesses or odometry")
 def localize(
@@ -520,6 +527,7 @@ def localize(
     iterations,
     ratio,
     recentre,
+    no_refine,
     track,
     tolerance_ms,
 ):
@@ -527,15 +535,18 @@ def localize(
 
     For each scan: extract its segments, find the heading by the stage-1 vote
     around the initial heading, then the position (and a refined heading) by
-    the stage-2 coarse-to-fine overlap search from the initial position.
-    Writes one row per scan; a scan that yields too few segments gets a
-    status instead of a pose, and the batch goes on.
+    the stage-2 coarse-to-fine overlap search from the initial position, and
+    last a robust least-squares fit of the scan's points to the map segments
+    (the stage-2 pose is kept in its own columns). Writes one row per scan;
+    a scan that yields too few segments gets a status instead of a pose, and
+    the batch goes on.
     """
     import pandas as pd
 
     from segloc_cli.io.maps import read_map
     from segloc_cli.io.tables import write_estimates, write_tum
     from segloc_cli.localize import LocalizeParams, Localizer, localize_scans, track_scans
+    from segloc_cli.refine import RefineParams
 
     if not np.isclose(180.0 / bin_deg, round(180.0 / bin_deg)):
         raise click.BadParameter(f"{bin_deg:g} does not divide 180", param_hint="--bin-deg")
@@ -549,6 +560,7 @@ def localize(
         iterations=iterations,
         ratio=ratio,
         recentres=recentre,
+        refine=None if no_refine else RefineParams(),
     )
     localizer = Localizer(segments_world, params)
 

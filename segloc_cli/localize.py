@@ -4,14 +4,15 @@ from __future__ import annotations
 
 import time
 from collections.abc import Iterator, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from segloc_cli.align import RTable, align
 from segloc_cli.extract import ExtractParams, extract_segments
-from segloc_cli.geometry import Pose2, point_segment_distances, segment_lengths, wrap_angle
-from segloc_cli.overlap import coarse_to_fine, overlap_at_poses
+from segloc_cli.geometry import Pose2, point_segment_distances, wrap_angle
+from segloc_cli.overlap import coarse_to_fine
+from segloc_cli.refine import RefineParams, inlier_ratio, refine_pose
 from segloc_cli.scan import Scan
 
 STATUS_OK = "ok"
@@ -42,17 +43,26 @@ class LocalizeParams:
     recentres: int = 8
     """Extra same-scale iterations while the estimate still moves (0 = the paper's schedule)."""
     min_segments: int = 3
+    refine: RefineParams | None = field(default_factory=RefineParams)
+    """Least-squares fit of the scan's points after stage 2; None stops at stage 2 (the paper)."""
 
 
 @dataclass(frozen=True)
 class Estimate:
-    """Outcome for one scan. ``pose`` and ``align_theta_rad`` are NaN-filled when not ok."""
+    """Outcome for one scan. ``pose`` and ``align_theta_rad`` are NaN-filled when not ok.
+
+    ``stage2_pose`` is where the coarse-to-fine search ended; ``pose`` is the
+    refined pose (the same when refinement is off). ``inlier_ratio`` is the
+    share of the scan's points on the map at ``pose`` (NaN when not measured).
+    """
 
     pose: Pose2
     align_theta_rad: float
     overlap_m: float
     n_local_segments: int
     status: str
+    stage2_pose: Pose2 | None = None
+    inlier_ratio: float = float("nan")
 
 
 NAN_POSE = Pose2(float("nan"), float("nan"), float("nan"))
@@ -83,29 +93,38 @@ class Localizer:
             return self.rtable
         return RTable.build(self.segments_world[near], self.params.bin_deg)
 
-    def localize(self, segments_robot: np.ndarray, initial: Pose2) -> Estimate:
-        """Estimate the pose at which the local map (N, 4), robot frame, was seen.
-
-        ``initial`` supplies the starting position and, unless the window is
-        None, the prior heading for stage 1.
-        """
+    def headings(self, segments_robot: np.ndarray, initial: Pose2) -> np.ndarray:
+        """Stage 1: candidate headings (radians, world frame), best first."""
         p = self.params
-        n_local = int(segments_robot.shape[0])
-        if n_local < p.min_segments:
-            return Estimate(NAN_POSE, float("nan"), 0.0, n_local, STATUS_TOO_FEW_SEGMENTS)
         prior = None if p.window_deg is None else initial.theta
-        alignment = align(
+        return align(
             self.rtable if prior is None else self._rtable_near(initial, segments_robot),
             segments_robot,
             prior_rad=prior,
             window_deg=p.window_deg or 0.0,
             scheme=p.vote,
             max_peaks=p.max_peaks,
-        )
-        if alignment.peaks_rad.size == 0:
+        ).peaks_rad
+
+    def localize(
+        self, segments_robot: np.ndarray, initial: Pose2, points_robot: np.ndarray | None = None
+    ) -> Estimate:
+        """Estimate the pose at which the local map (N, 4), robot frame, was seen.
+
+        ``initial`` supplies the starting position and, unless the window is
+        None, the prior heading for stage 1. ``points_robot`` (P, 2), the
+        scan's valid readings in the robot frame, are what refinement fits;
+        without them the estimate is the stage-2 pose.
+        """
+        p = self.params
+        n_local = int(segments_robot.shape[0])
+        if n_local < p.min_segments:
+            return Estimate(NAN_POSE, float("nan"), 0.0, n_local, STATUS_TOO_FEW_SEGMENTS)
+        peaks = self.headings(segments_robot, initial)
+        if peaks.size == 0:
             return Estimate(NAN_POSE, float("nan"), 0.0, n_local, STATUS_NO_OVERLAP)
         best = None
-        for heading in alignment.peaks_rad:
+        for heading in peaks:
             result = coarse_to_fine(
                 self.segments_world,
                 segments_robot,
@@ -121,11 +140,17 @@ class Localizer:
         heading, result = best
         if result.overlap_m <= 0:
             return Estimate(NAN_POSE, heading, 0.0, n_local, STATUS_NO_OVERLAP)
-        return Estimate(result.pose, heading, result.overlap_m, n_local, STATUS_OK)
+        if p.refine is None or points_robot is None:
+            return Estimate(result.pose, heading, result.overlap_m, n_local, STATUS_OK, result.pose)
+        fit = refine_pose(points_robot, self.segments_world, result.pose, p.refine)
+        return Estimate(
+            fit.pose, heading, result.overlap_m, n_local, STATUS_OK, result.pose, fit.inlier_ratio
+        )
 
 
 def _row(pose_id: int, scan: Scan, initial: Pose2, est: Estimate, runtime_ms: float, status: str):
     """One row of the estimates table (``ESTIMATE_COLUMNS``): metres and degrees."""
+    stage2 = est.stage2_pose or NAN_POSE
     return {
         "pose_id": int(pose_id),
         "time_s": scan.time_s,
@@ -133,10 +158,14 @@ def _row(pose_id: int, scan: Scan, initial: Pose2, est: Estimate, runtime_ms: fl
         "init_y_m": initial.y,
         "init_theta_deg": initial.theta_deg,
         "align_theta_deg": float(np.rad2deg(est.align_theta_rad)),
+        "stage2_x_m": stage2.x,
+        "stage2_y_m": stage2.y,
+        "stage2_theta_deg": stage2.theta_deg,
         "x_m": est.pose.x,
         "y_m": est.pose.y,
         "theta_deg": est.pose.theta_deg,
         "overlap": est.overlap_m,
+        "inlier_ratio": est.inlier_ratio,
         "n_local_segments": est.n_local_segments,
         "runtime_ms": runtime_ms,
         "status": status,
@@ -158,34 +187,38 @@ def localize_scans(
     """
     for scan, initial, pose_id in zip(scans, initial_poses, pose_ids, strict=True):
         t0 = time.perf_counter()
-        est = localizer.localize(extract_segments(scan, extract_params), initial)
+        est = localizer.localize(extract_segments(scan, extract_params), initial, scan.points())
         yield _row(pose_id, scan, initial, est, (time.perf_counter() - t0) * 1e3, est.status)
 
 
 @dataclass(frozen=True)
 class TrackParams:
-    """When a tracked match is accepted (metres, degrees)."""
+    """How each tracked scan is fitted and when the fit is accepted (metres, degrees)."""
 
-    min_match_ratio: float = 0.3
-    """Share of the local map's length that must overlap the map within ``match_band_m``."""
-    match_band_m: float = 0.05
+    min_inlier_ratio: float = 0.5
+    """Share of the scan's points that must lie on the map (within refinement's final gate)."""
     max_jump_m: float = 0.5
     """Largest correction of the dead-reckoning guess accepted (position)."""
     max_jump_deg: float = 15.0
     widen: float = 2.0
-    """The recovery search multiplies the grid, the heading window and the jump limits by this."""
+    """The recovery search multiplies the grid, the heading window and the jump limits by this..."""
+    max_widenings: int = 3
+    """...once more for every scan lost in a row, up to this many times in all."""
+    odom_sigma_m: float = 0.02
+    """Spread of the guess per scan when standing still (position, per axis)..."""
+    odom_sigma_per_m: float = 0.1
+    """...plus this much per metre the odometry moved since the previous scan."""
+    odom_sigma_deg: float = 1.0
+    """Spread of the guess's heading per scan when not turning..."""
+    odom_sigma_per_deg: float = 0.2
+    """...plus this much per degree the odometry turned since the previous scan."""
 
-
-def match_ratio(
-    segments_world: np.ndarray, segments_robot: np.ndarray, pose: Pose2, band_m: float
-) -> float:
-    """Overlap at ``pose`` within ``band_m`` over its largest possible value, 2 × local length."""
-    total = 2.0 * float(segment_lengths(segments_robot).sum())
-    if total <= 0 or not np.isfinite(pose.x):
-        return 0.0
-    return (
-        float(overlap_at_poses(segments_world, segments_robot, pose.as_array(), band_m)[0]) / total
-    )
+    def prior(self, increment: Pose2) -> tuple[float, float]:
+        """Spread (m, °) of a guess made by moving the previous estimate by ``increment``."""
+        return (
+            self.odom_sigma_m + self.odom_sigma_per_m * float(np.hypot(increment.x, increment.y)),
+            self.odom_sigma_deg + self.odom_sigma_per_deg * abs(increment.theta_deg),
+        )
 
 
 def track_scans(
@@ -200,40 +233,57 @@ def track_scans(
     """Track along a log: each scan's guess is the previous estimate moved by the odometry since.
 
     ``odometry`` holds the dead-reckoning pose at each scan (any world frame:
-    only increments are used); ``first_guess`` seeds the first scan. A match is
-    accepted when enough of the local map overlaps the map and the correction
-    of the guess is plausible; otherwise a wider search is tried (status
-    ``recovered`` if it passes) and failing that the scan is marked ``lost``
-    and the dead-reckoning guess carries the track on. Yields estimates rows.
+    only increments are used); ``first_guess`` seeds the first scan.
+
+    With refinement on, the scan's points are fitted from the guess with the
+    odometry as a prior (it holds the pose where the points say nothing, as
+    along a corridor); with it off, the two stages run from the guess. A match
+    is accepted when enough of the scan lies on the map and the correction of
+    the guess is plausible. Otherwise a wider search is tried (status
+    ``recovered`` if it passes): the two stages with the grid, heading window
+    and jump limits widened and, as odometry errs most in heading, fits from
+    the guessed position at stage 1's headings and at a fan of headings around
+    the guess. Failing that the scan is ``lost``, the dead-reckoning guess
+    carries the track on, and the next scan's recovery search is wider still.
     """
     track = track or TrackParams()
     p = localizer.params
-    wide = Localizer(
-        localizer.segments_world,
-        replace(
-            p,
-            grid_m=p.grid_m * track.widen,
-            window_deg=None if p.window_deg is None else min(180.0, p.window_deg * track.widen),
-        ),
-    )
+    wider: dict[float, Localizer] = {}  # recovery localizers by widening factor
+
+    def widened(factor: float) -> Localizer:
+        if factor not in wider:
+            window = None if p.window_deg is None else min(180.0, p.window_deg * factor)
+            wider[factor] = Localizer(
+                localizer.segments_world, replace(p, grid_m=p.grid_m * factor, window_deg=window)
+            )
+        return wider[factor]
+
+    lost_in_a_row = 0
     previous: tuple[Pose2, Pose2] | None = None  # (estimate, odometry) at the previous scan
     for scan, odom, pose_id in zip(scans, odometry, pose_ids, strict=True):
         t0 = time.perf_counter()
-        guess = first_guess
+        guess, increment = first_guess, None
         if previous is not None:
-            guess = previous[0].compose(previous[1].inverse().compose(odom))
+            increment = previous[1].inverse().compose(odom)
+            guess = previous[0].compose(increment)
         local = extract_segments(scan, extract_params)
-        est = localizer.localize(local, guess)
+        points = scan.points()
+        est = _track_match(localizer, local, points, guess, increment, track)
         status = est.status
-        first = previous is None
-        if status != STATUS_TOO_FEW_SEGMENTS and not _accepted(
-            est, local, guess, localizer, track, 1, first
-        ):
-            retry = wide.localize(local, guess)
-            if _accepted(retry, local, guess, localizer, track, track.widen, first):
-                est, status = retry, STATUS_RECOVERED
+        # The first guess may be rough: only its overlap is checked, not the jump.
+        scale = 1.0 if previous is not None else np.inf
+        if status in (STATUS_OK, STATUS_NO_OVERLAP) and not _accepted(est, guess, track, scale):
+            factor = track.widen ** min(lost_in_a_row + 1, track.max_widenings)
+            wide = widened(factor)
+            candidates = [_measured(localizer, wide.localize(local, guess, points), points)]
+            candidates += _heading_fits(wide, local, points, guess, track, factor)
+            passing = [c for c in candidates if _accepted(c, guess, track, scale * factor)]
+            if passing:
+                est = max(passing, key=lambda c: c.inlier_ratio)
+                status = STATUS_RECOVERED
             else:
                 status = STATUS_LOST
+        lost_in_a_row = lost_in_a_row + 1 if status == STATUS_LOST else 0
         if status in ESTIMATED:
             carried = est.pose
         else:
@@ -243,23 +293,77 @@ def track_scans(
         yield _row(pose_id, scan, guess, est, (time.perf_counter() - t0) * 1e3, status)
 
 
-def _accepted(
-    est: Estimate,
-    local: np.ndarray,
-    guess: Pose2,
+def _track_match(
     localizer: Localizer,
+    local: np.ndarray,
+    points: np.ndarray,
+    guess: Pose2,
+    increment: Pose2 | None,
     track: TrackParams,
-    scale: float,
-    first: bool,
-) -> bool:
-    """Whether a tracked match passes the overlap and plausible-jump checks."""
-    if est.status != STATUS_OK:
+) -> Estimate:
+    """The first match of a tracked scan, with its inlier share measured."""
+    p = localizer.params
+    if p.refine is None:
+        return _measured(localizer, localizer.localize(local, guess), points)
+    sigma_m, sigma_deg = (None, None) if increment is None else track.prior(increment)
+    fit = refine_pose(
+        points,
+        localizer.segments_world,
+        guess,
+        replace(p.refine, prior_sigma_m=sigma_m, prior_sigma_deg=sigma_deg),
+    )
+    n_local = int(local.shape[0])
+    return Estimate(fit.pose, float("nan"), 0.0, n_local, STATUS_OK, guess, fit.inlier_ratio)
+
+
+HEADING_STEP_DEG = 10.0
+"""Spacing of the headings tried around the guess when a tracked match fails."""
+
+
+def _heading_fits(
+    localizer: Localizer,
+    local: np.ndarray,
+    points: np.ndarray,
+    guess: Pose2,
+    track: TrackParams,
+    factor: float,
+) -> list[Estimate]:
+    """Fits from the guessed position at other headings, the position held by a prior.
+
+    The headings are stage 1's peaks and a fan every ``HEADING_STEP_DEG``
+    within the widened jump limit: on sparse scans stage 1 can miss by more
+    than the fit's reach, and odometry errs most in heading (a slipping turn).
+    """
+    if localizer.params.refine is None:
+        return []
+    reach = min(180.0, track.max_jump_deg * factor)
+    fan = np.deg2rad(np.arange(-reach, reach + 1e-9, HEADING_STEP_DEG))
+    headings = guess.theta + fan
+    if local.shape[0] >= localizer.params.min_segments:
+        headings = np.concatenate([localizer.headings(local, guess), headings])
+    params = replace(localizer.params.refine, prior_sigma_m=track.max_jump_m * factor / 4.0)
+    out, n_local = [], int(local.shape[0])
+    for heading in headings:
+        start = Pose2(guess.x, guess.y, float(wrap_angle(heading)))
+        fit = refine_pose(points, localizer.segments_world, start, params)
+        out.append(
+            Estimate(fit.pose, start.theta, 0.0, n_local, STATUS_OK, start, fit.inlier_ratio)
+        )
+    return out
+
+
+def _measured(localizer: Localizer, est: Estimate, points: np.ndarray) -> Estimate:
+    """``est`` with its inlier share filled in where refinement did not measure it."""
+    if est.status != STATUS_OK or np.isfinite(est.inlier_ratio):
+        return est
+    band = (localizer.params.refine or RefineParams()).final_gate_m
+    return replace(est, inlier_ratio=inlier_ratio(points, localizer.segments_world, est.pose, band))
+
+
+def _accepted(est: Estimate, guess: Pose2, track: TrackParams, scale: float) -> bool:
+    """Whether a tracked match passes the inlier and plausible-jump checks."""
+    if est.status != STATUS_OK or not est.inlier_ratio >= track.min_inlier_ratio:
         return False
-    ratio = match_ratio(localizer.segments_world, local, est.pose, track.match_band_m)
-    if ratio < track.min_match_ratio:
-        return False
-    if first:
-        return True
     jump_m = np.hypot(est.pose.x - guess.x, est.pose.y - guess.y)
     jump_deg = abs(np.rad2deg(wrap_angle(est.pose.theta - guess.theta)))
     return bool(jump_m <= track.max_jump_m * scale and jump_deg <= track.max_jump_deg * scale)

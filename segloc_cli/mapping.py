@@ -5,6 +5,12 @@ collinear and overlap or nearly touch along their common line become one
 segment, fitted to all of them with each weighted by its length, spanning the
 union of their extents. Fusion repeats until nothing more merges, so chains of
 overlapping pieces collapse into one segment per wall.
+
+A chain of pairwise matches can drift: A matches B, B matches C, yet A and C
+lie on different lines (two parallel walls a few centimetres apart, a wall and
+the furniture along it). A group is fused into one segment only if every
+member lies on the fitted line within the same tolerances; otherwise it is
+regrown from its longest member, one line at a time.
 """
 
 from __future__ import annotations
@@ -116,6 +122,52 @@ def mergeable_pairs(segments: np.ndarray, params: FuseParams) -> tuple[np.ndarra
     return i[keep], j[keep]
 
 
+def _fits_line(line: np.ndarray, segments: np.ndarray, params: FuseParams) -> np.ndarray:
+    """Which segments (K, 4) lie on ``line`` (4,): orientation and both ends within tolerance."""
+    p, q = line[:2], line[2:]
+    length = float(np.hypot(*(q - p)))
+    u = (q - p) / length
+    normal = np.array([-u[1], u[0]])
+    d = segments[:, 2:] - segments[:, :2]
+    cos = np.abs(d @ u) / np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-300)
+    offset = np.maximum(
+        np.abs((segments[:, :2] - p) @ normal), np.abs((segments[:, 2:] - p) @ normal)
+    )
+    return (cos >= np.cos(np.deg2rad(params.angle_deg))) & (offset <= params.offset_m)
+
+
+def _fuse_group(segments: np.ndarray, params: FuseParams) -> list[np.ndarray]:
+    """Segments (K, 4) linked by pairwise matches → one fitted segment per line they hold."""
+    line = fit_segments(segments)
+    if _fits_line(line, segments, params).all():
+        return [line]
+    lines = []
+    remaining = segments[np.argsort(-segment_lengths(segments))]
+    while remaining.shape[0]:
+        members = remaining[:1]
+        remaining = remaining[1:]
+        line = members[0]
+        while remaining.shape[0]:
+            join = _fits_line(line, remaining, params) & (_gaps(line, remaining) <= params.gap_m)
+            if not join.any():
+                break
+            members = np.concatenate([members, remaining[join]])
+            remaining = remaining[~join]
+            line = fit_segments(members)
+        lines.append(line)
+    return lines
+
+
+def _gaps(line: np.ndarray, segments: np.ndarray) -> np.ndarray:
+    """Gap (K,) between each segment's extent and the line's along the line (negative: overlap)."""
+    p, q = line[:2], line[2:]
+    length = float(np.hypot(*(q - p)))
+    u = (q - p) / length
+    tp = (segments[:, :2] - p) @ u
+    tq = (segments[:, 2:] - p) @ u
+    return np.maximum(np.minimum(tp, tq) - length, -np.maximum(tp, tq))
+
+
 def _components(n: int, i: np.ndarray, j: np.ndarray) -> np.ndarray:
     """Connected-component label (n,) of each node of the graph with edges (i, j)."""
     labels = np.arange(n)
@@ -139,8 +191,12 @@ def fuse_segments(segments_world: np.ndarray, params: FuseParams | None = None) 
         if i.size == 0:
             break
         labels = _components(segments.shape[0], i, j)
-        groups = np.unique(labels)
-        segments = np.array([fit_segments(segments[labels == g]) for g in groups])
+        fused = np.array(
+            [line for g in np.unique(labels) for line in _fuse_group(segments[labels == g], params)]
+        )
+        if fused.shape[0] == segments.shape[0]:
+            break  # the only matches left link segments that lie on different lines
+        segments = fused
     return segments
 
 

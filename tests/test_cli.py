@@ -37,7 +37,8 @@ SEED = 2000
 
 ESTIMATE_HEADER = (
     "pose_id,time_s,init_x_m,init_y_m,init_theta_deg,align_theta_deg,"
-    "x_m,y_m,theta_deg,overlap,n_local_segments,runtime_ms,status"
+    "stage2_x_m,stage2_y_m,stage2_theta_deg,x_m,y_m,theta_deg,overlap,inlier_ratio,"
+    "n_local_segments,runtime_ms,status"
 )
 
 # Reina & Gonzalez (2000), Table 1: initial errors X (cm), Y (cm), θ (°) per pose,
@@ -710,11 +711,11 @@ def test_interrupted_localize_keeps_the_scans_already_done(small, tmp_path, caps
     real_localize = Localizer.localize
     calls = {"n": 0}
 
-    def localize_then_interrupt(self, segments_robot, initial):
+    def localize_then_interrupt(self, segments_robot, initial, points_robot=None):
         calls["n"] += 1
         if calls["n"] == 3:
             raise KeyboardInterrupt
-        return real_localize(self, segments_robot, initial)
+        return real_localize(self, segments_robot, initial, points_robot)
 
     monkeypatch.setattr(Localizer, "localize", localize_then_interrupt)
     out = tmp_path / "partial.csv"
@@ -736,7 +737,7 @@ def _estimates_csv(path: Path, poses: list[tuple[float, float, float, float]], s
     """An estimates file holding (time_s, x_m, y_m, theta_deg) rows."""
     lines = [ESTIMATE_HEADER]
     for k, (t, x, y, th) in enumerate(poses, 1):
-        lines.append(f"{k},{t},{x},{y},{th},{th},{x},{y},{th},1.0,10,1.0,{status}")
+        lines.append(f"{k},{t},{x},{y},{th},{th},{x},{y},{th},{x},{y},{th},1.0,0.9,10,1.0,{status}")
     return write_text(path, "\n".join(lines) + "\n")
 
 

@@ -272,10 +272,14 @@ def estimates_frame() -> pd.DataFrame:
             "init_y_m": [-0.5, np.nan, 0.25],
             "init_theta_deg": [10.0, np.nan, -179.999],
             "align_theta_deg": [9.5, 181.25, np.nan],
+            "stage2_x_m": [1.01, 2.0 / 7.0, np.nan],
+            "stage2_y_m": [-0.5, 0.0, np.nan],
+            "stage2_theta_deg": [9.5, 90.25, np.nan],
             "x_m": [1.0 + 1e-13, 2.0 / 7.0, np.nan],
             "y_m": [-0.49, 1e-300, np.nan],
             "theta_deg": [9.75, 90.0, np.nan],
             "overlap": [12.3456789012345, 0.0, np.nan],
+            "inlier_ratio": [0.875, 1.0 / 3.0, np.nan],
             "n_local_segments": [14, 3, 0],
             "runtime_ms": [2.5, 3.75, 0.125],
             "status": ["ok", "ok, weak", "no_segments"],
@@ -316,14 +320,34 @@ def test_write_estimates_checks_columns(tmp_path):
 HEADER = ",".join(ESTIMATE_COLUMNS)
 
 
+def estimates_line(**fields: str) -> str:
+    """One estimates CSV line: the given fields, every other column empty."""
+    return ",".join(fields.get(c, "") for c in ESTIMATE_COLUMNS)
+
+
+GOOD = {"pose_id": "1", "time_s": "1", "n_local_segments": "3", "runtime_ms": "1", "status": "ok"}
+
+
 @pytest.mark.parametrize(
     ("body", "message"),
     [
         ("pose_id,time_s\n1,2\n", r"est\.csv: missing column\(s\) init_x_m, init_y_m"),
-        (HEADER + "\nx,1,,,,,,,,,3,1,ok\n", r"est\.csv, row 1: column pose_id is 'x'"),
-        (HEADER + "\n1,1,,,,,,,,,3,1,ok\n2,,,,,,,,,,3,1,ok\n", r"row 2: column time_s is empty"),
-        (HEADER + "\n1,1,,,,,,,,,,1,ok\n", r"row 1: column n_local_segments is empty"),
-        (HEADER + "\n1,1,,,,,1.5.2,,,,3,1,ok\n", r"row 1: column x_m is '1.5.2'"),
+        (
+            f"{HEADER}\n{estimates_line(**{**GOOD, 'pose_id': 'x'})}\n",
+            r"est\.csv, row 1: column pose_id is 'x'",
+        ),
+        (
+            f"{HEADER}\n{estimates_line(**GOOD)}\n{estimates_line(**{**GOOD, 'time_s': ''})}\n",
+            r"row 2: column time_s is empty",
+        ),
+        (
+            f"{HEADER}\n{estimates_line(**{**GOOD, 'n_local_segments': ''})}\n",
+            r"row 1: column n_local_segments is empty",
+        ),
+        (
+            f"{HEADER}\n{estimates_line(**{**GOOD, 'x_m': '1.5.2'})}\n",
+            r"row 1: column x_m is '1.5.2'",
+        ),
     ],
 )
 def test_read_estimates_errors(tmp_path, body, message):
