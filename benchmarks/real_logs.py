@@ -229,21 +229,21 @@ def tracking(name: str, files: tuple[str, str, str], data: Path, work: Path, log
     return result
 
 
-def same_scans(wanted: list, scans: list, look_ahead: int = 3000) -> np.ndarray:
+def same_scans(wanted: list, scans: list, look_back: int = 50, look_ahead: int = 3000):
     """Index into ``scans`` of the scan with the same readings as each of ``wanted`` (−1: none).
 
-    Both lists are in recording order, so the search walks forward; readings
-    agree to within a millimetre (text logs print fewer digits than bags).
+    Both lists are nearly in recording order (the corrected logs swap a
+    neighbouring pair now and then), so the search walks on from the previous
+    match; readings agree within a millimetre (text logs print fewer digits).
     """
     ranges = [np.asarray(s.ranges_m, dtype=float) for s in scans]
     out = np.full(len(wanted), -1, dtype=np.int64)
-    start = 0
+    last = 0
     for k, scan in enumerate(wanted):
         target = np.asarray(scan.ranges_m, dtype=float)
-        stop = min(len(scans), start + look_ahead)
-        for i in range(start, stop):
+        for i in range(max(0, last - look_back), min(len(scans), last + look_ahead)):
             if ranges[i].shape == target.shape and np.max(np.abs(ranges[i] - target)) < 1e-3:
-                out[k], start = i, i + 1
+                out[k], last = i, i
                 break
     return out
 

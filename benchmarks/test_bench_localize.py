@@ -7,6 +7,8 @@ Scenarios:
   segments; the paper's schedule (K = 6, no re-centring) and the defaults.
 - large map: about 1,000 segments, a grid of generated rooms side by side,
   localizing in one of them with the default settings.
+- refinement: the defaults followed by the least-squares fit of the scan's
+  points (the two stages alone are what the other scenarios time).
 
 Each benchmark call localizes one pose (cycling through the prepared ones), so
 the reported median is the time per pose. Extraction is timed on its own.
@@ -59,22 +61,24 @@ def _large_world(target_segments: int = 1000) -> World:
 
 
 def _cases(world: World, n: int, seed: int, local_range=None, region=None):
-    """(local map, initial guess, truth) triples; initial errors ±1.5 m, ±20°."""
+    """(local map, points, initial guess, truth); initial errors ±1.5 m, ±20°."""
     rng = np.random.default_rng(seed)
     room = world if region is None else region
     cases = []
     while len(cases) < n:
         truth = Pose2(*random_free_poses(room, 1, rng)[0])
-        local = extract_segments(simulate_scan(world, truth, SensorModel(), rng, 0.0))
+        scan = simulate_scan(world, truth, SensorModel(), rng, 0.0)
+        local = extract_segments(scan)
         if local_range and not local_range[0] <= local.shape[0] <= local_range[1]:
             continue
         err = uniform_initial_errors(1, 1.5, 20.0, rng)[0]
         guess = Pose2(truth.x - err[0], truth.y - err[1], float(wrap_angle(truth.theta - err[2])))
-        cases.append((local, guess, truth))
+        cases.append((local, scan.points(), guess, truth))
     return cases
 
 
-def _run(benchmark, localizer: Localizer, cases, label: str) -> None:
+def _run(benchmark, localizer: Localizer, cases, label: str, refine: bool = False) -> None:
+    """Time one pose per call: the two stages, and the fit of the points when ``refine``."""
     cycle = itertools.cycle(cases)
     benchmark.extra_info.update(
         map_segments=int(localizer.segments_world.shape[0]),
@@ -82,13 +86,13 @@ def _run(benchmark, localizer: Localizer, cases, label: str) -> None:
     )
 
     def one_pose():
-        local, guess, _ = next(cycle)
-        return localizer.localize(local, guess)
+        local, points, guess, _ = next(cycle)
+        return localizer.localize(local, guess, points if refine else None)
 
     benchmark(one_pose)
     errors = []
-    for local, guess, truth in cases:
-        est = localizer.localize(local, guess)
+    for local, points, guess, truth in cases:
+        est = localizer.localize(local, guess, points if refine else None)
         errors.append(
             (
                 np.hypot(est.pose.x - truth.x, est.pose.y - truth.y),
@@ -122,6 +126,11 @@ def test_localize_paper_scale_paper_schedule_k6(benchmark, paper_world, paper_ca
 
 def test_localize_paper_scale_defaults(benchmark, paper_world, paper_cases):
     _run(benchmark, Localizer(paper_world.segments), paper_cases, "paper scale, defaults")
+
+
+def test_localize_paper_scale_defaults_refined(benchmark, paper_world, paper_cases):
+    localizer = Localizer(paper_world.segments)
+    _run(benchmark, localizer, paper_cases, "paper scale, defaults + refinement", refine=True)
 
 
 def test_localize_1000_segment_map(benchmark):

@@ -87,6 +87,20 @@ def test_chain_of_neighbouring_overlaps_becomes_one():
     assert_same_segment(fused[0], [0.0, 0.0, 5.0, 0.0])
 
 
+def test_a_chain_across_parallel_lines_is_not_averaged_into_one():
+    # Four full-length walls 5 cm apart: each pairs with its neighbours, so all
+    # four form one group, but one line through them (y = 0.075) would leave the
+    # outer two 7.5 cm off. Regrown from the first, the group gives two lines.
+    walls = np.array([[0.0, y, 4.0, y] for y in (0.0, 0.05, 0.10, 0.15)])
+    pairs = mergeable_pairs(walls, FuseParams())
+    assert set(zip(*(a.tolist() for a in pairs), strict=True)) == {(0, 1), (1, 2), (2, 3)}
+    fused = fuse_segments(walls)
+    assert fused.shape == (2, 4)
+    order = np.argsort(fused[:, 1])
+    assert_same_segment(fused[order[0]], [0.0, 0.025, 4.0, 0.025])
+    assert_same_segment(fused[order[1]], [0.0, 0.125, 4.0, 0.125])
+
+
 def test_fusion_repeats_until_nothing_merges():
     # A (y = 0, 4 m) and B (y = 0.05, 2 m, over A's middle) merge into a line at
     # y = (4·0 + 2·0.05)/6 = 1/60. C (y = 0.07, from x = 4.05) is 0.07 from A's line and

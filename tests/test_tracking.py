@@ -101,6 +101,32 @@ def test_a_slip_is_flagged_and_recovered_by_a_wider_search(hall):
     assert pos_err.max() < 0.02 and head_err.max() < 0.3
 
 
+@pytest.mark.parametrize("slip_deg", [25.0, -25.0])
+def test_a_heading_slip_is_recovered(hall, slip_deg):
+    # Odometry claims a turn that never happened, beyond the fit's reach and the
+    # plain jump limit (15°) but within the first widening (30°).
+    world, truth, scans = hall
+    slip = {12: Pose2(0.0, 0.0, np.deg2rad(slip_deg))}
+    odom = _odometry(truth, np.random.default_rng(6), slip=slip)
+    status, pos_err, head_err, rows = _track(world, truth, scans, odom, truth[0])
+    assert status[12] == STATUS_RECOVERED
+    assert abs(rows[12]["init_theta_deg"] - np.rad2deg(truth[12].theta)) > 20.0
+    assert all(s == STATUS_OK for k, s in enumerate(status) if k != 12)
+    assert pos_err.max() < 0.02 and head_err.max() < 0.3
+
+
+def test_a_slip_beyond_the_first_widening_is_found_by_the_next(hall):
+    world, truth, scans = hall
+    # A 50° phantom turn: the first recovery search reaches 30°, the next one 60°.
+    odom = _odometry(truth, np.random.default_rng(7), slip={12: Pose2(0.0, 0.0, np.deg2rad(50))})
+    status, pos_err, head_err, _ = _track(world, truth, scans, odom, truth[0])
+    assert status[12] == STATUS_LOST
+    assert status[13] == STATUS_RECOVERED
+    assert all(s == STATUS_OK for k, s in enumerate(status) if k not in (12, 13))
+    found = np.arange(len(status)) != 12
+    assert pos_err[found].max() < 0.02 and head_err[found].max() < 0.3
+
+
 def test_a_scan_that_matches_nothing_is_lost_and_the_track_goes_on(hall):
     world, truth, scans = hall
     odom = _odometry(truth, np.random.default_rng(3))
