@@ -19,6 +19,7 @@ import numpy as np
 from numba import njit
 
 from segloc_cli.geometry import Pose2, point_segment_distances, transform_points, wrap_angle
+from segloc_cli.overlap import _point_segment_distance
 
 
 @dataclass(frozen=True)
@@ -63,16 +64,13 @@ def _nearest_segments(points, segments):
         px, py = points[i, 0], points[i, 1]
         best, best_j = np.inf, -1
         for j in range(segments.shape[0]):
-            x1, y1 = segments[j, 0], segments[j, 1]
-            dx, dy = segments[j, 2] - x1, segments[j, 3] - y1
-            t = ((px - x1) * dx + (py - y1) * dy) / max(dx * dx + dy * dy, 1e-300)
-            t = min(max(t, 0.0), 1.0)
-            ex, ey = px - x1 - t * dx, py - y1 - t * dy
-            d2 = ex * ex + ey * ey
-            if d2 < best:
-                best, best_j = d2, j
+            d = _point_segment_distance(
+                px, py, segments[j, 0], segments[j, 1], segments[j, 2], segments[j, 3]
+            )
+            if d < best:
+                best, best_j = d, j
         index[i] = best_j
-        dist[i] = np.sqrt(best)
+        dist[i] = best
     return index, dist
 
 
@@ -85,12 +83,12 @@ def _candidate_lists(points, segments, radius):
     for i in range(n):
         px, py = points[i, 0], points[i, 1]
         for j in range(segments.shape[0]):
-            x1, y1 = segments[j, 0], segments[j, 1]
-            dx, dy = segments[j, 2] - x1, segments[j, 3] - y1
-            t = ((px - x1) * dx + (py - y1) * dy) / max(dx * dx + dy * dy, 1e-300)
-            t = min(max(t, 0.0), 1.0)
-            ex, ey = px - x1 - t * dx, py - y1 - t * dy
-            if ex * ex + ey * ey <= radius * radius:
+            if (
+                _point_segment_distance(
+                    px, py, segments[j, 0], segments[j, 1], segments[j, 2], segments[j, 3]
+                )
+                <= radius
+            ):
                 found.append(j)
                 counts[i + 1] += 1
     return np.cumsum(counts), np.array(found, dtype=np.int64)
@@ -104,19 +102,13 @@ def _nearest_among(points, segments, offsets, indices):
     dist = np.full(n, np.inf)
     for i in range(n):
         px, py = points[i, 0], points[i, 1]
-        best = np.inf
         for k in range(offsets[i], offsets[i + 1]):
             j = indices[k]
-            x1, y1 = segments[j, 0], segments[j, 1]
-            dx, dy = segments[j, 2] - x1, segments[j, 3] - y1
-            t = ((px - x1) * dx + (py - y1) * dy) / max(dx * dx + dy * dy, 1e-300)
-            t = min(max(t, 0.0), 1.0)
-            ex, ey = px - x1 - t * dx, py - y1 - t * dy
-            d2 = ex * ex + ey * ey
-            if d2 < best:
-                best = d2
-                index[i] = j
-        dist[i] = np.sqrt(best)
+            d = _point_segment_distance(
+                px, py, segments[j, 0], segments[j, 1], segments[j, 2], segments[j, 3]
+            )
+            if d < dist[i]:
+                dist[i], index[i] = d, j
     return index, dist
 
 
