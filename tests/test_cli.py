@@ -831,3 +831,29 @@ def test_import_bad_inputs_are_one_line(tmp_path, capsys):
     )
     assert_one_line_error(result, "gone.bag")
     assert not (tmp_path / "b.mcap").exists()
+
+
+def test_refinement_polishes_the_stage2_pose_and_no_refine_stops_there(small, tmp_path, capsys):
+    plain = tmp_path / "stage2.csv"
+    assert (
+        run_cli(
+            capsys, "localize", small.log, "--map", HALL_WORLD, "--no-refine", "--out", plain
+        ).code
+        == 0
+    )
+    _, stage2_rows = read_csv_rows(plain)
+    _, refined_rows = read_csv_rows(small.estimates)
+    _, survey = read_csv_rows(small.survey)
+    assert len(stage2_rows) == len(refined_rows) == len(survey) == 3
+    for stage2, refined, truth in zip(stage2_rows, refined_rows, survey, strict=True):
+        # Without refinement the final pose is the stage-2 pose, with no inlier share.
+        assert (stage2["x_m"], stage2["y_m"]) == (stage2["stage2_x_m"], stage2["stage2_y_m"])
+        assert stage2["inlier_ratio"] == ""
+        # With it, stage 2 ends at the same pose and the fit moves on from there.
+        assert float(refined["stage2_x_m"]) == pytest.approx(float(stage2["x_m"]), abs=1e-9)
+        assert float(refined["inlier_ratio"]) > 0.8
+        assert stage2["pose_id"] == refined["pose_id"] == truth["pose_id"]
+        miss = np.hypot(
+            float(refined["x_m"]) - float(truth["x_m"]), float(refined["y_m"]) - float(truth["y_m"])
+        )
+        assert miss < 0.005
