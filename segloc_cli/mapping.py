@@ -109,15 +109,10 @@ def mergeable_pairs(segments: np.ndarray, params: FuseParams) -> tuple[np.ndarra
             np.abs(np.sum(normal[a] * q[b], axis=1) - c),
         )
 
-    def gap(a, b):
-        """Gap between b's extent and a's along a's direction (negative: overlap)."""
-        c = np.sum(u[a] * p[a], axis=1)
-        tp = np.sum(u[a] * p[b], axis=1) - c
-        tq = np.sum(u[a] * q[b], axis=1) - c
-        return np.maximum(np.minimum(tp, tq) - length[a], -np.maximum(tp, tq))
-
     close = np.maximum(offset(i, j), offset(j, i)) <= params.offset_m
-    touching = (gap(i, j) <= params.gap_m) & (gap(j, i) <= params.gap_m)
+    touching = (_gaps(p[i], u[i], length[i], p[j], q[j]) <= params.gap_m) & (
+        _gaps(p[j], u[j], length[j], p[i], q[i]) <= params.gap_m
+    )
     keep = parallel & close & touching
     return i[keep], j[keep]
 
@@ -148,7 +143,9 @@ def _fuse_group(segments: np.ndarray, params: FuseParams) -> list[np.ndarray]:
         remaining = remaining[1:]
         line = members[0]
         while remaining.shape[0]:
-            join = _fits_line(line, remaining, params) & (_gaps(line, remaining) <= params.gap_m)
+            length = float(np.hypot(*(line[2:] - line[:2])))
+            gaps = _gaps(line[:2], (line[2:] - line[:2]) / length, length, *np.hsplit(remaining, 2))
+            join = _fits_line(line, remaining, params) & (gaps <= params.gap_m)
             if not join.any():
                 break
             members = np.concatenate([members, remaining[join]])
@@ -158,13 +155,14 @@ def _fuse_group(segments: np.ndarray, params: FuseParams) -> list[np.ndarray]:
     return lines
 
 
-def _gaps(line: np.ndarray, segments: np.ndarray) -> np.ndarray:
-    """Gap (K,) between each segment's extent and the line's along the line (negative: overlap)."""
-    p, q = line[:2], line[2:]
-    length = float(np.hypot(*(q - p)))
-    u = (q - p) / length
-    tp = (segments[:, :2] - p) @ u
-    tq = (segments[:, 2:] - p) @ u
+def _gaps(start, direction, length, p, q) -> np.ndarray:
+    """Gap between each extent p–q and a line's (start, unit direction, length) along the line.
+
+    Negative where they overlap. Arguments broadcast: one line against many
+    segments, or pairs row by row.
+    """
+    tp = np.sum((p - start) * direction, axis=-1)
+    tq = np.sum((q - start) * direction, axis=-1)
     return np.maximum(np.minimum(tp, tq) - length, -np.maximum(tp, tq))
 
 

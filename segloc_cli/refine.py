@@ -18,7 +18,13 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from segloc_cli.geometry import Pose2, point_segment_distances, transform_points, wrap_angle
+from segloc_cli.geometry import (
+    Pose2,
+    point_segment_distances,
+    rotation,
+    transform_points,
+    wrap_angle,
+)
 from segloc_cli.overlap import _point_segment_distance
 
 
@@ -50,7 +56,7 @@ class Refinement:
     inlier_ratio: float
     """Share of the scan's points within ``final_gate_m`` of a map segment at ``pose``."""
     rms_m: float
-    """Root mean square point-to-line distance of those inliers (NaN if none)."""
+    """Root mean square distance of those inliers from their nearest segment (NaN if none)."""
     n_points: int
 
 
@@ -189,8 +195,7 @@ def refine_pose(
         prior[2] = (p.point_sigma_m / np.deg2rad(p.prior_sigma_deg)) ** 2
     for gate in _gates(p):
         for _ in range(p.steps_per_round):
-            c, s = np.cos(pose[2]), np.sin(pose[2])
-            rotated = points @ np.array([[c, -s], [s, c]]).T
+            rotated = points @ rotation(pose[2]).T
             world = rotated + pose[:2]
             if lists_at is None or _travel(pose, lists_at, reach) > p.gate_m:
                 lists_at = pose.copy()
