@@ -504,6 +504,14 @@ def _initial_guesses(initial: str, log, log_path: Path, tolerance_s: float):
     "to the map segments by robust least squares afterwards.",
 )
 @click.option(
+    "--global",
+    "global_search",
+    is_flag=True,
+    help="No initial pose: search the whole map at stage 1's headings and report the best fit "
+    "and its runner-up. Every scan is localized, or only those listed by --initial FILE (whose "
+    "poses are then not used).",
+)
+@click.option(
     "--track",
     is_flag=True,
     help="Track along the log: --initial seeds only the first scan; each next guess is the "
@@ -528,6 +536,7 @@ def localize(
     ratio,
     recentre,
     no_refine,
+    global_search,
     track,
     tolerance_ms,
 ):
@@ -537,9 +546,16 @@ def localize(
     around the initial heading, then the position (and a refined heading) by
     the stage-2 coarse-to-fine overlap search from the initial position, and
     last a robust least-squares fit of the scan's points to the map segments
-    (the stage-2 pose is kept in its own columns). Writes one row per scan;
-    a scan that yields too few segments gets a status instead of a pose, and
-    the batch goes on.
+    (the stage-2 pose is kept in its own columns). Stage 2 descends from one
+    guess, so the best poses of a search of ±2 m around the guess, scored by
+    how many of the scan's points fall on the map, are refined too, and the
+    fit that explains the scan best wins.
+
+    Each row's status says how far to trust it: ok; ambiguous (a distinct
+    pose, given in the runner_up columns, fits nearly as well, e.g. along a
+    featureless corridor); lost (under half the scan lies on the map). A
+    scan that yields too few segments gets a status instead of a pose, and
+    the batch goes on. --no-refine runs the paper's two stages alone.
     """
     import pandas as pd
 
@@ -550,6 +566,16 @@ def localize(
 
     if not np.isclose(180.0 / bin_deg, round(180.0 / bin_deg)):
         raise click.BadParameter(f"{bin_deg:g} does not divide 180", param_hint="--bin-deg")
+    if global_search and (track or no_refine):
+        other = "--track" if track else "--no-refine"
+        raise click.UsageError(
+            f"--global cannot be combined with {other}: it searches every scan afresh and "
+            "ranks its candidates by refining them"
+        )
+    every_scan = global_search and (
+        click.get_current_context().get_parameter_source("initial")
+        == click.core.ParameterSource.DEFAULT
+    )
     segments_world = read_map(map_path)
     params = LocalizeParams(
         window_deg=None if no_prior_heading else window_deg,
@@ -569,7 +595,11 @@ def localize(
     n_scans = skipped = 0
     for log_path in log_paths:
         log = _load_log(log_path)
-        idx, poses, ids = _initial_guesses(initial, log, log_path, tolerance_s)
+        if every_scan:
+            idx = np.arange(len(log.scans))
+            poses, ids = None, idx + 1
+        else:
+            idx, poses, ids = _initial_guesses(initial, log, log_path, tolerance_s)
         if idx.size == 0:
             raise InputError(
                 f"no scan has an initial guess within {tolerance_ms:g} ms (--initial {initial})",
@@ -584,7 +614,8 @@ def localize(
             streams.append(track_scans(scans, odometry, poses[0], keep + 1, localizer))
         else:
             keep = idx
-            streams.append(localize_scans([log.scans[i] for i in idx], poses, ids, localizer))
+            guesses = None if global_search else poses
+            streams.append(localize_scans([log.scans[i] for i in idx], guesses, ids, localizer))
         n_scans += keep.size
         skipped += len(log.scans) - keep.size
 

@@ -9,21 +9,26 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from segloc_cli.align import RTable, align
+from segloc_cli.confidence import (
+    STATUS_LOST,
+    STATUS_OK,
+    ConfidenceParams,
+    judge,
+)
 from segloc_cli.extract import ExtractParams, extract_segments
 from segloc_cli.geometry import Pose2, point_segment_distances, wrap_angle
 from segloc_cli.overlap import coarse_to_fine
-from segloc_cli.refine import RefineParams, inlier_ratio, refine_pose
+from segloc_cli.refine import Refinement, RefineParams, inlier_ratio, refine_pose
 from segloc_cli.scan import Scan
+from segloc_cli.search import HypothesisSearch, SearchParams, distinct
 
-STATUS_OK = "ok"
 STATUS_TOO_FEW_SEGMENTS = "too_few_segments"
 STATUS_NO_OVERLAP = "no_overlap"
 STATUS_RECOVERED = "recovered"
 """Tracking: the first match failed its checks, a wider search passed them."""
-STATUS_LOST = "lost"
-"""Tracking: no search passed the checks; the pose given is the dead-reckoning guess."""
 ESTIMATED = (STATUS_OK, STATUS_RECOVERED)
-"""Statuses of rows that hold an accepted estimate; every other status marks a failure."""
+"""Statuses of rows that hold an accepted estimate; every other status marks a failure.
+(``ambiguous`` and ``lost`` rows hold a pose too, the best found, but it is not trusted.)"""
 
 
 @dataclass(frozen=True)
@@ -45,6 +50,10 @@ class LocalizeParams:
     min_segments: int = 3
     refine: RefineParams | None = field(default_factory=RefineParams)
     """Least-squares fit of the scan's points after stage 2; None stops at stage 2 (the paper)."""
+    search: SearchParams | None = field(default_factory=SearchParams)
+    """With refinement: also refine the best poses of a search of the prior window by the
+    scan's points, and keep the fit that puts most of them on the map."""
+    confidence: ConfidenceParams = field(default_factory=ConfidenceParams)
 
 
 @dataclass(frozen=True)
@@ -54,6 +63,8 @@ class Estimate:
     ``stage2_pose`` is where the coarse-to-fine search ended; ``pose`` is the
     refined pose (the same when refinement is off). ``inlier_ratio`` is the
     share of the scan's points on the map at ``pose`` (NaN when not measured).
+    ``runner_up`` is the best fit distinct from ``pose`` among the hypotheses
+    refined, with its own inlier share (None and NaN when there was none).
     """
 
     pose: Pose2
@@ -63,6 +74,8 @@ class Estimate:
     status: str
     stage2_pose: Pose2 | None = None
     inlier_ratio: float = float("nan")
+    runner_up: Pose2 | None = None
+    runner_up_ratio: float = float("nan")
 
 
 NAN_POSE = Pose2(float("nan"), float("nan"), float("nan"))
@@ -75,6 +88,14 @@ class Localizer:
         self.params = params or LocalizeParams()
         self.segments_world = np.asarray(segments_world, dtype=float)
         self.rtable = RTable.build(self.segments_world, self.params.bin_deg)
+        self._search: HypothesisSearch | None = None
+
+    @property
+    def hypothesis_search(self) -> HypothesisSearch:
+        """The map's score raster and search, built on first use."""
+        if self._search is None:
+            self._search = HypothesisSearch(self.segments_world, self.params.search)
+        return self._search
 
     def _rtable_near(self, initial: Pose2, segments_robot: np.ndarray) -> RTable:
         """The R-table of the map segments the scan could contain, seen from near ``initial``.
@@ -93,17 +114,26 @@ class Localizer:
             return self.rtable
         return RTable.build(self.segments_world[near], self.params.bin_deg)
 
-    def headings(self, segments_robot: np.ndarray, initial: Pose2) -> np.ndarray:
-        """Stage 1: candidate headings (radians, world frame), best first."""
+    def headings(
+        self, segments_robot: np.ndarray, initial: Pose2 | None, max_peaks: int | None = None
+    ) -> np.ndarray:
+        """Stage 1: up to ``max_peaks`` (default: the params') headings (radians, world frame).
+
+        Best first. Without an initial pose (or with no heading window) the
+        whole circle is voted over with the whole map's R-table.
+        """
         p = self.params
-        prior = None if p.window_deg is None else initial.theta
+        if initial is None or p.window_deg is None:
+            table, prior = self.rtable, None
+        else:
+            table, prior = self._rtable_near(initial, segments_robot), initial.theta
         return align(
-            self.rtable if prior is None else self._rtable_near(initial, segments_robot),
+            table,
             segments_robot,
             prior_rad=prior,
             window_deg=p.window_deg or 0.0,
             scheme=p.vote,
-            max_peaks=p.max_peaks,
+            max_peaks=max_peaks or p.max_peaks,
         ).peaks_rad
 
     def localize(
@@ -113,16 +143,55 @@ class Localizer:
 
         ``initial`` supplies the starting position and, unless the window is
         None, the prior heading for stage 1. ``points_robot`` (P, 2), the
-        scan's valid readings in the robot frame, are what refinement fits;
-        without them the estimate is the stage-2 pose.
+        scan's valid readings in the robot frame, are what refinement fits and
+        the hypothesis search scores; without them (or with refinement off)
+        the estimate is the stage-2 pose, the paper's answer.
+        """
+        p = self.params
+        n_local = int(segments_robot.shape[0])
+        robust = p.refine is not None and points_robot is not None
+        searching = robust and p.search is not None
+        enough = n_local >= p.min_segments
+        if not enough and not searching:
+            return Estimate(NAN_POSE, float("nan"), 0.0, n_local, STATUS_TOO_FEW_SEGMENTS)
+        peaks = self.headings(segments_robot, initial) if enough else np.zeros(0)
+        heading, stage2 = float("nan"), None
+        if peaks.size:
+            heading, stage2 = self._stage2(segments_robot, initial, peaks)
+        if not robust:
+            if stage2 is None or stage2.overlap_m <= 0:
+                return Estimate(NAN_POSE, heading, 0.0, n_local, STATUS_NO_OVERLAP)
+            return Estimate(stage2.pose, heading, stage2.overlap_m, n_local, STATUS_OK, stage2.pose)
+        seeds = [] if stage2 is None else [stage2.pose]
+        if searching:
+            window = 180.0 if p.window_deg is None else p.window_deg
+            hyps = self.hypothesis_search.around(points_robot, initial, window, peaks)
+            seeds += [h.pose for h in hyps]
+        overlap = 0.0 if stage2 is None else stage2.overlap_m
+        stage2_pose = None if stage2 is None else stage2.pose
+        return self._judged(seeds, points_robot, heading, overlap, n_local, stage2_pose)
+
+    def localize_global(self, segments_robot: np.ndarray, points_robot: np.ndarray) -> Estimate:
+        """Estimate the pose with no initial guess: the whole map is searched.
+
+        Stage 1 votes over the whole circle; the hypothesis search tries
+        headings near each of its peaks at every position of the map's
+        extent; the best distinct grid poses are refined and the fit that
+        puts most of the scan on the map wins, the runner-up reported beside.
         """
         p = self.params
         n_local = int(segments_robot.shape[0])
         if n_local < p.min_segments:
             return Estimate(NAN_POSE, float("nan"), 0.0, n_local, STATUS_TOO_FEW_SEGMENTS)
-        peaks = self.headings(segments_robot, initial)
-        if peaks.size == 0:
-            return Estimate(NAN_POSE, float("nan"), 0.0, n_local, STATUS_NO_OVERLAP)
+        search = self.hypothesis_search
+        peaks = self.headings(segments_robot, None, search.params.global_peaks)
+        seeds = [h.pose for h in search.everywhere(points_robot, peaks)]
+        heading = float(peaks[0]) if peaks.size else float("nan")
+        return self._judged(seeds, points_robot, heading, 0.0, n_local, None)
+
+    def _stage2(self, segments_robot: np.ndarray, initial: Pose2, peaks: np.ndarray):
+        """Stage 2 from each stage-1 peak: (heading, result) of the largest overlap."""
+        p = self.params
         best = None
         for heading in peaks:
             result = coarse_to_fine(
@@ -137,20 +206,51 @@ class Localizer:
             )
             if best is None or result.overlap_m > best[1].overlap_m:
                 best = (float(heading), result)
-        heading, result = best
-        if result.overlap_m <= 0:
-            return Estimate(NAN_POSE, heading, 0.0, n_local, STATUS_NO_OVERLAP)
-        if p.refine is None or points_robot is None:
-            return Estimate(result.pose, heading, result.overlap_m, n_local, STATUS_OK, result.pose)
-        fit = refine_pose(points_robot, self.segments_world, result.pose, p.refine)
+        return best
+
+    def _judged(
+        self,
+        seeds: list[Pose2],
+        points_robot: np.ndarray,
+        heading: float,
+        overlap_m: float,
+        n_local: int,
+        stage2_pose: Pose2 | None,
+    ) -> Estimate:
+        """Refine every seed; the fit with most points on the map, judged against its rivals."""
+        p = self.params
+        if not seeds:
+            return Estimate(NAN_POSE, heading, 0.0, n_local, STATUS_NO_OVERLAP, stage2_pose)
+        fits: list[Refinement] = sorted(
+            (refine_pose(points_robot, self.segments_world, s, p.refine) for s in seeds),
+            key=lambda fit: -fit.score,
+        )
+        best = fits[0]
+        apart = p.search or SearchParams()
+        rivals = [
+            f
+            for f in fits[1:]
+            if distinct([best.pose], f.pose, apart.distinct_m, apart.distinct_deg)
+        ]
+        runner_up = rivals[0] if rivals else None
+        runner_up_ratio = 0.0 if runner_up is None else runner_up.inlier_ratio
         return Estimate(
-            fit.pose, heading, result.overlap_m, n_local, STATUS_OK, result.pose, fit.inlier_ratio
+            best.pose,
+            heading,
+            overlap_m,
+            n_local,
+            judge(best.inlier_ratio, runner_up_ratio, p.confidence),
+            stage2_pose,
+            best.inlier_ratio,
+            None if runner_up is None else runner_up.pose,
+            runner_up_ratio,
         )
 
 
 def _row(pose_id: int, scan: Scan, initial: Pose2, est: Estimate, runtime_ms: float, status: str):
     """One row of the estimates table (``ESTIMATE_COLUMNS``): metres and degrees."""
     stage2 = est.stage2_pose or NAN_POSE
+    runner_up = est.runner_up or NAN_POSE
     return {
         "pose_id": int(pose_id),
         "time_s": scan.time_s,
@@ -166,6 +266,10 @@ def _row(pose_id: int, scan: Scan, initial: Pose2, est: Estimate, runtime_ms: fl
         "theta_deg": est.pose.theta_deg,
         "overlap": est.overlap_m,
         "inlier_ratio": est.inlier_ratio,
+        "runner_up_x_m": runner_up.x,
+        "runner_up_y_m": runner_up.y,
+        "runner_up_theta_deg": runner_up.theta_deg,
+        "runner_up_ratio": est.runner_up_ratio,
         "n_local_segments": est.n_local_segments,
         "runtime_ms": runtime_ms,
         "status": status,
@@ -174,21 +278,29 @@ def _row(pose_id: int, scan: Scan, initial: Pose2, est: Estimate, runtime_ms: fl
 
 def localize_scans(
     scans: Sequence[Scan],
-    initial_poses: Sequence[Pose2],
+    initial_poses: Sequence[Pose2] | None,
     pose_ids: Sequence[int],
     localizer: Localizer,
     extract_params: ExtractParams | None = None,
 ) -> Iterator[dict]:
     """Localize each scan from its initial guess, yielding one estimates row per scan.
 
-    Rows hold the estimates columns (``ESTIMATE_COLUMNS``): angles in degrees,
-    positions in metres, ``runtime_ms`` covering extraction and both stages.
-    Yielding row by row lets a caller keep what is done if the run is cut short.
+    With ``initial_poses`` None every scan is localized globally (the whole
+    map searched, the initial-pose columns left empty). Rows hold the
+    estimates columns (``ESTIMATE_COLUMNS``): angles in degrees, positions in
+    metres, ``runtime_ms`` covering extraction and the search. Yielding row
+    by row lets a caller keep what is done if the run is cut short.
     """
-    for scan, initial, pose_id in zip(scans, initial_poses, pose_ids, strict=True):
+    guesses = [None] * len(scans) if initial_poses is None else initial_poses
+    for scan, initial, pose_id in zip(scans, guesses, pose_ids, strict=True):
         t0 = time.perf_counter()
-        est = localizer.localize(extract_segments(scan, extract_params), initial, scan.points())
-        yield _row(pose_id, scan, initial, est, (time.perf_counter() - t0) * 1e3, est.status)
+        local = extract_segments(scan, extract_params)
+        if initial is None:
+            est = localizer.localize_global(local, scan.points())
+        else:
+            est = localizer.localize(local, initial, scan.points())
+        runtime_ms = (time.perf_counter() - t0) * 1e3
+        yield _row(pose_id, scan, initial or NAN_POSE, est, runtime_ms, est.status)
 
 
 @dataclass(frozen=True)
@@ -361,8 +473,12 @@ def _measured(localizer: Localizer, est: Estimate, points: np.ndarray) -> Estima
 
 
 def _accepted(est: Estimate, guess: Pose2, track: TrackParams, scale: float) -> bool:
-    """Whether a tracked match passes the inlier and plausible-jump checks."""
-    if est.status != STATUS_OK or not est.inlier_ratio >= track.min_inlier_ratio:
+    """Whether a tracked match passes the inlier and plausible-jump checks.
+
+    The search's own verdict (``ambiguous``, ``lost``) is not asked: along a
+    track the odometry, through the jump limits, decides among look-alikes.
+    """
+    if not np.isfinite(est.pose.x) or not est.inlier_ratio >= track.min_inlier_ratio:
         return False
     jump_m = np.hypot(est.pose.x - guess.x, est.pose.y - guess.y)
     jump_deg = abs(np.rad2deg(wrap_angle(est.pose.theta - guess.theta)))

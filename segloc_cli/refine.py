@@ -58,6 +58,10 @@ class Refinement:
     rms_m: float
     """Root mean square distance of those inliers from their nearest segment (NaN if none)."""
     n_points: int
+    score: float = 0.0
+    """Mean over all points of 1 − (d / final_gate_m)², 0 beyond the gate: in [0, 1], 1 when
+    every point lies exactly on a segment. Ranks fits that put equally many points on the map
+    by how closely they do."""
 
 
 @njit(cache=True)
@@ -176,7 +180,7 @@ def refine_pose(
     segments = np.asarray(segments_world, dtype=float).reshape(-1, 4)
     n = points.shape[0]
     if n == 0 or segments.shape[0] == 0:
-        return Refinement(initial, 0.0, float("nan"), n)
+        return Refinement(initial, 0.0, float("nan"), n, 0.0)
     # Only segments within reach of the scan from near the guess can pair.
     reach = float(np.hypot(points[:, 0], points[:, 1]).max()) + 2.0 * p.gate_m
     near = point_segment_distances([initial.x, initial.y], segments)[0] <= reach
@@ -226,4 +230,5 @@ def refine_pose(
     _, dist = nearest_segments(transform_points(points, fitted), segments)
     inliers = dist <= p.final_gate_m
     rms = float(np.sqrt(np.mean(dist[inliers] ** 2))) if inliers.any() else float("nan")
-    return Refinement(fitted, float(np.mean(inliers)), rms, n)
+    score = float(np.mean(np.clip(1.0 - (dist / p.final_gate_m) ** 2, 0.0, 1.0)))
+    return Refinement(fitted, float(np.mean(inliers)), rms, n, score)

@@ -38,6 +38,7 @@ SEED = 2000
 ESTIMATE_HEADER = (
     "pose_id,time_s,init_x_m,init_y_m,init_theta_deg,align_theta_deg,"
     "stage2_x_m,stage2_y_m,stage2_theta_deg,x_m,y_m,theta_deg,overlap,inlier_ratio,"
+    "runner_up_x_m,runner_up_y_m,runner_up_theta_deg,runner_up_ratio,"
     "n_local_segments,runtime_ms,status"
 )
 
@@ -737,7 +738,9 @@ def _estimates_csv(path: Path, poses: list[tuple[float, float, float, float]], s
     """An estimates file holding (time_s, x_m, y_m, theta_deg) rows."""
     lines = [ESTIMATE_HEADER]
     for k, (t, x, y, th) in enumerate(poses, 1):
-        lines.append(f"{k},{t},{x},{y},{th},{th},{x},{y},{th},{x},{y},{th},1.0,0.9,10,1.0,{status}")
+        lines.append(
+            f"{k},{t},{x},{y},{th},{th},{x},{y},{th},{x},{y},{th},1.0,0.9,,,,0.0,10,1.0,{status}"
+        )
     return write_text(path, "\n".join(lines) + "\n")
 
 
@@ -857,3 +860,32 @@ def test_refinement_polishes_the_stage2_pose_and_no_refine_stops_there(small, tm
             float(refined["x_m"]) - float(truth["x_m"]), float(refined["y_m"]) - float(truth["y_m"])
         )
         assert miss < 0.005
+
+
+def test_global_localizes_every_scan_without_a_guess(small, tmp_path, capsys):
+    out = tmp_path / "global.csv"
+    result = run_cli(capsys, "localize", small.log, "--map", HALL_WORLD, "--global", "--out", out)
+    assert result.code == 0, result.err
+    _, rows = read_csv_rows(out)
+    _, survey = read_csv_rows(small.survey)
+    assert [r["pose_id"] for r in rows] == [t["pose_id"] for t in survey]
+    for row, truth in zip(rows, survey, strict=True):
+        assert row["init_x_m"] == row["init_theta_deg"] == ""
+        assert row["status"] == "ok"
+        miss = np.hypot(
+            float(row["x_m"]) - float(truth["x_m"]), float(row["y_m"]) - float(truth["y_m"])
+        )
+        assert miss < 0.005
+        assert float(row["runner_up_ratio"]) < float(row["inlier_ratio"]) - 0.1
+
+
+@pytest.mark.parametrize("other", ["--track", "--no-refine"])
+def test_global_refuses_track_and_no_refine(small, tmp_path, capsys, other):
+    out = tmp_path / "global.csv"
+    result = run_cli(
+        capsys, "localize", small.log, "--map", HALL_WORLD, "--global", other, "--out", out
+    )
+    assert result.code == 2
+    assert "--global cannot be combined with " + other in result.err
+    assert "Traceback" not in result.err
+    assert not out.exists()

@@ -1,0 +1,191 @@
+"""Hypothesis search: many candidate poses, scored by how much of the scan lies on the map.
+
+With a handful of local segments (a 180° scan of 180 beams gives 6–9) the
+stage-2 overlap is nearly flat across a wide area, and a single descent from
+the initial guess often ends on a wrong pose that overlaps just as well. The
+search here asks the scan's points instead. For each candidate heading it
+sums, over a grid of positions, the raster scores of the rotated and shifted
+points (``field.py``): first per coarse block, whose sums bound every shift
+inside it, then at the fine resolution only inside the blocks whose bound
+can still compete, best first. The result is a ranked list of distinct grid
+poses, which the caller polishes by refinement and compares.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+
+from segloc_cli.field import coarse_bound, score_raster
+from segloc_cli.geometry import Pose2, rotation, wrap_angle
+
+
+@dataclass(frozen=True)
+class SearchParams:
+    """Settings of the hypothesis search (metres, degrees, counts)."""
+
+    cell_m: float = 0.05
+    """Fine raster cell and fine position step."""
+    score_radius_m: float = 0.1
+    """A point scores 1 on a segment, falling to 0 at this distance from it."""
+    coarse_factor: int = 4
+    """Fine cells per coarse block (per axis) when the region is a window around a guess."""
+    global_coarse_factor: int = 8
+    """The same when the region is the whole map."""
+    half_width_m: float = 2.0
+    """Half side of the square of positions searched around an initial guess."""
+    heading_step_deg: float = 1.0
+    """Spacing of the headings tried across the prior window (and around stage-1 peaks)."""
+    peak_fan_deg: float = 3.0
+    """Without a prior heading, headings within ± this of each stage-1 peak are tried..."""
+    global_peaks: int = 24
+    """...at this many peaks: over a whole map the true heading is often not among the top few."""
+    keep_fraction: float = 0.8
+    """Blocks are searched finely while their bound reaches this share of the best score."""
+    max_expansions: int = 400
+    """Most blocks searched finely per scan."""
+    hypotheses: int = 4
+    """Distinct grid poses handed on for refinement."""
+    distinct_m: float = 0.3
+    """Two poses farther apart than this (or ``distinct_deg``) are different answers."""
+    distinct_deg: float = 3.0
+
+
+@dataclass(frozen=True)
+class Hypothesis:
+    """A grid pose (world frame) and the mean score of the scan's points there, in [0, 1]."""
+
+    pose: Pose2
+    score: float
+
+
+@njit(cache=True)
+def _shift_sums(raster, ix, iy, nu, nv):
+    """Sums (H, nu, nv) over points of raster[ix[h, p] + u, iy[h, p] + v]; 0 outside."""
+    n_h, n_p = ix.shape
+    nx, ny = raster.shape
+    out = np.zeros((n_h, nu, nv))
+    for h in range(n_h):
+        for p in range(n_p):
+            bx, by = ix[h, p], iy[h, p]
+            u_lo, u_hi = max(0, -bx), min(nu, nx - bx)
+            v_lo, v_hi = max(0, -by), min(nv, ny - by)
+            for u in range(u_lo, u_hi):
+                row = raster[bx + u]
+                for v in range(v_lo, v_hi):
+                    out[h, u, v] += row[by + v]
+    return out
+
+
+def distinct(poses: list[Pose2], pose: Pose2, distinct_m: float, distinct_deg: float) -> bool:
+    """Whether ``pose`` differs from every pose in ``poses`` by the given margins."""
+    for other in poses:
+        near = np.hypot(pose.x - other.x, pose.y - other.y) <= distinct_m
+        turn = abs(np.rad2deg(wrap_angle(pose.theta - other.theta)))
+        if near and turn <= distinct_deg:
+            return False
+    return True
+
+
+class HypothesisSearch:
+    """Scores candidate poses of scans against one map (M, 4), world frame."""
+
+    def __init__(self, segments_world: np.ndarray, params: SearchParams | None = None):
+        self.params = params or SearchParams()
+        p = self.params
+        self.segments_world = np.asarray(segments_world, dtype=float).reshape(-1, 4)
+        self.fine = score_raster(
+            self.segments_world, p.cell_m, p.score_radius_m, margin_m=p.score_radius_m
+        )
+        self._coarse: dict[int, np.ndarray] = {}
+
+    def coarse(self, factor: int) -> np.ndarray:
+        if factor not in self._coarse:
+            self._coarse[factor] = coarse_bound(self.fine.score, factor)
+        return self._coarse[factor]
+
+    def extent(self) -> tuple[np.ndarray, float]:
+        """Centre (2,) and half side (m) of a square holding the whole map."""
+        ends = self.segments_world.reshape(-1, 2)
+        lo, hi = ends.min(axis=0), ends.max(axis=0)
+        return (lo + hi) / 2.0, float((hi - lo).max() / 2.0)
+
+    def search(
+        self,
+        points_robot: np.ndarray,
+        headings_rad: np.ndarray,
+        centre_xy: np.ndarray,
+        half_width_m: float,
+        coarse_factor: int,
+    ) -> list[Hypothesis]:
+        """Distinct grid poses, best first, within a square around ``centre_xy``.
+
+        Every heading is combined with every position on the fine grid of the
+        square (spacing ``cell_m``); only positions in coarse blocks whose
+        bound reaches ``keep_fraction`` of the best fine score are scored
+        exactly, at most ``max_expansions`` blocks, best bound first.
+        """
+        p = self.params
+        points = np.asarray(points_robot, dtype=float).reshape(-1, 2)
+        headings = np.atleast_1d(np.asarray(headings_rad, dtype=float))
+        if points.shape[0] == 0 or headings.size == 0 or self.segments_world.shape[0] == 0:
+            return []
+        cell, f = self.fine.cell_m, int(coarse_factor)
+        half_cells = int(np.ceil(half_width_m / cell))
+        start = np.asarray(centre_xy, dtype=float) - half_cells * cell
+        n_fine = 2 * half_cells + 1
+        n_coarse = -(-n_fine // f)
+        # Fine cell of every point at every heading, the shift being ``start``.
+        rotated = np.einsum("pk,hjk->hpj", points, np.stack([rotation(h) for h in headings]))
+        base = np.rint((rotated + start - self.fine.origin) / cell).astype(np.int64)
+        ix, iy = np.ascontiguousarray(base[..., 0]), np.ascontiguousarray(base[..., 1])
+        n_points = float(points.shape[0])
+        bounds = _shift_sums(self.coarse(f), ix // f, iy // f, n_coarse, n_coarse) / n_points
+        order = np.argsort(bounds, axis=None)[::-1]
+        found: list[Hypothesis] = []
+        best = 0.0
+        for flat in order[: p.max_expansions]:
+            h, cu, cv = np.unravel_index(flat, bounds.shape)
+            if bounds[h, cu, cv] < p.keep_fraction * best or bounds[h, cu, cv] <= 0.0:
+                break
+            sums = _shift_sums(
+                self.fine.score, ix[h : h + 1] + cu * f, iy[h : h + 1] + cv * f, f, f
+            )[0]
+            u, v = np.unravel_index(np.argmax(sums), sums.shape)
+            score = float(sums[u, v] / n_points)
+            xy = start + cell * np.array([cu * f + u, cv * f + v])
+            found.append(Hypothesis(Pose2(float(xy[0]), float(xy[1]), float(headings[h])), score))
+            best = max(best, score)
+        found.sort(key=lambda hyp: -hyp.score)
+        kept: list[Hypothesis] = []
+        for hyp in found:
+            if distinct([k.pose for k in kept], hyp.pose, p.distinct_m, p.distinct_deg):
+                kept.append(hyp)
+                if len(kept) == p.hypotheses:
+                    break
+        return kept
+
+    def around(
+        self, points_robot: np.ndarray, initial: Pose2, window_deg: float, extra_headings=()
+    ) -> list[Hypothesis]:
+        """Search the square of ``half_width_m`` around the guess, headings within ± window."""
+        p = self.params
+        steps = np.arange(-window_deg, window_deg + 1e-9, p.heading_step_deg)
+        headings = np.concatenate([initial.theta + np.deg2rad(steps), np.asarray(extra_headings)])
+        return self.search(
+            points_robot,
+            wrap_angle(headings),
+            np.array([initial.x, initial.y]),
+            p.half_width_m,
+            p.coarse_factor,
+        )
+
+    def everywhere(self, points_robot: np.ndarray, peaks_rad: np.ndarray) -> list[Hypothesis]:
+        """Search the whole map at headings near the stage-1 peaks (no initial guess)."""
+        p = self.params
+        fan = np.deg2rad(np.arange(-p.peak_fan_deg, p.peak_fan_deg + 1e-9, p.heading_step_deg))
+        headings = wrap_angle((np.asarray(peaks_rad)[:, None] + fan[None, :]).ravel())
+        centre, half = self.extent()
+        return self.search(points_robot, headings, centre, half, p.global_coarse_factor)
