@@ -94,6 +94,12 @@ class SensorModel:
             raise ValueError(f"clutter_clusters must be >= 0, got {self.clutter_clusters}")
 
 
+NOISE_FREE = SensorModel(
+    noise_cm=0.0, resolution_m=0.0, dropout_prob=0.0, glass_return_prob=0.0, clutter_clusters=0.0
+)
+"""Exact ranges: no noise, quantisation, dropouts, glass returns or clutter."""
+
+
 def beam_angles(readings: int) -> np.ndarray:
     """Beam angles (readings,) in radians, robot frame: ``2π·i/readings``, i = 0..readings−1."""
     if readings < 1:

@@ -7,15 +7,7 @@ import pytest
 
 from segloc_cli.geometry import Pose2, transform_points, wrap_angle
 from segloc_cli.refine import RefineParams, inlier_ratio, nearest_segments, refine_pose
-from segloc_cli.sim import SensorModel, random_free_poses, random_world, simulate_scan
-
-NOISE_FREE = SensorModel(
-    noise_cm=0.0,
-    resolution_m=0.0,
-    dropout_prob=0.0,
-    glass_return_prob=0.0,
-    clutter_clusters=0.0,
-)
+from segloc_cli.sim import NOISE_FREE, random_free_poses, random_world, simulate_scan
 
 
 def test_nearest_segment_and_distance_by_hand():

@@ -20,11 +20,7 @@ from segloc_cli.geometry import Pose2, wrap_angle
 from segloc_cli.io.maps import World
 from segloc_cli.localize import Localizer
 from segloc_cli.search import HypothesisSearch, distinct
-from segloc_cli.sim import SensorModel, random_free_poses, random_world, simulate_scan
-
-NOISE_FREE = SensorModel(
-    noise_cm=0.0, resolution_m=0.0, dropout_prob=0.0, glass_return_prob=0.0, clutter_clusters=0.0
-)
+from segloc_cli.sim import NOISE_FREE, random_free_poses, random_world, simulate_scan
 
 
 def _errors(pose: Pose2, truth: Pose2) -> tuple[float, float]:
