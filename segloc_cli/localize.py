@@ -52,7 +52,7 @@ class LocalizeParams:
     """Least-squares fit of the scan's points after stage 2; None stops at stage 2 (the paper)."""
     search: SearchParams | None = field(default_factory=SearchParams)
     """With refinement: also refine the best poses of a search of the prior window by the
-    scan's points, and keep the fit that puts most of them on the map."""
+    scan's points, and keep the fit that puts them closest to the map."""
     confidence: ConfidenceParams = field(default_factory=ConfidenceParams)
 
 
@@ -177,7 +177,8 @@ class Localizer:
         Stage 1 votes over the whole circle; the hypothesis search tries
         headings near each of its peaks at every position of the map's
         extent; the best distinct grid poses are refined and the fit that
-        puts most of the scan on the map wins, the runner-up reported beside.
+        puts the scan's points closest to the map wins, the runner-up
+        reported beside.
         """
         p = self.params
         n_local = int(segments_robot.shape[0])
@@ -217,7 +218,7 @@ class Localizer:
         n_local: int,
         stage2_pose: Pose2 | None,
     ) -> Estimate:
-        """Refine every seed; the fit with most points on the map, judged against its rivals."""
+        """Refine every seed; the best fit score wins, judged against its best distinct rival."""
         p = self.params
         if not seeds:
             return Estimate(NAN_POSE, heading, 0.0, n_local, STATUS_NO_OVERLAP, stage2_pose)
