@@ -3,8 +3,9 @@
 Local maps are moved into the world frame and fused: segments that are nearly
 collinear and overlap or nearly touch along their common line become one
 segment, fitted to all of them with each weighted by its length, spanning the
-union of their extents. Fusion repeats until nothing more merges, so chains of
-overlapping pieces collapse into one segment per wall.
+union of their extents. Fusion repeats until no two segments match any more,
+so chains of overlapping pieces collapse into one segment per wall and the
+result holds no overlapping duplicates (see ``overlapping_duplicates``).
 
 A chain of pairwise matches can drift: A matches B, B matches C, yet A and C
 lie on different lines (two parallel walls a few centimetres apart, a wall and
@@ -34,118 +35,214 @@ class FuseParams:
     """Largest gap between their extents along the common line (negative = overlap)."""
 
 
+TOUCH_M = 1e-9
+"""Overlap (metres) below which two pieces only touch: rounding, not a shared stretch."""
+
+
 def fit_segments(segments: np.ndarray) -> np.ndarray:
     """One segment (4,) fitted to segments (K, 4): length-weighted total least squares.
 
     Each segment counts as a uniform line of mass, so the fit is the principal
     axis of all of them; the result spans the projections of every endpoint.
+    Same frame as the input.
     """
     segments = np.asarray(segments, dtype=float).reshape(-1, 4)
+    if segments.shape[0] == 0:
+        raise ValueError("no segments to fit")
+    return _fit_groups(segments, np.zeros(segments.shape[0], dtype=np.int64), 1)[0]
+
+
+def _fit_groups(segments: np.ndarray, group: np.ndarray, n_groups: int) -> np.ndarray:
+    """``fit_segments`` of each group at once: segments (K, 4) with labels 0..n_groups-1.
+
+    Returns (n_groups, 4); every label must have at least one member.
+    """
     p, q = segments[:, :2], segments[:, 2:]
     length = segment_lengths(segments)
-    mid = 0.5 * (p + q)
-    total = length.sum()
-    centroid = (length @ mid) / total
-    d = mid - centroid
     u = (q - p) / np.where(length > 0, length, 1.0)[:, None]
+    mid = 0.5 * (p + q)
+
+    def weighted_sum(values):
+        return np.bincount(group, values, n_groups)
+
+    total = weighted_sum(length)
+    centroid = np.column_stack([weighted_sum(length * mid[:, k]) for k in (0, 1)]) / total[:, None]
+    r = mid - centroid[group]
     # Second moment of a uniform segment about its midpoint is l³/12 · u uᵀ.
-    scatter = (d * length[:, None]).T @ d + ((u * (length**3 / 12.0)[:, None]).T @ u)
-    evals, evecs = np.linalg.eigh(scatter)
-    direction = evecs[:, np.argmax(evals)]
-    t = np.concatenate([(p - centroid) @ direction, (q - centroid) @ direction])
-    return np.concatenate([centroid + t.min() * direction, centroid + t.max() * direction])
+    inertia = length**3 / 12.0
+
+    def moment(a, b):
+        return weighted_sum(length * r[:, a] * r[:, b] + inertia * u[:, a] * u[:, b])
+
+    # Major axis of the symmetric 2×2 scatter [[sxx, sxy], [sxy, syy]].
+    axis = 0.5 * np.arctan2(2.0 * moment(0, 1), moment(0, 0) - moment(1, 1))
+    direction = np.column_stack([np.cos(axis), np.sin(axis)])
+    tp = _dot(p - centroid[group], direction[group])
+    tq = _dot(q - centroid[group], direction[group])
+    t_min = np.full(n_groups, np.inf)
+    t_max = np.full(n_groups, -np.inf)
+    np.minimum.at(t_min, group, np.minimum(tp, tq))
+    np.maximum.at(t_max, group, np.maximum(tp, tq))
+    return np.hstack([centroid + t_min[:, None] * direction, centroid + t_max[:, None] * direction])
 
 
-GRID_CELL_M = 2.0
+GRID_CELL_M = 1.0
 """Cell size of the spatial grid that proposes candidate pairs."""
 
 
-def _nearby_pairs(segments: np.ndarray, margin_m: float) -> tuple[np.ndarray, np.ndarray]:
-    """Index pairs (i < j) whose bounding boxes, grown by ``margin_m``, share a grid cell.
+def _orientation_bins(segments: np.ndarray, angle_rad: float) -> tuple[np.ndarray, int]:
+    """Bin (M,) of each segment's undirected orientation, and the number of bins.
 
-    Every pair of segments closer than ``margin_m`` is among them; far-apart
-    segments are never compared, so fusing a long log stays near linear.
+    Bins are strictly wider than ``angle_rad``, so two segments whose
+    orientations differ by at most that fall in the same or in neighbouring
+    bins (cyclically: the last bin neighbours the first). With fewer than
+    three bins there is no such split, and everything goes in one bin.
     """
+    n_bins = int(np.pi / angle_rad) - 1 if angle_rad > 0 else 1
+    if n_bins < 3:
+        return np.zeros(segments.shape[0], dtype=np.int64), 1
+    d = segments[:, 2:] - segments[:, :2]
+    theta = np.mod(np.arctan2(d[:, 1], d[:, 0]), np.pi)
+    return np.floor(theta / (np.pi / n_bins)).astype(np.int64) % n_bins, n_bins
+
+
+def _pairs_in_same_key(key: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Index pairs (a < b) of entries with equal ``key``; key must be sorted."""
+    group_end = np.searchsorted(key, key, side="right")
+    count = group_end - np.arange(key.size) - 1
+    first = np.repeat(np.arange(key.size), count)
+    second = first + 1 + np.arange(first.size) - np.repeat(np.cumsum(count) - count, count)
+    return first, second
+
+
+def _nearby_pairs(
+    segments: np.ndarray, margin_m: float, angle_rad: float = np.pi
+) -> tuple[np.ndarray, np.ndarray]:
+    """Index pairs (i < j) that may be closer than ``margin_m`` and within ``angle_rad``.
+
+    Every such pair comes out exactly once, together with pairs that are not
+    (the caller tests them): those whose bounding boxes, grown by the margin,
+    share a grid cell and whose orientation bins are equal or neighbours.
+    Far-apart segments and walls across a corner are never compared, so
+    fusing a long log stays near linear.
+    """
+    if segments.shape[0] < 2:
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+    bins, n_bins = _orientation_bins(segments, angle_rad)
     lo = np.minimum(segments[:, :2], segments[:, 2:]) - margin_m
     hi = np.maximum(segments[:, :2], segments[:, 2:]) + margin_m
     c_lo = np.floor(lo / GRID_CELL_M).astype(np.int64)
     c_hi = np.floor(hi / GRID_CELL_M).astype(np.int64)
     nx = c_hi[:, 0] - c_lo[:, 0] + 1
     ny = c_hi[:, 1] - c_lo[:, 1] + 1
-    # One entry per (segment, covered cell).
-    owner = np.repeat(np.arange(len(segments)), nx * ny)
-    k = np.arange(owner.size) - np.repeat(np.cumsum(nx * ny) - nx * ny, nx * ny)
-    cx = c_lo[owner, 0] + k % nx[owner]
-    cy = c_lo[owner, 1] + k // nx[owner]
-    key = (cx - cx.min()) * (cy.max() - cy.min() + 1) + (cy - cy.min())
+    # One entry per (segment, covered cell, own bin or the next one).
+    per_bin = 2 if n_bins > 1 else 1
+    count = nx * ny * per_bin
+    owner = np.repeat(np.arange(len(segments)), count)
+    k = np.arange(owner.size) - np.repeat(np.cumsum(count) - count, count)
+    cell = k // per_bin
+    entry_bin = (bins[owner] + k % per_bin) % n_bins
+    cx = c_lo[owner, 0] + cell % nx[owner]
+    cy = c_lo[owner, 1] + cell // nx[owner]
+    cell_key = (cx - cx.min()) * (cy.max() - cy.min() + 1) + (cy - cy.min())
+    key = cell_key * n_bins + entry_bin
     order = np.lexsort((owner, key))
-    key, owner = key[order], owner[order]
-    # Pair each entry with the entries after it in the same cell.
-    group_end = np.searchsorted(key, key, side="right")
-    count = group_end - np.arange(key.size) - 1
-    first = np.repeat(np.arange(key.size), count)
-    step = np.arange(first.size) - np.repeat(np.cumsum(count) - count, count)
-    i, j = owner[first], owner[first + 1 + step]
-    pair_key = np.unique(np.minimum(i, j) * len(segments) + np.maximum(i, j))
-    return pair_key // len(segments), pair_key % len(segments)
+    owner, cx, cy, entry_bin = owner[order], cx[order], cy[order], entry_bin[order]
+    first, second = _pairs_in_same_key(key[order])
+    i, j = owner[first], owner[second]
+    # Boxes that share cells share a rectangle of them, and segments in the same
+    # bin share it and the next: keep each pair only in its lowest cell and bin.
+    once = (
+        (cx[first] == np.maximum(c_lo[i, 0], c_lo[j, 0]))
+        & (cy[first] == np.maximum(c_lo[i, 1], c_lo[j, 1]))
+        & ((bins[i] != bins[j]) | (entry_bin[first] == bins[i]))
+    )
+    return i[once], j[once]
+
+
+def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise dot product of 2-vectors (..., 2), spelt out: faster than a reduction."""
+    return a[..., 0] * b[..., 0] + a[..., 1] * b[..., 1]
+
+
+def _lies_on(
+    lines: np.ndarray, segments: np.ndarray, params: FuseParams
+) -> tuple[np.ndarray, np.ndarray]:
+    """Whether segments lie on lines, and their gaps along them; rows pair up, (4,) broadcasts.
+
+    A segment lies on a line when its orientation is within ``angle_deg`` and
+    both its ends are within ``offset_m`` of the (infinite) line. The gap is
+    that of ``_gaps`` against the line's extent (metres, negative = overlap).
+    Every match test of this module goes through here, so that a pair found by
+    ``mergeable_pairs`` is also joined when its group is regrown.
+    """
+    start, end = lines[..., :2], lines[..., 2:]
+    line_length = np.hypot(end[..., 0] - start[..., 0], end[..., 1] - start[..., 1])
+    u = (end - start) / line_length[..., None]
+    normal = np.stack([-u[..., 1], u[..., 0]], axis=-1)
+    p, q = segments[..., :2], segments[..., 2:]
+    d = q - p
+    cos = np.abs(_dot(d, u)) / np.maximum(np.hypot(d[..., 0], d[..., 1]), 1e-300)
+    offset = np.maximum(np.abs(_dot(p - start, normal)), np.abs(_dot(q - start, normal)))
+    on = (cos >= np.cos(np.deg2rad(params.angle_deg))) & (offset <= params.offset_m)
+    return on, _gaps(start, u, line_length, p, q)
+
+
+def _matches(segments: np.ndarray, params: FuseParams) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Pairs (i < j) that lie on each other's line, with the larger of their two gaps (m).
+
+    Only pairs whose gap is at most ``gap_m`` are returned.
+    """
+    s = np.asarray(segments, dtype=float).reshape(-1, 4)
+    i, j = _nearby_pairs(s, max(params.offset_m, params.gap_m), np.deg2rad(params.angle_deg))
+    on_i, gap_i = _lies_on(s[i], s[j], params)
+    on_j, gap_j = _lies_on(s[j], s[i], params)
+    gap = np.maximum(gap_i, gap_j)
+    keep = on_i & on_j & (gap <= params.gap_m)
+    return i[keep], j[keep], gap[keep]
 
 
 def mergeable_pairs(segments: np.ndarray, params: FuseParams) -> tuple[np.ndarray, np.ndarray]:
-    """Index pairs (i < j) of segments (M, 4) that describe the same wall."""
-    s = np.asarray(segments, dtype=float).reshape(-1, 4)
-    i, j = _nearby_pairs(s, max(params.offset_m, params.gap_m))
-    p, q = s[:, :2], s[:, 2:]
-    length = segment_lengths(s)
-    u = (q - p) / length[:, None]
-    normal = np.column_stack([-u[:, 1], u[:, 0]])
+    """Index pairs (i < j) of segments (M, 4) that describe the same wall.
 
-    parallel = np.abs(np.sum(u[i] * u[j], axis=1)) >= np.cos(np.deg2rad(params.angle_deg))
-
-    def offset(a, b):
-        """Largest distance of b's endpoints from a's line."""
-        c = np.sum(normal[a] * p[a], axis=1)
-        return np.maximum(
-            np.abs(np.sum(normal[a] * p[b], axis=1) - c),
-            np.abs(np.sum(normal[a] * q[b], axis=1) - c),
-        )
-
-    close = np.maximum(offset(i, j), offset(j, i)) <= params.offset_m
-    touching = (_gaps(p[i], u[i], length[i], p[j], q[j]) <= params.gap_m) & (
-        _gaps(p[j], u[j], length[j], p[i], q[i]) <= params.gap_m
-    )
-    keep = parallel & close & touching
-    return i[keep], j[keep]
+    Each lies on the other's line (orientation within ``angle_deg``, both ends
+    within ``offset_m`` of it) and their extents along it overlap or leave a
+    gap of at most ``gap_m``. Any frame, metres.
+    """
+    i, j, _ = _matches(segments, params)
+    return i, j
 
 
-def _fits_line(line: np.ndarray, segments: np.ndarray, params: FuseParams) -> np.ndarray:
-    """Which segments (K, 4) lie on ``line`` (4,): orientation and both ends within tolerance."""
-    p, q = line[:2], line[2:]
-    length = float(np.hypot(*(q - p)))
-    u = (q - p) / length
-    normal = np.array([-u[1], u[0]])
-    d = segments[:, 2:] - segments[:, :2]
-    cos = np.abs(d @ u) / np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-300)
-    offset = np.maximum(
-        np.abs((segments[:, :2] - p) @ normal), np.abs((segments[:, 2:] - p) @ normal)
-    )
-    return (cos >= np.cos(np.deg2rad(params.angle_deg))) & (offset <= params.offset_m)
+def overlapping_duplicates(
+    segments: np.ndarray, params: FuseParams | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Index pairs (i < j) of segments (M, 4) that are one stretch of wall held twice.
+
+    Mergeable pairs (``mergeable_pairs``) whose extents overlap along each
+    other's line by more than ``TOUCH_M``: pieces that merely touch or leave a
+    gap are not duplicates. A fused map has none. Any frame, metres.
+    """
+    i, j, gap = _matches(segments, params or FuseParams())
+    overlapping = gap < -TOUCH_M
+    return i[overlapping], j[overlapping]
 
 
-def _fuse_group(segments: np.ndarray, params: FuseParams) -> list[np.ndarray]:
-    """Segments (K, 4) linked by pairwise matches → one fitted segment per line they hold."""
-    line = fit_segments(segments)
-    if _fits_line(line, segments, params).all():
-        return [line]
+def _regrow(segments: np.ndarray, params: FuseParams) -> list[np.ndarray]:
+    """Segments (K, 4) of a group that no one line fits → one fitted segment per line they hold.
+
+    Starts from the longest segment and adds every segment that lies on the
+    current line and is within ``gap_m`` of its extent, refitting after each
+    step; what never joins seeds the next line.
+    """
     lines = []
-    remaining = segments[np.argsort(-segment_lengths(segments))]
+    remaining = segments[np.argsort(-segment_lengths(segments), kind="stable")]
     while remaining.shape[0]:
         members = remaining[:1]
         remaining = remaining[1:]
         line = members[0]
         while remaining.shape[0]:
-            length = float(np.hypot(*(line[2:] - line[:2])))
-            gaps = _gaps(line[:2], (line[2:] - line[:2]) / length, length, *np.hsplit(remaining, 2))
-            join = _fits_line(line, remaining, params) & (gaps <= params.gap_m)
+            on, gap = _lies_on(line, remaining, params)
+            join = on & (gap <= params.gap_m)
             if not join.any():
                 break
             members = np.concatenate([members, remaining[join]])
@@ -161,8 +258,8 @@ def _gaps(start, direction, length, p, q) -> np.ndarray:
     Negative where they overlap. Arguments broadcast: one line against many
     segments, or pairs row by row.
     """
-    tp = np.sum((p - start) * direction, axis=-1)
-    tq = np.sum((q - start) * direction, axis=-1)
+    tp = _dot(p - start, direction)
+    tq = _dot(q - start, direction)
     return np.maximum(np.minimum(tp, tq) - length, -np.maximum(tp, tq))
 
 
@@ -179,8 +276,37 @@ def _components(n: int, i: np.ndarray, j: np.ndarray) -> np.ndarray:
         labels = updated
 
 
+def _fuse_groups(segments: np.ndarray, labels: np.ndarray, params: FuseParams) -> np.ndarray:
+    """Segments (M, 4) with group labels (M,) → one or more segments per group, in group order.
+
+    A lone segment is kept as it is; a group whose members all lie on their
+    length-weighted fit becomes that fit; any other group is regrown.
+    """
+    _, first, group = np.unique(labels, return_index=True, return_inverse=True)
+    n_groups = first.size
+    size = np.bincount(group, minlength=n_groups)
+    lines = _fit_groups(segments, group, n_groups)
+    on, _ = _lies_on(lines[group], segments, params)
+    consistent = np.bincount(group, ~on, n_groups) == 0
+    lines[size == 1] = segments[first[size == 1]]
+    out, out_group = [lines[consistent]], [np.flatnonzero(consistent)]
+    order = np.argsort(group, kind="stable")
+    members = np.split(segments[order], np.cumsum(size)[:-1])
+    for g in np.flatnonzero(~consistent):
+        regrown = _regrow(members[g], params)
+        out.append(np.array(regrown))
+        out_group.append(np.full(len(regrown), g))
+    return np.concatenate(out)[np.argsort(np.concatenate(out_group), kind="stable")]
+
+
 def fuse_segments(segments_world: np.ndarray, params: FuseParams | None = None) -> np.ndarray:
-    """Fuse duplicate observations of the same walls; returns (M', 4), M' <= M."""
+    """Fuse duplicate observations of the same walls; returns (M', 4), M' <= M, same frame.
+
+    Repeats until ``mergeable_pairs`` finds nothing, so the result has no
+    overlapping duplicates either. Every round each group of matching segments
+    loses at least one member (the longest one absorbs its partners), so the
+    loop ends.
+    """
     params = params or FuseParams()
     segments = np.asarray(segments_world, dtype=float).reshape(-1, 4)
     segments = segments[segment_lengths(segments) > 0]
@@ -188,12 +314,9 @@ def fuse_segments(segments_world: np.ndarray, params: FuseParams | None = None) 
         i, j = mergeable_pairs(segments, params)
         if i.size == 0:
             break
-        labels = _components(segments.shape[0], i, j)
-        fused = np.array(
-            [line for g in np.unique(labels) for line in _fuse_group(segments[labels == g], params)]
-        )
+        fused = _fuse_groups(segments, _components(segments.shape[0], i, j), params)
         if fused.shape[0] == segments.shape[0]:
-            break  # the only matches left link segments that lie on different lines
+            break  # cannot happen (see above); guards against an endless loop
         segments = fused
     return segments
 

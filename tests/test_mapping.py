@@ -4,14 +4,18 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from segloc_cli.geometry import Pose2
 from segloc_cli.mapping import (
     FuseParams,
+    _nearby_pairs,
     build_global_map,
     fit_segments,
     fuse_segments,
     mergeable_pairs,
+    overlapping_duplicates,
 )
 
 
@@ -117,6 +121,69 @@ def test_fusion_repeats_until_nothing_merges():
     assert fused.shape == (1, 4)
     xs = np.sort(fused[0, [0, 2]])
     assert xs == pytest.approx([0.0, 6.0], abs=0.01)
+
+
+def test_three_overlapping_pieces_of_a_slanted_wall_fuse_to_it_exactly():
+    # The wall (1, −2) + t·(0.8, 0.6), t ∈ [0, 10], ends at (9, 4). Pieces t ∈ [0, 4],
+    # [3, 7] (reversed) and [6, 10]: neighbours overlap by 1 m, the outer two are 2 m apart.
+    pieces = np.array(
+        [[1.0, -2.0, 4.2, 0.4], [6.6, 2.2, 3.4, -0.2], [5.8, 1.6, 9.0, 4.0]],
+    )
+    fused = fuse_segments(pieces)
+    assert fused.shape == (1, 4)
+    assert_same_segment(fused[0], [1.0, -2.0, 9.0, 4.0], atol=1e-12)
+
+
+def test_offset_duplicates_fuse_to_their_length_weighted_line():
+    # Three horizontal pieces, all centred on x = 2, at y = 0 (length 4), 0.05 (length 3)
+    # and 0.02 (length 2): every two are within offset_m and overlap. With the midpoints
+    # on one vertical the fit is horizontal, at the length-weighted mean height
+    #   y = (4·0 + 3·0.05 + 2·0.02)/9 = 0.19/9 ≈ 0.0211,
+    # which every piece lies within 0.029 of; it spans x ∈ [0, 4].
+    pieces = np.array([[0.0, 0.0, 4.0, 0.0], [0.5, 0.05, 3.5, 0.05], [1.0, 0.02, 3.0, 0.02]])
+    fused = fuse_segments(pieces)
+    assert fused.shape == (1, 4)
+    assert_same_segment(fused[0], [0.0, 0.19 / 9, 4.0, 0.19 / 9], atol=1e-12)
+
+
+def test_parallel_walls_farther_apart_than_offset_stay_two_segments():
+    # A wall (y = 0) and a shelf along it (y = 0.1), each seen as overlapping pieces.
+    # Pieces of one are 0.1 > offset_m from the other's line, so each fuses on its own.
+    wall = [[0.0, 0.0, 2.5, 0.0], [4.0, 0.0, 2.0, 0.0], [1.0, 0.0, 3.0, 0.0]]
+    shelf = [[0.5, 0.1, 2.0, 0.1], [1.8, 0.1, 3.5, 0.1]]
+    fused = fuse_segments(np.array(wall + shelf))
+    assert fused.shape == (2, 4)
+    assert_same_segment(fused[0], [0.0, 0.0, 4.0, 0.0])
+    assert_same_segment(fused[1], [0.5, 0.1, 3.5, 0.1])
+    assert overlapping_duplicates(fused)[0].size == 0
+
+
+def test_a_chain_across_parallel_lines_leaves_no_overlapping_duplicate():
+    # Pieces of four lines 5 cm apart, each line seen twice with overlap: every piece
+    # pairs with its own line's other piece and with the lines next to it, so they are
+    # one group that no single line fits. The result must still hold no two segments
+    # that overlap within tolerance of each other's lines.
+    pieces = np.array([[x0, y, x0 + 2.5, y] for y in (0.0, 0.05, 0.10, 0.15) for x0 in (0.0, 1.5)])
+    fused = fuse_segments(pieces)
+    assert overlapping_duplicates(fused)[0].size == 0
+    assert mergeable_pairs(fused, FuseParams())[0].size == 0
+    # Regrown from the longest (first) piece, the lines pair up as in the full-length case.
+    assert fused.shape == (2, 4)
+    order = np.argsort(fused[:, 1])
+    assert_same_segment(fused[order[0]], [0.0, 0.025, 4.0, 0.025])
+    assert_same_segment(fused[order[1]], [0.0, 0.125, 4.0, 0.125])
+
+
+def test_segments_that_match_nothing_come_out_unchanged_and_in_place():
+    # Two pieces of y = 0 fuse; the two slanted segments match nothing and are returned
+    # bit for bit, endpoint order kept, after the fused wall (which takes the place of
+    # its first piece).
+    lone = np.array([[0.3, 1.7, 2.9, 5.1], [5.0, 5.0, 4.0, 1.3]])
+    segs = np.vstack([[[0.0, 0.0, 2.0, 0.0]], lone[:1], [[1.0, 0.0, 3.0, 0.0]], lone[1:]])
+    fused = fuse_segments(segs)
+    assert fused.shape == (3, 4)
+    assert_same_segment(fused[0], [0.0, 0.0, 3.0, 0.0])
+    np.testing.assert_array_equal(fused[1:], lone)
 
 
 def test_unrelated_segments_and_degenerate_input():
@@ -233,3 +300,184 @@ def test_grid_candidates_find_exactly_the_brute_force_pairs():
         segs = np.vstack([segs, segs + rng.normal(0, 0.02, segs.shape)])
         i, j = mergeable_pairs(segs, params)
         assert set(zip(i.tolist(), j.tolist(), strict=True)) == _brute_force_pairs(segs, params)
+
+
+def test_grid_candidates_hold_each_pair_once_across_orientation_bins_and_the_wrap():
+    # Orientations next to the 0°/180° wrap and to the orientation-bin edges, with
+    # partners turned by just under and just over angle_deg, packed into a few cells.
+    rng = np.random.default_rng(11)
+    params = FuseParams()
+    edges = np.arange(60) * 180.0 / 59  # bin edges for angle_deg = 3
+    for _ in range(20):
+        base = rng.choice(np.concatenate([edges, [0.0, 179.9, 0.1]]), 30)
+        angle = np.deg2rad(
+            np.concatenate([base, base + rng.choice([-3.05, -2.95, 2.95, 3.05], 30)])
+            + rng.normal(0.0, 0.01, 60)
+        )
+        start = rng.uniform(0, 3, (60, 2))
+        length = rng.uniform(0.3, 3.0, 60)
+        segs = np.column_stack(
+            [start, start + length[:, None] * np.c_[np.cos(angle), np.sin(angle)]]
+        )
+        i, j = _nearby_pairs(segs, 0.15, np.deg2rad(params.angle_deg))
+        pairs = list(zip(i.tolist(), j.tolist(), strict=True))
+        assert len(pairs) == len(set(pairs))
+        assert all(a < b for a, b in pairs)
+        i, j = mergeable_pairs(segs, params)
+        assert set(zip(i.tolist(), j.tolist(), strict=True)) == _brute_force_pairs(segs, params)
+
+
+def test_pieces_either_side_of_the_orientation_wrap_merge():
+    # At +0.5° and −0.5° (that is, 179.5°) two overlapping pieces are 1° apart.
+    fused = fuse_segments(np.array([seg(0.5, 1.0), seg(-0.5, 1.0)]))
+    assert fused.shape == (1, 4)
+    assert_same_segment(fused[0], seg(0.0, np.cos(np.deg2rad(0.5))), atol=1e-12)
+
+
+# --- overlapping_duplicates -------------------------------------------------------------------
+
+
+def _rotated_touching_pieces() -> np.ndarray:
+    """Two pieces of one line at 17° that share an endpoint and nothing more.
+
+    Computed, their overlap along the line comes out as −1e-16 m rather than 0.
+    """
+    a = np.array([20.0, 20.0])
+    u = np.array([np.cos(np.deg2rad(17.0)), np.sin(np.deg2rad(17.0))])
+    return np.array([[*a, *(a + u)], [*(a + 3.0 * u), *(a + u)]])
+
+
+def test_overlapping_duplicates_are_exactly_the_overlapping_mergeable_pairs():
+    segs = np.vstack(
+        [
+            [0.0, 0.0, 4.0, 0.0],  # 0: a wall
+            [3.0, 0.03, 6.0, 0.03],  # 1: 3 cm off it, overlapping x ∈ [3, 4] → duplicate of 0
+            [6.0, 0.03, 8.0, 0.03],  # 2: continues 1 end to end: touching only
+            [0.0, 0.1, 4.0, 0.1],  # 3: parallel to 0 at 10 cm > offset_m: a different line
+            [8.1, 0.03, 9.0, 0.03],  # 4: 0.1 past 2: mergeable across the gap, no overlap
+            seg(4.0, 0.5) + np.array([2.0, 0.0, 2.0, 0.0]),  # 5: crosses 0 at 4° > angle_deg
+            # 6: a short piece on 0 at 2°: its ends are within 1.8 cm of 0's line, but 0's
+            # far end is 3·sin 2° ≈ 10 cm from its line, so they are not one line.
+            seg(2.0, 0.5) + np.array([1.0, 0.0, 1.0, 0.0]),
+            _rotated_touching_pieces(),  # 7, 8: share an endpoint, nothing more
+            [0.0, 10.0, 3.0, 10.0],  # 9, 10, 11: three overlapping copies of y ≈ 10
+            [4.0, 10.02, 1.0, 10.02],
+            [2.0, 9.99, 5.0, 9.99],
+        ]
+    )
+    i, j = overlapping_duplicates(segs)
+    assert sorted(zip(i.tolist(), j.tolist(), strict=True)) == [
+        (0, 1),
+        (9, 10),
+        (9, 11),
+        (10, 11),
+    ]
+    # The touching and gapped pieces do match, as pieces of one wall.
+    merge = set(zip(*(a.tolist() for a in mergeable_pairs(segs, FuseParams())), strict=True))
+    assert {(1, 2), (2, 4), (7, 8)} <= merge
+    assert overlapping_duplicates(fuse_segments(segs))[0].size == 0
+
+
+def test_overlapping_duplicates_follow_the_parameters():
+    # 5 cm apart and overlapping: a duplicate at offset_m = 0.06, not at 0.04.
+    pair = np.array([[0.0, 0.0, 2.0, 0.0], [1.0, 0.05, 3.0, 0.05]])
+    assert overlapping_duplicates(pair)[0].tolist() == [0]
+    assert overlapping_duplicates(pair, FuseParams(offset_m=0.04))[0].size == 0
+    assert overlapping_duplicates(np.zeros((0, 4)))[0].size == 0
+
+
+# --- properties -------------------------------------------------------------------------------
+
+
+def _pieces(
+    rng: np.random.Generator, spacing, overlap, repeats: int, noise_m: float
+) -> tuple[np.ndarray, float]:
+    """Overlapping pieces (K, 4) of the wall y = 0, x ∈ [0, L], and L.
+
+    Piece k starts at the k-th cut and runs ``overlap[k]`` past the next one (the
+    last stops at L); each is seen ``repeats`` times, every endpoint moved by up to
+    ``noise_m`` along and across the wall, in a random direction.
+    """
+    cuts = np.concatenate([[0.0], np.cumsum(spacing)])
+    wall_length = float(cuts[-1])
+    ends = np.minimum(cuts[1:] + np.asarray(overlap[: len(spacing)]), wall_length)
+    x = np.repeat(np.column_stack([cuts[:-1], ends]), repeats, axis=0)
+    pieces = np.column_stack([x[:, 0], np.zeros(len(x)), x[:, 1], np.zeros(len(x))])
+    pieces += rng.uniform(-noise_m, noise_m, pieces.shape)
+    flip = rng.random(len(pieces)) < 0.5
+    pieces[flip] = pieces[flip][:, [2, 3, 0, 1]]
+    return pieces, wall_length
+
+
+def _place(segments: np.ndarray, x: float, y: float, theta: float) -> np.ndarray:
+    """Segments (K, 4) moved by the pose (x, y, theta)."""
+    c, s = np.cos(theta), np.sin(theta)
+    r = np.array([[c, -s], [s, c]])
+    return np.hstack([segments[:, :2] @ r.T + [x, y], segments[:, 2:] @ r.T + [x, y]])
+
+
+wall_cuts = st.lists(st.floats(0.5, 1.2), min_size=1, max_size=6)
+pose = st.tuples(st.floats(-20, 20), st.floats(-20, 20), st.floats(-np.pi, np.pi))
+
+
+@settings(max_examples=100, deadline=None)
+@given(
+    spacing=wall_cuts,
+    overlap=st.lists(st.floats(0.02, 0.3), min_size=6, max_size=6),
+    repeats=st.integers(1, 3),
+    where=pose,
+    seed=st.integers(0, 2**32 - 1),
+)
+def test_a_wall_cut_into_noisy_overlapping_pieces_fuses_into_one(
+    spacing, overlap, repeats, where, seed
+):
+    noise = 0.005
+    pieces, length = _pieces(np.random.default_rng(seed), spacing, overlap, repeats, noise)
+    pieces = _place(pieces, *where)
+    fused = fuse_segments(pieces)
+    assert fused.shape == (1, 4)
+    # One round: every piece is in one group, which their length-weighted fit spans.
+    assert_same_segment(fused[0], fit_segments(pieces), atol=1e-9)
+    wall = _place(np.array([[0.0, 0.0, length, 0.0]]), *where)[0]
+    assert_same_segment(fused[0], wall, atol=0.02)
+
+
+@settings(max_examples=100, deadline=None)
+@given(
+    spacing=st.tuples(wall_cuts, wall_cuts),
+    overlap=st.lists(st.floats(0.02, 0.3), min_size=6, max_size=6),
+    apart=st.floats(0.09, 0.5),
+    shift=st.floats(-1.0, 1.0),
+    where=pose,
+    seed=st.integers(0, 2**32 - 1),
+)
+def test_parallel_walls_beyond_offset_never_merge_whatever_the_pieces(
+    spacing, overlap, apart, shift, where, seed
+):
+    # Two parallel walls 9–50 cm apart, each in noisy overlapping pieces: with
+    # 2 mm of noise no piece of one comes within offset_m of the other's line.
+    rng = np.random.default_rng(seed)
+    near, _ = _pieces(rng, spacing[0], overlap, 2, 0.002)
+    far, _ = _pieces(rng, spacing[1], overlap, 2, 0.002)
+    far += [shift, apart, shift, apart]
+    near, far = _place(near, *where), _place(far, *where)
+    fused = fuse_segments(np.vstack([near, far]))
+    assert fused.shape == (2, 4)
+    assert_same_segment(fused[0], fit_segments(near), atol=1e-9)
+    assert_same_segment(fused[1], fit_segments(far), atol=1e-9)
+
+
+@settings(max_examples=150, deadline=None)
+@given(n=st.integers(2, 30), where=pose, seed=st.integers(0, 2**32 - 1))
+def test_fused_maps_hold_no_overlapping_duplicates(n, where, seed):
+    # Pieces within 15 cm of one line, tilted by up to 4°: chains of matches across
+    # nearby lines, groups that no one line fits, and regrowth.
+    rng = np.random.default_rng(seed)
+    x0, length = rng.uniform(0.0, 4.0, n), rng.uniform(0.2, 3.0, n)
+    y0, tilt = rng.uniform(-0.15, 0.15, n), np.deg2rad(rng.uniform(-4.0, 4.0, n))
+    segs = np.column_stack([x0, y0, x0 + length * np.cos(tilt), y0 + length * np.sin(tilt)])
+    fused = fuse_segments(_place(segs, *where))
+    assert fused.shape[0] <= n
+    assert overlapping_duplicates(fused)[0].size == 0
+    assert mergeable_pairs(fused, FuseParams())[0].size == 0
+    np.testing.assert_array_equal(fuse_segments(fused), fused)
