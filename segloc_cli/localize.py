@@ -90,6 +90,23 @@ class Localizer:
         self.rtable = RTable.build(self.segments_world, self.params.bin_deg)
         self._search: HypothesisSearch | None = None
 
+    def with_params(self, params: LocalizeParams) -> Localizer:
+        """A localizer on the same map with other settings, sharing what they leave unchanged.
+
+        The R-table is shared when the bin width is the same, the score
+        raster when the search settings are.
+        """
+        other = object.__new__(Localizer)
+        other.params = params
+        other.segments_world = self.segments_world
+        same_bins = params.bin_deg == self.params.bin_deg
+        other.rtable = (
+            self.rtable if same_bins else RTable.build(self.segments_world, params.bin_deg)
+        )
+        same_search = params.search is not None and params.search == self.params.search
+        other._search = self.hypothesis_search if same_search else None
+        return other
+
     @property
     def hypothesis_search(self) -> HypothesisSearch:
         """The map's score raster and search, built on first use."""
@@ -366,8 +383,8 @@ def track_scans(
     def widened(factor: float) -> Localizer:
         if factor not in wider:
             window = None if p.window_deg is None else min(180.0, p.window_deg * factor)
-            wider[factor] = Localizer(
-                localizer.segments_world, replace(p, grid_m=p.grid_m * factor, window_deg=window)
+            wider[factor] = localizer.with_params(
+                replace(p, grid_m=p.grid_m * factor, window_deg=window)
             )
         return wider[factor]
 
