@@ -30,6 +30,7 @@ import numpy as np
 import pandas as pd
 
 from segloc_cli.geometry import Pose2, wrap_angle
+from segloc_cli.io.maps import read_map
 from segloc_cli.io.tables import (
     PoseTable,
     read_estimates,
@@ -133,17 +134,18 @@ def perturbation(name: str, files: tuple[str, str, str], data: Path, work: Path,
         est.assign(x_m=est["stage2_x_m"], y_m=est["stage2_y_m"], theta_deg=est["stage2_theta_deg"]),
         truth,
     )
-    segments = len(json.loads((work / "map.json").read_text())["segments"])
-    failures_figure(name, work, est, truth, scored["right"])
+    segments = read_map(work / "map.json")
+    scans = _held_out_scans(work, truth)
+    failures_figure(name, segments, scans, est, truth, scored)
     return {
         "scans": len(ref),
         "held_out": n,
         "localized": len(est),
-        "map_segments": segments,
+        "map_segments": len(segments),
         **scored["summary"],
         "success_stage2": stage2["summary"]["success"],
         "median_pos_stage2_m": stage2["summary"]["median_pos_m"],
-        "reference_fit": reference_fit(work, truth),
+        "reference_fit": reference_fit(segments, scans, truth),
         "median_local_segments": float(est["n_local_segments"].median()),
         "median_ms": float(est["runtime_ms"].median()),
         "wall_s": elapsed,
@@ -191,6 +193,8 @@ def _scored(est: pd.DataFrame, truth: PoseTable) -> dict:
 
     return {
         "right": right,
+        "pos_m": pos,
+        "head_deg": head,
         "summary": {
             "success": share(right),
             "success_ok": share(right & ok),
@@ -218,7 +222,7 @@ def _held_out_scans(work: Path, truth: PoseTable) -> list:
     return [scans[r] if r >= 0 else None for r in rows]
 
 
-def reference_fit(work: Path, truth: PoseTable) -> float:
+def reference_fit(segments: np.ndarray, scans: list, truth: PoseTable) -> float:
     """Share of left-out scans that refinement started at their reference pose keeps right.
 
     The map and the reference poses come from the same SLAM solution but do
@@ -226,25 +230,19 @@ def reference_fit(work: Path, truth: PoseTable) -> float:
     lies within the success bounds of its own reference, a ceiling for any
     method scored against that reference.
     """
-    from segloc_cli.io.maps import read_map
     from segloc_cli.refine import refine_pose
 
-    segments = read_map(work / "map.json")
-    kept = []
-    for scan, pose in zip(_held_out_scans(work, truth), truth.poses, strict=True):
-        if scan is None:
-            continue
-        fit = refine_pose(scan.points(), segments, Pose2(*pose))
-        pos, head = _pose_error(fit.pose, pose)
-        kept.append(pos < SUCCESS_M and head < SUCCESS_DEG)
-    return float(np.mean(kept))
-
-
-def _pose_error(pose: Pose2, reference: np.ndarray) -> tuple[float, float]:
-    return (
-        float(np.hypot(pose.x - reference[0], pose.y - reference[1])),
-        abs(float(np.rad2deg(wrap_angle(pose.theta - reference[2])))),
+    have = [k for k, scan in enumerate(scans) if scan is not None]
+    fits = [refine_pose(scans[k].points(), segments, Pose2(*truth.poses[k])).pose for k in have]
+    fitted = pd.DataFrame(
+        {
+            "x_m": [f.x for f in fits],
+            "y_m": [f.y for f in fits],
+            "theta_deg": [f.theta_deg for f in fits],
+        }
     )
+    pos, head = _distances(fitted, truth.poses[have])
+    return float(np.mean((pos < SUCCESS_M) & (head < SUCCESS_DEG)))
 
 
 FIGURES = Path("benchmarks/figures")
@@ -252,23 +250,29 @@ FIGURE_PANELS = 6
 
 
 def failures_figure(
-    name: str, work: Path, est: pd.DataFrame, truth: PoseTable, right: np.ndarray
+    name: str,
+    segments: np.ndarray,
+    scans: list,
+    est: pd.DataFrame,
+    truth: PoseTable,
+    scored: dict,
 ) -> None:
-    """Plot the first few wrong answers: the map, the scan at the answer and at the reference."""
+    """Plot the first few wrong answers: the map, the scan at the answer and at the reference.
+
+    ``scans`` holds the left-out scan of each row of ``truth``; ``scored`` is
+    what ``_scored`` made of ``est``.
+    """
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     from segloc_cli.geometry import transform_points
-    from segloc_cli.io.maps import read_map
 
-    wrong = np.flatnonzero(~right)[:FIGURE_PANELS]
+    wrong = np.flatnonzero(~scored["right"])[:FIGURE_PANELS]
     if wrong.size == 0:
         return
-    segments = read_map(work / "map.json")
     row_of = {int(pid): k for k, pid in enumerate(truth.pose_id)}
-    scans = _held_out_scans(work, truth)
     cols = 3
     rows = -(-wrong.size // cols)
     fig, axes = plt.subplots(rows, cols, figsize=(5 * cols, 5 * rows), squeeze=False)
@@ -291,7 +295,7 @@ def failures_figure(
         ax.set_xlim(centre[0] - 8, centre[0] + 8)
         ax.set_ylim(centre[1] - 8, centre[1] + 8)
         ax.set_aspect("equal")
-        pos, head = _pose_error(answer, reference)
+        pos, head = scored["pos_m"][k], scored["head_deg"][k]
         ax.set_title(
             f"pose {int(r['pose_id'])}: {r['status']}, {pos * 100:.0f} cm, {head:.1f}°\n"
             f"inliers {r['inlier_ratio']:.2f}, runner-up {r['runner_up_ratio']:.2f}, "
@@ -447,6 +451,29 @@ def _errors(est: pd.DataFrame, truth: PoseTable) -> tuple[np.ndarray, np.ndarray
     return pos, head
 
 
+VERDICT_HEADER = (
+    "right | right and ok | silent | silent, gross | wrong flagged | gross flagged | right flagged"
+)
+VERDICT_KEYS = (
+    "success",
+    "success_ok",
+    "silent",
+    "silent_gross",
+    "wrong_flagged",
+    "gross_flagged",
+    "right_flagged",
+)
+
+
+def _pct(share: float) -> str:
+    return "—" if not np.isfinite(share) else f"{share * 100:.1f} %"
+
+
+def _verdict_cells(summary: dict) -> str:
+    """The ``VERDICT_HEADER`` cells of one ``_scored`` summary, as percentages."""
+    return " | ".join(_pct(summary[key]) for key in VERDICT_KEYS)
+
+
 def report(results: dict, commands: dict) -> str:
     lines = [
         "# segloc on real logs",
@@ -467,26 +494,21 @@ def report(results: dict, commands: dict) -> str:
         "refinement started at their own reference pose stays right, a ceiling for any method "
         "scored against these references (the map and the references do not agree exactly).",
         "",
-        "| dataset | scans | held out | map segments | local segments (median) | right "
-        "| right and ok | silent | silent, gross | wrong flagged | gross flagged "
-        "| right flagged | median pos (cm) | median θ (°) | ms/scan | stage 2: right "
+        "| dataset | scans | held out | map segments | local segments (median) | "
+        + VERDICT_HEADER
+        + " | median pos (cm) | median θ (°) | ms/scan | stage 2: right "
         "| stage 2: median pos (cm) | reference fit |",
         "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
-
-    def pct(value):
-        return "—" if not np.isfinite(value) else f"{value * 100:.1f} %"
 
     for name, r in results.items():
         a = r["perturbation"]
         lines.append(
             f"| {name} | {a['scans']} | {a['held_out']} | {a['map_segments']} | "
-            f"{a['median_local_segments']:.0f} | {pct(a['success'])} | {pct(a['success_ok'])} | "
-            f"{pct(a['silent'])} | {pct(a['silent_gross'])} | {pct(a['wrong_flagged'])} | "
-            f"{pct(a['gross_flagged'])} | {pct(a['right_flagged'])} | "
+            f"{a['median_local_segments']:.0f} | {_verdict_cells(a)} | "
             f"{a['median_pos_m'] * 100:.1f} | {a['median_head_deg']:.2f} | "
-            f"{a['median_ms']:.1f} | {pct(a['success_stage2'])} | "
-            f"{a['median_pos_stage2_m'] * 100:.1f} | {pct(a['reference_fit'])} |"
+            f"{a['median_ms']:.1f} | {_pct(a['success_stage2'])} | "
+            f"{a['median_pos_stage2_m'] * 100:.1f} | {_pct(a['reference_fit'])} |"
         )
     lines += [
         "",
@@ -499,20 +521,15 @@ def report(results: dict, commands: dict) -> str:
         "The same left-out scans localized with `--global`: no initial pose, the whole map "
         "searched. Same columns as above.",
         "",
-        "| dataset | right | right and ok | silent | silent, gross | wrong flagged "
-        "| right flagged | statuses | ms/scan |",
-        "|---|---:|---:|---:|---:|---:|---:|---|---:|",
+        "| dataset | " + VERDICT_HEADER + " | statuses | ms/scan |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|---|---:|",
     ]
     for name, r in results.items():
         g = r.get("global")
         if g is None:
             continue
         statuses = ", ".join(f"{n} {s}" for s, n in sorted(g["statuses"].items()))
-        lines.append(
-            f"| {name} | {pct(g['success'])} | {pct(g['success_ok'])} | {pct(g['silent'])} | "
-            f"{pct(g['silent_gross'])} | {pct(g['wrong_flagged'])} | {pct(g['right_flagged'])} | "
-            f"{statuses} | {g['median_ms']:.0f} |"
-        )
+        lines.append(f"| {name} | {_verdict_cells(g)} | {statuses} | {g['median_ms']:.0f} |")
     lines += [
         "",
         "## (b) Tracking protocol",
