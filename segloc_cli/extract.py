@@ -4,8 +4,11 @@ Steps: drop invalid readings; cut the point sequence at range breakpoints
 (an adaptive breakpoint detector, so the gap tolerated grows with range and
 angular step); recursive split at the point farthest from the chord; merge
 neighbours that still fit one line; total-least-squares refit with the end
-points projected onto the fitted line. Segments need enough points and
-length: that, not per-point filtering, is what makes them robust to noise.
+points projected onto the fitted line. A segment is kept when it is long
+enough and its direction is known well enough: the direction's standard error
+follows from the points' spread along the line and their noise, so the same
+rule serves 180 readings at 1° and 2048 at 0.18°, near walls and far ones.
+That, not per-point filtering, is what makes the local map robust to noise.
 """
 
 from __future__ import annotations
@@ -28,8 +31,15 @@ class ExtractParams:
     """Shallowest incidence angle on a surface that is still one surface (Borges & Aldon's λ)."""
     split_m: float = 0.05
     """Largest distance of a point from its segment's line."""
-    min_points: int = 6
+    min_points: int = 4
+    """Fewest readings on a segment; four leave two degrees of freedom to judge the fit."""
     min_length_m: float = 0.25
+    max_direction_sigma_deg: float = 3.0
+    """Largest standard error of a segment's direction (see ``direction_sigma_rad``).
+
+    Equal to the map fusion's orientation tolerance: a piece whose direction is
+    less certain than that could not be told to lie on its wall.
+    """
 
 
 def breakpoints(ranges_m: np.ndarray, angles_rad: np.ndarray, params: ExtractParams) -> np.ndarray:
@@ -65,6 +75,26 @@ def line_residuals(points: np.ndarray, centroid: np.ndarray, direction: np.ndarr
     """Distances (K,) of points from the line through ``centroid`` along unit ``direction``."""
     d = points - centroid
     return np.abs(d[:, 0] * direction[1] - d[:, 1] * direction[0])
+
+
+def direction_sigma_rad(
+    points: np.ndarray, centroid: np.ndarray, direction: np.ndarray, range_sigma_m: float
+) -> float:
+    """Standard error (radians) of the direction of the line fitted to ``points`` (K, 2).
+
+    For a total-least-squares line, σ_dir ≈ σ / √Σ tᵢ², with tᵢ the points'
+    positions along the line from the centroid and σ the points' noise across
+    it: the scanner's ``range_sigma_m``, or the fit's own residual RMS (K − 2
+    degrees of freedom) where that is larger, as on a rough or curved surface.
+    Few readings far apart fix a direction as well as many close together.
+    """
+    t = (points - centroid) @ direction
+    spread = float(np.sqrt(np.sum(t**2)))
+    if spread == 0.0:
+        return np.inf
+    residuals = line_residuals(points, centroid, direction)
+    rms = float(np.sqrt(np.sum(residuals**2) / max(points.shape[0] - 2, 1)))
+    return max(range_sigma_m, rms) / spread
 
 
 def _split(points: np.ndarray, start: int, stop: int, tol_m: float, out: list[tuple[int, int]]):
@@ -170,6 +200,7 @@ def extract_segments(scan: Scan, params: ExtractParams | None = None) -> np.ndar
     ring = np.concatenate([points, points]) if wraps else points
 
     tol = max(params.split_m, 3.0 * params.range_sigma_m)
+    max_sigma_rad = np.deg2rad(params.max_direction_sigma_deg)
     segments = []
     for start, stop in _chains(n, breaks, wraps):
         if stop - start < params.min_points:
@@ -191,7 +222,12 @@ def extract_segments(scan: Scan, params: ExtractParams | None = None) -> np.ndar
             centroid, direction, pts = _fit_piece(ring[i0:i1])
             t0 = (pts[0] - centroid) @ direction
             t1 = (pts[-1] - centroid) @ direction
-            if abs(t1 - t0) < params.min_length_m:
+            if (
+                pts.shape[0] < params.min_points
+                or abs(t1 - t0) < params.min_length_m
+                or direction_sigma_rad(pts, centroid, direction, params.range_sigma_m)
+                > max_sigma_rad
+            ):
                 continue
             segments.append(np.concatenate([centroid + t0 * direction, centroid + t1 * direction]))
     return np.array(segments).reshape(-1, 4)

@@ -8,6 +8,7 @@ import pytest
 from segloc_cli.extract import (
     ExtractParams,
     breakpoints,
+    direction_sigma_rad,
     extract_segments,
     fit_line,
     line_residuals,
@@ -154,29 +155,84 @@ def test_invalid_readings_are_dropped():
 
 
 def test_too_few_valid_readings_give_an_empty_map():
-    # Six beams 5° apart on the wall x = 2, nothing else: exactly min_points (6) readings.
-    angles = np.deg2rad(np.arange(-12.5, 13.0, 5.0))
+    # Four beams 4° apart on the wall x = 2, nothing else: exactly min_points (4) readings.
+    angles = np.deg2rad([-6.0, -2.0, 2.0, 6.0])
     ranges = 2.0 / np.cos(angles)
     segs = extract_segments(Scan(0.0, angles, ranges))
-    # One segment from (2, 2·tan(−12.5°)) to (2, 2·tan(12.5°)).
-    t = 2.0 * np.tan(np.deg2rad(12.5))
+    # One segment from (2, 2·tan(−6°)) to (2, 2·tan(6°)).
+    t = 2.0 * np.tan(np.deg2rad(6.0))
     assert segs.shape == (1, 4)
     ends = segs.reshape(2, 2)[np.argsort(segs.reshape(2, 2)[:, 1])]
     np.testing.assert_allclose(ends, [[2.0, -t], [2.0, t]], atol=1e-12)
-    # One of them invalid: five valid readings < min_points → empty (0, 4) map.
+    # One of them invalid: three valid readings < min_points → empty (0, 4) map.
     for bad in (0.0, np.nan, np.inf):
         short = ranges.copy()
-        short[2] = bad
+        short[1] = bad
         empty = extract_segments(Scan(0.0, angles, short))
         assert empty.shape == (0, 4)
     # Nothing valid at all, and no readings at all.
-    assert extract_segments(Scan(0.0, angles, np.full(6, np.inf))).shape == (0, 4)
+    assert extract_segments(Scan(0.0, angles, np.full(4, np.inf))).shape == (0, 4)
     assert extract_segments(Scan(0.0, np.zeros(0), np.zeros(0))).shape == (0, 4)
     # min_points is the setting that decides.
-    assert extract_segments(Scan(0.0, angles, ranges), ExtractParams(min_points=7)).shape == (
+    assert extract_segments(Scan(0.0, angles, ranges), ExtractParams(min_points=5)).shape == (
         0,
         4,
     )
+
+
+# --- direction uncertainty --------------------------------------------------------------------
+
+
+def test_direction_sigma_by_hand():
+    # Points at t = −1.5, −0.5, 0.5, 1.5 along x, d above or below: the fitted line is y = 0
+    # (centroid at the origin), residuals all d, RMS over K − 2 = 2 degrees of freedom d·√2,
+    # spread √(2·1.5² + 2·0.5²) = √5.
+    d = 0.01
+    pts = np.array([[-1.5, d], [-0.5, -d], [0.5, -d], [1.5, d]])
+    centroid, direction = fit_line(pts)
+    np.testing.assert_allclose(centroid, [0.0, 0.0], atol=1e-15)
+    assert abs(direction[1]) < 1e-15
+    assert direction_sigma_rad(pts, centroid, direction, 0.001) == pytest.approx(
+        d * np.sqrt(2) / np.sqrt(5), rel=1e-12
+    )
+    # The scanner's noise is the floor when the points fit better than it.
+    assert direction_sigma_rad(pts, centroid, direction, 0.05) == pytest.approx(
+        0.05 / np.sqrt(5), rel=1e-12
+    )
+
+
+def test_sparse_far_wall_is_kept_when_its_direction_is_known():
+    # A 1°-step scanner sees five readings on a wall 5 m ahead (x = 5, beams −2° … 2°).
+    # Five readings 35 cm apart end to end fix the direction to σ ≈ 2.5°: a wall worth keeping.
+    angles = np.deg2rad(np.arange(-2.0, 2.5, 1.0))
+    ranges = 5.0 / np.cos(angles)
+    y = 5.0 * np.tan(angles)
+    expected = ExtractParams().range_sigma_m / np.sqrt(np.sum((y - y.mean()) ** 2))
+    assert np.rad2deg(expected) < ExtractParams().max_direction_sigma_deg
+    segs = extract_segments(Scan(0.0, angles, ranges))
+    assert segs.shape == (1, 4)
+    np.testing.assert_allclose(segs[0, [0, 2]], [5.0, 5.0], atol=1e-12)
+    # A stricter bound just below that σ drops it: the bound, not the count, decided.
+    strict = ExtractParams(max_direction_sigma_deg=0.99 * np.rad2deg(expected))
+    assert extract_segments(Scan(0.0, angles, ranges), strict).shape == (0, 4)
+
+
+def rough_wall_scan(half_span_deg: float, roughness_m: float) -> Scan:
+    """1°-step readings on the wall x = 2 (robot frame), ±``roughness_m`` alternately off it."""
+    angles = np.deg2rad(np.arange(-half_span_deg, half_span_deg + 0.5, 1.0))
+    offsets = roughness_m * np.where(np.arange(angles.size) % 2 == 0, 1.0, -1.0)
+    return Scan(0.0, angles, (2.0 + offsets) / np.cos(angles))
+
+
+def test_rough_short_piece_is_dropped_but_a_rough_long_wall_is_kept():
+    # Readings ±2 cm off the wall stay within the 5 cm split tolerance, so each span is one
+    # piece. Over 28 cm (nine readings) such a surface leaves its direction uncertain by
+    # about 4°; over 3.4 m by a fraction of a degree. Noise-free, the short piece is kept.
+    assert extract_segments(rough_wall_scan(4.0, 0.0)).shape == (1, 4)
+    assert extract_segments(rough_wall_scan(4.0, 0.02)).shape == (0, 4)
+    long_wall = extract_segments(rough_wall_scan(40.0, 0.02))
+    assert long_wall.shape == (1, 4)
+    np.testing.assert_allclose(long_wall[0, [0, 2]], [2.0, 2.0], atol=0.01)
 
 
 # --- breakpoints ------------------------------------------------------------------------------
