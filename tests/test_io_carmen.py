@@ -111,25 +111,24 @@ def test_multi_member_gzip_and_zero_padding(tmp_path):
     check_basic(read_carmen(path), "members.log.gz")
 
 
-def test_beam_angles_for_180_and_361_readings(tmp_path):
+def test_beam_angles_follow_carmens_rule_for_sick_readings(tmp_path):
+    # CARMEN's reader: 181/180 readings 1° apart, 361/360 0.5° apart, from −90°; a count
+    # no SICK mode gives spans 180° inclusive.
+    counts = (180, 181, 360, 361, 100)
     path = write(
         tmp_path / "beams.log",
-        [
-            laser_line([2.0] * 180, (0, 0, 0), (0, 0, 0), 1.0),
-            laser_line([3.0] * 361, (0, 0, 0), (0, 0, 0), 2.0),
-        ],
+        [laser_line([2.0] * n, (0, 0, 0), (0, 0, 0), 1.0 + k) for k, n in enumerate(counts)],
     )
     log = read_carmen(path, range_max_m=80.0)
-    short, long = log.scans
-    assert len(short) == 180
-    assert len(long) == 361
-    for scan, step in ((short, np.pi / 179), (long, np.deg2rad(0.5))):
+    assert [len(s) for s in log.scans] == list(counts)
+    steps = (np.deg2rad(1.0), np.deg2rad(1.0), np.deg2rad(0.5), np.deg2rad(0.5), np.pi / 99)
+    last_deg = (89.0, 90.0, 89.5, 90.0, 90.0)
+    for scan, step, last in zip(log.scans, steps, last_deg, strict=True):
         assert scan.angles_rad[0] == pytest.approx(-HALF_PI, abs=1e-12)
-        assert scan.angles_rad[-1] == pytest.approx(HALF_PI, abs=1e-12)
+        assert np.rad2deg(scan.angles_rad[-1]) == pytest.approx(last, abs=1e-10)
         np.testing.assert_allclose(np.diff(scan.angles_rad), step, rtol=0, atol=1e-12)
-    assert np.diff(short.angles_rad)[0] == pytest.approx(0.017550796947429, abs=1e-12)
-    assert log.sensor["readings"] == "180,361"
-    assert log.sensor["fov_deg"] == "180"
+    assert log.sensor["readings"] == "100,180,181,360,361"
+    assert log.sensor["fov_deg"] == "179,179.5,180"
     assert log.sensor["range_max_m"] == "80"
     assert log.sensor["range_max_from"] == "given"
 

@@ -3,11 +3,15 @@
 One record per line, fields separated by whitespace. Read here:
 
 - ``FLASER n r1 … rn x y theta odom_x odom_y odom_theta ipc_timestamp host logger_timestamp``:
-  the front laser. Its ``n`` beams span 180° inclusive from −90° (robot frame, x
-  forward, counter-clockwise), ``angle_i = −π/2 + i·π/(n−1)``, the convention the
-  public CARMEN logs and their ROS bags share.
-- ``RLASER …``, same layout: the rear laser, facing backward. Its beams run from
-  +90° to +270° in the same steps. The angles are left continuous (not wrapped
+  the front laser. The record holds no beam geometry; CARMEN's own reader
+  (``carmen_laser_guess_angle_increment``) takes it from ``n`` as a SICK LMS
+  delivers it, and so does this one: beam i at ``−π/2 + i·step`` (robot frame,
+  x forward, counter-clockwise), with a 1° step for 181 or 180 readings, 0.5°
+  for 361 or 360, 0.25° for 401 or 400 (one fewer: the logger dropped the last
+  beam), and 180° across ``n`` beams, ``π/(n−1)``, for any other count.
+  Maps built from the public SLAM-corrected logs are sharpest with this rule.
+- ``RLASER …``, same layout: the rear laser, facing backward. Its beams start at
+  +90° and step as the front laser's. The angles are left continuous (not wrapped
   into [−π, π)) so that they stay evenly spaced, as ``foxglove.LaserScan`` and
   breakpoint detection need. The angles are relative to the robot's heading,
   which the odometry fields carry; the pose fields are returned as written, and
@@ -81,8 +85,10 @@ from segloc_cli.scan import Scan, evenly_spaced_angles
 
 LASER_RECORDS = {"front": ("FLASER", "ROBOTLASER1"), "rear": ("RLASER",)}
 OFFSET_PARAMS = {"front": "robot_frontlaser_offset", "rear": "robot_rearlaser_offset"}
-# Beam fan of FLASER/RLASER records: first beam, field of view (first to last beam).
-FIXED_FAN_RAD = {"FLASER": (-0.5 * math.pi, math.pi), "RLASER": (0.5 * math.pi, math.pi)}
+# First beam of FLASER/RLASER records.
+FIXED_START_RAD = {"FLASER": -0.5 * math.pi, "RLASER": 0.5 * math.pi}
+# Beam step of a SICK LMS by the number of readings a FLASER/RLASER record holds.
+SICK_STEP_DEG = {181: 1.0, 180: 1.0, 361: 0.5, 360: 0.5, 401: 0.25, 400: 0.25}
 # Fields of a FLASER/RLASER line besides its n readings: keyword, n, 6 pose values,
 # ipc_timestamp, host, logger_timestamp.
 FLASER_EXTRA_FIELDS = 11
@@ -248,6 +254,12 @@ def _time(fields: list[bytes]) -> float:
     return time_s
 
 
+def sick_fov_rad(n: int) -> float:
+    """First-to-last-beam field of view (radians) of a FLASER/RLASER record of ``n`` readings."""
+    step_deg = SICK_STEP_DEG.get(n)
+    return math.pi if step_deg is None else math.radians(step_deg) * (n - 1)
+
+
 def _parse_flaser(kind: str, fields: list[bytes]) -> _LaserRecord:
     if len(fields) < 2:
         raise _Skip("n")
@@ -256,13 +268,12 @@ def _parse_flaser(kind: str, fields: list[bytes]) -> _LaserRecord:
         raise _Skip("count")
     values = _numbers(fields[2 : 2 + n + 6])
     time_s = _time(fields)
-    start, fov = FIXED_FAN_RAD[kind]
     return _LaserRecord(
         kind=kind,
         time_s=time_s,
         ranges_m=values[:n],
-        start_rad=start,
-        fov_rad=fov,
+        start_rad=FIXED_START_RAD[kind],
+        fov_rad=sick_fov_rad(n),
         range_max_m=None,
         intensities=np.zeros(0),
         laser_pose=values[n : n + 3],
