@@ -131,10 +131,8 @@ class Localizer:
             return self.rtable
         return RTable.build(self.segments_world[near], self.params.bin_deg)
 
-    def headings(
-        self, segments_robot: np.ndarray, initial: Pose2 | None, max_peaks: int | None = None
-    ) -> np.ndarray:
-        """Stage 1: up to ``max_peaks`` (default: the params') headings (radians, world frame).
+    def headings(self, segments_robot: np.ndarray, initial: Pose2 | None) -> np.ndarray:
+        """Stage 1: up to ``max_peaks`` headings (radians, world frame).
 
         Best first. Without an initial pose (or with no heading window) the
         whole circle is voted over with the whole map's R-table.
@@ -150,7 +148,7 @@ class Localizer:
             prior_rad=prior,
             window_deg=p.window_deg or 0.0,
             scheme=p.vote,
-            max_peaks=max_peaks or p.max_peaks,
+            max_peaks=p.max_peaks,
         ).peaks_rad
 
     def localize(
@@ -191,20 +189,19 @@ class Localizer:
     def localize_global(self, segments_robot: np.ndarray, points_robot: np.ndarray) -> Estimate:
         """Estimate the pose with no initial guess: the whole map is searched.
 
-        Stage 1 votes over the whole circle; the hypothesis search tries
-        headings near each of its peaks at every position of the map's
-        extent; the best distinct grid poses are refined and the fit that
-        puts the scan's points closest to the map wins, the runner-up
-        reported beside.
+        The hypothesis search scores the scan's points at every heading and
+        every position of the map's extent; the best distinct grid poses are
+        refined and the fit that puts the points closest to the map wins, the
+        runner-up reported beside. The points alone decide, so a scan with
+        too few segments for the two stages is still searched; stage 1's
+        whole-circle vote is reported as the aligned heading when it can run.
         """
-        p = self.params
         n_local = int(segments_robot.shape[0])
-        if n_local < p.min_segments:
-            return Estimate(NAN_POSE, float("nan"), 0.0, n_local, STATUS_TOO_FEW_SEGMENTS)
-        search = self.hypothesis_search
-        peaks = self.headings(segments_robot, None, search.params.global_peaks)
-        seeds = [h.pose for h in search.everywhere(points_robot, peaks)]
-        heading = float(peaks[0]) if peaks.size else float("nan")
+        seeds = [h.pose for h in self.hypothesis_search.everywhere(points_robot)]
+        heading = float("nan")
+        if n_local >= self.params.min_segments:
+            peaks = self.headings(segments_robot, None)
+            heading = float(peaks[0]) if peaks.size else heading
         return self._judged(seeds, points_robot, heading, 0.0, n_local, None)
 
     def _stage2(self, segments_robot: np.ndarray, initial: Pose2, peaks: np.ndarray):

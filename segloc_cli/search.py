@@ -37,15 +37,13 @@ class SearchParams:
     half_width_m: float = 2.0
     """Half side of the square of positions searched around an initial guess."""
     heading_step_deg: float = 1.0
-    """Spacing of the headings tried across the prior window (and around stage-1 peaks)."""
-    peak_fan_deg: float = 3.0
-    """Without a prior heading, headings within ± this of each stage-1 peak are tried..."""
-    global_peaks: int = 24
-    """...at this many peaks: over a whole map the true heading is often not among the top few."""
+    """Spacing of the headings tried: across the prior window, or the whole circle without one."""
     keep_fraction: float = 0.8
     """Blocks are searched finely while their bound reaches this share of the best score."""
     max_expansions: int = 400
-    """Most blocks searched finely per scan."""
+    """Most blocks searched finely per scan around a guess."""
+    global_max_expansions: int = 4000
+    """The same over the whole map, where many more blocks look alike from afar."""
     hypotheses: int = 4
     """Distinct grid poses handed on for refinement."""
     distinct_m: float = 0.3
@@ -119,6 +117,7 @@ class HypothesisSearch:
         centre_xy: np.ndarray,
         half_width_m: float,
         coarse_factor: int,
+        max_expansions: int,
     ) -> list[Hypothesis]:
         """Distinct grid poses, best first, within a square around ``centre_xy``.
 
@@ -146,7 +145,7 @@ class HypothesisSearch:
         order = np.argsort(bounds, axis=None)[::-1]
         found: list[Hypothesis] = []
         best = 0.0
-        for flat in order[: p.max_expansions]:
+        for flat in order[:max_expansions]:
             h, cu, cv = np.unravel_index(flat, bounds.shape)
             if bounds[h, cu, cv] < p.keep_fraction * best or bounds[h, cu, cv] <= 0.0:
                 break
@@ -180,12 +179,18 @@ class HypothesisSearch:
             np.array([initial.x, initial.y]),
             p.half_width_m,
             p.coarse_factor,
+            p.max_expansions,
         )
 
-    def everywhere(self, points_robot: np.ndarray, peaks_rad: np.ndarray) -> list[Hypothesis]:
-        """Search the whole map at headings near the stage-1 peaks (no initial guess)."""
+    def everywhere(self, points_robot: np.ndarray) -> list[Hypothesis]:
+        """Search the whole map at every heading (no initial guess).
+
+        Every heading, not only stage 1's peaks: over a whole map the vote's
+        strongest peaks often miss the true heading of a 180° scan.
+        """
         p = self.params
-        fan = np.deg2rad(np.arange(-p.peak_fan_deg, p.peak_fan_deg + 1e-9, p.heading_step_deg))
-        headings = wrap_angle((np.asarray(peaks_rad)[:, None] + fan[None, :]).ravel())
+        headings = np.deg2rad(np.arange(0.0, 360.0, p.heading_step_deg))
         centre, half = self.extent()
-        return self.search(points_robot, headings, centre, half, p.global_coarse_factor)
+        return self.search(
+            points_robot, headings, centre, half, p.global_coarse_factor, p.global_max_expansions
+        )

@@ -18,7 +18,7 @@ from segloc_cli.extract import extract_segments
 from segloc_cli.field import coarse_bound, score_raster
 from segloc_cli.geometry import Pose2, wrap_angle
 from segloc_cli.io.maps import World
-from segloc_cli.localize import Localizer
+from segloc_cli.localize import LocalizeParams, Localizer
 from segloc_cli.search import HypothesisSearch, distinct
 from segloc_cli.sim import NOISE_FREE, random_free_poses, random_world, simulate_scan
 
@@ -105,6 +105,21 @@ def test_global_localization_in_a_world_without_symmetry(seed):
         assert position < 1e-3 and heading < 0.01
         assert est.status == STATUS_OK
         assert est.inlier_ratio == pytest.approx(1.0)
+
+
+def test_global_localization_needs_points_not_segments():
+    """A local map too small for the two stages does not stop the search: the points decide."""
+    rng = np.random.default_rng(5)
+    world = random_world(rng)
+    true = Pose2(*random_free_poses(world, 1, rng)[0])
+    scan = simulate_scan(world, true, NOISE_FREE, rng, 0.0)
+    local = extract_segments(scan)
+    localizer = Localizer(world.segments, LocalizeParams(min_segments=local.shape[0] + 1))
+    est = localizer.localize_global(local, scan.points())
+    position, heading = _errors(est.pose, true)
+    assert position < 1e-3 and heading < 0.01
+    assert est.status == STATUS_OK
+    assert np.isnan(est.align_theta_rad)  # stage 1 did not run
 
 
 def test_global_localization_in_a_symmetric_room_is_ambiguous():
