@@ -507,7 +507,7 @@ def _initial_guesses(initial: str, log, log_path: Path, tolerance_s: float):
     "--global",
     "global_search",
     is_flag=True,
-    help="No initial pose: search the whole map at stage 1's headings and report the best fit "
+    help="No initial pose: search the whole map at every heading and report the best fit "
     "and its runner-up. Every scan is localized, or only those listed by --initial FILE (whose "
     "poses are then not used).",
 )
