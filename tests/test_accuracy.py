@@ -54,6 +54,11 @@ def _trials(
     return np.nan_to_num(np.array(out), nan=np.inf)
 
 
+def _within(errors: np.ndarray) -> np.ndarray:
+    """Which trials (rows of position m, heading °) end within 2 cm and 0.3°."""
+    return (errors[:, 0] < POSITION_TOL_M) & (errors[:, 1] < HEADING_TOL_DEG)
+
+
 def _worlds():
     yield "random-7001", random_world(np.random.default_rng(7001))
     yield "random-7002", random_world(np.random.default_rng(7002))
@@ -68,17 +73,14 @@ def default_errors() -> dict[str, np.ndarray]:
 def test_at_least_98_percent_within_2cm_and_0_3deg(default_errors):
     all_errors = np.concatenate(list(default_errors.values()))
     assert all_errors.shape[0] >= 200
-    ok = (all_errors[:, 0] < POSITION_TOL_M) & (all_errors[:, 1] < HEADING_TOL_DEG)
-    per_world = {
-        name: float(np.mean((e[:, 0] < POSITION_TOL_M) & (e[:, 1] < HEADING_TOL_DEG)))
-        for name, e in default_errors.items()
-    }
+    ok = _within(all_errors)
+    per_world = {name: float(np.mean(_within(e))) for name, e in default_errors.items()}
     assert ok.mean() >= 0.98, f"success {ok.mean():.3f} overall; per world {per_world}"
 
 
 def test_successful_trials_are_sub_centimetre(default_errors):
     all_errors = np.concatenate(list(default_errors.values()))
-    ok = (all_errors[:, 0] < POSITION_TOL_M) & (all_errors[:, 1] < HEADING_TOL_DEG)
+    ok = _within(all_errors)
     assert np.median(all_errors[ok, 0]) < 0.005
     assert np.median(all_errors[ok, 1]) < 0.05
 
@@ -87,7 +89,7 @@ def test_no_prior_heading_finds_the_heading_among_the_peaks():
     """Whole-circle stage 1: the 180° twin and other peaks all go to stage 2, which picks."""
     params = LocalizeParams(window_deg=None)
     errors = np.concatenate([_trials(world, 77, params, n=30) for _, world in _worlds()])
-    ok = (errors[:, 0] < POSITION_TOL_M) & (errors[:, 1] < HEADING_TOL_DEG)
+    ok = _within(errors)
     assert ok.mean() >= 0.95, f"success {ok.mean():.3f} without a prior heading"
 
 
@@ -99,10 +101,7 @@ def test_sparse_scans_of_128_readings():
     errors = {
         name: _trials(world, 128, LocalizeParams(), n=60, readings=128) for name, world in _worlds()
     }
-    ok = {
-        name: float(np.mean((e[:, 0] < POSITION_TOL_M) & (e[:, 1] < HEADING_TOL_DEG)))
-        for name, e in errors.items()
-    }
+    ok = {name: float(np.mean(_within(e))) for name, e in errors.items()}
     overall = np.mean(list(ok.values()))
     assert overall >= 0.9 and min(ok.values()) >= 0.85, f"within 2 cm and 0.3° per world: {ok}"
 
