@@ -181,14 +181,37 @@ def simulate_scan(
     ``range_max_m``, dropouts) written as 0.0. The result depends only on the
     arguments and the state of ``rng``.
     """
+    angles_rad = beam_angles(sensor.readings)
+    return Scan(
+        time_s=float(time_s),
+        angles_rad=angles_rad,
+        ranges_m=render_ranges(world, pose, angles_rad, sensor, rng),
+        range_max_m=float(sensor.range_max_m),
+    )
+
+
+def render_ranges(
+    world: World,
+    pose: Pose2,
+    angles_rad: np.ndarray,
+    sensor: SensorModel,
+    rng: np.random.Generator,
+) -> np.ndarray:
+    """Ranges (N,) in metres that ``sensor`` at ``pose`` reads along beams ``angles_rad``.
+
+    Beam angles are in the robot frame and may be any fan (a 360° Explorer
+    revolution, a Hokuyo's 240°); ``sensor.readings`` is not used. Noise,
+    quantisation, dropouts, glass and clutter as in ``simulate_scan``; 0.0
+    marks an invalid reading.
+    """
     segments = as_segments(world.segments, "world segments")
     materials = np.asarray(world.materials).reshape(-1)
     if materials.shape[0] != segments.shape[0]:
         raise ValueError(
             f"world {world.name!r}: {segments.shape[0]} segments but {materials.shape[0]} materials"
         )
-    n = sensor.readings
-    angles_rad = beam_angles(n)
+    angles_rad = np.asarray(angles_rad, dtype=float).reshape(-1)
+    n = angles_rad.shape[0]
 
     glass = materials == "glass"
     transparent = np.zeros((n, segments.shape[0]), dtype=bool)
@@ -203,12 +226,7 @@ def simulate_scan(
 
     invalid = ~np.isfinite(ranges_m) | (ranges_m <= 0.0) | (ranges_m >= sensor.range_max_m) | lost
     ranges_m[invalid] = 0.0
-    return Scan(
-        time_s=float(time_s),
-        angles_rad=angles_rad,
-        ranges_m=ranges_m,
-        range_max_m=float(sensor.range_max_m),
-    )
+    return ranges_m
 
 
 # --- initial guesses -------------------------------------------------------------------------

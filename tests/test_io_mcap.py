@@ -351,3 +351,18 @@ def test_scan_message_bad_ranges(tmp_path):
     raw_scan_log(path, [json.dumps(message).encode()])
     with pytest.raises(InputError, match=r"/scan message 1: field 'ranges' must be a list"):
         read_log(path)
+
+
+def test_message_counts_cover_every_channel(tmp_path):
+    path = tmp_path / "mixed.mcap"
+    scans = make_scans()
+    with LogWriter(path, {"range_max_m": "30"}) as log:
+        for scan in scans:
+            log.add_scan(scan)
+        log.add_odom(1.0, Pose2(0.0, 0.0, 0.0))
+        schema = log._writer.register_schema("note", "jsonschema", b"{}")
+        notes = log._writer.register_channel("/notes", "json", schema)
+        for k in range(3):
+            log._writer.add_message(notes, log_time=k, data=b"{}", publish_time=k)
+    contents = read_log(path)
+    assert contents.message_counts == {"/scan": len(scans), "/odom": 1, "/notes": 3}

@@ -295,7 +295,8 @@ class LogContents:
     ``odom_times_s`` (K,) seconds; ``odom_poses`` (K, 3) ``x_m, y_m, theta_rad``
     in the world frame; ``sensor`` the settings record (empty if absent);
     ``finished`` whether the file ends with its summary and footer;
-    ``warnings`` human-readable notes (e.g. a truncated file).
+    ``message_counts`` messages read per channel topic, including topics
+    segloc does not use; ``warnings`` human-readable notes (e.g. a truncated file).
     """
 
     scans: list[Scan]
@@ -304,6 +305,7 @@ class LogContents:
     sensor: dict[str, str] = field(default_factory=dict)
     finished: bool = False
     warnings: list[str] = field(default_factory=list)
+    message_counts: dict[str, int] = field(default_factory=dict)
 
     @property
     def scan_times_s(self) -> np.ndarray:
@@ -427,6 +429,7 @@ def read_log(path: str | Path) -> LogContents:
     raw_scans: list[bytes] = []
     raw_odom: list[bytes] = []
     n_messages = 0
+    counts: dict[str, int] = {}
     finished = False
     broken: str | None = None
     with stream:
@@ -446,6 +449,8 @@ def read_log(path: str | Path) -> LogContents:
                 if isinstance(record, Message):
                     n_messages += 1
                     channel = channels.get(record.channel_id)
+                    if channel is not None:
+                        counts[channel.topic] = counts.get(channel.topic, 0) + 1
                     if channel is not None and channel.topic == SCAN_TOPIC:
                         raw_scans.append(record.data)
                     elif channel is not None and channel.topic == ODOM_TOPIC:
@@ -504,4 +509,5 @@ def read_log(path: str | Path) -> LogContents:
         sensor=sensor,
         finished=finished,
         warnings=warnings,
+        message_counts={c.topic: counts.get(c.topic, 0) for c in channels.values()},
     )

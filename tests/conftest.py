@@ -1,0 +1,137 @@
+"""Shared fixtures: scanners emulated in their own processes on pseudo-terminals.
+
+``emulator`` runs ``segloc emulate`` (a protocol's device scanning a world);
+``device_process`` serves any ``EmulatedDevice`` built in a forked child with
+the same loop, for devices a test scripts itself (a silent one, one that
+answers in another protocol, one with a clock about to wrap).
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import select
+import subprocess
+import sys
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from segloc_cli.devices.base import EmulatedDevice
+
+SEGLOC = Path(sys.executable).parent / "segloc"
+HALL = Path(__file__).resolve().parents[1] / "datasets" / "hall"
+HALL_WORLD = HALL / "world.json"
+HALL_POSE = (11.0, 1.6, 90.0)
+"""A pose inside the hall (the survey's first): x_m, y_m, theta_deg."""
+START_TIMEOUT_S = 20.0
+
+
+class SilentDevice(EmulatedDevice):
+    """A device that never says anything."""
+
+    protocol = "silent"
+
+    def __init__(self):
+        super().__init__(np.zeros_like)
+
+    def receive(self, data: bytes, now_s: float) -> bytes:
+        return b""
+
+    def poll(self, now_s: float) -> list[bytes]:
+        return []
+
+
+class ParrotDevice(SilentDevice):
+    """A device that answers whatever the host writes with the same fixed bytes."""
+
+    def __init__(self, answer: bytes):
+        super().__init__()
+        self.answer = answer
+
+    def receive(self, data: bytes, now_s: float) -> bytes:
+        return self.answer
+
+
+def start_emulator(protocol: str, *args: str) -> tuple[str, subprocess.Popen]:
+    """Start ``segloc emulate --device PROTOCOL ARGS`` and wait for its device path.
+
+    Without ``--world`` the hall's world is scanned; without ``--pose`` or
+    ``--path`` the scanner stands at ``HALL_POSE``.
+    """
+    argv = [str(SEGLOC), "emulate", "--device", protocol, *args]
+    if "--world" not in args:
+        argv += ["--world", str(HALL_WORLD)]
+    if "--pose" not in args and "--path" not in args:
+        argv += ["--pose", ",".join(map(str, HALL_POSE))]
+    proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    ready, _, _ = select.select([proc.stdout], [], [], START_TIMEOUT_S)
+    line = proc.stdout.readline().strip() if ready else ""
+    if not line.startswith("/dev/"):
+        stop_emulator(proc)
+        raise RuntimeError(f"emulator did not start: {line!r} {proc.stderr.read()}")
+    return line, proc
+
+
+def stop_emulator(proc: subprocess.Popen) -> None:
+    if proc.poll() is None:
+        proc.terminate()
+        try:
+            proc.wait(timeout=5)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+    for stream in (proc.stdout, proc.stderr):
+        if stream is not None:
+            stream.close()
+
+
+@pytest.fixture
+def emulator() -> Iterator[Callable[..., str]]:
+    """``port = emulator(protocol, *extra_args)``: an emulator on a pty; stopped at teardown."""
+    running: list[subprocess.Popen] = []
+
+    def start(protocol: str, *args: str) -> str:
+        port, proc = start_emulator(protocol, *args)
+        running.append(proc)
+        return port
+
+    yield start
+    for proc in running:
+        stop_emulator(proc)
+
+
+def _serve_in_child(make_device: Callable, faults, connection) -> None:
+    from segloc_cli.devices.emulator import serve_device
+
+    serve_device(make_device(), faults, announce=connection.send)
+
+
+@pytest.fixture
+def device_process() -> Iterator[Callable[..., str]]:
+    """``port = device_process(make_device, faults=Faults())``: ``make_device()`` is called
+    in a forked child, whose device is served on a pty; stopped at teardown."""
+    from segloc_cli.devices.emulator import Faults
+
+    context = multiprocessing.get_context("fork")
+    running = []
+
+    def start(make_device: Callable, faults: Faults | None = None) -> str:
+        receiver, sender = context.Pipe(duplex=False)
+        child = context.Process(
+            target=_serve_in_child, args=(make_device, faults or Faults(), sender), daemon=True
+        )
+        child.start()
+        running.append(child)
+        if not receiver.poll(START_TIMEOUT_S):
+            raise RuntimeError("the device process did not announce its port")
+        return receiver.recv()
+
+    yield start
+    for child in running:
+        child.terminate()
+        child.join(5)
+        if child.is_alive():
+            child.kill()
+            child.join()
