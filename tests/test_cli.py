@@ -689,6 +689,18 @@ HELP_CASES = {
     "evaluate": ["--survey", "--format", "--fail-above-cm", "--fail-above-deg", "EST.csv"],
     "info": ["LOG.mcap"],
     "map": ["build"],
+    "record": [
+        "--device",
+        "PROTOCOL:PORT",
+        "--out",
+        "--scans",
+        "--duration",
+        "--readings",
+        "--rev-per-s",
+        "--baud",
+        "--stall-timeout",
+    ],
+    "emulate": ["--device", "--world", "--pose", "--path", "--faults", "--fault-after"],
 }
 
 
