@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from segloc_cli.devices.base import EmulatedDevice
+from segloc_cli.devices.base import Driver, EmulatedDevice
 
 SEGLOC = Path(sys.executable).parent / "segloc"
 HALL = Path(__file__).resolve().parents[1] / "datasets" / "hall"
@@ -135,3 +135,20 @@ def device_process() -> Iterator[Callable[..., str]]:
         if child.is_alive():
             child.kill()
             child.join()
+
+
+@pytest.fixture
+def driver_on(device_process) -> Iterator[Callable[..., Driver]]:
+    """``driver = driver_on(DriverClass, make_device, timeout_s=1.0)``: a driver opened on
+    ``make_device()`` served by another process (see ``device_process``); closed at teardown."""
+    opened: list[Driver] = []
+
+    def connect(driver_class: type[Driver], make_device: Callable, timeout_s: float = 1.0):
+        driver = driver_class(device_process(make_device), timeout_s=timeout_s)
+        driver.open()
+        opened.append(driver)
+        return driver
+
+    yield connect
+    for driver in opened:
+        driver.close()

@@ -532,20 +532,10 @@ class SlowOnlyExplorer(SilentDevice):
 
 
 @pytest.fixture
-def explorer_on(device_process):
+def explorer_on(driver_on):
     """``driver = explorer_on(make_device)``: a driver (0.3 s timeout) opened on a device
     served by another process; closed at teardown."""
-    opened: list[ExplorerDriver] = []
-
-    def connect(make_device) -> ExplorerDriver:
-        driver = ExplorerDriver(device_process(make_device), timeout_s=0.3)
-        driver.open()
-        opened.append(driver)
-        return driver
-
-    yield connect
-    for driver in opened:
-        driver.close()
+    return lambda make_device: driver_on(ExplorerDriver, make_device, 0.3)
 
 
 def test_driver_reports_a_silent_device_in_one_line(explorer_on):

@@ -6,7 +6,7 @@ import itertools
 import math
 import re
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 
 import numpy as np
 import pytest
@@ -14,7 +14,7 @@ from conftest import HALL_POSE, HALL_WORLD, ParrotDevice, SilentDevice
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from segloc_cli.devices.base import ClockUnwrapper, DeviceError, EmulatedDevice, FrameError
+from segloc_cli.devices.base import ClockUnwrapper, DeviceError, FrameError
 from segloc_cli.devices.scip2 import (
     TIMESTAMP_MODULUS,
     Reply,
@@ -421,20 +421,10 @@ class WrappingUrg(Scip2Device):
 
 
 @pytest.fixture
-def urg(device_process) -> Iterator[Callable[..., Scip2Driver]]:
+def urg(driver_on) -> Callable[..., Scip2Driver]:
     """``driver = urg(make_device, timeout_s)``: a driver opened on a device served by
     another process; closed at teardown."""
-    opened: list[Scip2Driver] = []
-
-    def connect(make_device: Callable[[], EmulatedDevice], timeout_s: float = 1.0) -> Scip2Driver:
-        driver = Scip2Driver(device_process(make_device), timeout_s=timeout_s)
-        driver.open()
-        opened.append(driver)
-        return driver
-
-    yield connect
-    for driver in opened:
-        driver.close()
+    return lambda make_device, timeout_s=1.0: driver_on(Scip2Driver, make_device, timeout_s)
 
 
 def _ask(driver: Scip2Driver, command: str, within_s: float = 1.0) -> Reply:
