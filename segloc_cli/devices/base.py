@@ -25,6 +25,10 @@ import serial
 
 from segloc_cli.errors import SeglocError
 
+READ_SLICE_S = 0.05
+"""Longest single wait on the port: a driver waiting for a reply or a scan checks its
+own deadline at least this often, so no wait outlasts ``timeout_s`` by more."""
+
 
 class DeviceError(SeglocError):
     """A scanner that cannot be opened, does not answer, answers wrongly or goes away."""
@@ -124,7 +128,7 @@ class Driver(ABC):
     # -- the serial port, shared by every protocol --------------------------------
     def open(self) -> None:
         """Open the port (raw, 8N1); ``DeviceError`` for a missing or forbidden port."""
-        self._serial = open_serial(self.port, self.baud, self.timeout_s)
+        self._serial = open_serial(self.port, self.baud, min(self.timeout_s, READ_SLICE_S))
 
     @property
     def link(self) -> serial.Serial:
@@ -141,14 +145,14 @@ class Driver(ABC):
             raise DeviceError(f"{self.port}: device disconnected ({_reason(exc)})") from exc
 
     def read(self, size: int) -> bytes:
-        """Up to ``size`` bytes, waiting at most the read timeout; ``DeviceError`` if gone."""
+        """Up to ``size`` bytes, waiting at most ``READ_SLICE_S``; ``DeviceError`` if gone."""
         try:
             return self.link.read(size)
         except (serial.SerialException, OSError) as exc:
             raise DeviceError(f"{self.port}: device disconnected ({_reason(exc)})") from exc
 
     def read_available(self) -> bytes:
-        """What has arrived (at least one byte, or nothing after the read timeout)."""
+        """What has arrived (at least one byte, or nothing after ``READ_SLICE_S``)."""
         first = self.read(1)
         if not first:
             return b""

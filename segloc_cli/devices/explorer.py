@@ -40,7 +40,6 @@ from segloc_cli.devices.base import (
     EmulatedDevice,
     FrameError,
     ScanFrame,
-    open_serial,
 )
 from segloc_cli.geometry import TWO_PI
 
@@ -394,8 +393,6 @@ class ExplorerStream:
 
 # -- host side -----------------------------------------------------------------------
 
-_READ_SLICE_S = 0.05
-"""Longest single wait on the port, so each request keeps to its own deadline."""
 _RESENDS = 2
 """Times a command is sent again after the device reports it arrived damaged."""
 
@@ -422,10 +419,6 @@ class ExplorerDriver(Driver):
         self._next_sequence = 0
         self._clock = ClockUnwrapper(CLOCK_WRAP_US)
         self._range_max_m = RANGE_MAX_MM / 1000.0
-
-    def open(self) -> None:
-        """Open the port (raw, 8N1); ``DeviceError`` for a missing or forbidden port."""
-        self._serial = open_serial(self.port, self.baud, min(self.timeout_s, _READ_SLICE_S))
 
     def identify(self) -> DeviceInfo:
         """IDENTIFY → the model, serial number and firmware the device reports."""

@@ -454,13 +454,8 @@ class Scip2Driver(Driver):
     # -- requests and replies --
     def _next_item(self, deadline: float) -> Reply | FrameError | None:
         while not self._pending:
-            remaining = deadline - time.monotonic()
-            if remaining <= 0:
+            if time.monotonic() >= deadline:
                 return None
-            # Wait no longer than the deadline, in 50 ms steps so the port is rarely reconfigured.
-            wait = min(self.timeout_s, math.ceil(remaining * 20.0) / 20.0)
-            if self.link.timeout != wait:
-                self.link.timeout = wait
             data = self.read_available()
             if data:
                 self._heard = True
