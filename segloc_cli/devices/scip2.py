@@ -800,9 +800,8 @@ class Scip2Device(EmulatedDevice):
         """Raw values (request.readings,) for one scan: mm, or the no-return error code."""
         pp = _URG_04LX
         steps = np.arange(request.start_step, request.end_step + 1)
-        ranges_m = np.asarray(
-            self.render((steps - pp["AFRT"]) * (2.0 * math.pi / pp["ARES"])), dtype=float
-        )
+        angles_rad = step_angles(request.start_step, request.end_step, 1, pp["ARES"], pp["AFRT"])
+        ranges_m = np.asarray(self.render(angles_rad), dtype=float)
         with np.errstate(invalid="ignore"):
             mm = np.where(np.isfinite(ranges_m), np.round(ranges_m * 1000.0), 0.0)
         largest = min(pp["DMAX"], (1 << (6 * request.chars)) - 1)
