@@ -14,7 +14,6 @@ first scan: the device's spacing between scans is kept exactly.
 
 from __future__ import annotations
 
-import signal
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -23,6 +22,7 @@ from pathlib import Path
 from segloc_cli.devices.base import DeviceError, DeviceInfo, Driver, ScanFrame
 from segloc_cli.io.mcap_log import LogWriter
 from segloc_cli.scan import Scan
+from segloc_cli.stopping import stop_requests
 
 
 @dataclass
@@ -63,13 +63,7 @@ def record(
     or "SIGTERM". Raises ``DeviceError`` for a device that cannot be opened or
     identified (no file written) or that fails mid-run (file finished first).
     """
-    stop: list[str] = []
-
-    def request_stop(signum, _frame) -> None:
-        stop.append(signal.Signals(signum).name)
-
-    previous = {s: signal.signal(s, request_stop) for s in (signal.SIGINT, signal.SIGTERM)}
-    try:
+    with stop_requests() as stop:
         driver.open()
         try:
             info = driver.identify()
@@ -86,9 +80,6 @@ def record(
         finally:
             driver.stop()
             driver.close()
-    finally:
-        for s, handler in previous.items():
-            signal.signal(s, handler)
 
 
 def _stream(

@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import os
 import select
-import signal
 import time
 import tty
 from collections.abc import Callable
@@ -36,6 +35,7 @@ from segloc_cli.devices.base import EmulatedDevice
 from segloc_cli.geometry import Pose2
 from segloc_cli.io.maps import World
 from segloc_cli.sim import SensorModel, render_ranges
+from segloc_cli.stopping import stop_requests
 
 FAULTS = ("garbage", "checksum", "stall", "hangup")
 POLL_S = 0.002
@@ -136,41 +136,34 @@ def serve_device(
     master, slave = os.openpty()
     tty.setraw(slave)
     os.set_blocking(master, False)
-    stopping: list[str] = []
-
-    def stop(signum, _frame) -> None:
-        stopping.append(signal.Signals(signum).name)
-
-    previous = {s: signal.signal(s, stop) for s in (signal.SIGINT, signal.SIGTERM)}
-    announce(os.ttyname(slave))
     pending = bytearray()
     served = 0
     try:
-        while not stopping:
-            readable, _, _ = select.select([master], [], [], POLL_S)
-            now = clock.now()
-            if readable:
-                try:
-                    data = os.read(master, 4096)
-                except (BlockingIOError, InterruptedError):
-                    data = b""
-                if data:
-                    _queue(pending, device.receive(data, now))
-            for frame in device.poll(now):
-                served += 1
-                if served > faults.after_scans and "hangup" in faults.kinds:
-                    _flush(master, pending)
-                    return "hangup"
-                if served > faults.after_scans and "stall" in faults.kinds:
-                    continue
-                if "garbage" in faults.kinds and rng.random() < faults.rate:
-                    _queue(pending, rng.bytes(int(rng.integers(*GARBAGE_BYTES))))
-                _queue(pending, frame)
-            _flush(master, pending)
-        return stopping[0]
+        with stop_requests() as stopping:
+            announce(os.ttyname(slave))
+            while not stopping:
+                readable, _, _ = select.select([master], [], [], POLL_S)
+                now = clock.now()
+                if readable:
+                    try:
+                        data = os.read(master, 4096)
+                    except (BlockingIOError, InterruptedError):
+                        data = b""
+                    if data:
+                        _queue(pending, device.receive(data, now))
+                for frame in device.poll(now):
+                    served += 1
+                    if served > faults.after_scans and "hangup" in faults.kinds:
+                        _flush(master, pending)
+                        return "hangup"
+                    if served > faults.after_scans and "stall" in faults.kinds:
+                        continue
+                    if "garbage" in faults.kinds and rng.random() < faults.rate:
+                        _queue(pending, rng.bytes(int(rng.integers(*GARBAGE_BYTES))))
+                    _queue(pending, frame)
+                _flush(master, pending)
+            return stopping[0]
     finally:
-        for s, handler in previous.items():
-            signal.signal(s, handler)
         for fd in (master, slave):
             try:
                 os.close(fd)
