@@ -15,12 +15,12 @@ import math
 import os
 import re
 import subprocess
-import sys
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import HALL, HALL_WORLD, SEGLOC
 from mcap.writer import Writer
 
 from segloc_cli.cli import main
@@ -28,11 +28,7 @@ from segloc_cli.geometry import Pose2
 from segloc_cli.io.mcap_log import LogWriter, read_log
 from segloc_cli.scan import Scan
 
-REPO = Path(__file__).resolve().parents[1]
-HALL = REPO / "datasets" / "hall"
-HALL_WORLD = HALL / "world.json"
 HALL_POSES = HALL / "poses.csv"
-SEGLOC = Path(sys.executable).parent / "segloc"
 SEED = 2000
 
 ESTIMATE_HEADER = (

@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import csv
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import HALL
 
 from segloc_cli.geometry import Pose2, wrap_angle
 from segloc_cli.io.maps import World
@@ -23,8 +23,6 @@ from segloc_cli.sim import (
     simulate_scan,
     uniform_initial_errors,
 )
-
-HALL = Path(__file__).resolve().parent.parent / "datasets" / "hall"
 
 # A sensor without any random effect, so ranges are the exact geometry (rounded to 1 mm).
 EXACT = SensorModel(

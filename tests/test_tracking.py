@@ -3,10 +3,10 @@
 from __future__ import annotations
 
 from itertools import pairwise
-from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import HALL
 
 from segloc_cli.geometry import Pose2, wrap_angle
 from segloc_cli.io.maps import read_world
@@ -19,7 +19,6 @@ from segloc_cli.localize import (
 )
 from segloc_cli.sim import SensorModel, free_space_mask, random_world, simulate_scan
 
-HALL = Path(__file__).resolve().parents[1] / "datasets" / "hall"
 STEP_M = 0.25
 
 
