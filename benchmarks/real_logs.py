@@ -69,7 +69,11 @@ def run(commands: list[str], *args) -> subprocess.CompletedProcess:
     return proc
 
 
-def perturbation(name: str, files: tuple[str, str, str], data: Path, work: Path, log: list):
+def prepare(name: str, files: tuple[str, str, str], data: Path, work: Path, log: list):
+    """Import the corrected log and build the map from all but every 10th scan.
+
+    Returns the reference poses and the mask of the held-out scans.
+    """
     corrected = data / name / files[0]
     run(
         log,
@@ -87,11 +91,27 @@ def perturbation(name: str, files: tuple[str, str, str], data: Path, work: Path,
     held = np.zeros(len(ref), dtype=bool)
     held[::HOLD_OUT_EVERY] = True
     log.append(
-        f"# map_poses.csv, held_out.csv, guesses.csv: written by real_logs.py (every "
-        f"{HOLD_OUT_EVERY}th scan held out; guesses = reference + uniform errors, seed {SEED})"
+        f"# map_poses.csv, held_out.csv: written by {Path(sys.argv[0]).name} "
+        f"(every {HOLD_OUT_EVERY}th scan held out)"
     )
     write_pose_table(work / "map_poses.csv", _subset(ref, ~held))
     write_pose_table(work / "held_out.csv", _subset(ref, held))
+    run(
+        log,
+        "map",
+        "build",
+        work / "corrected.mcap",
+        "--survey",
+        work / "map_poses.csv",
+        "--out",
+        work / "map.json",
+    )
+    return ref, held
+
+
+def perturbation(name: str, files: tuple[str, str, str], data: Path, work: Path, log: list):
+    ref, held = prepare(name, files, data, work, log)
+    log.append(f"# guesses.csv: reference + uniform errors, seed {SEED}")
     rng = np.random.default_rng(SEED)
     guesses = _subset(ref, held)
     n = int(held.sum())
@@ -104,16 +124,6 @@ def perturbation(name: str, files: tuple[str, str, str], data: Path, work: Path,
     write_pose_table(
         work / "guesses.csv",
         PoseTable(guesses.pose_id, guesses.time_s, guesses.poses + offsets),
-    )
-    run(
-        log,
-        "map",
-        "build",
-        work / "corrected.mcap",
-        "--survey",
-        work / "map_poses.csv",
-        "--out",
-        work / "map.json",
     )
     t0 = time.perf_counter()
     run(

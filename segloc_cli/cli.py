@@ -519,6 +519,31 @@ def _initial_guesses(initial: str, log, log_path: Path, tolerance_s: float):
     "with the odometry as a prior (with --no-refine: the two stages from it). Failed matches "
     "are retried wider and flagged (status recovered or lost).",
 )
+@click.option(
+    "--method",
+    type=click.Choice(["two-stage", "icp", "correlative"]),
+    default="two-stage",
+    show_default=True,
+    help="two-stage: this tool's method. For comparison: icp registers the scan's points to "
+    "points sampled along the map (small-gicp), correlative searches ±2.1 m and ±20° around "
+    "the guess against virtual scans of the map (Karto's matcher); both need "
+    "pip install 'segloc[peers]' and an initial guess per scan.",
+)
+@click.option(
+    "--icp-variant",
+    type=click.Choice(["gicp", "plane"]),
+    default="gicp",
+    show_default=True,
+    help="With --method icp: generalized ICP or point-to-plane ICP.",
+)
+@click.option(
+    "--jobs",
+    type=click.IntRange(min=1),
+    default=1,
+    show_default=True,
+    help="Localize scans on this many processes (not with --track, whose scans depend on "
+    "each other); the estimates are the same as with 1.",
+)
 @_tolerance_option("pairing scans with initial guesses or odometry")
 def localize(
     log_paths,
@@ -538,6 +563,9 @@ def localize(
     no_refine,
     global_search,
     track,
+    method,
+    icp_variant,
+    jobs,
     tolerance_ms,
 ):
     """Localize every scan of one or more logs against a map.
@@ -556,16 +584,31 @@ def localize(
     featureless corridor); lost (under half the scan lies on the map). A
     scan that yields too few segments gets a status instead of a pose, and
     the batch goes on. --no-refine runs the paper's two stages alone.
+
+    --method icp and --method correlative run two widely used matchers on
+    the same scans and guesses, for comparison (see make bench-peers).
     """
     import pandas as pd
 
     from segloc_cli.io.maps import read_map
     from segloc_cli.io.tables import write_estimates, write_tum
-    from segloc_cli.localize import LocalizeParams, Localizer, localize_scans, track_scans
+    from segloc_cli.localize import LocalizeParams, Localizer, track_scans
+    from segloc_cli.parallel import localize_scans_parallel
     from segloc_cli.refine import RefineParams
 
     if not np.isclose(180.0 / bin_deg, round(180.0 / bin_deg)):
         raise click.BadParameter(f"{bin_deg:g} does not divide 180", param_hint="--bin-deg")
+    if method != "two-stage" and (global_search or track):
+        other = "--global" if global_search else "--track"
+        raise click.UsageError(
+            f"--method {method} cannot be combined with {other}: it matches each scan from "
+            "its own initial guess"
+        )
+    if track and jobs > 1:
+        raise click.UsageError(
+            "--jobs cannot be combined with --track: each tracked scan starts from the "
+            "previous one's estimate"
+        )
     if global_search and (track or no_refine):
         other = "--track" if track else "--no-refine"
         raise click.UsageError(
@@ -588,7 +631,13 @@ def localize(
         recentres=recentre,
         refine=None if no_refine else RefineParams(),
     )
-    localizer = Localizer(segments_world, params)
+    if method == "two-stage":
+        localizer = Localizer(segments_world, params)
+    else:
+        from segloc_cli.peers import peer_localizer
+
+        options = {"variant": icp_variant} if method == "icp" else {}
+        localizer = peer_localizer(method, segments_world, **options)
 
     tolerance_s = tolerance_ms / 1e3
     streams = []  # one iterator of estimates rows per log
@@ -615,7 +664,8 @@ def localize(
         else:
             keep = idx
             guesses = None if global_search else poses
-            streams.append(localize_scans([log.scans[i] for i in idx], guesses, ids, localizer))
+            scans = [log.scans[i] for i in idx]
+            streams.append(localize_scans_parallel(scans, guesses, ids, localizer, jobs))
         n_scans += keep.size
         skipped += len(log.scans) - keep.size
 

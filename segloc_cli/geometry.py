@@ -137,3 +137,20 @@ def point_segment_distances(points: np.ndarray, segments: np.ndarray) -> np.ndar
     length2 = np.sum(e * e, axis=2)
     u = np.clip(np.sum(w * e, axis=2) / np.where(length2 > 0.0, length2, 1.0), 0.0, 1.0)
     return np.hypot(*np.moveaxis(w - u[:, :, None] * e, 2, 0))
+
+
+def sample_segments(segments: np.ndarray, spacing_m: float) -> np.ndarray:
+    """Points (P, 2) along segments (M, 4), both ends included, at most ``spacing_m`` apart.
+
+    Each segment gets ``ceil(length / spacing) + 1`` evenly spaced points, so
+    short segments keep their two ends and no gap exceeds the spacing.
+    """
+    if not spacing_m > 0.0:
+        raise ValueError(f"spacing_m must be > 0, got {spacing_m}")
+    segments = as_segments(segments)
+    counts = np.ceil(segment_lengths(segments) / spacing_m).astype(np.int64) + 1
+    owner = np.repeat(np.arange(segments.shape[0]), counts)
+    first = np.cumsum(counts) - counts
+    t = (np.arange(owner.size) - first[owner]) / np.maximum(counts[owner] - 1, 1)
+    starts, ends = segments[owner, 0:2], segments[owner, 2:4]
+    return starts + t[:, None] * (ends - starts)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import time
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field, replace
+from typing import Protocol
 
 import numpy as np
 
@@ -79,10 +80,25 @@ class Estimate:
 
 
 NAN_POSE = Pose2(float("nan"), float("nan"), float("nan"))
+NO_SEGMENTS = np.zeros((0, 4))
+
+
+class ScanMatcher(Protocol):
+    """What ``localize_scans`` needs of a localizer: ``Localizer`` and the peers have it."""
+
+    uses_segments: bool
+    segments_world: np.ndarray
+
+    def localize(
+        self, segments_robot: np.ndarray, initial: Pose2, points_robot: np.ndarray
+    ) -> Estimate: ...
 
 
 class Localizer:
     """Localizes local maps against one global map (M, 4), world frame."""
+
+    uses_segments = True
+    """The scan's segments are what it matches (peers that match points alone say False)."""
 
     def __init__(self, segments_world: np.ndarray, params: LocalizeParams | None = None):
         self.params = params or LocalizeParams()
@@ -295,7 +311,7 @@ def localize_scans(
     scans: Sequence[Scan],
     initial_poses: Sequence[Pose2] | None,
     pose_ids: Sequence[int],
-    localizer: Localizer,
+    localizer: ScanMatcher,
     extract_params: ExtractParams | None = None,
 ) -> Iterator[dict]:
     """Localize each scan from its initial guess, yielding one estimates row per scan.

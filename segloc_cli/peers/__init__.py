@@ -1,0 +1,74 @@
+"""Other localizers behind the two-stage method's interface, for comparison.
+
+``icp`` registers the scan's points to points sampled along the map's
+segments with small_gicp (GICP or point-to-plane ICP); ``correlative``
+matches the scan against virtual scans of the map with the Karto scan
+matcher, the correlative search that slam_toolbox and OpenKarto use. Both
+packages are optional: ``pip install 'segloc[peers]'``.
+
+Each peer has the ``localize(segments_robot, initial, points_robot)`` method
+of ``Localizer`` and returns the same ``Estimate``; it uses the scan's points
+only (``uses_segments`` is False), so no segments are extracted for it.
+"""
+
+from __future__ import annotations
+
+import importlib
+
+import numpy as np
+
+from segloc_cli.confidence import ConfidenceParams, judge
+from segloc_cli.errors import SeglocError
+from segloc_cli.geometry import Pose2
+from segloc_cli.localize import NAN_POSE, STATUS_NO_OVERLAP, Estimate
+from segloc_cli.refine import RefineParams, inlier_ratio
+
+METHODS = ("two-stage", "icp", "correlative")
+"""Values of ``segloc localize --method``."""
+
+_PACKAGES = {
+    "icp": ("small_gicp", "small-gicp"),
+    "correlative": ("karto_scanmatcher", "karto-scanmatcher"),
+}
+
+
+def require(method: str):
+    """The module a peer method runs on; a ``SeglocError`` saying how to install it if missing."""
+    module, distribution = _PACKAGES[method]
+    try:
+        return importlib.import_module(module)
+    except ImportError:
+        raise SeglocError(
+            f"--method {method} needs the {distribution} package: pip install 'segloc[peers]'"
+        ) from None
+
+
+def peer_localizer(method: str, segments_world: np.ndarray, **options):
+    """The peer localizer for ``method`` ("icp" or "correlative") on a map (M, 4), world frame.
+
+    ``options`` go to the peer's parameters (``IcpParams``, ``CorrelativeParams``).
+    """
+    if method == "icp":
+        from segloc_cli.peers.icp import IcpLocalizer, IcpParams
+
+        return IcpLocalizer(segments_world, IcpParams(**options))
+    if method == "correlative":
+        from segloc_cli.peers.correlative import CorrelativeLocalizer, CorrelativeParams
+
+        return CorrelativeLocalizer(segments_world, CorrelativeParams(**options))
+    raise ValueError(f"unknown peer method {method!r}; expected icp or correlative")
+
+
+def judged_estimate(
+    pose: Pose2 | None, points_robot: np.ndarray, segments_world: np.ndarray
+) -> Estimate:
+    """A peer's answer as an ``Estimate``, with the inlier share and verdict the two stages get.
+
+    ``pose`` None (the matcher gave up) yields a ``no_overlap`` row. Peers
+    report no rival, so the verdict is ``ok`` or ``lost`` by the inlier share.
+    """
+    if pose is None or not np.isfinite([pose.x, pose.y, pose.theta]).all():
+        return Estimate(NAN_POSE, float("nan"), 0.0, 0, STATUS_NO_OVERLAP)
+    ratio = inlier_ratio(points_robot, segments_world, pose, RefineParams().final_gate_m)
+    status = judge(ratio, 0.0, ConfidenceParams())
+    return Estimate(pose, float("nan"), 0.0, 0, status, None, ratio)
