@@ -6,7 +6,7 @@ STAMP := $(VENV)/.installed
 DEMO_OUT := out/demo
 HALL := datasets/hall
 
-.PHONY: setup demo test bench bench-real lint hall clean
+.PHONY: setup demo test bench bench-real bench-peers figures lint hall clean
 
 setup: $(STAMP)
 
@@ -34,6 +34,16 @@ bench: $(STAMP)
 DATASETS ?= ../shared/datasets
 bench-real: $(STAMP)
 	$(BIN)/python benchmarks/real_logs.py --datasets $(DATASETS) --out benchmarks/results-real.md
+
+# Every method (two-stage, ICP, correlative) on the same seeded trials per initial-error bin,
+# on the hall and the real logs: benchmarks/results-peers.md and benchmarks/peers-trials.csv.
+bench-peers: $(STAMP)
+	$(BIN)/python benchmarks/peers.py --datasets $(DATASETS)
+
+# The hall's figures into benchmarks/figures/hall/, and success against initial error
+# from benchmarks/peers-trials.csv (written by bench-peers).
+figures: $(STAMP)
+	$(BIN)/python benchmarks/figures.py
 
 lint: $(STAMP)
 	$(BIN)/ruff check segloc_cli tests benchmarks

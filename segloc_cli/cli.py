@@ -750,6 +750,27 @@ def localize(
     default=None,
     help="Exit 1 if any pose's |θ| error exceeds this.",
 )
+@click.option(
+    "--plots",
+    "plots_dir",
+    type=click.Path(path_type=Path, file_okay=False),
+    default=None,
+    help="With --survey: also draw figures (PNG and PDF) into this folder, created if needed.",
+)
+@click.option(
+    "--map",
+    "map_path",
+    type=click.Path(path_type=Path),
+    default=None,
+    help="With --plots: the map the estimates were made with, for the figures of both stages.",
+)
+@click.option(
+    "--log",
+    "log_path",
+    type=click.Path(path_type=Path),
+    default=None,
+    help="With --plots: the log the estimates were made from, for the figures of both stages.",
+)
 @_tolerance_option("pairing estimates with survey rows")
 def evaluate(
     estimates_path,
@@ -760,6 +781,9 @@ def evaluate(
     out_path,
     fail_above_cm,
     fail_above_deg,
+    plots_dir,
+    map_path,
+    log_path,
     tolerance_ms,
 ):
     """Score estimates against ground truth.
@@ -769,6 +793,11 @@ def evaluate(
     final errors X, Y (cm) and θ (°), all "surveyed minus computed", then RMS
     and max rows. With --fail-above-* the exit status is 1 when any pose
     exceeds a limit, so CI can gate on it.
+
+    With --plots DIR, figures of the run go into DIR: the final errors per
+    pose, and with --map and --log also the local maps over the map, the
+    stage-1 heading error of each vote scheme, the vote accumulator and the
+    stage-2 tracks from guesses around the first pose.
 
     With --relations, the metric of Kümmerle et al. (2009) for logs without
     surveyed poses: over the reference relations whose two times both have an
@@ -780,6 +809,10 @@ def evaluate(
 
     if (survey_path is None) == (relations_path is None):
         raise click.UsageError("give exactly one of --survey and --relations")
+    if plots_dir is None and (map_path is not None or log_path is not None):
+        raise click.UsageError("--map and --log go with --plots")
+    if plots_dir is not None and survey_path is None:
+        raise click.UsageError("--plots goes with --survey")
     estimates = read_estimates(estimates_path)
     if relations_path is not None:
         if fail_above_cm is not None or fail_above_deg is not None:
@@ -790,9 +823,13 @@ def evaluate(
         raise click.UsageError("--published goes with --relations")
 
     from segloc_cli.evaluate import format_table, gate, summary, table1
+    from segloc_cli.io.maps import read_map
     from segloc_cli.io.tables import read_pose_table
 
     survey = read_pose_table(survey_path)
+    # Read before anything is printed, so a bad path stops the command with nothing half done.
+    segments_world = None if map_path is None else read_map(map_path)
+    log = None if log_path is None else _load_log(log_path)
     try:
         table = table1(estimates, survey, tolerance_s=tolerance_ms / 1e3)
     except InputError as exc:
@@ -800,11 +837,38 @@ def evaluate(
             raise
         raise InputError(str(exc), path=survey_path) from None
     _emit(format_table(table, summary(table), fmt), out_path)
+    if plots_dir is not None:
+        figure_data = None
+        if segments_world is not None and log is not None:
+            figure_data = (segments_world, log, log_path)
+        _write_plots(plots_dir, table, estimates, survey, figure_data, tolerance_ms / 1e3)
     violations = gate(table, fail_above_cm, fail_above_deg)
     for line in violations:
         click.echo(f"segloc: gate: {line}", err=True)
     if violations:
         sys.exit(EXIT_GATE_FAILED)
+
+
+def _write_plots(plots_dir: Path, table, estimates, survey, figure_data, tolerance_s: float):
+    """Draw the figures of ``evaluate --plots``; ``figure_data`` is (map, log, log path) or None."""
+    from segloc_cli.plots import MAP_FIGURES, surveyed_scans, write_evaluation_figures
+
+    plots_dir.mkdir(parents=True, exist_ok=True)
+    if figure_data is None:
+        _info(f"skipped {', '.join(MAP_FIGURES)}: they need --map MAP.json and --log LOG.mcap")
+        written = write_evaluation_figures(plots_dir, table)
+    else:
+        segments_world, log, log_path = figure_data
+        items = surveyed_scans(estimates, survey, log.scans, tolerance_s)
+        if not items:
+            raise InputError(
+                f"no scan lies within {tolerance_s * 1e3:g} ms of a surveyed estimate "
+                f"(scans {_time_range(log.scan_times_s)}); is this the log of the estimates?",
+                path=log_path,
+            )
+        written = write_evaluation_figures(plots_dir, table, segments_world, items)
+    for path in written:
+        _info(f"wrote {path}")
 
 
 def _evaluate_relations(estimates, relations_path, published, fmt, out_path, tolerance_ms):

@@ -1,0 +1,789 @@
+"""Figures of the method at work, after Figs. 10–15 of Reina & Gonzalez (2000).
+
+Each figure has a pure data function (arrays and tables in, arrays or a
+DataFrame out) and a drawing function that turns that data into a
+``matplotlib.figure.Figure``; ``save_figure`` writes it as PNG and PDF. Figures
+are built on their own Agg canvas, never through pyplot, so drawing leaves no
+global state behind. World frame, metres and degrees on every axis.
+
+Figure names (files ``NAME.png`` and ``NAME.pdf``):
+
+- ``overlay``: local maps placed at their estimates over the global map;
+- ``heading_by_vote``: stage-1 heading error per pose for each vote scheme;
+- ``accumulator``: the stage-1 votes of one pose, weighted against unweighted;
+- ``coarse_to_fine``: stage-2 tracks from guesses on a ring around one pose;
+- ``errors``: final position and heading error per pose (Table 1);
+- ``success_vs_initial_error``: success rate against the initial position
+  error, per method and dataset, from a table of trials.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.collections import LineCollection
+from matplotlib.figure import Figure
+
+from segloc_cli.align import VOTE_SCHEMES, RTable, accumulate, align, candidate_headings
+from segloc_cli.extract import ExtractParams, extract_segments
+from segloc_cli.geometry import Pose2, transform_points, transform_segments, wrap_angle
+from segloc_cli.io.tables import PoseTable, nearest_by_time
+from segloc_cli.localize import ESTIMATED, LocalizeParams
+from segloc_cli.overlap import coarse_to_fine
+from segloc_cli.scan import Scan
+
+FIGURE_DPI = 150
+"""Resolution of the PNG files; the PDF files are vector graphics."""
+
+OVERLAY = "overlay"
+HEADING_BY_VOTE = "heading_by_vote"
+ACCUMULATOR = "accumulator"
+COARSE_TO_FINE = "coarse_to_fine"
+ERRORS = "errors"
+SUCCESS_VS_INITIAL_ERROR = "success_vs_initial_error"
+
+MAP_FIGURES = (OVERLAY, HEADING_BY_VOTE, ACCUMULATOR, COARSE_TO_FINE)
+"""Figures that need the global map and the scans, besides the Table 1 errors."""
+EVALUATION_FIGURES = (*MAP_FIGURES, ERRORS)
+"""Figures drawn from one evaluated run, in drawing order."""
+
+INIT_ERROR_BINS_M = (0.0, 0.5, 1.0, 1.5, 2.0)
+"""Edges of the initial position-error bins of ``success_vs_initial_error`` (metres)."""
+
+SCHEME_COLOURS = {
+    "product": "tab:blue",
+    "count": "tab:orange",
+    "local": "tab:green",
+    "sum": "tab:brown",
+}
+"""One colour per vote scheme, the same in every figure."""
+
+# Methods of a trials table take these in name order, after any named in SCHEME_COLOURS.
+_SPARE_COLOURS = ("tab:pink", "tab:olive", "tab:cyan", "tab:gray", "tab:purple", "tab:red")
+_SCHEME_MARKERS = {"product": "o", "count": "s", "local": "^", "sum": "D"}
+
+_MAP_COLOUR = "0.65"
+_LOCAL_COLOUR = "tab:red"
+_POINT_COLOUR = "0.15"
+_TRACK_COLOUR = "tab:purple"
+_TRUTH_COLOUR = "black"
+
+_PANEL_IN = 4.0
+"""Side of one map panel (inches)."""
+_MAX_COLUMNS = 3
+
+
+# --------------------------------------------------------------------------- inputs
+
+
+@dataclass(frozen=True)
+class SurveyedScan:
+    """One surveyed pose with its scan and its estimate.
+
+    ``truth``, ``initial`` and ``estimate`` are world-frame poses (metres,
+    radians; ``estimate`` is NaN-filled for a failed pose, ``initial`` for a
+    run without initial guesses). ``segments_robot`` (N, 4) is the scan's
+    local map and ``points_robot`` (K, 2) its valid readings, both in metres,
+    robot frame.
+    """
+
+    pose_id: int
+    truth: Pose2
+    initial: Pose2
+    estimate: Pose2
+    segments_robot: np.ndarray
+    points_robot: np.ndarray
+
+
+def surveyed_scans(
+    estimates: pd.DataFrame,
+    survey: PoseTable,
+    scans: Sequence[Scan],
+    tolerance_s: float = 0.05,
+    extract_params: ExtractParams | None = None,
+) -> list[SurveyedScan]:
+    """Pair survey rows with estimates, and estimates with scans, by time.
+
+    ``estimates`` is an estimates table (``read_estimates``); each survey row
+    takes the estimate nearest in time within ``tolerance_s`` seconds, as
+    ``evaluate.table1`` does, and that estimate the scan nearest its time.
+    Rows missing either are left out; the rest keep survey order. Local maps
+    are extracted with ``extract_params`` (default: as ``segloc localize``).
+    """
+    est_times_s = estimates["time_s"].to_numpy(dtype=float)
+    est_rows = nearest_by_time(survey.time_s, est_times_s, tolerance_s)
+    scan_times_s = np.array([scan.time_s for scan in scans], dtype=float)
+    query_s = np.where(est_rows >= 0, est_times_s[np.maximum(est_rows, 0)], np.nan)
+    scan_rows = nearest_by_time(query_s, scan_times_s, tolerance_s)
+
+    def pose(row: pd.Series, prefix: str) -> Pose2:
+        return Pose2.from_deg(row[f"{prefix}x_m"], row[f"{prefix}y_m"], row[f"{prefix}theta_deg"])
+
+    items = []
+    for i in np.flatnonzero((est_rows >= 0) & (scan_rows >= 0)):
+        row = estimates.iloc[est_rows[i]]
+        scan = scans[scan_rows[i]]
+        items.append(
+            SurveyedScan(
+                pose_id=int(survey.pose_id[i]),
+                truth=Pose2(*(float(v) for v in survey.poses[i])),
+                initial=pose(row, "init_"),
+                estimate=pose(row, ""),
+                segments_robot=extract_segments(scan, extract_params),
+                points_robot=scan.points(),
+            )
+        )
+    return items
+
+
+# --------------------------------------------------------------------------- colours and files
+
+
+def method_colours(names: Iterable[str]) -> dict[str, str]:
+    """A colour per name: vote schemes keep ``SCHEME_COLOURS``, others take spares in name order."""
+    names = list(dict.fromkeys(names))
+    colours = {name: SCHEME_COLOURS[name] for name in names if name in SCHEME_COLOURS}
+    others = sorted(name for name in names if name not in SCHEME_COLOURS)
+    for k, name in enumerate(others):
+        colours[name] = _SPARE_COLOURS[k % len(_SPARE_COLOURS)]
+    return colours
+
+
+def figure_size_in(name: str, n_panels: int = 1) -> tuple[float, float]:
+    """Width and height (inches) of figure ``name`` with ``n_panels`` panels.
+
+    Only ``overlay`` and ``success_vs_initial_error`` vary with the panel count.
+    """
+    if name == OVERLAY:
+        rows, cols = _grid(n_panels)
+        return (_PANEL_IN * cols, _PANEL_IN * rows)
+    if name == SUCCESS_VS_INITIAL_ERROR:
+        return (max(5.0, 4.0 * n_panels), 4.0)
+    sizes = {
+        HEADING_BY_VOTE: (8.0, 4.0),
+        ACCUMULATOR: (10.0, 4.0),
+        COARSE_TO_FINE: (10.0, 5.0),
+        ERRORS: (10.0, 4.0),
+    }
+    if name not in sizes:
+        raise ValueError(f"unknown figure {name!r}")
+    return sizes[name]
+
+
+def _grid(n_panels: int) -> tuple[int, int]:
+    cols = max(1, min(_MAX_COLUMNS, n_panels))
+    return (max(1, math.ceil(n_panels / cols)), cols)
+
+
+def _new_figure(name: str, n_panels: int = 1) -> Figure:
+    fig = Figure(figsize=figure_size_in(name, n_panels), layout="constrained")
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def save_figure(fig: Figure, out_dir: str | Path, name: str) -> list[Path]:
+    """Write ``fig`` as ``out_dir/name.png`` (``FIGURE_DPI``) and ``out_dir/name.pdf``.
+
+    Returns the two paths. The PDF carries no creation date, so the same
+    figure gives the same file.
+    """
+    out_dir = Path(out_dir)
+    png, pdf = out_dir / f"{name}.png", out_dir / f"{name}.pdf"
+    fig.savefig(png, dpi=FIGURE_DPI)
+    fig.savefig(pdf, metadata={"CreationDate": None})
+    return [png, pdf]
+
+
+# --------------------------------------------------------------------------- overlay
+
+
+@dataclass(frozen=True)
+class OverlayPanel:
+    """One pose of the overlay: its local map and readings placed at its estimate.
+
+    ``segments_world`` (N, 4) and ``points_world`` (K, 2) are in metres, world
+    frame; ``extent_m`` is (x_min, x_max, y_min, y_max) of a square around the
+    local map with a margin. Errors are those of Table 1 (cm, degrees).
+    """
+
+    pose_id: int
+    estimate: Pose2
+    truth: Pose2
+    segments_world: np.ndarray
+    points_world: np.ndarray
+    extent_m: tuple[float, float, float, float]
+    err_xy_cm: float
+    err_theta_deg: float
+
+
+def overlay_pose_ids(pose_ids: np.ndarray, err_xy_cm: np.ndarray, n: int = 6) -> np.ndarray:
+    """Which poses to show: the first ``n``, the last of them swapped for the worst if needed.
+
+    ``pose_ids`` (P,) in survey order, ``err_xy_cm`` (P,) their position
+    errors (NaN: no estimate, never chosen as the worst).
+    """
+    pose_ids = np.asarray(pose_ids)
+    err_xy_cm = np.asarray(err_xy_cm, dtype=float)
+    chosen = pose_ids[:n].copy()
+    finite = np.isfinite(err_xy_cm)
+    if n <= 0 or not finite.any():
+        return chosen
+    worst = pose_ids[np.flatnonzero(finite)[np.argmax(err_xy_cm[finite])]]
+    if worst not in chosen:
+        chosen[-1] = worst
+    return chosen
+
+
+def overlay_panels(
+    items: Sequence[SurveyedScan], table: pd.DataFrame, n: int = 6, margin_m: float = 1.0
+) -> list[OverlayPanel]:
+    """Panels of the overlay figure for up to ``n`` poses (see ``overlay_pose_ids``).
+
+    ``table`` is a ``evaluate.table1`` result; poses without an estimate or a
+    local map are not shown.
+    """
+    by_id = {
+        item.pose_id: item
+        for item in items
+        if np.isfinite(item.estimate.as_array()).all() and item.segments_robot.shape[0] > 0
+    }
+    rows = table[table["pose_id"].isin(list(by_id))]
+    errors = rows.set_index("pose_id")
+    panels = []
+    for pose_id in overlay_pose_ids(rows["pose_id"].to_numpy(), rows["err_xy_cm"].to_numpy(), n):
+        item = by_id[int(pose_id)]
+        segments = transform_segments(item.segments_robot, item.estimate)
+        panels.append(
+            OverlayPanel(
+                pose_id=int(pose_id),
+                estimate=item.estimate,
+                truth=item.truth,
+                segments_world=segments,
+                points_world=transform_points(item.points_robot, item.estimate),
+                extent_m=_square_extent(segments.reshape(-1, 2), margin_m),
+                err_xy_cm=float(errors.at[pose_id, "err_xy_cm"]),
+                err_theta_deg=float(errors.at[pose_id, "err_theta_deg"]),
+            )
+        )
+    return panels
+
+
+def _number(value: float, decimals: int, sign: bool = False) -> str:
+    """``value`` with ``decimals`` decimals, without the sign of a rounded-off zero."""
+    if not np.isfinite(value):
+        return "—"
+    text = f"{value:{'+' if sign else ''}.{decimals}f}"
+    return text[1:] if float(text) == 0.0 and text[0] in "+-" else text
+
+
+def _square_extent(points: np.ndarray, margin_m: float) -> tuple[float, float, float, float]:
+    """The square around ``points`` (K, 2) grown by ``margin_m``, so equal axes fill a panel."""
+    low, high = points.min(axis=0), points.max(axis=0)
+    centre = (low + high) / 2.0
+    half = float((high - low).max()) / 2.0 + margin_m
+    return (centre[0] - half, centre[0] + half, centre[1] - half, centre[1] + half)
+
+
+def _draw_map(ax, segments_world: np.ndarray, label: str | None = "global map") -> None:
+    lines = LineCollection(
+        segments_world.reshape(-1, 2, 2), colors=_MAP_COLOUR, linewidths=2.5, label=label
+    )
+    ax.add_collection(lines)
+
+
+def _draw_pose(ax, pose: Pose2, colour: str, marker: str, label: str, size_m: float) -> None:
+    ax.plot(pose.x, pose.y, marker, color=colour, markersize=8, label=label, zorder=5)
+    ax.arrow(
+        pose.x,
+        pose.y,
+        size_m * np.cos(pose.theta),
+        size_m * np.sin(pose.theta),
+        color=colour,
+        width=size_m * 0.04,
+        length_includes_head=True,
+        zorder=5,
+    )
+
+
+def draw_overlay(segments_world: np.ndarray, panels: Sequence[OverlayPanel]) -> Figure:
+    """Global map (grey) with each panel's local map and readings at its estimated pose."""
+    fig = _new_figure(OVERLAY, len(panels))
+    rows, cols = _grid(len(panels))
+    axes = fig.subplots(rows, cols, squeeze=False).ravel()
+    for ax, panel in zip(axes, panels, strict=False):
+        x0, x1, y0, y1 = panel.extent_m
+        _draw_map(ax, segments_world)
+        ax.plot(*panel.points_world.T, ".", color=_POINT_COLOUR, markersize=1.5)
+        # A stand-in, so the legend shows the readings' marker at a size one can see.
+        ax.plot([], [], ".", color=_POINT_COLOUR, markersize=6, label="readings")
+        local = LineCollection(
+            panel.segments_world.reshape(-1, 2, 2),
+            colors=_LOCAL_COLOUR,
+            linewidths=1.2,
+            label="local map",
+        )
+        ax.add_collection(local)
+        _draw_pose(ax, panel.estimate, _LOCAL_COLOUR, "o", "estimate", (x1 - x0) / 15)
+        ax.set_xlim(x0, x1)
+        ax.set_ylim(y0, y1)
+        ax.set_aspect("equal")
+        ax.set_title(
+            f"pose {panel.pose_id}: {_number(panel.err_xy_cm, 1)} cm, "
+            f"{_number(panel.err_theta_deg, 2, sign=True)}°",
+            fontsize=10,
+        )
+        ax.set_xlabel("x (m)")
+        ax.set_ylabel("y (m)")
+    for ax in axes[len(panels) :]:
+        ax.set_visible(False)
+    if panels:
+        axes[0].legend(loc="upper left", fontsize=7, framealpha=0.9)
+    fig.suptitle("Local maps at their estimated poses over the global map")
+    return fig
+
+
+# --------------------------------------------------------------------------- stage 1
+
+
+def heading_errors_by_vote(
+    segments_world: np.ndarray,
+    items: Sequence[SurveyedScan],
+    window_deg: float = 20.0,
+    bin_deg: float = 1.0,
+    schemes: Sequence[str] = VOTE_SCHEMES,
+) -> pd.DataFrame:
+    """Stage-1 heading error (degrees, surveyed minus computed) per pose and vote scheme.
+
+    The heading is the best peak of ``align`` with the whole map's R-table,
+    within ±``window_deg`` of each pose's initial heading (the whole circle
+    when a pose has none): stage 1 as ``segloc localize`` runs it whenever the
+    map lies within the scan's reach, as the hall's does. ``segments_world``
+    (M, 4) is the global map, metres, world frame. Returns a DataFrame indexed
+    by ``pose_id``, one column per scheme; NaN where the vote found nothing.
+    """
+    rtable = RTable.build(np.asarray(segments_world, dtype=float), bin_deg)
+    errors = {}
+    for item in items:
+        prior = item.initial.theta if np.isfinite(item.initial.theta) else None
+        row = []
+        for scheme in schemes:
+            result = align(rtable, item.segments_robot, prior, window_deg, scheme)
+            if result.peaks_rad.size == 0:
+                row.append(np.nan)
+            else:
+                row.append(float(np.rad2deg(wrap_angle(item.truth.theta - result.best_rad))))
+        errors[item.pose_id] = row
+    frame = pd.DataFrame.from_dict(errors, orient="index", columns=list(schemes), dtype=float)
+    frame.index.name = "pose_id"
+    return frame
+
+
+def draw_heading_by_vote(errors: pd.DataFrame, window_deg: float = 20.0) -> Figure:
+    """One marker series per vote scheme: heading error (°) against pose id."""
+    fig = _new_figure(HEADING_BY_VOTE)
+    ax = fig.subplots()
+    colours = method_colours(errors.columns)
+    n = len(errors.columns)
+    for k, scheme in enumerate(errors.columns):
+        # Side by side within each pose, so equal errors do not hide each other.
+        shift = (k - (n - 1) / 2) * 0.12
+        ax.plot(
+            errors.index.to_numpy() + shift,
+            errors[scheme].to_numpy(),
+            _SCHEME_MARKERS.get(scheme, "o"),
+            color=colours[scheme],
+            label=scheme,
+            linestyle="none",
+        )
+    ax.axhline(0.0, color="0.5", linewidth=0.8)
+    ax.set_xticks(errors.index.to_numpy())
+    ax.set_xlabel("pose id")
+    ax.set_ylabel("heading error (°)")
+    ax.set_title(f"Stage-1 heading error by vote scheme (±{window_deg:g}° around the initial)")
+    ax.legend(title="vote", fontsize=8)
+    ax.grid(True, axis="y", alpha=0.3)
+    return fig
+
+
+def accumulator_curves(
+    segments_world: np.ndarray,
+    item: SurveyedScan,
+    window_deg: float | None = 20.0,
+    bin_deg: float = 1.0,
+    schemes: Sequence[str] = ("product", "count"),
+) -> pd.DataFrame:
+    """The stage-1 accumulator of one pose under each scheme, each divided by its maximum.
+
+    With ``window_deg`` the headings span ± that around the pose's initial
+    heading (around the true heading when it has none), as stage 1 scores
+    them; with None, the whole circle. Returns columns ``heading_deg``
+    (world frame, increasing, unwrapped around the window's centre) and one
+    per scheme (0–1); ``attrs["truth_deg"]`` and ``attrs["initial_deg"]`` are
+    the true and initial headings on the same axis (the latter NaN when the
+    pose has none).
+    """
+    rtable = RTable.build(np.asarray(segments_world, dtype=float), bin_deg)
+    if window_deg is None:
+        centre = 0.0
+        headings = candidate_headings(None, 0.0, rtable.bin_width_rad)
+    else:
+        centre = item.initial.theta if np.isfinite(item.initial.theta) else item.truth.theta
+        headings = candidate_headings(centre, np.deg2rad(window_deg), rtable.bin_width_rad)
+    axis_rad = centre + wrap_angle(headings - centre)
+    order = np.argsort(axis_rad)
+    frame = pd.DataFrame({"heading_deg": np.rad2deg(axis_rad[order])})
+    for scheme in schemes:
+        votes = accumulate(rtable, item.segments_robot, headings, scheme)[order]
+        top = votes.max() if votes.size else 0.0
+        frame[scheme] = votes / top if top > 0 else votes
+    for key, pose in (("truth_deg", item.truth), ("initial_deg", item.initial)):
+        frame.attrs[key] = float(np.rad2deg(centre + wrap_angle(pose.theta - centre)))
+    return frame
+
+
+def draw_accumulator(curves: Sequence[pd.DataFrame], titles: Sequence[str]) -> Figure:
+    """Normalised votes against heading, one panel per accumulator, the true heading marked."""
+    fig = _new_figure(ACCUMULATOR)
+    axes = fig.subplots(1, len(curves), squeeze=False).ravel()
+    for ax, frame, title in zip(axes, curves, titles, strict=True):
+        schemes = [c for c in frame.columns if c != "heading_deg"]
+        colours = method_colours(schemes)
+        for k, scheme in enumerate(schemes):
+            label = {"product": "weighted (product)", "count": "unweighted (count)"}.get(
+                scheme, scheme
+            )
+            # The first scheme (the paper's) is drawn last, on top of the others.
+            ax.plot(
+                frame["heading_deg"],
+                frame[scheme],
+                color=colours[scheme],
+                label=label,
+                zorder=3 + len(schemes) - k,
+            )
+        ax.axvline(
+            frame.attrs["truth_deg"], color=_TRUTH_COLOUR, linestyle="--", label="true heading"
+        )
+        if np.isfinite(frame.attrs.get("initial_deg", np.nan)):
+            ax.axvline(
+                frame.attrs["initial_deg"], color="0.4", linestyle=":", label="initial heading"
+            )
+        span = float(frame["heading_deg"].max() - frame["heading_deg"].min())
+        if span > 180.0:
+            ax.set_xticks(np.arange(-180.0, 181.0, 45.0))
+        ax.set_xlabel("heading (°)")
+        ax.set_ylabel("votes / maximum")
+        ax.set_ylim(0.0, 1.05)
+        ax.set_title(title, fontsize=10)
+        ax.grid(True, alpha=0.3)
+    axes[0].legend(fontsize=8, loc="best")
+    return fig
+
+
+# --------------------------------------------------------------------------- stage 2
+
+
+def ring_guesses(
+    truth: Pose2, n: int = 8, radius_m: float = 1.5, heading_error_deg: float = 2.0
+) -> np.ndarray:
+    """``n`` initial guesses (n, 3: x m, y m, θ rad, world frame) on a ring around ``truth``.
+
+    Positions are evenly spaced on a circle of ``radius_m``, the first at
+    half a spacing from the +x axis; headings are the true one plus and
+    minus ``heading_error_deg`` in turn, standing in for the small error
+    stage 1 leaves.
+    """
+    # Off the axes: a guess exactly one grid step (1.5 m by default) along x or y from the
+    # truth has the truth on its first grid and converges in one iteration, which shows nothing.
+    angles = 2.0 * np.pi * (np.arange(n) + 0.5) / n
+    signs = np.where(np.arange(n) % 2 == 0, 1.0, -1.0)
+    return np.column_stack(
+        [
+            truth.x + radius_m * np.cos(angles),
+            truth.y + radius_m * np.sin(angles),
+            wrap_angle(truth.theta + signs * np.deg2rad(heading_error_deg)),
+        ]
+    )
+
+
+def coarse_to_fine_tracks(
+    segments_world: np.ndarray,
+    segments_robot: np.ndarray,
+    guesses: np.ndarray,
+    params: LocalizeParams | None = None,
+) -> pd.DataFrame:
+    """The stage-2 estimate after each iteration, from each guess (G, 3).
+
+    ``segments_world`` (M, 4) is the global map and ``segments_robot`` (N, 4)
+    the local map; stage 2 runs with ``params``' grid, heading step,
+    iterations, ratio and re-centring (default: as ``segloc localize``).
+    Returns long-format rows ``guess`` (index into ``guesses``), ``step``
+    (0 = the guess itself), ``x_m``, ``y_m``, ``theta_deg``, world frame.
+    """
+    p = params or LocalizeParams()
+    frames = []
+    for g, guess in enumerate(np.asarray(guesses, dtype=float).reshape(-1, 3)):
+        track = coarse_to_fine(
+            segments_world,
+            segments_robot,
+            Pose2(*(float(v) for v in guess)),
+            grid_m=p.grid_m,
+            dtheta_deg=p.dtheta_deg,
+            iterations=p.iterations,
+            ratio=p.ratio,
+            recentres=p.recentres,
+        ).track
+        frames.append(
+            pd.DataFrame(
+                {
+                    "guess": g,
+                    "step": np.arange(len(track)),
+                    "x_m": track[:, 0],
+                    "y_m": track[:, 1],
+                    "theta_deg": np.rad2deg(track[:, 2]),
+                }
+            )
+        )
+    return pd.concat(frames, ignore_index=True)
+
+
+def draw_coarse_to_fine(
+    segments_world: np.ndarray, tracks: pd.DataFrame, truth: Pose2, margin_m: float = 1.0
+) -> Figure:
+    """Stage-2 tracks over the map near ``truth``, and each one's distance to it per iteration."""
+    fig = _new_figure(COARSE_TO_FINE)
+    ax_map, ax_err = fig.subplots(1, 2, width_ratios=[1.0, 1.1])
+    _draw_map(ax_map, segments_world)
+    for g, track in tracks.groupby("guess", sort=True):
+        x, y = track["x_m"].to_numpy(), track["y_m"].to_numpy()
+        first = g == tracks["guess"].iloc[0]
+        ax_map.plot(x, y, "-", color=_TRACK_COLOUR, linewidth=1.0, label="track" if first else None)
+        ax_map.plot(x[1:-1], y[1:-1], ".", color=_TRACK_COLOUR, markersize=4)
+        ax_map.plot(
+            x[0], y[0], "o", mfc="white", mec=_TRACK_COLOUR, label="start" if first else None
+        )
+        ax_map.plot(x[-1], y[-1], "o", color=_TRACK_COLOUR, label="end" if first else None)
+        dist_cm = 100.0 * np.hypot(x - truth.x, y - truth.y)
+        # A converged track sits at exactly zero on some steps; log axes need a floor.
+        ax_err.plot(
+            track["step"], np.maximum(dist_cm, 1e-2), "-o", color=_TRACK_COLOUR, markersize=3
+        )
+    ax_map.plot(truth.x, truth.y, "*", color=_TRUTH_COLOUR, markersize=14, label="true pose")
+    half = float(np.hypot(tracks["x_m"] - truth.x, tracks["y_m"] - truth.y).max()) + margin_m
+    ax_map.set_xlim(truth.x - half, truth.x + half)
+    ax_map.set_ylim(truth.y - half, truth.y + half)
+    ax_map.set_aspect("equal")
+    ax_map.set_xlabel("x (m)")
+    ax_map.set_ylabel("y (m)")
+    ax_map.set_title("Tracks from guesses around the true pose", fontsize=10)
+    ax_map.legend(fontsize=7, loc="upper left", framealpha=0.9)
+    ax_err.set_yscale("log")
+    ax_err.set_xlabel("iteration")
+    ax_err.set_ylabel("distance to the true position (cm)")
+    ax_err.set_title("Convergence (distances under 0.01 cm drawn at 0.01 cm)", fontsize=10)
+    ax_err.grid(True, which="both", alpha=0.3)
+    return fig
+
+
+# --------------------------------------------------------------------------- Table 1 errors
+
+
+def final_errors(table: pd.DataFrame) -> pd.DataFrame:
+    """Per pose of a ``table1`` result: ``pose_id``, ``err_xy_cm``, ``err_theta_deg``
+    (surveyed minus final estimate, world frame) and ``accepted`` (status ok or recovered)."""
+    return pd.DataFrame(
+        {
+            "pose_id": table["pose_id"].to_numpy(dtype=np.int64),
+            "err_xy_cm": table["err_xy_cm"].to_numpy(dtype=float),
+            "err_theta_deg": table["err_theta_deg"].to_numpy(dtype=float),
+            "accepted": table["status"].isin(ESTIMATED).to_numpy(),
+        }
+    )
+
+
+def draw_errors(errors: pd.DataFrame) -> Figure:
+    """Two bar charts against pose id: position error (cm) and heading error (°).
+
+    Poses without an accepted estimate are hatched; a missing error is written
+    as "no pose".
+    """
+    fig = _new_figure(ERRORS)
+    axes = fig.subplots(1, 2)
+    ids = errors["pose_id"].to_numpy()
+    accepted = errors["accepted"].to_numpy(dtype=bool)
+    panels = (
+        ("err_xy_cm", "position error (cm)", "Final position error"),
+        ("err_theta_deg", "heading error (°)", "Final heading error (surveyed − computed)"),
+    )
+    for ax, (column, label, title) in zip(axes, panels, strict=True):
+        values = errors[column].to_numpy(dtype=float)
+        bars = ax.bar(ids, np.nan_to_num(values), color="tab:blue", width=0.6)
+        for bar, ok, value in zip(bars, accepted, values, strict=True):
+            if not ok:
+                bar.set_hatch("//")
+                bar.set_facecolor("white")
+                bar.set_edgecolor("tab:red")
+            if not np.isfinite(value):
+                ax.annotate("no pose", (bar.get_x() + bar.get_width() / 2, 0.0), ha="center")
+        ax.axhline(0.0, color="0.5", linewidth=0.8)
+        ax.set_xticks(ids)
+        ax.set_xlabel("pose id")
+        ax.set_ylabel(label)
+        ax.set_title(title, fontsize=10)
+        ax.grid(True, axis="y", alpha=0.3)
+    return fig
+
+
+# --------------------------------------------------------------------------- trials
+
+
+TRIAL_COLUMNS = ("dataset", "method", "init_err_m", "success")
+"""Columns of a trials table that ``success_rates`` reads (others are ignored)."""
+
+
+def _as_bool(values: pd.Series) -> np.ndarray:
+    """Booleans from bools, numbers (missing: False) or words such as "True" and "false"."""
+    if pd.api.types.is_bool_dtype(values) or pd.api.types.is_numeric_dtype(values):
+        return values.fillna(0).to_numpy().astype(bool)
+    text = values.astype(str).str.strip().str.lower()
+    return text.isin(("true", "1", "yes")).to_numpy()
+
+
+def success_rates(
+    trials: pd.DataFrame, bins_m: Sequence[float] = INIT_ERROR_BINS_M
+) -> pd.DataFrame:
+    """Share of successful trials per dataset, method and initial position-error bin.
+
+    ``trials`` has at least ``TRIAL_COLUMNS``: ``init_err_m`` the initial
+    position error (metres), ``success`` a bool. Bins are [lo, hi) except the
+    last, which includes its upper edge; trials outside every bin are left
+    out. Returns one row per dataset, method (both in order of appearance)
+    and bin: ``dataset``, ``method``, ``bin_lo_m``, ``bin_hi_m``, ``n_trials``,
+    ``n_success``, ``success_rate`` (0–1, NaN for an empty bin).
+    """
+    missing = [c for c in TRIAL_COLUMNS if c not in trials.columns]
+    if missing:
+        raise ValueError(f"trials lack the column(s) {', '.join(missing)}")
+    edges = np.asarray(bins_m, dtype=float)
+    n_bins = edges.size - 1
+    err_m = trials["init_err_m"].to_numpy(dtype=float)
+    bin_index = np.searchsorted(edges, err_m, side="right") - 1
+    bin_index[err_m == edges[-1]] = n_bins - 1
+    inside = np.isfinite(err_m) & (bin_index >= 0) & (bin_index < n_bins)
+    frame = pd.DataFrame(
+        {
+            "dataset": trials["dataset"].to_numpy(),
+            "method": trials["method"].to_numpy(),
+            "bin": bin_index,
+            "success": _as_bool(trials["success"]),
+        }
+    )
+    pairs = frame[["dataset", "method"]].drop_duplicates()
+    counts = (
+        frame[inside]
+        .groupby(["dataset", "method", "bin"], sort=False)["success"]
+        .agg(n_trials="size", n_success="sum")
+    )
+    rows = []
+    for dataset, method in pairs.itertuples(index=False):
+        for b in range(n_bins):
+            key = (dataset, method, b)
+            n = int(counts.at[key, "n_trials"]) if key in counts.index else 0
+            k = int(counts.at[key, "n_success"]) if key in counts.index else 0
+            rate = k / n if n else np.nan
+            rows.append((dataset, method, edges[b], edges[b + 1], n, k, rate))
+    columns = ["dataset", "method", "bin_lo_m", "bin_hi_m", "n_trials", "n_success"]
+    return pd.DataFrame(rows, columns=[*columns, "success_rate"])
+
+
+def draw_success_vs_initial_error(rates: pd.DataFrame) -> Figure:
+    """Success rate (%) against initial position error, one line per method, a panel per dataset."""
+    datasets = list(dict.fromkeys(rates["dataset"]))
+    fig = _new_figure(SUCCESS_VS_INITIAL_ERROR, len(datasets))
+    axes = fig.subplots(1, max(1, len(datasets)), squeeze=False, sharey=True).ravel()
+    colours = method_colours(rates["method"])
+    for ax, dataset in zip(axes, datasets, strict=True):
+        part = rates[rates["dataset"] == dataset]
+        for method, rows in part.groupby("method", sort=False):
+            centres = (rows["bin_lo_m"] + rows["bin_hi_m"]) / 2.0
+            ax.plot(
+                centres, 100.0 * rows["success_rate"], "-o", color=colours[method], label=method
+            )
+        edges = np.unique(np.concatenate([part["bin_lo_m"], part["bin_hi_m"]]))
+        ax.set_xticks(edges)
+        ax.set_xlim(edges[0], edges[-1])
+        ax.set_ylim(-3.0, 103.0)
+        ax.set_xlabel("initial position error (m)")
+        ax.set_title(str(dataset), fontsize=10)
+        ax.grid(True, alpha=0.3)
+    axes[0].set_ylabel("success rate (%)")
+    axes[0].legend(fontsize=8, loc="lower left")
+    return fig
+
+
+# --------------------------------------------------------------------------- all at once
+
+
+def write_evaluation_figures(
+    out_dir: str | Path,
+    table: pd.DataFrame,
+    segments_world: np.ndarray | None = None,
+    items: Sequence[SurveyedScan] | None = None,
+    pose_id: int | None = None,
+    window_deg: float = 20.0,
+) -> list[Path]:
+    """Write the figures of one evaluated run into ``out_dir`` (which must exist).
+
+    ``table`` is a ``evaluate.table1`` result. With the global map
+    ``segments_world`` (M, 4) and the run's ``items`` (``surveyed_scans``)
+    all of ``EVALUATION_FIGURES`` are drawn, the accumulator and the
+    coarse-to-fine tracks for ``pose_id`` (default: the first item);
+    otherwise only ``errors``. Returns the paths written, PNG before PDF.
+    """
+    written = []
+    if segments_world is not None and items:
+        segments_world = np.asarray(segments_world, dtype=float)
+        chosen = [i for i in items if pose_id is None or i.pose_id == pose_id]
+        if not chosen:
+            raise ValueError(f"pose {pose_id} is not among the surveyed scans")
+        item = chosen[0]
+        for name, fig in (
+            (OVERLAY, draw_overlay(segments_world, overlay_panels(items, table))),
+            (
+                HEADING_BY_VOTE,
+                draw_heading_by_vote(
+                    heading_errors_by_vote(segments_world, items, window_deg), window_deg
+                ),
+            ),
+            (ACCUMULATOR, _accumulator_figure(segments_world, item, window_deg)),
+            (COARSE_TO_FINE, _coarse_to_fine_figure(segments_world, item)),
+        ):
+            written += save_figure(fig, out_dir, name)
+    written += save_figure(draw_errors(final_errors(table)), out_dir, ERRORS)
+    return written
+
+
+def _accumulator_figure(
+    segments_world: np.ndarray, item: SurveyedScan, window_deg: float
+) -> Figure:
+    curves = [
+        accumulator_curves(segments_world, item, window_deg),
+        accumulator_curves(segments_world, item, None),
+    ]
+    titles = [
+        f"pose {item.pose_id}: ±{window_deg:g}° around the initial heading",
+        f"pose {item.pose_id}: whole circle",
+    ]
+    return draw_accumulator(curves, titles)
+
+
+def _coarse_to_fine_figure(segments_world: np.ndarray, item: SurveyedScan) -> Figure:
+    tracks = coarse_to_fine_tracks(segments_world, item.segments_robot, ring_guesses(item.truth))
+    fig = draw_coarse_to_fine(segments_world, tracks, item.truth)
+    fig.suptitle(f"Stage 2 from {tracks['guess'].nunique()} guesses around pose {item.pose_id}")
+    return fig
