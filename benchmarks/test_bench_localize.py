@@ -5,8 +5,11 @@ Scenarios:
   19–31 segments with K = 6. A generated room is used whose segment count is
   within 48–56 (chosen by size only), and scans whose local maps have 19–31
   segments; the paper's schedule (K = 6, no re-centring) and the defaults.
-- large map: about 1,000 segments, a grid of generated rooms side by side,
-  localizing in one of them with the default settings.
+- large maps: about 1,000 and 5,000 segments, a grid of generated rooms side
+  by side, localizing in one of them with the default settings.
+- throughput: a batch of scans of the hall localized with the defaults
+  (refinement included) on one process and on two (`--jobs 2`); the ratio
+  of the two is printed.
 - refinement: the defaults followed by the least-squares fit of the scan's
   points (the two stages alone are what the other scenarios time).
 
@@ -18,14 +21,16 @@ The accuracy of the poses timed is printed too, misses included.
 from __future__ import annotations
 
 import itertools
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from segloc_cli.extract import extract_segments
 from segloc_cli.geometry import Pose2, wrap_angle
-from segloc_cli.io.maps import World
+from segloc_cli.io.maps import World, read_map, read_world
 from segloc_cli.localize import LocalizeParams, Localizer
+from segloc_cli.parallel import localize_scans_parallel
 from segloc_cli.sim import (
     SensorModel,
     random_free_poses,
@@ -34,6 +39,7 @@ from segloc_cli.sim import (
     uniform_initial_errors,
 )
 
+HALL = Path(__file__).resolve().parents[1] / "datasets" / "hall"
 PAPER_MAP_SEGMENTS = (48, 56)
 PAPER_LOCAL_SEGMENTS = (19, 31)
 POSES = 40
@@ -133,11 +139,50 @@ def test_localize_paper_scale_defaults_refined(benchmark, paper_world, paper_cas
     _run(benchmark, localizer, paper_cases, "paper scale, defaults + refinement", refine=True)
 
 
-def test_localize_1000_segment_map(benchmark):
-    world = _large_world()
+@pytest.mark.parametrize("segments", [1000, 5000])
+def test_localize_large_map(benchmark, segments):
+    world = _large_world(segments)
     first_room = random_world(np.random.default_rng(500))
     cases = _cases(world, POSES, seed=2, region=first_room)
-    _run(benchmark, Localizer(world.segments), cases, "1000-segment map, defaults")
+    _run(benchmark, Localizer(world.segments), cases, f"{segments}-segment map, defaults")
+
+
+BATCH_SCANS = 48
+_batch_seconds: dict[int, float] = {}
+
+
+@pytest.fixture(scope="module")
+def hall_batch():
+    """Scans of the hall at random free poses, each with a ±1.5 m / ±20° guess."""
+    world = read_world(HALL / "world.json")
+    rng = np.random.default_rng(4)
+    scans, guesses = [], []
+    for k, pose in enumerate(random_free_poses(world, BATCH_SCANS, rng)):
+        truth = Pose2(*pose)
+        scans.append(simulate_scan(world, truth, SensorModel(), rng, float(k)))
+        err = uniform_initial_errors(1, 1.5, 20.0, rng)[0]
+        guesses.append(Pose2(truth.x - err[0], truth.y - err[1], truth.theta - err[2]))
+    return scans, guesses, read_map(HALL / "map.json")
+
+
+@pytest.mark.parametrize("jobs", [1, 2])
+def test_throughput_jobs(benchmark, hall_batch, jobs):
+    """Wall time of a batch; the second run prints the speed-up of two processes over one."""
+    scans, guesses, segments = hall_batch
+    ids = list(range(len(scans)))
+    localizer = Localizer(segments)
+
+    def batch():
+        return list(localize_scans_parallel(scans, guesses, ids, localizer, jobs))
+
+    benchmark.pedantic(batch, rounds=3, warmup_rounds=1)
+    _batch_seconds[jobs] = benchmark.stats.stats.median
+    print(
+        f"\nbatch of {len(scans)} hall scans, defaults, --jobs {jobs}: "
+        f"{len(scans) / _batch_seconds[jobs]:.1f} scans/s"
+    )
+    if jobs == 2 and 1 in _batch_seconds:
+        print(f"--jobs 2 throughput: {_batch_seconds[1] / _batch_seconds[2]:.2f}x --jobs 1")
 
 
 def test_extract_segments_1024_readings(benchmark, paper_world):

@@ -59,8 +59,9 @@ class RTable:
         bin_width_rad = np.deg2rad(bin_width_deg)
         bins = orientation_bins(segment_orientations(segments_world), bin_width_rad, n_bins)
         lengths = np.round(segment_lengths(segments_world), 3)
-        table = tuple(np.sort(lengths[bins == b]) for b in range(n_bins))
-        return cls(bin_width_rad=bin_width_rad, lengths_m=table)
+        order = np.lexsort((lengths, bins))  # by bin, then by length
+        ends = np.cumsum(np.bincount(bins, minlength=n_bins))[:-1]
+        return cls(bin_width_rad=bin_width_rad, lengths_m=tuple(np.split(lengths[order], ends)))
 
     def closest_lengths(self, local_len_m: np.ndarray) -> np.ndarray:
         """(n_bins, N): per bin, the global length closest to each local one (NaN: empty bin).

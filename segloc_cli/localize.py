@@ -17,11 +17,12 @@ from segloc_cli.confidence import (
     judge,
 )
 from segloc_cli.extract import ExtractParams, extract_segments
-from segloc_cli.geometry import Pose2, point_segment_distances, wrap_angle
+from segloc_cli.geometry import Pose2, wrap_angle
 from segloc_cli.overlap import coarse_to_fine
 from segloc_cli.refine import Refinement, RefineParams, inlier_ratio, refine_pose
 from segloc_cli.scan import Scan
 from segloc_cli.search import HypothesisSearch, SearchParams, distinct
+from segloc_cli.spatial import SegmentGrid
 
 STATUS_TOO_FEW_SEGMENTS = "too_few_segments"
 STATUS_NO_OVERLAP = "no_overlap"
@@ -79,6 +80,9 @@ class Estimate:
     runner_up_ratio: float = float("nan")
 
 
+INDEX_MIN_SEGMENTS = 400
+"""Stage 2 looks segments up in the map's grid above this many; below, checking all is cheaper."""
+
 NAN_POSE = Pose2(float("nan"), float("nan"), float("nan"))
 NO_SEGMENTS = np.zeros((0, 4))
 
@@ -104,6 +108,7 @@ class Localizer:
         self.params = params or LocalizeParams()
         self.segments_world = np.asarray(segments_world, dtype=float)
         self.rtable = RTable.build(self.segments_world, self.params.bin_deg)
+        self.index = SegmentGrid(self.segments_world)
         self._search: HypothesisSearch | None = None
 
     def with_params(self, params: LocalizeParams) -> Localizer:
@@ -115,6 +120,7 @@ class Localizer:
         other = object.__new__(Localizer)
         other.params = params
         other.segments_world = self.segments_world
+        other.index = self.index
         same_bins = params.bin_deg == self.params.bin_deg
         other.rtable = (
             self.rtable if same_bins else RTable.build(self.segments_world, params.bin_deg)
@@ -142,8 +148,8 @@ class Localizer:
         """
         radius = float(np.hypot(segments_robot[:, 0::2], segments_robot[:, 1::2]).max())
         reach = radius + 2.0 * np.sqrt(2.0) * self.params.grid_m
-        near = point_segment_distances([initial.x, initial.y], self.segments_world)[0] <= reach
-        if near.all():
+        near = self.index.near([initial.x, initial.y], reach)
+        if near.size == self.segments_world.shape[0]:
             return self.rtable
         return RTable.build(self.segments_world[near], self.params.bin_deg)
 
@@ -234,6 +240,7 @@ class Localizer:
                 iterations=p.iterations,
                 ratio=p.ratio,
                 recentres=p.recentres,
+                index=self.index if len(self.segments_world) > INDEX_MIN_SEGMENTS else None,
             )
             if best is None or result.overlap_m > best[1].overlap_m:
                 best = (float(heading), result)

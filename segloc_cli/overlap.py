@@ -33,6 +33,7 @@ import numpy as np
 from numba import njit
 
 from segloc_cli.geometry import Pose2, circular_mean, transform_segments, wrap_angle
+from segloc_cli.spatial import SegmentGrid
 
 
 def band_halfwidth(grid_m: float) -> float:
@@ -328,6 +329,7 @@ def coarse_to_fine(
     iterations: int = 6,
     ratio: float = 0.9,
     recentres: int = 0,
+    index: SegmentGrid | None = None,
 ) -> OverlapResult:
     """Refine ``start`` by the paper's coarse-to-fine overlap search.
 
@@ -340,21 +342,39 @@ def coarse_to_fine(
     estimate moved by more than half a grid step (or half a heading step): the
     search repeats at that scale instead of halving. With 0 the schedule is
     exactly the paper's.
+
+    ``index``, a ``SegmentGrid`` of ``segments_world``, spares large maps: each
+    iteration only considers the segments filed near the estimate, a superset
+    of those the pre-filter keeps, so the result is the same as without it.
     """
+    segments_world = np.asarray(segments_world, dtype=float)
+    radius = float(np.hypot(segments_robot[:, 0::2], segments_robot[:, 1::2]).max(initial=0.0))
+    sin_min = float(np.sin(np.deg2rad(MIN_INCIDENCE_DEG)))
+
+    def pairs_near(centre: Pose2, spread_m: float, spread_rad: float, band: float):
+        if index is None:
+            return candidate_pairs(
+                segments_world, segments_robot, centre, spread_m, spread_rad, band
+            )
+        # The pre-filter's range test: no local point gets farther from the centre than this.
+        reach = radius * (1.0 + spread_rad) + spread_m + band / sin_min + 1e-6
+        ids = index.candidates([centre.x, centre.y], reach)
+        pair_g, pair_l = candidate_pairs(
+            segments_world[ids], segments_robot, centre, spread_m, spread_rad, band
+        )
+        return ids[pair_g], pair_l
+
     estimate = start
     eta = float(grid_m)
     dtheta = float(np.deg2rad(dtheta_deg))
     track = [estimate.as_array()]
     best_overlaps = []
-    segments_world = np.asarray(segments_world, dtype=float)
     repeats_left = recentres
     halvings = 0
     while halvings < iterations:
         band = band_halfwidth(eta)
         candidates = candidate_poses(estimate, eta, dtheta)
-        pairs = candidate_pairs(
-            segments_world, segments_robot, estimate, np.sqrt(2.0) * eta, dtheta, band
-        )
+        pairs = pairs_near(estimate, np.sqrt(2.0) * eta, dtheta, band)
         overlaps = overlap_at_poses(segments_world, segments_robot, candidates, band, pairs)
         best = float(overlaps.max())
         best_overlaps.append(best)
@@ -377,7 +397,10 @@ def coarse_to_fine(
         dtheta /= 2.0
         halvings += 1
     final_band = band_halfwidth(2.0 * eta)
+    final_pairs = pairs_near(estimate, 0.0, 0.0, final_band)
     final = float(
-        overlap_at_poses(segments_world, segments_robot, estimate.as_array(), final_band)[0]
+        overlap_at_poses(
+            segments_world, segments_robot, estimate.as_array(), final_band, final_pairs
+        )[0]
     )
     return OverlapResult(estimate, final, np.array(track), np.array(best_overlaps))

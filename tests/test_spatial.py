@@ -1,0 +1,71 @@
+"""The segment grid finds exactly the segments a brute-force distance test finds, and stage 2
+gives the same answer with it as without it."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from segloc_cli.extract import extract_segments
+from segloc_cli.geometry import Pose2, point_segment_distances
+from segloc_cli.io.maps import World
+from segloc_cli.localize import Localizer
+from segloc_cli.overlap import coarse_to_fine
+from segloc_cli.sim import SensorModel, random_free_poses, random_world, simulate_scan
+from segloc_cli.spatial import SegmentGrid
+
+coordinate = st.floats(-60.0, 60.0, allow_nan=False)
+
+
+@settings(deadline=None, max_examples=200)
+@given(
+    ends=st.lists(st.tuples(coordinate, coordinate, coordinate, coordinate), max_size=60),
+    point=st.tuples(coordinate, coordinate),
+    radius=st.floats(0.0, 50.0),
+    cell=st.sampled_from([0.25, 1.0, 4.0, 30.0]),
+)
+def test_near_matches_brute_force(ends, point, radius, cell):
+    segments = np.array(ends, dtype=float).reshape(-1, 4)
+    grid = SegmentGrid(segments, cell_m=cell)
+    expected = (
+        np.flatnonzero(point_segment_distances(point, segments)[0] <= radius)
+        if segments.shape[0]
+        else np.zeros(0, dtype=np.int64)
+    )
+    np.testing.assert_array_equal(grid.near(point, radius), expected)
+
+
+def test_long_wall_is_found_from_its_middle():
+    """A segment spanning many cells is filed in each, not only at its ends."""
+    grid = SegmentGrid(np.array([[0.0, 0.0, 100.0, 0.0], [0.0, 50.0, 1.0, 50.0]]), cell_m=2.0)
+    np.testing.assert_array_equal(grid.near([50.0, 1.0], 1.5), [0])
+    np.testing.assert_array_equal(grid.candidates([50.0, 30.0], 1.0), np.zeros(0))
+    np.testing.assert_array_equal(grid.near([500.0, 500.0], 10.0), np.zeros(0))
+
+
+def test_cell_size_must_be_positive():
+    with pytest.raises(ValueError, match="cell_m"):
+        SegmentGrid(np.zeros((1, 4)), cell_m=0.0)
+
+
+def test_stage2_with_the_index_equals_stage2_without():
+    """On nine generated rooms side by side, indexed stage 2 repeats the unindexed one exactly."""
+    rooms = [random_world(np.random.default_rng(700 + k)) for k in range(9)]
+    segments = np.concatenate(
+        [room.segments + [25.0 * (k % 3), 20.0 * (k // 3)] * 2 for k, room in enumerate(rooms)]
+    )
+    block = World(segments, np.full(segments.shape[0], "wall"), "rooms")
+    grid = Localizer(segments).index
+    rng = np.random.default_rng(9)
+    for x, y, theta in random_free_poses(rooms[4], 6, rng):
+        truth = Pose2(x + 25.0, y + 20.0, theta)  # in the middle room
+        local = extract_segments(simulate_scan(block, truth, SensorModel(), rng, 0.0))
+        guess = Pose2(truth.x + 0.8, truth.y - 0.6, truth.theta + 0.1)
+        plain = coarse_to_fine(segments, local, guess, iterations=8, recentres=8)
+        indexed = coarse_to_fine(segments, local, guess, iterations=8, recentres=8, index=grid)
+        assert indexed.pose == plain.pose
+        assert indexed.overlap_m == plain.overlap_m
+        np.testing.assert_array_equal(indexed.track, plain.track)
+        assert np.hypot(plain.pose.x - truth.x, plain.pose.y - truth.y) < 0.05
