@@ -28,7 +28,16 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-from real_logs import DATASETS, SUCCESS_DEG, SUCCESS_M, _errors, _subset, prepare, run
+from real_logs import (
+    DATASETS,
+    SUCCESS_DEG,
+    SUCCESS_M,
+    _errors,
+    _subset,
+    commands_section,
+    prepare,
+    run,
+)
 
 from segloc_cli.io.tables import PoseTable, read_estimates, read_pose_table, write_pose_table
 
@@ -165,10 +174,7 @@ def report(trials: pd.DataFrame, commands: dict, jobs: int) -> str:
     ]
     for name, group in trials.groupby("dataset", sort=False):
         lines += [f"## {name}", "", dataset_table(group), ""]
-    lines += ["## Commands", ""]
-    for name, cmds in commands.items():
-        lines += [f"### {name}", "", "```sh", *cmds, "```", ""]
-    return "\n".join(lines) + "\n"
+    return "\n".join([*lines, *commands_section(commands)]) + "\n"
 
 
 def main() -> None:

@@ -647,10 +647,16 @@ def report(results: dict, commands: dict) -> str:
             f"{ours['rot_mean_deg']:.2f} | {_pct(ours['rot_over_1deg'])} | "
             f"{ours['trans_mean_m']:.3f} |"
         )
-    lines += ["", "## Commands", ""]
+    lines += ["", *commands_section(commands)]
+    return "\n".join(lines) + "\n"
+
+
+def commands_section(commands: dict[str, list[str]]) -> list[str]:
+    """Markdown lines: every command run, per dataset."""
+    lines = ["## Commands", ""]
     for name, cmds in commands.items():
         lines += [f"### {name}", "", "```sh", *cmds, "```", ""]
-    return "\n".join(lines) + "\n"
+    return lines
 
 
 def main() -> None:

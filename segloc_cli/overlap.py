@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from segloc_cli.geometry import Pose2, circular_mean, transform_segments, wrap_angle
+from segloc_cli.geometry import Pose2, transform_segments, wrap_angle
 from segloc_cli.spatial import SegmentGrid
 
 
@@ -320,6 +320,97 @@ class OverlapResult:
     best_overlaps_m: np.ndarray
 
 
+@njit(cache=True)
+def _into_frame(segments, x, y, theta):
+    """Segments (M, 4) expressed in the frame of pose (x, y, theta)."""
+    c, s = np.cos(theta), np.sin(theta)
+    out = np.empty_like(segments)
+    for i in range(segments.shape[0]):
+        for e in (0, 2):
+            dx, dy = segments[i, e] - x, segments[i, e + 1] - y
+            out[i, e] = c * dx + s * dy
+            out[i, e + 1] = c * dy - s * dx
+    return out
+
+
+@njit(cache=True)
+def _out_of_frame(segments, x, y, theta):
+    """Segments (N, 4) in the frame of pose (x, y, theta), expressed in the outer frame."""
+    c, s = np.cos(theta), np.sin(theta)
+    out = np.empty_like(segments)
+    for i in range(segments.shape[0]):
+        for e in (0, 2):
+            px, py = segments[i, e], segments[i, e + 1]
+            out[i, e] = x + c * px - s * py
+            out[i, e + 1] = y + s * px + c * py
+    return out
+
+
+@njit(cache=True)
+def _search_kernel(g, loc, x, y, theta, eta, dtheta, iterations, ratio, recentres, sin_min):
+    """The loop of ``coarse_to_fine``: (track (T, 3), best overlaps (T − 1,), final overlap)."""
+    track = np.empty((iterations + recentres + 1, 3))
+    best_overlaps = np.empty(iterations + recentres)
+    track[0] = x, y, theta
+    steps, halvings, repeats_left = 0, 0, recentres
+    candidates = np.empty((27, 3))
+    while halvings < iterations:
+        band = np.sqrt(2.0) * eta / 2.0
+        k = 0
+        for i in (-1.0, 0.0, 1.0):
+            for j in (-1.0, 0.0, 1.0):
+                for h in (-1.0, 0.0, 1.0):
+                    candidates[k, 0] = x + i * eta
+                    candidates[k, 1] = y + j * eta
+                    candidates[k, 2] = _wrap(theta + h * dtheta)
+                    k += 1
+        pair_g, pair_l = _pairs_kernel(
+            g,
+            _into_frame(g, x, y, theta),
+            loc,
+            _out_of_frame(loc, x, y, theta),
+            np.sqrt(2.0) * eta,
+            dtheta,
+            band,
+            sin_min,
+        )
+        overlaps = _overlaps_kernel(g, loc, candidates, pair_g, pair_l, band, sin_min * sin_min)
+        best = overlaps.max()
+        best_overlaps[steps] = best
+        if best > 0.0:
+            sw = sx = sy = ss = sc = 0.0
+            for k in range(27):
+                w = overlaps[k]
+                if w >= ratio * best:
+                    sw += w
+                    sx += w * candidates[k, 0]
+                    sy += w * candidates[k, 1]
+                    ss += w * np.sin(candidates[k, 2])
+                    sc += w * np.cos(candidates[k, 2])
+            x, y, theta = sx / sw, sy / sw, _wrap(np.arctan2(ss, sc))
+        steps += 1
+        track[steps] = x, y, theta
+        moved_m = np.hypot(x - track[steps - 1, 0], y - track[steps - 1, 1])
+        turned = abs(_wrap(theta - track[steps - 1, 2]))
+        if repeats_left > 0 and best > 0.0 and (moved_m > eta / 2.0 or turned > dtheta / 2.0):
+            # The estimate left the central cell: search again at this scale
+            # before refining, or the halved grid may no longer reach the pose.
+            repeats_left -= 1
+            continue
+        eta /= 2.0
+        dtheta /= 2.0
+        halvings += 1
+    final_band = np.sqrt(2.0) * eta  # the last iteration's: band_halfwidth(2·η)
+    pair_g, pair_l = _pairs_kernel(
+        g, _into_frame(g, x, y, theta), loc, _out_of_frame(loc, x, y, theta), 0.0, 0.0,
+        final_band, sin_min,
+    )  # fmt: skip
+    final = _overlaps_kernel(
+        g, loc, track[steps : steps + 1], pair_g, pair_l, final_band, sin_min * sin_min
+    )[0]
+    return track[: steps + 1].copy(), best_overlaps[:steps].copy(), final
+
+
 def coarse_to_fine(
     segments_world: np.ndarray,
     segments_robot: np.ndarray,
@@ -336,71 +427,33 @@ def coarse_to_fine(
     Each iteration scores 27 candidates around the current estimate, moves to
     the overlap-weighted mean of those scoring at least ``ratio`` × the best
     (headings averaged on the circle) and halves the grid and the heading
-    step; ``iterations`` halvings in all (the paper's K).
+    step; ``iterations`` halvings in all (the paper's K). Each iteration's
+    candidates are scored over the (global, local) pairs that
+    ``candidate_pairs`` keeps, and the loop runs compiled.
 
     ``recentres`` > 0 allows up to that many extra iterations, spent where the
     estimate moved by more than half a grid step (or half a heading step): the
     search repeats at that scale instead of halving. With 0 the schedule is
     exactly the paper's.
 
-    ``index``, a ``SegmentGrid`` of ``segments_world``, spares large maps: each
-    iteration only considers the segments filed near the estimate, a superset
-    of those the pre-filter keeps, so the result is the same as without it.
+    ``index``, a ``SegmentGrid`` of ``segments_world``, spares large maps: only
+    the segments filed within reach of the whole search take part. The reach
+    bounds how far the estimate can travel (√2·η per iteration) plus how far
+    a pairing global segment can be from it, so the result is the same as
+    without the index.
     """
-    segments_world = np.asarray(segments_world, dtype=float)
-    radius = float(np.hypot(segments_robot[:, 0::2], segments_robot[:, 1::2]).max(initial=0.0))
+    g = np.ascontiguousarray(np.asarray(segments_world, dtype=float).reshape(-1, 4))
+    loc = np.ascontiguousarray(np.asarray(segments_robot, dtype=float).reshape(-1, 4))
     sin_min = float(np.sin(np.deg2rad(MIN_INCIDENCE_DEG)))
-
-    def pairs_near(centre: Pose2, spread_m: float, spread_rad: float, band: float):
-        if index is None:
-            return candidate_pairs(
-                segments_world, segments_robot, centre, spread_m, spread_rad, band
-            )
-        # The pre-filter's range test: no local point gets farther from the centre than this.
-        reach = radius * (1.0 + spread_rad) + spread_m + band / sin_min + 1e-6
-        ids = index.candidates([centre.x, centre.y], reach)
-        pair_g, pair_l = candidate_pairs(
-            segments_world[ids], segments_robot, centre, spread_m, spread_rad, band
-        )
-        return ids[pair_g], pair_l
-
-    estimate = start
-    eta = float(grid_m)
     dtheta = float(np.deg2rad(dtheta_deg))
-    track = [estimate.as_array()]
-    best_overlaps = []
-    repeats_left = recentres
-    halvings = 0
-    while halvings < iterations:
-        band = band_halfwidth(eta)
-        candidates = candidate_poses(estimate, eta, dtheta)
-        pairs = pairs_near(estimate, np.sqrt(2.0) * eta, dtheta, band)
-        overlaps = overlap_at_poses(segments_world, segments_robot, candidates, band, pairs)
-        best = float(overlaps.max())
-        best_overlaps.append(best)
-        if best > 0:
-            keep = overlaps >= ratio * best
-            w = overlaps[keep]
-            x, y = (w @ candidates[keep, :2]) / w.sum()
-            estimate = Pose2(float(x), float(y), circular_mean(candidates[keep, 2], w))
-        track.append(estimate.as_array())
-        moved = track[-1] - track[-2]
-        still_moving = (
-            np.hypot(moved[0], moved[1]) > eta / 2 or abs(wrap_angle(moved[2])) > dtheta / 2
-        )
-        if repeats_left > 0 and best > 0 and still_moving:
-            # The estimate left the central cell: search again at this scale
-            # before refining, or the halved grid may no longer reach the pose.
-            repeats_left -= 1
-            continue
-        eta /= 2.0
-        dtheta /= 2.0
-        halvings += 1
-    final_band = band_halfwidth(2.0 * eta)
-    final_pairs = pairs_near(estimate, 0.0, 0.0, final_band)
-    final = float(
-        overlap_at_poses(
-            segments_world, segments_robot, estimate.as_array(), final_band, final_pairs
-        )[0]
-    )
-    return OverlapResult(estimate, final, np.array(track), np.array(best_overlaps))
+    if index is not None:
+        radius = float(np.hypot(loc[:, 0::2], loc[:, 1::2]).max(initial=0.0))
+        travel = np.sqrt(2.0) * grid_m * (2.0 + recentres)
+        turn = dtheta * (2.0 + recentres)
+        reach = radius * (1.0 + turn) + travel + band_halfwidth(grid_m) / sin_min + 1e-6
+        g = np.ascontiguousarray(g[index.candidates([start.x, start.y], reach)])
+    track, best_overlaps, final = _search_kernel(
+        g, loc, start.x, start.y, start.theta, float(grid_m), dtheta, int(iterations),
+        float(ratio), int(recentres), sin_min,
+    )  # fmt: skip
+    return OverlapResult(Pose2(*track[-1]), float(final), track, best_overlaps)

@@ -2,17 +2,16 @@
 
 from __future__ import annotations
 
-import os
 import re
-import subprocess
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import pytest
-from conftest import HALL, SEGLOC
+from conftest import HALL
 from matplotlib.image import imread
+from test_cli import run_script
 
 from segloc_cli.align import VOTE_SCHEMES
 from segloc_cli.evaluate import table1
@@ -50,27 +49,13 @@ class HallRun:
     items: list[SurveyedScan]
 
 
-def segloc(*args: object, cwd: Path) -> subprocess.CompletedProcess:
-    env = {**os.environ, "PYTHONIOENCODING": "utf-8"}
-    return subprocess.run(
-        [str(SEGLOC), *(str(a) for a in args)],
-        cwd=cwd,
-        env=env,
-        capture_output=True,
-        text=True,
-        encoding="utf-8",
-        timeout=120,
-        check=False,
-    )
-
-
 @pytest.fixture(scope="module")
 def hall(tmp_path_factory) -> HallRun:
     """The hall localized against its shipped map by ``segloc localize`` with the defaults."""
     root = tmp_path_factory.mktemp("plots")
     estimates_csv = root / "estimates.csv"
-    result = segloc("localize", LOG, "--map", MAP, "--out", estimates_csv, cwd=root)
-    assert result.returncode == 0, result.stderr
+    result = run_script("localize", LOG, "--map", MAP, "--out", estimates_csv, cwd=root)
+    assert result.code == 0, result.err
     estimates = read_estimates(estimates_csv)
     survey = read_pose_table(SURVEY)
     items = surveyed_scans(estimates, survey, read_log(LOG).scans)
@@ -199,15 +184,15 @@ def figure_files(names) -> set[str]:
 
 def test_evaluate_plots_writes_every_figure(hall, tmp_path):
     plots = tmp_path / "figures" / "hall"
-    result = segloc(
+    result = run_script(
         "evaluate", hall.estimates_csv, "--survey", SURVEY,
         "--plots", plots, "--map", MAP, "--log", LOG,
         cwd=tmp_path,
     )  # fmt: skip
-    assert result.returncode == 0, result.stderr
-    assert len(re.findall(r"^\|\s*\d+\s*\|", result.stdout, re.M)) == 10, result.stdout
+    assert result.code == 0, result.err
+    assert len(re.findall(r"^\|\s*\d+\s*\|", result.out, re.M)) == 10, result.out
     assert {p.name for p in plots.iterdir()} == figure_files(EVALUATION_FIGURES)
-    wrote = [ln for ln in result.stderr.splitlines() if ln.startswith("wrote ")]
+    wrote = [ln for ln in result.err.splitlines() if ln.startswith("wrote ")]
     assert sorted(Path(ln.removeprefix("wrote ")).name for ln in wrote) == sorted(
         figure_files(EVALUATION_FIGURES)
     )
@@ -220,13 +205,13 @@ def test_evaluate_plots_writes_every_figure(hall, tmp_path):
 
 def test_evaluate_plots_without_map_and_log_draws_the_errors_only(hall, tmp_path):
     plots = tmp_path / "plots"
-    result = segloc(
+    result = run_script(
         "evaluate", hall.estimates_csv, "--survey", SURVEY, "--plots", plots, cwd=tmp_path
     )
-    assert result.returncode == 0, result.stderr
+    assert result.code == 0, result.err
     assert {p.name for p in plots.iterdir()} == figure_files([ERRORS])
-    skipped = [ln for ln in result.stderr.splitlines() if ln.startswith("skipped")]
-    assert len(skipped) == 1, result.stderr
+    skipped = [ln for ln in result.err.splitlines() if ln.startswith("skipped")]
+    assert len(skipped) == 1, result.err
     for fragment in (*MAP_FIGURES, "--map", "--log"):
         assert fragment in skipped[0]
 
@@ -234,12 +219,12 @@ def test_evaluate_plots_without_map_and_log_draws_the_errors_only(hall, tmp_path
 def test_evaluate_plots_goes_with_survey(hall, tmp_path):
     relations = tmp_path / "rel.txt"
     relations.write_text("1 2 0 0 0 0 0 0\n", encoding="utf-8")
-    result = segloc(
+    result = run_script(
         "evaluate", hall.estimates_csv, "--relations", relations, "--plots", tmp_path / "p",
         cwd=tmp_path,
     )  # fmt: skip
-    assert result.returncode == 2
-    lines = result.stderr.splitlines()
+    assert result.code == 2
+    lines = result.err.splitlines()
     assert len(lines) == 1 and lines[0].startswith("segloc: error:") and "--plots" in lines[0]
     assert not (tmp_path / "p").exists()
 
@@ -247,12 +232,12 @@ def test_evaluate_plots_goes_with_survey(hall, tmp_path):
 def test_evaluate_plots_with_a_missing_log_fails_before_writing(hall, tmp_path):
     plots = tmp_path / "plots"
     missing = tmp_path / "nope.mcap"
-    result = segloc(
+    result = run_script(
         "evaluate", hall.estimates_csv, "--survey", SURVEY,
         "--plots", plots, "--map", MAP, "--log", missing,
         cwd=tmp_path,
     )  # fmt: skip
-    assert result.returncode == 2
-    lines = result.stderr.splitlines()
+    assert result.code == 2
+    lines = result.err.splitlines()
     assert len(lines) == 1 and lines[0].startswith("segloc: error:") and "nope.mcap" in lines[0]
-    assert result.stdout == "" and not plots.exists()
+    assert result.out == "" and not plots.exists()
