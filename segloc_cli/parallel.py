@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import multiprocessing
 import signal
+import weakref
 from collections.abc import Iterator, Sequence
 
 from segloc_cli.extract import ExtractParams
@@ -41,14 +42,19 @@ def _localize_block(bounds: tuple[int, int]) -> list[dict]:
     return list(rows)
 
 
+_warmed: weakref.WeakSet = weakref.WeakSet()
+"""Localizers already run once in this process (their kernels compiled, their parts built)."""
+
+
 def _warm_up(localizer: ScanMatcher, scans: Sequence[Scan], guesses, extract_params) -> None:
     """Build the localizer's lazy parts in the parent, so that forked workers share them."""
     if isinstance(localizer, Localizer) and localizer.params.refine is not None:
         if localizer.params.search is not None or guesses is None:
             localizer.hypothesis_search  # noqa: B018 (built on first access)
-    if scans:
+    if scans and localizer not in _warmed:
         first = None if guesses is None else guesses[:1]
         list(localize_scans(scans[:1], first, [0], localizer, extract_params))
+        _warmed.add(localizer)
 
 
 def localize_scans_parallel(
