@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from segloc_cli.geometry import Pose2, transform_segments, wrap_angle
+from segloc_cli.geometry import Pose2
 from segloc_cli.spatial import SegmentGrid
 
 
@@ -279,29 +279,31 @@ def candidate_pairs(
     """
     g = np.ascontiguousarray(np.asarray(segments_world, dtype=float).reshape(-1, 4))
     loc = np.ascontiguousarray(np.asarray(segments_robot, dtype=float).reshape(-1, 4))
-    return _pairs_kernel(
-        g,
-        np.ascontiguousarray(transform_segments(g, centre.inverse())),
-        loc,
-        np.ascontiguousarray(transform_segments(loc, centre)),
-        float(spread_m),
-        float(spread_rad),
-        float(band_m),
-        float(np.sin(np.deg2rad(min_incidence_deg))),
+    sin_min = float(np.sin(np.deg2rad(min_incidence_deg)))
+    x, y, theta = (float(v) for v in centre.as_array())
+    return _pairs_at(
+        g, loc, x, y, theta, float(spread_m), float(spread_rad), float(band_m), sin_min
     )
 
 
-# Unit offsets of the 27 candidates: 3×3 positions × 3 headings.
-_UNIT_OFFSETS = np.array(
-    [(i, j, k) for i in (-1.0, 0.0, 1.0) for j in (-1.0, 0.0, 1.0) for k in (-1.0, 0.0, 1.0)]
-)
+@njit(cache=True)
+def _candidates(x, y, theta, eta, dtheta):
+    out = np.empty((27, 3))
+    k = 0
+    for i in (-1.0, 0.0, 1.0):
+        for j in (-1.0, 0.0, 1.0):
+            for h in (-1.0, 0.0, 1.0):
+                out[k, 0] = x + i * eta
+                out[k, 1] = y + j * eta
+                out[k, 2] = _wrap(theta + h * dtheta)
+                k += 1
+    return out
 
 
 def candidate_poses(centre: Pose2, grid_m: float, dtheta_rad: float) -> np.ndarray:
     """The 27 candidates (27, 3) of one iteration: a 3×3 grid of spacing ``grid_m`` × 3 headings."""
-    poses = centre.as_array() + _UNIT_OFFSETS * np.array([grid_m, grid_m, dtheta_rad])
-    poses[:, 2] = wrap_angle(poses[:, 2])
-    return poses
+    x, y, theta = (float(v) for v in centre.as_array())
+    return _candidates(x, y, theta, float(grid_m), float(dtheta_rad))
 
 
 @dataclass(frozen=True)
@@ -347,33 +349,24 @@ def _out_of_frame(segments, x, y, theta):
 
 
 @njit(cache=True)
+def _pairs_at(g, loc, x, y, theta, spread_m, spread_rad, band_m, sin_min):
+    """``candidate_pairs`` around the pose (x, y, theta)."""
+    g_robot = _into_frame(g, x, y, theta)
+    local_world = _out_of_frame(loc, x, y, theta)
+    return _pairs_kernel(g, g_robot, loc, local_world, spread_m, spread_rad, band_m, sin_min)
+
+
+@njit(cache=True)
 def _search_kernel(g, loc, x, y, theta, eta, dtheta, iterations, ratio, recentres, sin_min):
     """The loop of ``coarse_to_fine``: (track (T, 3), best overlaps (T − 1,), final overlap)."""
     track = np.empty((iterations + recentres + 1, 3))
     best_overlaps = np.empty(iterations + recentres)
     track[0] = x, y, theta
     steps, halvings, repeats_left = 0, 0, recentres
-    candidates = np.empty((27, 3))
     while halvings < iterations:
         band = np.sqrt(2.0) * eta / 2.0
-        k = 0
-        for i in (-1.0, 0.0, 1.0):
-            for j in (-1.0, 0.0, 1.0):
-                for h in (-1.0, 0.0, 1.0):
-                    candidates[k, 0] = x + i * eta
-                    candidates[k, 1] = y + j * eta
-                    candidates[k, 2] = _wrap(theta + h * dtheta)
-                    k += 1
-        pair_g, pair_l = _pairs_kernel(
-            g,
-            _into_frame(g, x, y, theta),
-            loc,
-            _out_of_frame(loc, x, y, theta),
-            np.sqrt(2.0) * eta,
-            dtheta,
-            band,
-            sin_min,
-        )
+        candidates = _candidates(x, y, theta, eta, dtheta)
+        pair_g, pair_l = _pairs_at(g, loc, x, y, theta, np.sqrt(2.0) * eta, dtheta, band, sin_min)
         overlaps = _overlaps_kernel(g, loc, candidates, pair_g, pair_l, band, sin_min * sin_min)
         best = overlaps.max()
         best_overlaps[steps] = best
@@ -401,10 +394,7 @@ def _search_kernel(g, loc, x, y, theta, eta, dtheta, iterations, ratio, recentre
         dtheta /= 2.0
         halvings += 1
     final_band = np.sqrt(2.0) * eta  # the last iteration's: band_halfwidth(2·η)
-    pair_g, pair_l = _pairs_kernel(
-        g, _into_frame(g, x, y, theta), loc, _out_of_frame(loc, x, y, theta), 0.0, 0.0,
-        final_band, sin_min,
-    )  # fmt: skip
+    pair_g, pair_l = _pairs_at(g, loc, x, y, theta, 0.0, 0.0, final_band, sin_min)
     final = _overlaps_kernel(
         g, loc, track[steps : steps + 1], pair_g, pair_l, final_band, sin_min * sin_min
     )[0]
