@@ -37,6 +37,7 @@ from real_logs import (
     commands_section,
     prepare,
     run,
+    stage2_answers,
 )
 
 from segloc_cli.io.tables import PoseTable, read_estimates, read_pose_table, write_pose_table
@@ -71,9 +72,10 @@ def draw_guesses(truth: PoseTable, position_m, heading_deg, rng) -> PoseTable:
 
 def _trial_rows(dataset, method, label, est, guesses: PoseTable, truth: PoseTable) -> pd.DataFrame:
     pos, head = _errors(est, truth)
-    row_of = {int(pid): k for k, pid in enumerate(guesses.pose_id)}
+    # The guesses were drawn row for row from the truth: one index serves both.
+    row_of = {int(pid): k for k, pid in enumerate(truth.pose_id)}
     rows = [row_of[int(pid)] for pid in est["pose_id"]]
-    init = guesses.poses[rows] - truth.poses[[row_of[int(pid)] for pid in est["pose_id"]]]
+    init = guesses.poses[rows] - truth.poses[rows]
     return pd.DataFrame(
         {
             "dataset": dataset,
@@ -116,11 +118,7 @@ def run_dataset(name, log_path, map_path, truth, work: Path, trials: int, jobs: 
                 est = read_estimates(out)
                 frames.append(_trial_rows(name, method, label, est, guesses, truth))
                 if method == "two-stage":
-                    stage2 = est.assign(
-                        x_m=est["stage2_x_m"],
-                        y_m=est["stage2_y_m"],
-                        theta_deg=est["stage2_theta_deg"],
-                    )
+                    stage2 = stage2_answers(est)
                     frames.append(_trial_rows(name, STAGE2, label, stage2, guesses, truth))
             print(f"  {name} {tag}", flush=True)
     return pd.concat(frames, ignore_index=True)

@@ -141,11 +141,7 @@ def perturbation(name: str, files: tuple[str, str, str], data: Path, work: Path,
     est = read_estimates(work / "perturb.csv")
     truth = _subset(ref, held)
     scored = _scored(est, truth)
-    # The stage-2 columns hold the paper's answer before the search and refinement.
-    stage2 = _scored(
-        est.assign(x_m=est["stage2_x_m"], y_m=est["stage2_y_m"], theta_deg=est["stage2_theta_deg"]),
-        truth,
-    )
+    stage2 = _scored(stage2_answers(est), truth)
     segments = read_map(work / "map.json")
     scans = _held_out_scans(work, truth)
     failures_figure(name, segments, scans, est, truth, scored)
@@ -162,6 +158,13 @@ def perturbation(name: str, files: tuple[str, str, str], data: Path, work: Path,
         "median_ms": float(est["runtime_ms"].median()),
         "wall_s": elapsed,
     }
+
+
+def stage2_answers(est: pd.DataFrame) -> pd.DataFrame:
+    """Estimates with the stage-2 pose as the answer: the paper's, before search and refinement."""
+    return est.assign(
+        x_m=est["stage2_x_m"], y_m=est["stage2_y_m"], theta_deg=est["stage2_theta_deg"]
+    )
 
 
 def global_localization(work: Path, log: list) -> dict:
