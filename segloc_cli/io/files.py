@@ -1,10 +1,26 @@
-"""Opening a user's file: every way it can fail becomes one ``InputError`` naming it."""
+"""Users' files: reading them with errors that name them, writing them so no run leaves half a file.
+
+Reading: every way a read can fail becomes one ``InputError`` naming the file.
+
+Writing: a whole-file output (a map, a table, a trajectory) is written to a
+temporary file beside the target and renamed over it once complete, so a full
+disk, a crash or a kill leaves either the old file or the new one, never a
+fragment. Streamed outputs (the estimates of ``localize``, a recording) are
+written in place instead, each record flushed as it is made, so that a killed
+run keeps every finished record. ``check_output`` runs before any work: it
+refuses an existing file without ``--force`` and a folder that is missing or
+not writable, so that minutes of work never end in "No such file or directory".
+"""
 
 from __future__ import annotations
 
+import contextlib
+import os
+import tempfile
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from typing import IO
 
 from segloc_cli.errors import InputError
 
@@ -24,4 +40,83 @@ def reading(path: Path, expected: str) -> Iterator[None]:
     except UnicodeDecodeError:
         raise InputError(f"not a text file; expected {expected}", path=path) from None
     except OSError as exc:
-        raise InputError(f"cannot read file ({exc.strerror})", path=path) from None
+        raise InputError(f"cannot read file ({exc.strerror or exc})", path=path) from None
+
+
+class OutputError(InputError):
+    """An output that cannot be written: exists without --force, no folder, no room, no rights."""
+
+
+def check_output(path: str | Path, force: bool, option: str = "--out") -> Path:
+    """Refuse ``path`` before any work is done unless it can be written.
+
+    Raises ``OutputError`` naming the file when it exists and ``force`` is
+    false, when it is a directory, or when its folder is missing or not
+    writable. Returns the path.
+    """
+    path = Path(path)
+    if path.is_dir():
+        raise OutputError(f"is a directory; {option} takes a file path", path=path)
+    if path.exists() and not force:
+        raise OutputError(f"file exists; choose another {option} or pass --force", path=path)
+    folder = path.parent if str(path.parent) else Path(".")
+    if not folder.is_dir():
+        raise OutputError(
+            f"folder {folder} does not exist; create it or choose another {option}", path=path
+        )
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise OutputError(f"folder {folder} is not writable; choose another {option}", path=path)
+    return path
+
+
+def writing_error(path: str | Path, exc: OSError) -> OutputError:
+    """The one-line error for an OS error met while writing ``path``."""
+    return OutputError(f"cannot write file ({exc.strerror or exc})", path=path)
+
+
+@contextmanager
+def atomic_write(path: str | Path, mode: str = "w") -> Iterator[IO]:
+    """Open a temporary file beside ``path`` for writing; rename it to ``path`` on success.
+
+    ``mode`` is "w" (text, UTF-8, ``\\n`` line ends) or "wb". On any error
+    inside the block, or while flushing and renaming, the temporary file is
+    removed and ``path`` is left as it was; an ``OSError`` comes out as an
+    ``OutputError`` naming ``path``.
+    """
+    path = Path(path)
+    folder = path.parent if str(path.parent) else Path(".")
+    try:
+        fd, temporary = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=folder)
+    except OSError as exc:
+        raise writing_error(path, exc) from None
+    try:
+        text = "b" not in mode
+        with os.fdopen(
+            fd, mode, **({"encoding": "utf-8", "newline": ""} if text else {})
+        ) as stream:
+            yield stream
+            stream.flush()
+            os.fsync(stream.fileno())
+        os.chmod(temporary, 0o666 & ~_umask())
+        os.replace(temporary, path)
+    except OSError as exc:
+        with contextlib.suppress(OSError):
+            os.unlink(temporary)
+        raise writing_error(path, exc) from None
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(temporary)
+        raise
+
+
+def write_text_atomic(path: str | Path, text: str) -> None:
+    """Write ``text`` (UTF-8) to ``path`` through ``atomic_write``."""
+    with atomic_write(path) as stream:
+        stream.write(text)
+
+
+def _umask() -> int:
+    # os.umask can only be read by setting it; set it straight back.
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
