@@ -1,9 +1,9 @@
 """Figures (`make figures`): the method at work on a dataset, and success against initial error.
 
-1. Through the command line, as a user would run it: the map is built from the
-   dataset's scans at their surveyed poses, every scan is localized from its
-   initial guess, and `segloc evaluate --plots` draws the figures of the run
-   into OUT/<dataset>/.
+1. Through the command line, as a user would run it: every scan of the
+   dataset is localized from its initial guess in the dataset's map (built
+   from a mapping run of its own, not from these scans), and
+   `segloc evaluate --plots` draws the figures of the run into OUT/<dataset>/.
 2. When the trials table of the peer comparison exists (default
    benchmarks/peers-trials.csv), the success rate against the initial position
    error is drawn into OUT/.
@@ -40,14 +40,14 @@ def run(*args: object) -> None:
 
 
 def dataset_figures(dataset: Path, out_dir: Path) -> None:
-    """Map, localize and evaluate ``dataset`` (log.mcap, survey.csv); figures into ``out_dir``."""
-    log, survey = dataset / "log.mcap", dataset / "survey.csv"
+    """Localize and evaluate ``dataset`` (log.mcap, survey.csv, and map.json, built from a
+    mapping run of its own); figures into ``out_dir``, replacing those there."""
+    log, survey, map_path = dataset / "log.mcap", dataset / "survey.csv", dataset / "map.json"
     with tempfile.TemporaryDirectory(prefix="segloc-figures-") as work:
-        map_path, estimates = Path(work) / "map.json", Path(work) / "estimates.csv"
-        run("map", "build", log, "--survey", survey, "--out", map_path)
+        estimates = Path(work) / "estimates.csv"
         run("localize", log, "--map", map_path, "--out", estimates)
         run("evaluate", estimates, "--survey", survey, "--plots", out_dir,
-            "--map", map_path, "--log", log)  # fmt: skip
+            "--map", map_path, "--log", log, "--force")  # fmt: skip
 
 
 def trials_figure(trials_csv: Path, out_dir: Path) -> None:

@@ -68,13 +68,16 @@ class RTable:
 
         Ties go to the shorter global length.
         """
-        local_mm = np.rint(np.asarray(local_len_m, dtype=float) * 1000.0).astype(np.int64)
+        # Clipped to the key's range (a NaN length matches nothing well: it becomes 1,000 km).
+        local_m = np.nan_to_num(np.asarray(local_len_m, dtype=float), nan=_MAX_LENGTH_M)
+        local_mm = np.rint(np.clip(local_m, 0.0, _MAX_LENGTH_M) * 1000.0).astype(np.int64)
         best = np.full((self.n_bins, local_mm.size), np.nan)
         sizes = np.array([lengths.size for lengths in self.lengths_m])
         filled = np.flatnonzero(sizes)
         if filled.size == 0 or local_mm.size == 0:
             return best
-        global_mm = np.rint(np.concatenate(self.lengths_m) * 1000.0).astype(np.int64)
+        global_m = np.clip(np.concatenate(self.lengths_m), 0.0, _MAX_LENGTH_M)
+        global_mm = np.rint(global_m * 1000.0).astype(np.int64)
         # Lengths are whole millimetres, so (difference, length) packs into one
         # integer whose minimum per bin is the closest length, shorter on ties.
         key = np.abs(global_mm[:, None] - local_mm[None, :]) * _KEY_BASE + global_mm[:, None]
@@ -86,10 +89,14 @@ class RTable:
 _KEY_BASE = 10**9
 """Exceeds any segment length in millimetres (1,000 km)."""
 
+_MAX_LENGTH_M = (_KEY_BASE - 1) / 1000.0
+"""Lengths are clipped to this before they are packed into keys, which then cannot overflow."""
+
 
 def orientation_bins(orientation_rad: np.ndarray, bin_width_rad: float, n_bins: int) -> np.ndarray:
     """Bin of undirected orientations (radians, any value): nearest bin, modulo 180°."""
-    return np.rint((np.asarray(orientation_rad) % np.pi) / bin_width_rad).astype(np.int64) % n_bins
+    wrapped = np.nan_to_num(np.asarray(orientation_rad, dtype=float) % np.pi)  # NaN: bin 0
+    return np.rint(wrapped / bin_width_rad).astype(np.int64) % n_bins
 
 
 def candidate_headings(prior_rad: float | None, window_rad: float, step_rad: float) -> np.ndarray:

@@ -25,6 +25,9 @@ TIME_TOLERANCE_MS = 50.0
 
 EXIT_GATE_FAILED = 1
 EXIT_BAD_INPUT = 2
+EXIT_INTERNAL_ERROR = 70
+"""An unexpected error (a bug): one line, and the traceback in a file it names (sysexits'
+EX_SOFTWARE)."""
 EXIT_INTERRUPTED = 130
 
 
@@ -54,6 +57,12 @@ def _tolerance_option(pairing: str):
         show_default=True,
         help=f"Largest time difference when {pairing}.",
     )
+
+
+force_option = click.option(
+    "--force", is_flag=True, help="Overwrite the output file(s) if they exist."
+)
+"""``--force``: every command that writes a file refuses an existing one without it."""
 
 
 def _time_range(times_s) -> str:
@@ -139,7 +148,8 @@ def _parse_init_errors(value: str) -> tuple[str, float, float]:
     help="Initial-guess errors written to /odom: 'paper' (Table 1 of the paper, exactly) "
     "or 'uniform:XY_M,THETA_DEG' (uniform in ±XY_M per axis and ±THETA_DEG).",
 )
-def simulate(world_path, poses_path, out_dir, readings, noise_cm, seed, init_errors):
+@force_option
+def simulate(world_path, poses_path, out_dir, readings, noise_cm, seed, init_errors, force):
     """Simulate a 360° laser log of a world at given poses.
 
     Writes OUT/log.mcap (/scan as foxglove.LaserScan, /odom as
@@ -148,6 +158,7 @@ def simulate(world_path, poses_path, out_dir, readings, noise_cm, seed, init_err
     Explorer: Gaussian range noise, 1 mm resolution, dropouts, short spurious
     returns from people, and glass that rarely returns.
     """
+    from segloc_cli.io.files import atomic_path, check_output
     from segloc_cli.io.maps import read_world
     from segloc_cli.io.mcap_log import LogWriter
     from segloc_cli.io.tables import PoseTable, read_pose_table, write_pose_table
@@ -160,6 +171,12 @@ def simulate(world_path, poses_path, out_dir, readings, noise_cm, seed, init_err
     )
 
     mode, xy_m, theta_deg = _parse_init_errors(init_errors)
+    if out_dir.exists() and not out_dir.is_dir():
+        raise InputError("is a file; --out takes a folder", path=out_dir)
+    log_path, survey_path = out_dir / "log.mcap", out_dir / "survey.csv"
+    if out_dir.is_dir():
+        for path in (log_path, survey_path):
+            check_output(path, force)
     world = read_world(world_path)
     truth = read_pose_table(poses_path, require_time=False)
     times = truth.time_s
@@ -181,7 +198,10 @@ def simulate(world_path, poses_path, out_dir, readings, noise_cm, seed, init_err
     guesses = initial_guesses(truth.poses, errors)
     sensor = SensorModel(readings=int(readings), noise_cm=noise_cm)
 
-    out_dir.mkdir(parents=True, exist_ok=True)
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(f"cannot create the folder ({exc.strerror})", path=out_dir) from None
     settings = {
         "device": "simulated Explorer",
         "readings": readings,
@@ -191,15 +211,12 @@ def simulate(world_path, poses_path, out_dir, readings, noise_cm, seed, init_err
         "world": world.name,
         "init_errors": init_errors,
     }
-    with LogWriter(out_dir / "log.mcap", settings) as log:
+    with atomic_path(log_path) as partial, LogWriter(partial, settings) as log:
         for t, pose, guess in zip(times, truth.poses, guesses, strict=True):
             log.add_odom(float(t), Pose2(*guess))
             log.add_scan(simulate_scan(world, Pose2(*pose), sensor, rng, float(t)))
-    write_pose_table(out_dir / "survey.csv", PoseTable(truth.pose_id, times, truth.poses))
-    _info(
-        f"wrote {len(truth)} scans to {out_dir / 'log.mcap'} "
-        f"and the true poses to {out_dir / 'survey.csv'}"
-    )
+    write_pose_table(survey_path, PoseTable(truth.pose_id, times, truth.poses))
+    _info(f"wrote {len(truth)} scans to {log_path} and the true poses to {survey_path}")
 
 
 # --------------------------------------------------------------------------- import
@@ -212,6 +229,7 @@ def import_group() -> None:
 
 def _write_imported(log, out_path: Path) -> None:
     """Write scans, odometry at the scans and sensor settings of an imported log."""
+    from segloc_cli.io.files import atomic_path
     from segloc_cli.io.mcap_log import write_log
 
     for warning in log.warnings:
@@ -219,7 +237,8 @@ def _write_imported(log, out_path: Path) -> None:
     odometry = [
         (float(t), Pose2(*p)) for t, p in zip(log.odom_times_s, log.odom_poses, strict=True)
     ]
-    write_log(out_path, log.scans, odometry, log.sensor)
+    with atomic_path(out_path) as partial:
+        write_log(partial, log.scans, odometry, log.sensor, log.original_times_s)
     _info(f"{out_path}: {len(log.scans)} scans, {len(log.odom_times_s)} odometry poses")
 
 
@@ -249,23 +268,33 @@ def _write_imported(log, out_path: Path) -> None:
     help="Readings at or beyond this mean no return (default: from PARAM lines, or "
     "the sentinel value the log repeats).",
 )
-def import_carmen(log_path, out_path, survey_out, laser, range_max_m):
+@force_option
+def import_carmen(log_path, out_path, survey_out, laser, range_max_m, force):
     """Import a CARMEN text log (plain or gzip-compressed).
 
     Laser records become /scan (180°: the front laser from −90°, the rear
     from +90°; any number of beams) and their odometry fields /odom at the
     scan times. Malformed records are skipped and counted; every good record
-    is kept.
+    is kept. Records that share a time or go back in time get distinct times
+    in file order (the README's "colliding times" rule), in the log and in
+    --survey-out alike; their original times are kept as each message's MCAP
+    publish time and in the survey's original_time_s column.
     """
     from segloc_cli.io.carmen import read_carmen
+    from segloc_cli.io.files import check_output
     from segloc_cli.io.tables import PoseTable, write_pose_table
 
+    check_output(out_path, force)
+    if survey_out is not None:
+        check_output(survey_out, force, "--survey-out")
     log = read_carmen(log_path, laser=laser, range_max_m=range_max_m)
     _write_imported(log, out_path)
     if survey_out is not None:
         n = len(log.scans)
         write_pose_table(
-            survey_out, PoseTable(np.arange(1, n + 1), log.odom_times_s, log.laser_poses)
+            survey_out,
+            PoseTable(np.arange(1, n + 1), log.odom_times_s, log.laser_poses),
+            {"original_time_s": log.original_times_s},
         )
         _info(f"{survey_out}: {n} reference poses")
 
@@ -284,10 +313,13 @@ def import_carmen(log_path, out_path, survey_out, laser, range_max_m):
     show_default=True,
     help="nav_msgs/Odometry topic, interpolated to each scan's time ('' for none).",
 )
-def import_rosbag(bag_path, out_path, scan_topic, odom_topic):
+@force_option
+def import_rosbag(bag_path, out_path, scan_topic, odom_topic, force):
     """Import a ROS 1 .bag, a ROS 2 bag folder or a ROS 2 .mcap file."""
+    from segloc_cli.io.files import check_output
     from segloc_cli.io.rosbag import read_rosbag
 
+    check_output(out_path, force)
     log = read_rosbag(bag_path, scan_topic=scan_topic, odom_topic=odom_topic or None)
     _write_imported(log, out_path)
 
@@ -313,7 +345,8 @@ def map_group() -> None:
     "--out", "out_path", required=True, type=click.Path(path_type=Path), help="MAP.json to write."
 )
 @_tolerance_option("pairing scans with survey rows")
-def map_build(log_path, survey_path, out_path, tolerance_ms):
+@force_option
+def map_build(log_path, survey_path, out_path, tolerance_ms, force):
     """Build a global segment map from the scans of a log at surveyed poses.
 
     Each scan with a survey row becomes a local map, is placed at its pose and
@@ -321,14 +354,23 @@ def map_build(log_path, survey_path, out_path, tolerance_ms):
     touch become one.
     """
     from segloc_cli.extract import ExtractParams, extract_segments
-    from segloc_cli.io.maps import write_map
-    from segloc_cli.io.tables import nearest_by_time, read_pose_table
+    from segloc_cli.io.files import check_output
+    from segloc_cli.io.maps import bounds_problem, write_map
+    from segloc_cli.io.tables import pair_by_time, read_pose_table
     from segloc_cli.mapping import FuseParams, build_global_map
 
+    check_output(out_path, force)
     log = _load_log(log_path)
     survey = read_pose_table(survey_path)
     times = log.scan_times_s
-    rows = nearest_by_time(times, survey.time_s, tolerance_ms / 1e3)
+    rows = pair_by_time(
+        times,
+        survey.time_s,
+        tolerance_ms / 1e3,
+        query_path=log_path,
+        ref_path=survey_path,
+        query_label="scan",
+    )
     used = np.flatnonzero(rows >= 0)
     if used.size == 0:
         raise InputError(
@@ -344,6 +386,9 @@ def map_build(log_path, survey_path, out_path, tolerance_ms):
     segments = build_global_map(local_maps, poses, fuse_params)
     if segments.shape[0] == 0:
         raise InputError("no segments could be extracted from the surveyed scans", path=log_path)
+    problem = bounds_problem(segments)
+    if problem is not None:
+        raise InputError(f"the map built would be refused when read: {problem}", path=out_path)
     write_map(
         out_path,
         segments,
@@ -366,23 +411,35 @@ def map_build(log_path, survey_path, out_path, tolerance_ms):
 
 
 def _odometry_rows(log, log_path: Path, tolerance_s: float) -> np.ndarray:
-    """Index of the /odom message nearest each scan in time (−1 where none is close enough)."""
-    from segloc_cli.io.tables import nearest_by_time
+    """Index of the /odom message nearest each scan in time (−1 where none is close enough).
+
+    Two /odom messages at the time nearest a scan, or two scans at one time, are refused.
+    """
+    from segloc_cli.io.tables import pair_by_time
 
     if log.odom_times_s.size == 0:
         raise InputError(
             "the log has no /odom messages; tracking needs odometry between scans", path=log_path
         )
-    return nearest_by_time(log.scan_times_s, log.odom_times_s, tolerance_s)
+    return pair_by_time(
+        log.scan_times_s,
+        log.odom_times_s,
+        tolerance_s,
+        query_path=log_path,
+        ref_path=log_path,
+        query_label="scan",
+        ref_label="/odom message",
+    )
 
 
 def _initial_guesses(initial: str, log, log_path: Path, tolerance_s: float):
     """(scan indices, initial poses, pose ids) for the scans that have an initial guess.
 
     Pose ids come from the guess file's rows, or are the scans' indices in the log
-    (from 1) when the guesses come from /odom.
+    (from 1) when the guesses come from /odom. A guess shared by two rows of equal
+    time, or two scans at one time, is refused rather than paired silently.
     """
-    from segloc_cli.io.tables import nearest_by_time, read_pose_table
+    from segloc_cli.io.tables import pair_by_time, read_pose_table
 
     if initial == "odom":
         if log.odom_times_s.size == 0:
@@ -392,10 +449,20 @@ def _initial_guesses(initial: str, log, log_path: Path, tolerance_s: float):
                 path=log_path,
             )
         ref_times, ref_poses, ref_ids = log.odom_times_s, log.odom_poses, None
+        ref_path, ref_label = log_path, "/odom message"
     else:
         table = read_pose_table(Path(initial))
         ref_times, ref_poses, ref_ids = table.time_s, table.poses, table.pose_id
-    rows = nearest_by_time(log.scan_times_s, ref_times, tolerance_s)
+        ref_path, ref_label = Path(initial), "row"
+    rows = pair_by_time(
+        log.scan_times_s,
+        ref_times,
+        tolerance_s,
+        query_path=log_path,
+        ref_path=ref_path,
+        query_label="scan",
+        ref_label=ref_label,
+    )
     idx = np.flatnonzero(rows >= 0)
     poses = [Pose2(*ref_poses[r]) for r in rows[idx]]
     return idx, poses, idx + 1 if ref_ids is None else ref_ids[rows[idx]]
@@ -545,6 +612,7 @@ def _initial_guesses(initial: str, log, log_path: Path, tolerance_s: float):
     "each other); the estimates are the same as with 1.",
 )
 @_tolerance_option("pairing scans with initial guesses or odometry")
+@force_option
 def localize(
     log_paths,
     map_path,
@@ -567,6 +635,7 @@ def localize(
     icp_variant,
     jobs,
     tolerance_ms,
+    force,
 ):
     """Localize every scan of one or more logs against a map.
 
@@ -587,11 +656,12 @@ def localize(
 
     --method icp and --method correlative run two widely used matchers on
     the same scans and guesses, for comparison (see make bench-peers).
-    """
-    import pandas as pd
 
+    Rows are written to OUT as they are made: Ctrl-C, SIGTERM or even a
+    killed process leaves every finished row in the file.
+    """
+    from segloc_cli.io.files import check_output
     from segloc_cli.io.maps import read_map
-    from segloc_cli.io.tables import write_estimates, write_tum
     from segloc_cli.localize import LocalizeParams, Localizer, track_scans
     from segloc_cli.parallel import localize_scans_parallel
     from segloc_cli.refine import RefineParams
@@ -619,6 +689,9 @@ def localize(
         click.get_current_context().get_parameter_source("initial")
         == click.core.ParameterSource.DEFAULT
     )
+    check_output(out_path, force)
+    if tum_path is not None:
+        check_output(tum_path, force, "--tum")
     segments_world = read_map(map_path)
     params = LocalizeParams(
         window_deg=None if no_prior_heading else window_deg,
@@ -669,27 +742,46 @@ def localize(
         n_scans += keep.size
         skipped += len(log.scans) - keep.size
 
+    _localize_rows(itertools.chain.from_iterable(streams), n_scans, out_path, tum_path, skipped)
+
+
+def _localize_rows(rows, n_scans: int, out_path: Path, tum_path: Path | None, skipped: int):
+    """Run the localization, writing each row to ``out_path`` as it comes; print the summary.
+
+    Ctrl-C and SIGTERM stop it between scans with every finished row kept (exit 130).
+    """
+    import pandas as pd
+
+    from segloc_cli.io.tables import EstimatesWriter, write_tum
+    from segloc_cli.stopping import stop_requests
+
     t0 = time.perf_counter()
-    rows = []
-    try:
-        with click.progressbar(
-            itertools.chain.from_iterable(streams),
-            length=n_scans,
-            label="localizing",
-            file=sys.stderr if n_scans >= PROGRESS_MIN_SCANS else io.StringIO(),
-        ) as bar:
-            rows.extend(bar)
-    except KeyboardInterrupt:
-        if rows:
-            write_estimates(out_path, pd.DataFrame(rows))
-        kept = f"their estimates are in {out_path}" if rows else "nothing was written"
-        click.echo(f"segloc: interrupted after {len(rows)} of {n_scans} scans; {kept}", err=True)
-        sys.exit(EXIT_INTERRUPTED)
+    done: list[dict] = []
+    stream = sys.stderr if n_scans >= PROGRESS_MIN_SCANS else io.StringIO()
+    with (
+        stop_requests() as stops,
+        EstimatesWriter(out_path) as writer,
+        click.progressbar(rows, length=n_scans, label="localizing", file=stream) as bar,
+    ):
+        try:
+            for row in bar:
+                writer.write_row(row)
+                done.append(row)
+                if stops:
+                    break
+        except KeyboardInterrupt:  # Ctrl-C that arrived outside the stop handler
+            stops.append("Ctrl-C")
     elapsed = time.perf_counter() - t0
-    frame = pd.DataFrame(rows)
-    write_estimates(out_path, frame)
-    if tum_path is not None:
+    frame = pd.DataFrame(done, columns=list(done[0]) if done else None)
+    if tum_path is not None and done:
         write_tum(tum_path, frame)
+    if stops:
+        kept = f"their estimates are in {out_path}" if done else f"{out_path} holds the header only"
+        click.echo(
+            f"segloc: interrupted ({stops[0]}) after {len(done)} of {n_scans} scans; {kept}",
+            err=True,
+        )
+        sys.exit(EXIT_INTERRUPTED)
     counts = frame["status"].value_counts()
     statuses = ", ".join(f"{n} {status}" for status, n in counts.items())
     _info(
@@ -736,26 +828,34 @@ def localize(
     "out_path",
     type=click.Path(path_type=Path),
     default=None,
-    help="Write the table here instead of standard output.",
+    help="Write the table here instead of standard output (an existing file needs --force).",
+)
+@click.option(
+    "--only-ok",
+    is_flag=True,
+    help="Summarise only poses whose status is ok (or recovered): RMS and max with --survey, "
+    "the relations used with --relations. By default every pose with an estimate counts, "
+    "whatever its status.",
 )
 @click.option(
     "--fail-above-cm",
     type=click.FloatRange(min=0),
     default=None,
-    help="Exit 1 if any pose's |X| or |Y| error exceeds this.",
+    help="Exit 1 if any pose's |X| or |Y| error exceeds this, or any pose is not ok.",
 )
 @click.option(
     "--fail-above-deg",
     type=click.FloatRange(min=0),
     default=None,
-    help="Exit 1 if any pose's |θ| error exceeds this.",
+    help="Exit 1 if any pose's |θ| error exceeds this, or any pose is not ok.",
 )
 @click.option(
     "--plots",
     "plots_dir",
     type=click.Path(path_type=Path, file_okay=False),
     default=None,
-    help="With --survey: also draw figures (PNG and PDF) into this folder, created if needed.",
+    help="With --survey: also draw figures (PNG and PDF) into this folder, created if needed "
+    "(existing figures need --force).",
 )
 @click.option(
     "--map",
@@ -772,6 +872,7 @@ def localize(
     help="With --plots: the log the estimates were made from, for the figures of both stages.",
 )
 @_tolerance_option("pairing estimates with survey rows")
+@force_option
 def evaluate(
     estimates_path,
     survey_path,
@@ -779,20 +880,28 @@ def evaluate(
     published,
     fmt,
     out_path,
+    only_ok,
     fail_above_cm,
     fail_above_deg,
     plots_dir,
     map_path,
     log_path,
     tolerance_ms,
+    force,
 ):
     """Score estimates against ground truth.
 
-    With --survey, the paper's Table 1: one row per surveyed pose with AE (the
-    stage-1 heading error), the initial errors X, Y (cm) and θ (°) and the
-    final errors X, Y (cm) and θ (°), all "surveyed minus computed", then RMS
-    and max rows. With --fail-above-* the exit status is 1 when any pose
-    exceeds a limit, so CI can gate on it.
+    With --survey, the paper's Table 1: one row per surveyed pose that has an
+    estimate row, with AE (the stage-1 heading error; blank without an
+    initial guess, as in --global runs), the initial errors X, Y (cm) and θ (°)
+    and the final errors X, Y (cm) and θ (°), all "surveyed minus computed",
+    then RMS and max rows. RMS and max cover every pose with an estimate,
+    whatever its status (--only-ok: status ok alone); under the table, the
+    poses by status and how many surveyed poses have no estimate. Survey rows
+    and estimates are paired by time; two rows that share the time nearest a
+    pose are refused, never paired silently. With --fail-above-* the table
+    says how many poses lie beyond the limits, and the exit status is 1 when
+    any pose exceeds a limit or is not ok, so CI can gate on it.
 
     With --plots DIR, figures of the run go into DIR: the final errors per
     pose, and with --map and --log also the local maps over the map, the
@@ -805,6 +914,7 @@ def evaluate(
     error of the estimated relative motion, and how many relations were used
     and skipped.
     """
+    from segloc_cli.io.files import check_output
     from segloc_cli.io.tables import read_estimates
 
     if (survey_path is None) == (relations_path is None):
@@ -813,14 +923,28 @@ def evaluate(
         raise click.UsageError("--map and --log go with --plots")
     if plots_dir is not None and survey_path is None:
         raise click.UsageError("--plots goes with --survey")
+    if relations_path is not None and (fail_above_cm is not None or fail_above_deg is not None):
+        raise click.UsageError("--fail-above-cm/--fail-above-deg go with --survey")
+    if relations_path is None and published is not None:
+        raise click.UsageError("--published goes with --relations")
+    # Outputs are checked before any input is read, so a refusal costs no work.
+    if out_path is not None:
+        check_output(out_path, force)
+    if plots_dir is not None:
+        _check_plots(plots_dir, with_map=map_path is not None and log_path is not None, force=force)
     estimates = read_estimates(estimates_path)
     if relations_path is not None:
-        if fail_above_cm is not None or fail_above_deg is not None:
-            raise click.UsageError("--fail-above-cm/--fail-above-deg go with --survey")
-        _evaluate_relations(estimates, relations_path, published, fmt, out_path, tolerance_ms)
+        _evaluate_relations(
+            estimates,
+            relations_path,
+            published,
+            fmt,
+            out_path,
+            tolerance_ms,
+            only_ok=only_ok,
+            estimates_path=estimates_path,
+        )
         return
-    if published is not None:
-        raise click.UsageError("--published goes with --relations")
 
     from segloc_cli.evaluate import format_table, gate, summary, table1
     from segloc_cli.io.maps import read_map
@@ -831,17 +955,32 @@ def evaluate(
     segments_world = None if map_path is None else read_map(map_path)
     log = None if log_path is None else _load_log(log_path)
     try:
-        table = table1(estimates, survey, tolerance_s=tolerance_ms / 1e3)
+        table = table1(
+            estimates,
+            survey,
+            tolerance_s=tolerance_ms / 1e3,
+            estimates_path=estimates_path,
+            survey_path=survey_path,
+        )
     except InputError as exc:
         if exc.path is not None:
             raise
         raise InputError(str(exc), path=survey_path) from None
-    _emit(format_table(table, summary(table), fmt), out_path)
+    stats = summary(table, only_ok, fail_above_cm, fail_above_deg)
+    _emit(format_table(table, stats, fmt), out_path)
     if plots_dir is not None:
         figure_data = None
         if segments_world is not None and log is not None:
             figure_data = (segments_world, log, log_path)
-        _write_plots(plots_dir, table, estimates, survey, figure_data, tolerance_ms / 1e3)
+        _write_plots(
+            plots_dir,
+            table,
+            estimates,
+            survey,
+            figure_data,
+            tolerance_ms / 1e3,
+            (survey_path, estimates_path),
+        )
     violations = gate(table, fail_above_cm, fail_above_deg)
     for line in violations:
         click.echo(f"segloc: gate: {line}", err=True)
@@ -849,8 +988,37 @@ def evaluate(
         sys.exit(EXIT_GATE_FAILED)
 
 
-def _write_plots(plots_dir: Path, table, estimates, survey, figure_data, tolerance_s: float):
-    """Draw the figures of ``evaluate --plots``; ``figure_data`` is (map, log, log path) or None."""
+def _check_plots(plots_dir: Path, with_map: bool, force: bool) -> None:
+    """Refuse, before any work, figures of ``evaluate --plots`` that exist (without --force)
+    and a folder that cannot be made or written."""
+    from segloc_cli.io.files import OutputError, check_output
+    from segloc_cli.plots import ERRORS, EVALUATION_FIGURES
+
+    if plots_dir.exists() and not plots_dir.is_dir():
+        raise OutputError("is not a folder; --plots takes a folder", path=plots_dir)
+    if not plots_dir.exists():
+        # The folder is made later; what must exist now is a writable ancestor to make it in.
+        ancestor = plots_dir.absolute().parent
+        while not ancestor.exists():
+            ancestor = ancestor.parent
+        check_output(ancestor / ".segloc-plots", force=True, option="--plots")
+        return
+    for name in EVALUATION_FIGURES if with_map else (ERRORS,):
+        for suffix in (".png", ".pdf"):
+            check_output(plots_dir / f"{name}{suffix}", force, option="--plots")
+
+
+def _write_plots(
+    plots_dir: Path,
+    table,
+    estimates,
+    survey,
+    figure_data,
+    tolerance_s: float,
+    paths: tuple[Path, Path],
+):
+    """Draw the figures of ``evaluate --plots``; ``figure_data`` is (map, log, log path) or None,
+    ``paths`` (survey, estimates) name the inputs in errors."""
     from segloc_cli.plots import MAP_FIGURES, surveyed_scans, write_evaluation_figures
 
     plots_dir.mkdir(parents=True, exist_ok=True)
@@ -859,7 +1027,10 @@ def _write_plots(plots_dir: Path, table, estimates, survey, figure_data, toleran
         written = write_evaluation_figures(plots_dir, table)
     else:
         segments_world, log, log_path = figure_data
-        items = surveyed_scans(estimates, survey, log.scans, tolerance_s)
+        survey_path, estimates_path = paths
+        items = surveyed_scans(
+            estimates, survey, log.scans, tolerance_s, paths=(survey_path, estimates_path, log_path)
+        )
         if not items:
             raise InputError(
                 f"no scan lies within {tolerance_s * 1e3:g} ms of a surveyed estimate "
@@ -871,7 +1042,9 @@ def _write_plots(plots_dir: Path, table, estimates, survey, figure_data, toleran
         _info(f"wrote {path}")
 
 
-def _evaluate_relations(estimates, relations_path, published, fmt, out_path, tolerance_ms):
+def _evaluate_relations(
+    estimates, relations_path, published, fmt, out_path, tolerance_ms, *, only_ok, estimates_path
+):
     from segloc_cli.relations import (
         PUBLISHED,
         format_relations,
@@ -881,8 +1054,10 @@ def _evaluate_relations(estimates, relations_path, published, fmt, out_path, tol
     )
 
     relations = read_relations(relations_path)
-    times_s, poses = trajectory_from_estimates(estimates)
-    errors = relation_errors(times_s, poses, relations, tolerance_s=tolerance_ms / 1e3)
+    times_s, poses = trajectory_from_estimates(estimates, only_ok=only_ok)
+    errors = relation_errors(
+        times_s, poses, relations, tolerance_s=tolerance_ms / 1e3, estimates_path=estimates_path
+    )
     if errors.used == 0:
         raise InputError(
             f"no relation has estimates at both of its times (within {tolerance_ms:g} ms; "
@@ -896,10 +1071,12 @@ def _evaluate_relations(estimates, relations_path, published, fmt, out_path, tol
 
 def _emit(text: str, out_path: Path | None) -> None:
     """Print a table, or write it to ``out_path``."""
+    from segloc_cli.io.files import write_text_atomic
+
     if out_path is None:
         click.echo(text)
     else:
-        Path(out_path).write_text(text if text.endswith("\n") else text + "\n", encoding="utf-8")
+        write_text_atomic(out_path, text if text.endswith("\n") else text + "\n")
         _info(f"wrote {out_path}")
 
 
@@ -1156,12 +1333,38 @@ def info(log_path):
 # --------------------------------------------------------------------------- entry point
 
 
+def _one_line(text: object) -> str:
+    """``text`` on one line: the contract of every message segloc prints for an error."""
+    return " ".join(str(text).split())
+
+
+def _report_internal_error(exc: BaseException) -> str:
+    """Keep the traceback of an unexpected error in a file; return that file's path."""
+    import tempfile
+    import traceback
+
+    stamp = time.strftime("%Y%m%d-%H%M%S")
+    with tempfile.NamedTemporaryFile(
+        "w", prefix=f"segloc-error-{stamp}-", suffix=".txt", delete=False, encoding="utf-8"
+    ) as stream:
+        stream.write(f"segloc {__version__}\ncommand: {' '.join(sys.argv)}\n\n")
+        traceback.print_exception(exc, file=stream)
+    return stream.name
+
+
 def main(argv: list[str] | None = None) -> None:
-    """Console entry point: every error is one line on stderr and a non-zero exit, no traceback."""
+    """Console entry point: every error is one line on stderr and a non-zero exit, no traceback.
+
+    Exit status: 0 success, 1 a gate failed, 2 bad input or usage, 70 an internal
+    error (its traceback kept in a file the line names), 130 interrupted.
+    """
     try:
         cli.main(args=argv, prog_name="segloc", standalone_mode=False)
     except click.exceptions.Abort:
         click.echo("segloc: aborted", err=True)
+        sys.exit(EXIT_INTERRUPTED)
+    except KeyboardInterrupt:
+        click.echo("segloc: interrupted", err=True)
         sys.exit(EXIT_INTERRUPTED)
     except click.ClickException as exc:
         no_args = getattr(click.exceptions, "NoArgsIsHelpError", None)  # click >= 8.2
@@ -1169,12 +1372,32 @@ def main(argv: list[str] | None = None) -> None:
             message = f"missing command; run '{exc.ctx.command_path} --help' to list them"
         else:
             message = exc.format_message()
-        click.echo(f"segloc: error: {message}", err=True)
+        click.echo(f"segloc: error: {_one_line(message)}", err=True)
         sys.exit(EXIT_BAD_INPUT if exc.exit_code != 0 else 0)
     except SeglocError as exc:
-        click.echo(f"segloc: error: {exc}", err=True)
+        click.echo(f"segloc: error: {_one_line(exc)}", err=True)
+        sys.exit(EXIT_BAD_INPUT)
+    except BrokenPipeError:
+        # The reader of our output went away (e.g. `| head`): nothing left to say.
+        sys.stderr.close()
         sys.exit(EXIT_BAD_INPUT)
     except OSError as exc:
         where = f"{exc.filename}: " if exc.filename else ""
-        click.echo(f"segloc: error: {where}{exc.strerror or exc}", err=True)
+        click.echo(f"segloc: error: {where}{_one_line(exc.strerror or exc)}", err=True)
         sys.exit(EXIT_BAD_INPUT)
+    except (RecursionError, OverflowError, MemoryError) as exc:
+        kind = type(exc).__name__
+        click.echo(
+            f"segloc: error: the input is too large or too deeply nested to read ({kind}); "
+            "check the files given",
+            err=True,
+        )
+        sys.exit(EXIT_BAD_INPUT)
+    except Exception as exc:
+        where = _report_internal_error(exc)
+        click.echo(
+            f"segloc: internal error: {type(exc).__name__}: {_one_line(exc)} "
+            f"(a bug in segloc; the traceback is in {where}, please report it)",
+            err=True,
+        )
+        sys.exit(EXIT_INTERNAL_ERROR)

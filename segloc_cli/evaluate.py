@@ -4,6 +4,12 @@ Errors are "surveyed minus computed" in the world frame, as in Reina & Gonzalez
 (2000), section 5.2: positions in centimetres, headings in degrees wrapped to
 [-180, 180). Every function here is pure; reading and writing files is the
 command line's job.
+
+Every pose that has an estimate (finite x, y and θ) is scored, whatever its
+status, as trajectory tools such as evo score a trajectory: a summary that
+changed with the localizer's own verdict would hide its confident mistakes.
+The summary gives the counts by status beside the errors; ``only_ok`` gives
+the view over accepted estimates alone.
 """
 
 from __future__ import annotations
@@ -16,7 +22,7 @@ import pandas as pd
 
 from segloc_cli.errors import InputError
 from segloc_cli.geometry import wrap_angle
-from segloc_cli.io.tables import ESTIMATE_COLUMNS, PoseTable, nearest_by_time
+from segloc_cli.io.tables import ESTIMATE_COLUMNS, PoseTable, pair_by_time
 from segloc_cli.localize import ESTIMATED
 
 ERROR_COLUMNS = (
@@ -32,7 +38,10 @@ ERROR_COLUMNS = (
 """Numeric columns of Table 1, in table order."""
 
 FINAL_ERROR_COLUMNS = ("err_x_cm", "err_y_cm", "err_theta_deg", "err_xy_cm")
-"""Errors of the final estimate; only poses with status ``ok`` count in their summary."""
+"""Errors of the final estimate; their summary covers the scored poses (``scored``)."""
+
+NO_ESTIMATE = "no_estimate"
+"""Status counted for a surveyed pose with no estimate row within the time tolerance."""
 
 TABLE_COLUMNS = ("pose_id", *ERROR_COLUMNS, "status")
 
@@ -74,22 +83,36 @@ def _status_text(status: np.ndarray) -> np.ndarray:
     return np.where(pd.isna(status) | (text == ""), "missing", text).astype(object)
 
 
-def table1(estimates: pd.DataFrame, survey: PoseTable, tolerance_s: float = 0.05) -> pd.DataFrame:
+def table1(
+    estimates: pd.DataFrame,
+    survey: PoseTable,
+    tolerance_s: float = 0.05,
+    *,
+    estimates_path: object = "estimates",
+    survey_path: object = "survey",
+) -> pd.DataFrame:
     """Per-pose errors of ``estimates`` against ``survey``, one row per matched survey pose.
 
     Each survey row is paired with the estimate nearest in time within
-    ``tolerance_s`` seconds; unmatched survey rows are left out and the rest keep
-    survey order. Columns (TABLE_COLUMNS): ``pose_id`` (the survey's id),
-    ``ae_deg`` (surveyed heading minus the stage-1 heading), ``init_x_cm``,
-    ``init_y_cm``, ``init_theta_deg`` (surveyed minus initial guess),
-    ``err_x_cm``, ``err_y_cm``, ``err_theta_deg`` (surveyed minus final
-    estimate), ``err_xy_cm`` (Euclidean position error) and the estimate's
-    ``status``. World frame; cm and degrees, headings wrapped to [-180, 180).
-    ``survey`` is a PoseTable or any object with its ``pose_id`` (N,),
-    ``time_s`` (N,) and ``poses`` (N, 3: x m, y m, θ rad) arrays.
-    Errors are NaN where the estimate holds NaN (e.g. a failed pose).
+    ``tolerance_s`` seconds (``io.tables.pair_by_time``: two estimates with the
+    time nearest a survey row, or two survey rows with one time, are refused
+    with an ``InputError`` naming ``estimates_path`` or ``survey_path`` and the
+    rows). Unmatched survey rows are left out and the rest keep survey order.
+    Columns (TABLE_COLUMNS): ``pose_id`` (the survey's id), ``ae_deg``
+    (surveyed heading minus the stage-1 heading; NaN when the row has no
+    initial heading, as in a ``--global`` run, whose stage 1 has no window to
+    search), ``init_x_cm``, ``init_y_cm``, ``init_theta_deg`` (surveyed minus
+    initial guess), ``err_x_cm``, ``err_y_cm``, ``err_theta_deg`` (surveyed
+    minus final estimate), ``err_xy_cm`` (Euclidean position error) and the
+    estimate's ``status``. World frame; cm and degrees, headings wrapped to
+    [-180, 180). ``survey`` is a PoseTable or any object with its ``pose_id``
+    (N,), ``time_s`` (N,) and ``poses`` (N, 3: x m, y m, θ rad) arrays. Errors
+    are NaN where the estimate holds NaN (e.g. a failed pose).
+    ``attrs["n_surveyed"]`` is the number of survey rows and
+    ``attrs["tolerance_s"]`` the tolerance, for ``summary``.
 
-    Raises InputError when ``estimates`` lacks a column or no survey row has a match.
+    Raises InputError when ``estimates`` lacks a column, a pairing is
+    ambiguous, or no survey row has a match.
     """
     missing = [c for c in ESTIMATE_COLUMNS if c not in estimates.columns]
     if missing:
@@ -100,7 +123,15 @@ def table1(estimates: pd.DataFrame, survey: PoseTable, tolerance_s: float = 0.05
     survey_poses = np.asarray(survey.poses, dtype=float).reshape(-1, 3)
     est_times_s = estimates["time_s"].to_numpy(dtype=float)
 
-    match = nearest_by_time(survey_times_s, est_times_s, tolerance_s)
+    match = pair_by_time(
+        survey_times_s,
+        est_times_s,
+        tolerance_s,
+        query_path=survey_path,
+        ref_path=estimates_path,
+        query_label="row",
+        ref_label="row",
+    )
     matched = match >= 0
     if not matched.any():
         raise InputError(
@@ -117,10 +148,12 @@ def table1(estimates: pd.DataFrame, survey: PoseTable, tolerance_s: float = 0.05
     truth_x_m, truth_y_m, truth_theta_rad = truth[:, 0], truth[:, 1], truth[:, 2]
     err_x_cm = 100.0 * (truth_x_m - col("x_m"))
     err_y_cm = 100.0 * (truth_y_m - col("y_m"))
-    return pd.DataFrame(
+    # Stage 1 searched a window around the initial heading; without one its peak is not an answer.
+    align_theta_deg = np.where(np.isfinite(col("init_theta_deg")), col("align_theta_deg"), np.nan)
+    table = pd.DataFrame(
         {
             "pose_id": survey_ids[matched].astype(np.int64),
-            "ae_deg": _wrapped_deg(truth_theta_rad - np.deg2rad(col("align_theta_deg"))),
+            "ae_deg": _wrapped_deg(truth_theta_rad - np.deg2rad(align_theta_deg)),
             "init_x_cm": 100.0 * (truth_x_m - col("init_x_m")),
             "init_y_cm": 100.0 * (truth_y_m - col("init_y_m")),
             "init_theta_deg": _wrapped_deg(truth_theta_rad - np.deg2rad(col("init_theta_deg"))),
@@ -132,6 +165,25 @@ def table1(estimates: pd.DataFrame, survey: PoseTable, tolerance_s: float = 0.05
         },
         columns=list(TABLE_COLUMNS),
     )
+    table.attrs["n_surveyed"] = int(survey_times_s.size)
+    table.attrs["tolerance_s"] = float(tolerance_s)
+    return table
+
+
+def scored(table: pd.DataFrame, only_ok: bool = False) -> np.ndarray:
+    """(N,) bool: the poses of a ``table1`` result whose final errors enter the summary.
+
+    A pose is scored when its final errors (X, Y, θ) are all finite, whatever
+    its status; with ``only_ok`` also only when its status is an accepted one
+    (``ok``, or ``recovered`` when tracking).
+    """
+    finite = np.all(
+        np.isfinite(table[["err_x_cm", "err_y_cm", "err_theta_deg"]].to_numpy(dtype=float)),
+        axis=1,
+    )
+    if only_ok:
+        finite &= table["status"].isin(ESTIMATED).to_numpy()
+    return finite
 
 
 def _rms(values: np.ndarray) -> float:
@@ -144,26 +196,72 @@ def _max_abs(values: np.ndarray) -> float:
     return float(np.max(np.abs(finite))) if finite.size else math.nan
 
 
-def summary(table: pd.DataFrame) -> pd.DataFrame:
+def _status_counts(table: pd.DataFrame) -> dict[str, int]:
+    """Poses per status, most frequent first (ties by name); unmatched poses as NO_ESTIMATE."""
+    counts = table["status"].astype(str).value_counts()
+    ordered = sorted(counts.items(), key=lambda item: (-item[1], item[0]))
+    result = {str(status): int(n) for status, n in ordered}
+    unmatched = int(table.attrs.get("n_surveyed", len(table))) - len(table)
+    if unmatched > 0:
+        result[NO_ESTIMATE] = unmatched
+    return result
+
+
+def summary(
+    table: pd.DataFrame,
+    only_ok: bool = False,
+    fail_above_cm: float | None = None,
+    fail_above_deg: float | None = None,
+) -> pd.DataFrame:
     """RMS and maximum absolute value of each error column of a ``table1`` result.
 
     Returns a DataFrame indexed ``RMS``, ``max`` with the ERROR_COLUMNS as
-    columns. The final-error columns (FINAL_ERROR_COLUMNS) use only poses whose
-    status marks an accepted estimate (``ok``, or ``recovered`` when tracking);
-    the others use every pose. NaN values are skipped; a column with no value
-    left is NaN. ``attrs["n_poses"]`` and ``attrs["n_failed"]`` count the poses
-    and those without an accepted estimate.
+    columns. The final-error columns (FINAL_ERROR_COLUMNS) cover the scored
+    poses (``scored``: every pose with a final estimate, or with ``only_ok``
+    those with an accepted status); the others use every pose. NaN values are
+    skipped; a column with no value left is NaN. ``attrs`` holds the counts:
+
+    - ``n_surveyed``: survey rows; ``n_poses``: those matched to an estimate row;
+    - ``n_scored``: poses in the final-error summary; ``only_ok``: the option;
+    - ``n_no_estimate``: surveyed poses without a final estimate (unmatched in
+      time, or matched to a row without a pose);
+    - ``n_failed``: matched poses whose status is not an accepted one;
+    - ``status_counts``: poses per status (dict, most frequent first; surveyed
+      poses without an estimate row as ``no_estimate``);
+    - ``fail_above_cm``, ``fail_above_deg``: the limits given; ``n_beyond``:
+      poses whose final |X|, |Y| or |θ| exceeds a limit, and ``n_gate_failed``:
+      the poses ``gate`` reports (beyond, or not accepted, or missing an error);
+      both None without a limit.
     """
-    ok = table["status"].isin(ESTIMATED).to_numpy()
+    score = scored(table, only_ok)
     stats = {}
     for name in ERROR_COLUMNS:
         values = table[name].to_numpy(dtype=float)
         if name in FINAL_ERROR_COLUMNS:
-            values = values[ok]
+            values = values[score]
         stats[name] = [_rms(values), _max_abs(values)]
     result = pd.DataFrame(stats, index=pd.Index(["RMS", "max"], name="stat"))
-    result.attrs["n_poses"] = len(table)
-    result.attrs["n_failed"] = int(np.count_nonzero(~ok))
+    n_surveyed = int(table.attrs.get("n_surveyed", len(table)))
+    has_pose = scored(table)
+    accepted = table["status"].isin(ESTIMATED).to_numpy()
+    gated = fail_above_cm is not None or fail_above_deg is not None
+    beyond, failing = _gate_masks(table, fail_above_cm, fail_above_deg)
+    result.attrs.update(
+        {
+            "n_surveyed": n_surveyed,
+            "n_poses": len(table),
+            "n_scored": int(np.count_nonzero(score)),
+            "only_ok": bool(only_ok),
+            "n_no_estimate": n_surveyed - int(np.count_nonzero(has_pose)),
+            "n_failed": int(np.count_nonzero(~accepted)),
+            "status_counts": _status_counts(table),
+            "tolerance_s": table.attrs.get("tolerance_s"),
+            "fail_above_cm": fail_above_cm,
+            "fail_above_deg": fail_above_deg,
+            "n_beyond": int(np.count_nonzero(beyond)) if gated else None,
+            "n_gate_failed": int(np.count_nonzero(failing)) if gated else None,
+        }
+    )
     return result
 
 
@@ -182,6 +280,38 @@ def _check_limit(limit: float | None, name: str) -> None:
         raise ValueError(f"{name} must be a non-negative number, got {limit}")
 
 
+def _gate_checks(fail_above_cm: float | None, fail_above_deg: float | None) -> list[tuple]:
+    """(label, column, limit, decimals, unit) of each gated error."""
+    _check_limit(fail_above_cm, "fail_above_cm")
+    _check_limit(fail_above_deg, "fail_above_deg")
+    checks = []
+    if fail_above_cm is not None:
+        checks += [("err_x", "err_x_cm", fail_above_cm, 1, " cm")]
+        checks += [("err_y", "err_y_cm", fail_above_cm, 1, " cm")]
+    if fail_above_deg is not None:
+        checks += [("err_theta", "err_theta_deg", fail_above_deg, 2, "°")]
+    return checks
+
+
+def _gate_masks(
+    table: pd.DataFrame, fail_above_cm: float | None, fail_above_deg: float | None
+) -> tuple[np.ndarray, np.ndarray]:
+    """(N,) bool each: poses beyond a limit, and poses that fail the gate (see ``gate``)."""
+    checks = _gate_checks(fail_above_cm, fail_above_deg)
+    n = len(table)
+    beyond = np.zeros(n, dtype=bool)
+    missing = np.zeros(n, dtype=bool)
+    for _, column, limit, _, _ in checks:
+        values = np.abs(table[column].to_numpy(dtype=float))
+        with np.errstate(invalid="ignore"):
+            beyond |= np.isfinite(values) & (values > limit + _GATE_SLACK)
+        missing |= ~np.isfinite(values)
+    if not checks:
+        return beyond, beyond.copy()
+    accepted = table["status"].isin(ESTIMATED).to_numpy()
+    return beyond, beyond | missing | ~accepted
+
+
 def gate(
     table: pd.DataFrame,
     fail_above_cm: float | None = None,
@@ -191,19 +321,12 @@ def gate(
 
     ``fail_above_cm`` limits |err_x_cm| and |err_y_cm|; ``fail_above_deg`` limits
     |err_theta_deg|. When either limit is set, a pose whose status is not ``ok``
-    or whose gated error is missing is a violation too. Empty list: all pass.
+    (or ``recovered``) or whose gated error is missing is a violation too,
+    whatever ``summary``'s ``only_ok``. Empty list: all pass.
     """
-    _check_limit(fail_above_cm, "fail_above_cm")
-    _check_limit(fail_above_deg, "fail_above_deg")
-    if fail_above_cm is None and fail_above_deg is None:
+    checks = _gate_checks(fail_above_cm, fail_above_deg)
+    if not checks:
         return []
-    checks = []
-    if fail_above_cm is not None:
-        checks += [("err_x", "err_x_cm", fail_above_cm, 1, " cm")]
-        checks += [("err_y", "err_y_cm", fail_above_cm, 1, " cm")]
-    if fail_above_deg is not None:
-        checks += [("err_theta", "err_theta_deg", fail_above_deg, 2, "°")]
-
     abs_errors = {col: np.abs(table[col].to_numpy(dtype=float)) for _, col, *_ in checks}
     messages = []
     for row, (pose_id, status) in enumerate(zip(table["pose_id"], table["status"], strict=True)):
@@ -242,6 +365,48 @@ def _display_rows(table: pd.DataFrame, stats: pd.DataFrame, missing: str) -> lis
     return rows
 
 
+def _limits_text(stats: pd.DataFrame) -> str:
+    limits = []
+    if stats.attrs["fail_above_cm"] is not None:
+        limits.append(f"{stats.attrs['fail_above_cm']:g} cm")
+    if stats.attrs["fail_above_deg"] is not None:
+        limits.append(f"{stats.attrs['fail_above_deg']:g}°")
+    return " / ".join(limits)
+
+
+def summary_lines(stats: pd.DataFrame) -> list[str]:
+    """The counts of a ``summary`` in words, one sentence a line.
+
+    Poses by status; which poses the RMS and max of the final errors cover and
+    how many surveyed poses have no estimate; with a gate, how many poses lie
+    beyond its limits and how many fail it.
+    """
+    attrs = stats.attrs
+    counts = ", ".join(f"{status} {n}" for status, n in attrs["status_counts"].items())
+    lines = [f"{attrs['n_surveyed']} surveyed poses: {counts}."]
+    if attrs["only_ok"]:
+        cover = f"the {attrs['n_scored']} poses with status ok"
+    else:
+        cover = f"the {attrs['n_scored']} poses with an estimate, whatever their status"
+    without = attrs["n_no_estimate"]
+    none = f"; {without} surveyed {'pose has' if without == 1 else 'poses have'} no estimate"
+    lines.append(
+        f"RMS and max of X, Y, θ cover {cover}{none if without else ''}. "
+        "Errors are surveyed minus computed."
+    )
+    if attrs["n_beyond"] is not None:
+        with_estimate = attrs["n_surveyed"] - without
+        line = f"{attrs['n_beyond']} of {with_estimate} poses beyond {_limits_text(stats)}"
+        more = attrs["n_gate_failed"] - attrs["n_beyond"]
+        if more:
+            line += (
+                f"; the gate fails {attrs['n_gate_failed']}, counting {more} without an "
+                "accepted estimate (status other than ok)"
+            )
+        lines.append(line + ".")
+    return lines
+
+
 def _format_md(table: pd.DataFrame, stats: pd.DataFrame) -> str:
     headers = ["pose", *(md for _, _, md, _ in _DISPLAY), "status"]
     frame = pd.DataFrame(_display_rows(table, stats, _MISSING_MD), columns=headers)
@@ -250,46 +415,95 @@ def _format_md(table: pd.DataFrame, stats: pd.DataFrame) -> str:
         disable_numparse=True,
         colalign=("left", *("right" for _ in _DISPLAY), "left"),
     )
-    n_poses, n_failed = stats.attrs["n_poses"], stats.attrs["n_failed"]
-    note = (
-        f"{n_poses} poses, {n_failed} failed; errors are surveyed minus computed, "
-        "and RMS and max of X, Y, θ cover the poses with status ok."
-    )
-    return f"{body}\n\n{note}\n"
+    return body + "\n\n" + "\n".join(summary_lines(stats)) + "\n"
+
+
+def _latex_text(text: str) -> str:
+    replacements = {"&": r"\&", "%": r"\%", "_": r"\_", "#": r"\#", "$": r"\$", "°": r"$^\circ$"}
+    replacements |= {"θ": r"$\theta$"}
+    return "".join(replacements.get(ch, ch) for ch in text)
 
 
 def _format_latex(table: pd.DataFrame, stats: pd.DataFrame) -> str:
-    """A booktabs ``tabular`` (needs ``\\usepackage{booktabs}``), summary rows under a rule."""
+    """A booktabs ``tabular`` (needs ``\\usepackage{booktabs}``), summary rows under a rule and
+    the counts of ``summary_lines`` in full-width rows under another."""
     headers = ["Pose", *(tex for _, _, _, tex in _DISPLAY), "Status"]
     rows = _display_rows(table, stats, _MISSING_LATEX)
     for row in rows:
         row[1:-1] = [f"${cell}$" if cell != _MISSING_LATEX else cell for cell in row[1:-1]]
     frame = pd.DataFrame(rows, columns=headers)
     styler = frame.style.hide(axis="index").format(escape="latex", subset=["Status"])
+    n_columns = len(_DISPLAY) + 2
     latex = styler.to_latex(column_format="l" + "r" * len(_DISPLAY) + "l", hrules=True)
     lines = latex.splitlines()
     # Styler puts no rule between body rows; set the summary rows (last in the body) apart.
     lines.insert(lines.index(r"\bottomrule") - len(stats), r"\midrule")
+    notes = [
+        f"\\multicolumn{{{n_columns}}}{{l}}{{\\footnotesize {_latex_text(line)}}} \\\\"
+        for line in summary_lines(stats)
+    ]
+    at = lines.index(r"\bottomrule")
+    lines[at:at] = [r"\midrule", *notes]
     return "\n".join(lines) + "\n"
 
 
 def _json_value(value: object) -> object:
     if isinstance(value, float | np.floating):
         return float(value) if np.isfinite(value) else None
-    if isinstance(value, np.integer):
-        return int(value)
+    if isinstance(value, np.integer | np.bool_):
+        return value.item()
     return value
 
 
+def _pose_flags(table: pd.DataFrame, stats: pd.DataFrame) -> tuple[np.ndarray, np.ndarray | None]:
+    """Per pose: scored (in the summary of final errors), and beyond the gate (None: no gate)."""
+    score = scored(table, stats.attrs["only_ok"])
+    if stats.attrs["n_beyond"] is None:
+        return score, None
+    beyond, _ = _gate_masks(table, stats.attrs["fail_above_cm"], stats.attrs["fail_above_deg"])
+    return score, beyond
+
+
+def _format_csv(table: pd.DataFrame, stats: pd.DataFrame) -> str:
+    score, beyond = _pose_flags(table, stats)
+    frame = table[list(TABLE_COLUMNS)].copy()
+    frame["scored"] = score.astype(int)
+    frame["beyond_gate"] = pd.array(
+        [pd.NA] * len(table) if beyond is None else beyond.astype(int), dtype="Int64"
+    )
+    return frame.to_csv(index=False)
+
+
 def _format_json(table: pd.DataFrame, stats: pd.DataFrame) -> str:
-    poses = [
-        {name: _json_value(value) for name, value in zip(TABLE_COLUMNS, row, strict=True)}
-        for row in table[list(TABLE_COLUMNS)].itertuples(index=False)
-    ]
+    score, beyond = _pose_flags(table, stats)
+    poses = []
+    for i, row in enumerate(table[list(TABLE_COLUMNS)].itertuples(index=False)):
+        pose = {name: _json_value(value) for name, value in zip(TABLE_COLUMNS, row, strict=True)}
+        pose["scored"] = bool(score[i])
+        pose["beyond_gate"] = None if beyond is None else bool(beyond[i])
+        poses.append(pose)
+    attrs = stats.attrs
     summary_out: dict[str, object] = {
-        "n_poses": int(stats.attrs["n_poses"]),
-        "n_failed": int(stats.attrs["n_failed"]),
+        name: _json_value(attrs[name])
+        for name in (
+            "n_surveyed",
+            "n_poses",
+            "n_scored",
+            "n_no_estimate",
+            "n_failed",
+            "only_ok",
+            "tolerance_s",
+        )
     }
+    summary_out["status_counts"] = dict(attrs["status_counts"])
+    summary_out["gate"] = (
+        None
+        if attrs["n_beyond"] is None
+        else {
+            name: _json_value(attrs[name])
+            for name in ("fail_above_cm", "fail_above_deg", "n_beyond", "n_gate_failed")
+        }
+    )
     for stat, record in stats.iterrows():
         summary_out[str(stat)] = {c: _json_value(record[c]) for c in ERROR_COLUMNS}
     return json.dumps({"poses": poses, "summary": summary_out}, indent=2, allow_nan=False) + "\n"
@@ -299,16 +513,22 @@ def format_table(table: pd.DataFrame, summary: pd.DataFrame, fmt: str) -> str:
     """Render a ``table1`` result and its ``summary`` as text in format ``fmt``.
 
     - ``md``: a Markdown table like the paper's (0.1 cm, 0.01°), RMS and max rows
-      after the poses, and a line with the pose counts.
-    - ``csv``: the per-pose rows with TABLE_COLUMNS as header, full precision.
+      after the poses, then the counts of ``summary_lines``.
+    - ``csv``: the per-pose rows, TABLE_COLUMNS at full precision then ``scored``
+      (1 when the pose is in the RMS and max) and ``beyond_gate`` (1 when an
+      error exceeds a --fail-above limit, 0 when not, empty without limits).
     - ``latex``: a booktabs ``tabular`` of the md content.
-    - ``json``: ``{"poses": [...], "summary": {"n_poses", "n_failed", "RMS", "max"}}``,
-      full precision, NaN written as null.
+    - ``json``: ``{"poses": [...], "summary": {...}}``: each pose with TABLE_COLUMNS,
+      ``scored`` and ``beyond_gate``; the summary with ``n_surveyed``, ``n_poses``,
+      ``n_scored``, ``n_no_estimate``, ``n_failed``, ``only_ok``, ``tolerance_s``,
+      ``status_counts``, ``gate`` (null, or ``fail_above_cm``, ``fail_above_deg``,
+      ``n_beyond``, ``n_gate_failed``), ``RMS`` and ``max``; full precision, NaN
+      written as null.
     """
     if fmt == "md":
         return _format_md(table, summary)
     if fmt == "csv":
-        return table[list(TABLE_COLUMNS)].to_csv(index=False)
+        return _format_csv(table, summary)
     if fmt == "latex":
         return _format_latex(table, summary)
     if fmt == "json":

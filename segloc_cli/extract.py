@@ -179,9 +179,10 @@ def _chains(points_count: int, breaks: np.ndarray, wraps: bool) -> list[tuple[in
 def extract_segments(scan: Scan, params: ExtractParams | None = None) -> np.ndarray:
     """Local map (N, 4) in metres, robot frame, from ``scan``. Empty (0, 4) if nothing qualifies."""
     params = params or ExtractParams()
-    valid = scan.valid
+    all_angles = np.asarray(scan.angles_rad, dtype=float)
+    valid = scan.valid & np.isfinite(all_angles)
     ranges = np.asarray(scan.ranges_m, dtype=float)[valid]
-    angles = np.asarray(scan.angles_rad, dtype=float)[valid]
+    angles = all_angles[valid]
     if ranges.size < params.min_points:
         return np.zeros((0, 4))
     points = np.column_stack([ranges * np.cos(angles), ranges * np.sin(angles)])

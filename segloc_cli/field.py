@@ -21,19 +21,64 @@ from numba import njit
 from segloc_cli.geometry import as_segments
 from segloc_cli.overlap import _point_segment_distance
 
+INDEX_LIMIT = 2**40
+"""Cell indices are clipped to ±this before they reach the compiled sums: far beyond any
+raster, yet small enough that adding a shift can never overflow 64 bits."""
+
+MAX_RASTER_CELLS = 100_000_000
+"""Most cells of a score raster (float32: 400 MB). A map whose extent would need more at the
+asked cell size gets coarser cells (and a score radius grown in proportion) instead."""
+
+
+def cell_indices(cells: np.ndarray) -> np.ndarray:
+    """Positions in cells (any shape) → int64 indices, rounded and clipped to ±``INDEX_LIMIT``.
+
+    Non-finite positions become ``-INDEX_LIMIT``, a cell outside every raster, so
+    a point that is NaN or immeasurably far simply scores 0.
+    """
+    clipped = np.clip(np.nan_to_num(cells, nan=-INDEX_LIMIT), -INDEX_LIMIT, INDEX_LIMIT)
+    return np.rint(clipped).astype(np.int64)
+
+
+@njit(cache=True)
+def _clamped_index(cells: float, n: int) -> int:
+    """A position in cells (any float) → an index in [0, n − 1]; NaN gives 0."""
+    if not cells > 0.0:
+        return 0
+    if cells >= n - 1:
+        return n - 1
+    return int(cells)
+
 
 @njit(cache=True)
 def _distance_raster(segments, x0, y0, cell, nx, ny, max_d):
-    """Distance (clipped at ``max_d``) from each cell centre to the nearest segment."""
+    """Distance (clipped at ``max_d``) from each cell centre to the nearest segment.
+
+    Each segment visits, column by column, only the cells within ``max_d`` of
+    its part in that column's reach, so the work follows the segments' length,
+    not the area of their bounding boxes. Non-finite segments are skipped.
+    """
     dist = np.full((nx, ny), max_d, dtype=np.float32)
+    reach = max_d + 1e-9  # a cell exactly at max_d is visited despite round-off
     for s in range(segments.shape[0]):
         x1, y1, x2, y2 = segments[s, 0], segments[s, 1], segments[s, 2], segments[s, 3]
-        i_lo = max(0, int(np.floor((min(x1, x2) - max_d - x0) / cell)))
-        i_hi = min(nx - 1, int(np.ceil((max(x1, x2) + max_d - x0) / cell)))
-        j_lo = max(0, int(np.floor((min(y1, y2) - max_d - y0) / cell)))
-        j_hi = min(ny - 1, int(np.ceil((max(y1, y2) + max_d - y0) / cell)))
+        if not (np.isfinite(x1) and np.isfinite(y1) and np.isfinite(x2) and np.isfinite(y2)):
+            continue
+        i_lo = _clamped_index(np.floor((min(x1, x2) - reach - x0) / cell), nx)
+        i_hi = _clamped_index(np.ceil((max(x1, x2) + reach - x0) / cell), nx)
+        dx = x2 - x1
         for i in range(i_lo, i_hi + 1):
             cx = x0 + i * cell
+            if dx != 0.0:
+                ta, tb = (cx - reach - x1) / dx, (cx + reach - x1) / dx
+                t_lo, t_hi = max(0.0, min(ta, tb)), min(1.0, max(ta, tb))
+                if t_lo > t_hi:
+                    continue
+                ya, yb = y1 + t_lo * (y2 - y1), y1 + t_hi * (y2 - y1)
+            else:
+                ya, yb = y1, y2
+            j_lo = _clamped_index(np.floor((min(ya, yb) - reach - y0) / cell), ny)
+            j_hi = _clamped_index(np.ceil((max(ya, yb) + reach - y0) / cell), ny)
             for j in range(j_lo, j_hi + 1):
                 d = _point_segment_distance(cx, y0 + j * cell, x1, y1, x2, y2)
                 if d < dist[i, j]:
@@ -56,8 +101,12 @@ class ScoreRaster:
     cell_m: float
 
     def cell_index(self, points_world: np.ndarray) -> np.ndarray:
-        """Integer cell indices (P, 2) of points (P, 2), world frame; may fall outside."""
-        return np.rint((np.asarray(points_world) - self.origin) / self.cell_m).astype(np.int64)
+        """Integer cell indices (P, 2) of points (P, 2), world frame; may fall outside.
+
+        Non-finite or very distant points get an index far outside the raster.
+        """
+        cells = (np.asarray(points_world, dtype=float) - self.origin) / self.cell_m
+        return cell_indices(cells)
 
     def lookup(self, points_world: np.ndarray) -> np.ndarray:
         """Scores (P,) of the cells holding the points, 0 outside the raster."""
@@ -69,19 +118,51 @@ class ScoreRaster:
         return out
 
 
+def raster_cell(
+    extent_m: np.ndarray, margin_m: float, cell_m: float, max_cells: int = MAX_RASTER_CELLS
+) -> float:
+    """The cell side (m) of a raster over ``extent_m`` (2,) plus a margin of ``margin_m`` on
+    each side (the margin scales with the cell): ``cell_m``, or past ``max_cells`` cells the
+    first of ``cell_m``·1.25^k that keeps the raster within them."""
+    extent = np.asarray(extent_m, dtype=float)
+    cell = float(cell_m)
+    while True:
+        n = np.ceil(extent / cell + 2.0 * margin_m / cell_m) + 1
+        if n[0] * n[1] <= max_cells:
+            return cell
+        cell *= 1.25
+
+
 def score_raster(
-    segments_world: np.ndarray, cell_m: float, radius_m: float, margin_m: float
+    segments_world: np.ndarray,
+    cell_m: float,
+    radius_m: float,
+    margin_m: float,
+    max_cells: int = MAX_RASTER_CELLS,
 ) -> ScoreRaster:
-    """Scores 1 − (d/radius)² (0 beyond ``radius_m``) over the map's extent plus ``margin_m``."""
+    """Scores 1 − (d/radius)² (0 beyond ``radius_m``) over the map's extent plus ``margin_m``.
+
+    A map too large for ``max_cells`` cells of ``cell_m`` gets the raster's
+    ``raster_cell`` side instead, with the radius and margin scaled alike, so
+    memory stays bounded (the raster's ``cell_m`` tells which was used).
+    """
     segments = np.ascontiguousarray(as_segments(segments_world, "map segments"))
     if segments.shape[0] == 0:
         return ScoreRaster(np.zeros((1, 1), dtype=np.float32), np.zeros(2), cell_m)
     ends = segments.reshape(-1, 2)
+    cell = raster_cell(ends.max(axis=0) - ends.min(axis=0), margin_m, cell_m, max_cells)
+    scale = cell / cell_m
+    radius_m, margin_m = radius_m * scale, margin_m * scale
     lo = ends.min(axis=0) - margin_m
-    n = np.ceil((ends.max(axis=0) + margin_m - lo) / cell_m).astype(int) + 1
-    dist = _distance_raster(segments, lo[0], lo[1], cell_m, n[0], n[1], radius_m)
-    score = np.clip(1.0 - (dist / radius_m) ** 2, 0.0, 1.0).astype(np.float32)
-    return ScoreRaster(score, lo, float(cell_m))
+    n = np.ceil((ends.max(axis=0) + margin_m - lo) / cell).astype(int) + 1
+    score = _distance_raster(segments, lo[0], lo[1], cell, n[0], n[1], radius_m)
+    # In place, a band of rows at a time: the raster is the largest array the localizer holds,
+    # and float64 temporaries of all of it would take twice its size again.
+    rows = max(1, 2**22 // score.shape[1])
+    for r0 in range(0, score.shape[0], rows):
+        band = score[r0 : r0 + rows]
+        band[:] = np.clip(1.0 - (band / radius_m) ** 2, 0.0, 1.0)
+    return ScoreRaster(score, lo, float(cell))
 
 
 def coarse_bound(fine_score: np.ndarray, factor: int) -> np.ndarray:

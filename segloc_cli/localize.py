@@ -25,12 +25,20 @@ from segloc_cli.search import HypothesisSearch, SearchParams, distinct
 from segloc_cli.spatial import SegmentGrid
 
 STATUS_TOO_FEW_SEGMENTS = "too_few_segments"
+"""The scan cannot pin a pose: too few local segments, too few points, or points spread along
+one line (``scan_is_degenerate``). A pose found anyway is kept in the row, but not trusted."""
 STATUS_NO_OVERLAP = "no_overlap"
 STATUS_RECOVERED = "recovered"
 """Tracking: the first match failed its checks, a wider search passed them."""
 ESTIMATED = (STATUS_OK, STATUS_RECOVERED)
 """Statuses of rows that hold an accepted estimate; every other status marks a failure.
 (``ambiguous`` and ``lost`` rows hold a pose too, the best found, but it is not trusted.)"""
+
+
+MIN_POINT_SPREAD_M = 0.1
+"""Smallest spread (m) of a scan's points across their main direction for a trusted pose.
+Every scan of the Intel Research Lab log spreads at least 0.2 m; one wall seen alone, or a
+fan whose beams all lie on one ray, spreads about the range noise (a centimetre)."""
 
 
 @dataclass(frozen=True)
@@ -50,6 +58,13 @@ class LocalizeParams:
     recentres: int = 8
     """Extra same-scale iterations while the estimate still moves (0 = the paper's schedule)."""
     min_segments: int = 3
+    """Fewer local segments and the status is ``too_few_segments`` (stage 2 does not run)."""
+    min_points: int = 20
+    """Fewer valid readings and the status is ``too_few_segments``. The verdict compares
+    inlier shares with a margin of 0.1: below 20 points two stray readings would decide it, and
+    three segments of extraction's 4 readings each leave little to check a fit against."""
+    min_spread_m: float = MIN_POINT_SPREAD_M
+    """Points spread less than this across their main direction: ``too_few_segments``."""
     refine: RefineParams | None = field(default_factory=RefineParams)
     """Least-squares fit of the scan's points after stage 2; None stops at stage 2 (the paper)."""
     search: SearchParams | None = field(default_factory=SearchParams)
@@ -78,6 +93,49 @@ class Estimate:
     inlier_ratio: float = float("nan")
     runner_up: Pose2 | None = None
     runner_up_ratio: float = float("nan")
+
+
+def usable_points(points_robot: np.ndarray | None) -> np.ndarray | None:
+    """The rows (K, 2) of ``points_robot`` with finite coordinates (None stays None)."""
+    if points_robot is None:
+        return None
+    points = np.asarray(points_robot, dtype=float).reshape(-1, 2)
+    return points[np.all(np.isfinite(points), axis=1)]
+
+
+def point_spread_m(points: np.ndarray) -> float:
+    """Standard deviation (m) of points (K, 2) across their main direction: the square root of
+    the smaller eigenvalue of their covariance; 0 for fewer than two points.
+
+    Near 0 when every point lies on one line (one wall, or every beam along one ray): such a
+    scan fixes at most a heading and one offset, never a pose.
+    """
+    points = np.asarray(points, dtype=float).reshape(-1, 2)
+    if points.shape[0] < 2:
+        return 0.0
+    centred = points - points.mean(axis=0)
+    sxx, syy = float(np.mean(centred[:, 0] ** 2)), float(np.mean(centred[:, 1] ** 2))
+    sxy = float(np.mean(centred[:, 0] * centred[:, 1]))
+    smaller = 0.5 * (sxx + syy) - np.hypot(0.5 * (sxx - syy), sxy)
+    return float(np.sqrt(max(smaller, 0.0))) if np.isfinite(smaller) else 0.0
+
+
+def scan_is_degenerate(
+    points_robot: np.ndarray | None, segments_robot: np.ndarray, params: LocalizeParams
+) -> bool:
+    """Whether a scan is too poor to pin a pose: fewer than ``min_points`` usable points, or
+    a spread across their main direction under ``min_spread_m``.
+
+    Without points the local segments' endpoints stand in for them, and only the spread is
+    checked (segment count is the caller's separate rule).
+    """
+    if points_robot is None:
+        ends = np.asarray(segments_robot, dtype=float).reshape(-1, 2)
+        return point_spread_m(ends) < params.min_spread_m
+    points = usable_points(points_robot)
+    if points.shape[0] < params.min_points:
+        return True
+    return point_spread_m(points) < params.min_spread_m
 
 
 INDEX_MIN_SEGMENTS = 400
@@ -146,7 +204,7 @@ class Localizer:
         travel, 2·√2·η0) take part. With the whole map in reach this is the
         map's own R-table.
         """
-        radius = float(np.hypot(segments_robot[:, 0::2], segments_robot[:, 1::2]).max())
+        radius = float(np.hypot(segments_robot[:, 0::2], segments_robot[:, 1::2]).max(initial=0.0))
         reach = radius + 2.0 * np.sqrt(2.0) * self.params.grid_m
         near = self.index.near([initial.x, initial.y], reach)
         if near.size == self.segments_world.shape[0]:
@@ -179,18 +237,42 @@ class Localizer:
         """Estimate the pose at which the local map (N, 4), robot frame, was seen.
 
         ``initial`` supplies the starting position and, unless the window is
-        None, the prior heading for stage 1. ``points_robot`` (P, 2), the
+        None, the prior heading for stage 1. A scan with fewer than
+        ``min_segments`` local segments, fewer than ``min_points`` points, or
+        points along one line (``scan_is_degenerate``) gets the status
+        ``too_few_segments``; when the search still found a pose, the estimate
+        holds it. ``points_robot`` (P, 2), the
         scan's valid readings in the robot frame, are what refinement fits and
         the hypothesis search scores; without them (or with refinement off)
         the estimate is the stage-2 pose, the paper's answer.
         """
         p = self.params
         n_local = int(segments_robot.shape[0])
+        degenerate = scan_is_degenerate(points_robot, segments_robot, p)
+        points_robot = usable_points(points_robot)
         robust = p.refine is not None and points_robot is not None
         searching = robust and p.search is not None
         enough = n_local >= p.min_segments
         if not enough and not searching:
             return Estimate(NAN_POSE, float("nan"), 0.0, n_local, STATUS_TOO_FEW_SEGMENTS)
+        est = self._localize(segments_robot, initial, points_robot, enough, robust, searching)
+        if degenerate or not enough:
+            # Whatever was found stays in the row for the user to see, but is not trusted.
+            est = replace(est, status=STATUS_TOO_FEW_SEGMENTS)
+        return est
+
+    def _localize(
+        self,
+        segments_robot: np.ndarray,
+        initial: Pose2,
+        points_robot: np.ndarray | None,
+        enough: bool,
+        robust: bool,
+        searching: bool,
+    ) -> Estimate:
+        """``localize`` once the scan's size is known: the stages, the search, the verdict."""
+        p = self.params
+        n_local = int(segments_robot.shape[0])
         peaks = self.headings(segments_robot, initial) if enough else np.zeros(0)
         heading, stage2 = float("nan"), None
         if peaks.size:
@@ -215,16 +297,24 @@ class Localizer:
         every position of the map's extent; the best distinct grid poses are
         refined and the fit that puts the points closest to the map wins, the
         runner-up reported beside. The points alone decide, so a scan with
-        too few segments for the two stages is still searched; stage 1's
-        whole-circle vote is reported as the aligned heading when it can run.
+        too few segments for the two stages is still searched and its best
+        pose reported, but its status is ``too_few_segments`` (as for too few
+        or collinear points); stage 1's whole-circle vote is reported as the
+        aligned heading when it can run.
         """
         n_local = int(segments_robot.shape[0])
+        degenerate = scan_is_degenerate(points_robot, segments_robot, self.params)
+        points_robot = usable_points(points_robot)
         seeds = [h.pose for h in self.hypothesis_search.everywhere(points_robot)]
         heading = float("nan")
-        if n_local >= self.params.min_segments:
+        enough = n_local >= self.params.min_segments
+        if enough:
             peaks = self.headings(segments_robot, None)
             heading = float(peaks[0]) if peaks.size else heading
-        return self._judged(seeds, points_robot, heading, 0.0, n_local, None)
+        est = self._judged(seeds, points_robot, heading, 0.0, n_local, None)
+        if degenerate or not enough:
+            est = replace(est, status=STATUS_TOO_FEW_SEGMENTS)
+        return est
 
     def _stage2(self, segments_robot: np.ndarray, initial: Pose2, peaks: np.ndarray):
         """Stage 2 from each stage-1 peak: (heading, result) of the largest overlap."""
@@ -395,6 +485,11 @@ def track_scans(
     the guessed position at stage 1's headings and at a fan of headings around
     the guess. Failing that the scan is ``lost``, the dead-reckoning guess
     carries the track on, and the next scan's recovery search is wider still.
+    A scan with fewer than ``min_points`` points or points along one line
+    (``scan_is_degenerate``) is ``too_few_segments`` and the guess carries on
+    through it likewise; with refinement on, the local segments are not
+    counted, since the odometry prior holds what a corridor's two walls
+    cannot.
     """
     track = track or TrackParams()
     p = localizer.params
@@ -417,12 +512,14 @@ def track_scans(
             increment = previous[1].inverse().compose(odom)
             guess = previous[0].compose(increment)
         local = extract_segments(scan, extract_params)
-        points = scan.points()
+        points = usable_points(scan.points())
         est = _track_match(localizer, local, points, guess, increment, track)
         status = est.status
         # The first guess may be rough: only its overlap is checked, not the jump.
         scale = 1.0 if previous is not None else np.inf
-        if status in (STATUS_OK, STATUS_NO_OVERLAP) and not _accepted(est, guess, track, scale):
+        if scan_is_degenerate(points, local, p):
+            status = STATUS_TOO_FEW_SEGMENTS  # the guess carries on, as for a lost scan
+        elif status in (STATUS_OK, STATUS_NO_OVERLAP) and not _accepted(est, guess, track, scale):
             factor = track.widen ** min(lost_in_a_row + 1, track.max_widenings)
             wide = widened(factor)
             candidates = [_measured(localizer, wide.localize(local, guess, points), points)]
@@ -433,7 +530,8 @@ def track_scans(
                 status = STATUS_RECOVERED
             else:
                 status = STATUS_LOST
-        lost_in_a_row = lost_in_a_row + 1 if status == STATUS_LOST else 0
+        if status != STATUS_TOO_FEW_SEGMENTS:  # a scan that says nothing leaves the count
+            lost_in_a_row = lost_in_a_row + 1 if status == STATUS_LOST else 0
         if status in ESTIMATED:
             carried = est.pose
         else:
@@ -453,6 +551,7 @@ def _track_match(
 ) -> Estimate:
     """The first match of a tracked scan, with its inlier share measured."""
     p = localizer.params
+    points = usable_points(points)
     if p.refine is None:
         return _measured(localizer, localizer.localize(local, guess), points)
     sigma_m, sigma_deg = (None, None) if increment is None else track.prior(increment)

@@ -205,6 +205,8 @@ def _angular_interval(x1, y1, x2, y2):
 @njit(cache=True)
 def _pairs_kernel(g, g_robot, loc, local_world, spread_m, spread_rad, band_m, sin_min):
     n_local = loc.shape[0]
+    if n_local == 0 or g.shape[0] == 0:
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
     reach = np.empty(n_local)  # how far a local segment's points can move over the candidates
     l_mid = np.empty(n_local)
     l_half = np.empty(n_local)
@@ -443,7 +445,7 @@ def coarse_to_fine(
         reach = radius * (1.0 + turn) + travel + band_halfwidth(grid_m) / sin_min + 1e-6
         g = np.ascontiguousarray(g[index.candidates([start.x, start.y], reach)])
     track, best_overlaps, final = _search_kernel(
-        g, loc, start.x, start.y, start.theta, float(grid_m), dtheta, int(iterations),
-        float(ratio), int(recentres), sin_min,
+        g, loc, float(start.x), float(start.y), float(start.theta), float(grid_m), dtheta,
+        int(iterations), float(ratio), int(recentres), sin_min,
     )  # fmt: skip
     return OverlapResult(Pose2(*track[-1]), float(final), track, best_overlaps)

@@ -30,6 +30,9 @@ _job: tuple | None = None
 def _ignore_interrupts() -> None:
     # Ctrl-C reaches every process of the terminal's group; the parent alone handles it.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    # The parent may turn SIGTERM into a stop request; a worker must still die of it when
+    # the pool is closed.
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
 
 
 def _localize_block(bounds: tuple[int, int]) -> list[dict]:

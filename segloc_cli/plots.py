@@ -33,7 +33,7 @@ from matplotlib.figure import Figure
 from segloc_cli.align import VOTE_SCHEMES, RTable, accumulate, align, candidate_headings
 from segloc_cli.extract import ExtractParams, extract_segments
 from segloc_cli.geometry import Pose2, transform_points, transform_segments, wrap_angle
-from segloc_cli.io.tables import PoseTable, nearest_by_time
+from segloc_cli.io.tables import PoseTable, pair_by_time
 from segloc_cli.localize import ESTIMATED, LocalizeParams
 from segloc_cli.overlap import coarse_to_fine
 from segloc_cli.scan import Scan
@@ -107,20 +107,39 @@ def surveyed_scans(
     scans: Sequence[Scan],
     tolerance_s: float = 0.05,
     extract_params: ExtractParams | None = None,
+    *,
+    paths: tuple[object, object, object] = ("survey", "estimates", "log"),
 ) -> list[SurveyedScan]:
     """Pair survey rows with estimates, and estimates with scans, by time.
 
     ``estimates`` is an estimates table (``read_estimates``); each survey row
     takes the estimate nearest in time within ``tolerance_s`` seconds, as
     ``evaluate.table1`` does, and that estimate the scan nearest its time.
-    Rows missing either are left out; the rest keep survey order. Local maps
-    are extracted with ``extract_params`` (default: as ``segloc localize``).
+    Rows missing either are left out; the rest keep survey order. An ambiguous
+    pairing (``io.tables.pair_by_time``) raises ``InputError`` naming the file
+    among ``paths`` (survey, estimates, log) at fault. Local maps are
+    extracted with ``extract_params`` (default: as ``segloc localize``).
     """
+    survey_path, estimates_path, log_path = paths
     est_times_s = estimates["time_s"].to_numpy(dtype=float)
-    est_rows = nearest_by_time(survey.time_s, est_times_s, tolerance_s)
+    est_rows = pair_by_time(
+        survey.time_s,
+        est_times_s,
+        tolerance_s,
+        query_path=survey_path,
+        ref_path=estimates_path,
+    )
     scan_times_s = np.array([scan.time_s for scan in scans], dtype=float)
     query_s = np.where(est_rows >= 0, est_times_s[np.maximum(est_rows, 0)], np.nan)
-    scan_rows = nearest_by_time(query_s, scan_times_s, tolerance_s)
+    scan_rows = pair_by_time(
+        query_s,
+        scan_times_s,
+        tolerance_s,
+        query_path=estimates_path,
+        ref_path=log_path,
+        query_label="estimate",
+        ref_label="scan",
+    )
 
     def pose(row: pd.Series, prefix: str) -> Pose2:
         return Pose2.from_deg(row[f"{prefix}x_m"], row[f"{prefix}y_m"], row[f"{prefix}theta_deg"])

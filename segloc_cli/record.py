@@ -92,6 +92,7 @@ def _stream(
     progress = Progress()
     started = time.monotonic()
     last_scan = started
+    skipped_at_last_scan = driver.skipped
     anchor: tuple[float, float] | None = None  # (host wall clock, device clock) at scan 1
     driver.start()
     while True:
@@ -108,8 +109,16 @@ def _stream(
             progress.ended_by = "duration"
             return progress
         if now - last_scan > settings.stall_s:
+            # A device that keeps sending only frames that fail their checks is not
+            # silent: say so, since the cure differs (baud rate, protocol, cable).
+            spoiled = driver.skipped - skipped_at_last_scan
+            why = (
+                f"{spoiled} frames came but were damaged or inconsistent and were skipped"
+                if spoiled
+                else "device stalled"
+            )
             raise DeviceError(
-                f"{driver.port}: no scan for {settings.stall_s:g} s (device stalled); "
+                f"{driver.port}: no scan for {settings.stall_s:g} s ({why}); "
                 f"the log keeps the {progress.scans} scans received"
             )
         try:
@@ -122,6 +131,7 @@ def _stream(
             anchor = (time.time(), frame.device_time_s)
         writer.add_scan(_scan(frame, anchor))
         last_scan = time.monotonic()
+        skipped_at_last_scan = driver.skipped
         progress.scans += 1
         progress.skipped = driver.skipped
         on_scan(progress)

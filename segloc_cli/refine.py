@@ -181,8 +181,10 @@ def refine_pose(
     n = points.shape[0]
     if n == 0 or segments.shape[0] == 0:
         return Refinement(initial, 0.0, float("nan"), n, 0.0)
-    # Only segments within reach of the scan from near the guess can pair.
-    reach = float(np.hypot(points[:, 0], points[:, 1]).max()) + 2.0 * p.gate_m
+    # Only segments within reach of the scan from near the guess can pair. Points that are
+    # not finite never pair (their distances are NaN) and must not widen the reach.
+    radii = np.hypot(points[:, 0], points[:, 1])
+    reach = float(radii[np.isfinite(radii)].max(initial=0.0)) + 2.0 * p.gate_m
     near = point_segment_distances([initial.x, initial.y], segments)[0] <= reach
     segments = segments[near]
     normals = _line_normals(segments)
@@ -221,7 +223,12 @@ def refine_pose(
             offset = pose - initial.as_array()
             offset[2] = wrap_angle(offset[2])
             hessian = jw.T @ jacobian + np.diag(prior + 1e-6)
-            step = np.linalg.solve(hessian, -jw.T @ residual - prior * offset)
+            try:
+                step = np.linalg.solve(hessian, -jw.T @ residual - prior * offset)
+            except np.linalg.LinAlgError:
+                break
+            if not np.all(np.isfinite(step)):
+                break
             pose = pose + step
             pose[2] = wrap_angle(pose[2])
             if np.hypot(step[0], step[1]) < 1e-5 and abs(step[2]) < 1e-6:

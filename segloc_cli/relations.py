@@ -40,7 +40,7 @@ import pandas as pd
 from segloc_cli.errors import InputError
 from segloc_cli.geometry import wrap_angle
 from segloc_cli.io.files import reading
-from segloc_cli.io.tables import ESTIMATE_COLUMNS, nearest_by_time
+from segloc_cli.io.tables import ESTIMATE_COLUMNS, pair_by_time
 from segloc_cli.localize import ESTIMATED
 
 FORMATS = ("md", "csv", "latex", "json")
@@ -227,14 +227,19 @@ def relation_errors(
     poses: np.ndarray,
     relations: Relations,
     tolerance_s: float = 0.05,
+    *,
+    estimates_path: object = "estimates",
 ) -> RelationErrors:
     """Errors of the trajectory (``times_s``, ``poses``) on ``relations``.
 
     ``times_s`` (N,) seconds, ``poses`` (N, 3) ``x_m, y_m, theta_rad`` in any one
     world frame, NaN rows for failed poses. Each relation's t1 and t2 is paired
     with the estimate nearest in time within ``tolerance_s`` (inclusive; see
-    ``io.tables.nearest_by_time``); the relation is skipped when either has no
-    estimate or its estimate is not finite. For the rest the estimated motion
+    ``io.tables.pair_by_time``): when that time is held by two estimates the
+    pairing is refused with an ``InputError`` naming ``estimates_path`` and
+    their rows (many relations may share a time; that is no collision). The
+    relation is skipped when either time has no estimate or its estimate is
+    not finite. For the rest the estimated motion
     δ = x(t1)⁻¹ ⊕ x(t2) is compared with the reference δ* through
     e = δ*⁻¹ ⊕ δ: translational error |e.xy| (m), rotational error
     |wrap(e.θ)| (deg).
@@ -246,8 +251,15 @@ def relation_errors(
             f"poses must be ({len(times_s)}, 3) x_m y_m theta_rad to match times_s, "
             f"got shape {poses.shape}"
         )
-    first = nearest_by_time(relations.t1_s, times_s, tolerance_s)
-    second = nearest_by_time(relations.t2_s, times_s, tolerance_s)
+    pairing = {
+        "query_path": "relations",
+        "ref_path": estimates_path,
+        "query_label": "relation time",
+        "ref_label": "row",
+        "distinct_queries": False,
+    }
+    first = pair_by_time(relations.t1_s, times_s, tolerance_s, **pairing)
+    second = pair_by_time(relations.t2_s, times_s, tolerance_s, **pairing)
     matched = (first >= 0) & (second >= 0)
     finite_pose = np.all(np.isfinite(poses), axis=1)
     usable = matched.copy()
@@ -268,12 +280,16 @@ def relation_errors(
     )
 
 
-def trajectory_from_estimates(estimates: pd.DataFrame) -> tuple[np.ndarray, np.ndarray]:
+def trajectory_from_estimates(
+    estimates: pd.DataFrame, only_ok: bool = True
+) -> tuple[np.ndarray, np.ndarray]:
     """An estimates frame (``io.tables.read_estimates``) → (``times_s`` (N,), ``poses`` (N, 3)).
 
-    Poses are ``x_m, y_m, theta_rad`` (world frame), NaN in rows whose status is
-    not an accepted estimate (``ok`` or ``recovered``), so that relations
-    landing on them are skipped by ``relation_errors``.
+    Poses are ``x_m, y_m, theta_rad`` (world frame). With ``only_ok`` they are
+    NaN in rows whose status is not an accepted estimate (``ok`` or
+    ``recovered``), so that relations landing on them are skipped by
+    ``relation_errors``; without it every row keeps its pose, whatever its
+    status (rows without one are NaN either way).
     """
     missing = [c for c in ESTIMATE_COLUMNS if c not in estimates.columns]
     if missing:
@@ -286,8 +302,9 @@ def trajectory_from_estimates(estimates: pd.DataFrame) -> tuple[np.ndarray, np.n
             np.deg2rad(estimates["theta_deg"].to_numpy(dtype=float)),
         ]
     )
-    ok = estimates["status"].astype(str).isin(ESTIMATED).to_numpy()
-    poses[~ok] = np.nan
+    if only_ok:
+        ok = estimates["status"].astype(str).isin(ESTIMATED).to_numpy()
+        poses[~ok] = np.nan
     return times_s, poses
 
 

@@ -1,19 +1,40 @@
-"""One laser scan in the scanner's own frame (x forward, angles counter-clockwise)."""
+"""One laser scan in the scanner's own frame (x forward, angles counter-clockwise).
+
+Also the bounds every reader of scans applies, whatever the file format: a
+reading beyond ``MAX_RANGE_M`` is no return, a scan with more than
+``MAX_READINGS`` readings or a degenerate fan (``fan_defect``) is not a scan.
+"""
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
+
+MAX_RANGE_M = 1000.0
+"""Largest range (m) taken as a return; no planar laser measures a kilometre, so a larger
+reading is corrupt data and counts as no return, whatever the sensor's ``range_max_m``."""
+
+MAX_READINGS = 100_000
+"""Most readings in one scan; readers skip larger scans (a 0.01° fan over 360° has 36,000)."""
+
+FAN_TOLERANCE_RAD = 1e-3
+"""Slack (rad) on the widest fan, 2π, for rounding in files that store a full turn."""
+
+MAX_ABS_ANGLE_RAD = 4.0 * math.pi
+"""Largest beam angle magnitude (rad): a fan starting within one turn of 0 and spanning at
+most a turn stays inside ±4π, so larger angles are corrupt or not in radians."""
 
 
 @dataclass(frozen=True)
 class Scan:
     """A range scan.
 
-    ``angles_rad`` (N,) are beam angles in the robot frame, ``ranges_m`` (N,)
-    the measured ranges in metres; a reading is invalid when it is <= 0,
-    non-finite, or at/above ``range_max_m`` (no return). ``time_s`` is the
+    ``angles_rad`` (N,) are beam angles in radians in the robot frame, all
+    finite (``ValueError`` otherwise); ``ranges_m`` (N,) the measured ranges in
+    metres; a reading is invalid when it is <= 0, non-finite, or at/above
+    ``range_max_m`` or ``MAX_RANGE_M`` (no return). ``time_s`` is the
     acquisition time in seconds (log time base).
     """
 
@@ -29,6 +50,8 @@ class Scan:
                 f"scan at t={self.time_s}: {np.size(self.angles_rad)} angles "
                 f"but {np.size(self.ranges_m)} ranges"
             )
+        if not np.all(np.isfinite(np.asarray(self.angles_rad, dtype=float))):
+            raise ValueError(f"scan at t={self.time_s}: beam angles must be finite")
 
     def __len__(self) -> int:
         return int(np.size(self.ranges_m))
@@ -38,7 +61,7 @@ class Scan:
         """Boolean mask (N,) of valid readings."""
         r = np.asarray(self.ranges_m, dtype=float)
         with np.errstate(invalid="ignore"):
-            return np.isfinite(r) & (r > 0.0) & (r < self.range_max_m)
+            return np.isfinite(r) & (r > 0.0) & (r < min(self.range_max_m, MAX_RANGE_M))
 
     def points(self) -> np.ndarray:
         """Valid readings as (K, 2) points in metres, robot frame, in beam order."""
@@ -53,3 +76,25 @@ def evenly_spaced_angles(n: int, start_rad: float, end_rad: float) -> np.ndarray
     if n == 1:
         return np.array([start_rad], dtype=float)
     return np.linspace(start_rad, end_rad, n)
+
+
+def fan_defect(n: int, start_rad: float, end_rad: float) -> str | None:
+    """Why ``n`` beams evenly spaced from ``start_rad`` to ``end_rad`` (inclusive) are not a
+    usable scan, or ``None`` when they are.
+
+    Refused: non-finite angles, angles beyond ±``MAX_ABS_ANGLE_RAD``, a degenerate fan (more
+    than one beam and ``start_rad == end_rad``: every beam on one ray), and a fan wider than
+    a full turn (2π + ``FAN_TOLERANCE_RAD``), whose beams would overlap.
+    """
+    if not (math.isfinite(start_rad) and math.isfinite(end_rad)):
+        return f"non-finite fan angles ({start_rad!r} to {end_rad!r} rad)"
+    if max(abs(start_rad), abs(end_rad)) > MAX_ABS_ANGLE_RAD:
+        return (
+            f"fan angles {start_rad:.6g} to {end_rad:.6g} rad lie beyond ±4π "
+            "(corrupt, or not radians)"
+        )
+    if n > 1 and start_rad == end_rad:
+        return f"degenerate fan: all {n} beams at {start_rad:.6g} rad"
+    if abs(end_rad - start_rad) > 2.0 * math.pi + FAN_TOLERANCE_RAD:
+        return f"fan spans {abs(end_rad - start_rad):.6g} rad, more than a full turn"
+    return None

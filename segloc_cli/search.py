@@ -18,8 +18,11 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from segloc_cli.field import coarse_bound, score_raster
+from segloc_cli.field import INDEX_LIMIT, cell_indices, coarse_bound, score_raster
 from segloc_cli.geometry import Pose2, rotation, wrap_angle
+
+MAX_BOUND_CELLS = 2**24
+"""Most coarse-block bounds held at once (float64, 128 MiB); more headings are done in batches."""
 
 
 @dataclass(frozen=True)
@@ -61,13 +64,19 @@ class Hypothesis:
 
 @njit(cache=True)
 def _shift_sums(raster, ix, iy, nu, nv):
-    """Sums (H, nu, nv) over points of raster[ix[h, p] + u, iy[h, p] + v]; 0 outside."""
+    """Sums (H, nu, nv) over points of raster[ix[h, p] + u, iy[h, p] + v]; 0 outside.
+
+    Points whose base cell lies beyond ``INDEX_LIMIT`` are skipped, so no index
+    arithmetic can overflow and every read stays inside ``raster``.
+    """
     n_h, n_p = ix.shape
     nx, ny = raster.shape
     out = np.zeros((n_h, nu, nv))
     for h in range(n_h):
         for p in range(n_p):
             bx, by = ix[h, p], iy[h, p]
+            if bx < -INDEX_LIMIT or bx > INDEX_LIMIT or by < -INDEX_LIMIT or by > INDEX_LIMIT:
+                continue
             u_lo, u_hi = max(0, -bx), min(nu, nx - bx)
             v_lo, v_hi = max(0, -by), min(nv, ny - by)
             for u in range(u_lo, u_hi):
@@ -75,6 +84,23 @@ def _shift_sums(raster, ix, iy, nu, nv):
                 for v in range(v_lo, v_hi):
                     out[h, u, v] += row[by + v]
     return out
+
+
+FULL_SORT_CELLS = 2**22
+"""Bounds of up to this many blocks are fully sorted; larger sets are first cut down to their
+best with a partition (the same blocks, in an order that may differ among equal bounds)."""
+
+
+def _best_first(values: np.ndarray, count: int) -> np.ndarray:
+    """Indices of the ``count`` largest of ``values`` (1-D), largest first; past
+    ``FULL_SORT_CELLS`` values, only positive ones (a bound of 0 is never searched)."""
+    if values.size <= FULL_SORT_CELLS or count >= values.size:
+        return np.argsort(values)[::-1][:count]
+    positive = np.flatnonzero(values > 0.0)
+    if positive.size > count:
+        kept = np.argpartition(values[positive], positive.size - count)[positive.size - count :]
+        positive = positive[kept]
+    return positive[np.argsort(values[positive])[::-1]]
 
 
 def distinct(poses: list[Pose2], pose: Pose2, distinct_m: float, distinct_deg: float) -> bool:
@@ -104,6 +130,34 @@ class HypothesisSearch:
             self._coarse[factor] = coarse_bound(self.fine.score, factor)
         return self._coarse[factor]
 
+    def _ranked_blocks(
+        self, cx: np.ndarray, cy: np.ndarray, n_coarse: int, count: int, f: int, n_points: float
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The ``count`` (heading, block) pairs of highest bound, best first.
+
+        Returns flat indices into (H, n_coarse, n_coarse) and their bounds (share
+        of the points). The bounds of all headings at once would take
+        H·n_coarse² floats (gigabytes for a global search of a large map), so
+        headings are bounded in batches of at most ``MAX_BOUND_CELLS`` blocks and
+        only each batch's best ``count`` are kept.
+        """
+        n_h = cx.shape[0]
+        per_heading = n_coarse * n_coarse
+        batch = max(1, MAX_BOUND_CELLS // per_heading)
+        coarse = self.coarse(f)
+        flats, values = [], []
+        for h0 in range(0, n_h, batch):
+            part = slice(h0, h0 + batch)
+            bounds = _shift_sums(coarse, cx[part], cy[part], n_coarse, n_coarse) / n_points
+            order = _best_first(bounds.reshape(-1), count)
+            flats.append(order + h0 * per_heading)
+            values.append(bounds.reshape(-1)[order])
+        if len(flats) == 1:
+            return flats[0], values[0]
+        flat, value = np.concatenate(flats), np.concatenate(values)
+        keep = np.argsort(-value, kind="stable")[:count]
+        return flat[keep], value[keep]
+
     def extent(self) -> tuple[np.ndarray, float]:
         """Centre (2,) and half side (m) of a square holding the whole map."""
         ends = self.segments_world.reshape(-1, 2)
@@ -131,6 +185,8 @@ class HypothesisSearch:
         headings = np.atleast_1d(np.asarray(headings_rad, dtype=float))
         if points.shape[0] == 0 or headings.size == 0 or self.segments_world.shape[0] == 0:
             return []
+        if not (np.all(np.isfinite(centre_xy)) and np.isfinite(half_width_m)):
+            return []
         cell, f = self.fine.cell_m, int(coarse_factor)
         half_cells = int(np.ceil(half_width_m / cell))
         start = np.asarray(centre_xy, dtype=float) - half_cells * cell
@@ -138,16 +194,17 @@ class HypothesisSearch:
         n_coarse = -(-n_fine // f)
         # Fine cell of every point at every heading, the shift being ``start``.
         rotated = np.einsum("pk,hjk->hpj", points, np.stack([rotation(h) for h in headings]))
-        base = np.rint((rotated + start - self.fine.origin) / cell).astype(np.int64)
+        base = cell_indices((rotated + start - self.fine.origin) / cell)
         ix, iy = np.ascontiguousarray(base[..., 0]), np.ascontiguousarray(base[..., 1])
         n_points = float(points.shape[0])
-        bounds = _shift_sums(self.coarse(f), ix // f, iy // f, n_coarse, n_coarse) / n_points
-        order = np.argsort(bounds, axis=None)[::-1]
+        ranked, ranked_bounds = self._ranked_blocks(
+            ix // f, iy // f, n_coarse, max_expansions, f, n_points
+        )
         found: list[Hypothesis] = []
         best = 0.0
-        for flat in order[:max_expansions]:
-            h, cu, cv = np.unravel_index(flat, bounds.shape)
-            if bounds[h, cu, cv] < p.keep_fraction * best or bounds[h, cu, cv] <= 0.0:
+        for flat, bound in zip(ranked, ranked_bounds, strict=True):
+            h, cu, cv = np.unravel_index(flat, (headings.size, n_coarse, n_coarse))
+            if bound < p.keep_fraction * best or bound <= 0.0:
                 break
             sums = _shift_sums(
                 self.fine.score, ix[h : h + 1] + cu * f, iy[h : h + 1] + cv * f, f, f

@@ -19,6 +19,10 @@ DEFAULT_CELL_M = 4.0
 QUERY_SLACK_M = 1e-6
 """Queries reach this much past their radius, against rounding at cell edges."""
 
+MAX_FILED = 4_000_000
+"""Most (segment, cell) entries the grid holds. A segment is filed under every cell of its
+bounding box, so long diagonal segments fill many; past this the cells are made larger."""
+
 
 class SegmentGrid:
     """Segments (M, 4), world frame, filed by the grid cells (side ``cell_m``) they touch."""
@@ -38,11 +42,16 @@ class SegmentGrid:
         lo = np.minimum(segments[:, 0:2], segments[:, 2:4])
         hi = np.maximum(segments[:, 0:2], segments[:, 2:4])
         self._origin = lo.min(axis=0)
-        first = self._cell_of(lo)
-        last = self._cell_of(hi)
-        self._shape = tuple(int(v) for v in last.max(axis=0) + 1)
-        span = last - first + 1
-        counts = span[:, 0] * span[:, 1]
+        while True:
+            first = self._cell_of(lo)
+            last = self._cell_of(hi)
+            span = last - first + 1
+            counts = span[:, 0] * span[:, 1]
+            shape = last.max(axis=0) + 1
+            if counts.sum() <= MAX_FILED and shape[0] * shape[1] <= MAX_FILED:
+                break
+            self.cell_m *= 2.0
+        self._shape = tuple(int(v) for v in shape)
         owner = np.repeat(np.arange(segments.shape[0]), counts)
         k = np.arange(owner.size) - np.repeat(np.cumsum(counts) - counts, counts)
         ix = first[owner, 0] + k % span[owner, 0]
@@ -54,7 +63,9 @@ class SegmentGrid:
         self._offsets = np.searchsorted(cell[order], np.arange(n_cells + 1))
 
     def _cell_of(self, xy: np.ndarray) -> np.ndarray:
-        return np.floor((np.asarray(xy) - self._origin) / self.cell_m).astype(np.int64)
+        # Clipped before the cast: a far (or infinite) point must not wrap around int64.
+        cells = np.clip((np.asarray(xy, dtype=float) - self._origin) / self.cell_m, -1e15, 1e15)
+        return np.floor(cells).astype(np.int64)
 
     def candidates(self, point_xy, radius_m: float) -> np.ndarray:
         """Sorted indices of the segments filed in the cells of the square ±``radius_m``.
@@ -64,6 +75,11 @@ class SegmentGrid:
         """
         centre = np.asarray(point_xy, dtype=float).reshape(2)
         reach = radius_m + QUERY_SLACK_M  # a segment exactly at the radius stays in
+        if not (np.all(np.isfinite(centre)) and reach >= 0.0):
+            # Nowhere (a NaN point or radius) is near nothing; an infinite radius holds all.
+            if np.all(np.isfinite(centre)) and reach == np.inf:
+                return np.arange(self.segments_world.shape[0])
+            return np.zeros(0, dtype=np.int64)
         first = np.maximum(self._cell_of(centre - reach), 0)
         last = np.minimum(self._cell_of(centre + reach), np.array(self._shape) - 1)
         if np.any(last < first):

@@ -731,7 +731,7 @@ def test_interrupted_localize_keeps_the_scans_already_done(small, tmp_path, caps
     result = run_cli(capsys, "localize", small.log, "--map", HALL_WORLD, "--out", out)
     assert result.code == 130
     assert result.err.strip().splitlines() == [
-        f"segloc: interrupted after 2 of 3 scans; their estimates are in {out}"
+        f"segloc: interrupted (Ctrl-C) after 2 of 3 scans; their estimates are in {out}"
     ]
     header, rows = read_csv_rows(out)
     assert ",".join(header) == ESTIMATE_HEADER
@@ -828,8 +828,9 @@ def test_import_carmen_writes_scans_odometry_and_reference(tmp_path, capsys):
     assert log.scans[0].valid.tolist() == [True, True, False, True, False]
     np.testing.assert_allclose(log.odom_poses, [[0.1, 0.2, 0.3], [0.6, 0.7, -0.3]], atol=1e-12)
     header, rows = read_csv_rows(ref)
-    assert header == ["pose_id", "time_s", "x_m", "y_m", "theta_deg"]
+    assert header == ["pose_id", "time_s", "x_m", "y_m", "theta_deg", "original_time_s"]
     assert [float(rows[1][k]) for k in ("time_s", "x_m", "y_m")] == [10.5, 1.5, 2.5]
+    assert [float(r["original_time_s"]) for r in rows] == [10.0, 10.5]  # no time collided
     assert float(rows[1]["theta_deg"]) == pytest.approx(np.rad2deg(-0.5), abs=1e-9)
 
 

@@ -143,6 +143,34 @@ def test_empty_status_reads_as_missing_and_counts_as_failed():
     assert summary(table).attrs["n_failed"] == 1
 
 
+def test_ae_is_blank_without_an_initial_guess():
+    # A --global row: no initial pose, so stage 1 had no window and its heading is no answer.
+    survey = make_survey([(1, 0.0, 1.0, 2.0, 10.0), (2, 1.0, 1.0, 2.0, 10.0)])
+    estimates = make_estimates(
+        [
+            {
+                "time_s": 0.0,
+                "init_x_m": np.nan,
+                "init_y_m": np.nan,
+                "init_theta_deg": np.nan,
+                "align_theta_deg": -134.0,
+                "x_m": 1.0,
+                "y_m": 2.0,
+                "theta_deg": 10.0,
+            },
+            {"time_s": 1.0, "init_theta_deg": 12.0, "align_theta_deg": 9.0, "theta_deg": 10.0},
+        ]
+    )
+    table = table1(estimates, survey)
+    assert math.isnan(table.loc[0, "ae_deg"])
+    assert math.isnan(table.loc[0, "init_x_cm"]) and math.isnan(table.loc[0, "init_theta_deg"])
+    assert table.loc[0, "err_theta_deg"] == pytest.approx(0.0, abs=1e-12)
+    assert table.loc[1, "ae_deg"] == pytest.approx(1.0)
+    rows = md_rows(format_table(table, summary(table), "md"))
+    assert rows[2][:2] == ["1", "—"]
+    assert summary(table).loc["RMS", "ae_deg"] == pytest.approx(1.0)
+
+
 # --- time matching ------------------------------------------------------------------------
 
 
@@ -168,12 +196,42 @@ def test_matching_takes_nearest_and_earlier_on_a_tie():
     assert table["err_x_cm"].to_numpy() == pytest.approx([2.0, 4.0])
 
 
-def test_rows_follow_survey_order_and_unmatched_are_dropped():
+def test_rows_follow_survey_order_and_unmatched_are_counted():
     survey = make_survey(
         [(30, 3.0, 0.0, 0.0, 0.0), (10, 1.0, 0.0, 0.0, 0.0), (20, 2.0, 0.0, 0.0, 0.0)]
     )
     estimates = make_estimates([{"time_s": 1.0}, {"time_s": 3.0}])
-    assert table1(estimates, survey)["pose_id"].tolist() == [30, 10]
+    table = table1(estimates, survey)
+    assert table["pose_id"].tolist() == [30, 10]
+    stats = summary(table)
+    assert stats.attrs["n_surveyed"] == 3
+    assert stats.attrs["n_no_estimate"] == 1
+    assert stats.attrs["status_counts"] == {"ok": 2, "no_estimate": 1}
+
+
+def test_two_estimates_at_the_time_of_a_survey_row_are_refused():
+    survey = make_survey([(1, 10.0, 0.0, 0.0, 0.0), (2, 20.0, 0.0, 0.0, 0.0)])
+    estimates = make_estimates([{"time_s": 10.0}, {"time_s": 20.0}, {"time_s": 20.0}])
+    with pytest.raises(InputError) as caught:
+        table1(estimates, survey, estimates_path="est.csv", survey_path="survey.csv")
+    assert str(caught.value) == (
+        "est.csv, rows 2 and 3: both have time 20.000 s, so a row at 20.000 s matches more "
+        "than one row; give every row a distinct time"
+    )
+
+
+def test_two_survey_rows_with_one_time_are_refused():
+    # Scoring the one estimate twice (once against a pose 2 m off) is what this prevents.
+    survey = make_survey(
+        [(1, 10.0, 0.0, 0.0, 0.0), (2, 12.5, 0.0, 0.0, 0.0), (3, 12.5, 2.0, 0.0, 0.0)]
+    )
+    estimates = make_estimates([{"time_s": 10.0}, {"time_s": 12.5}])
+    with pytest.raises(InputError) as caught:
+        table1(estimates, survey, estimates_path="est.csv", survey_path="survey.csv")
+    assert str(caught.value) == (
+        "survey.csv, rows 2 and 3: both have time 12.500 s, so both would be paired with row 2 "
+        "of est.csv; give every row a distinct time"
+    )
 
 
 def test_no_match_error_gives_both_time_ranges():
@@ -213,8 +271,8 @@ def small_table() -> pd.DataFrame:
     return table1(estimates, survey)
 
 
-def test_summary_rms_and_max_over_ok_poses_for_final_errors():
-    stats = summary(small_table())
+def test_summary_only_ok_covers_the_ok_poses_for_final_errors():
+    stats = summary(small_table(), only_ok=True)
     assert stats.index.tolist() == ["RMS", "max"]
     assert stats.loc["RMS", "err_x_cm"] == pytest.approx(math.sqrt((3.0**2 + 4.0**2) / 2))
     assert stats.loc["max", "err_x_cm"] == pytest.approx(4.0)
@@ -223,7 +281,91 @@ def test_summary_rms_and_max_over_ok_poses_for_final_errors():
     # Initial errors count every pose, the failed one included.
     assert stats.loc["RMS", "init_x_cm"] == pytest.approx(math.sqrt((10**2 + 20**2 + 20**2) / 3))
     assert stats.loc["max", "init_x_cm"] == pytest.approx(20.0)
-    assert stats.attrs == {"n_poses": 3, "n_failed": 1}
+    assert (stats.attrs["n_poses"], stats.attrs["n_failed"], stats.attrs["n_scored"]) == (3, 1, 2)
+
+
+def mixed_table() -> pd.DataFrame:
+    """Five surveyed poses: ok (3 cm), ok (-4 cm), ambiguous (12 cm), lost (-100 cm), and a
+    scan without segments (no pose); a sixth survey row has no estimate in time."""
+    survey = make_survey([(k, float(k), 0.0, 0.0, 0.0) for k in range(1, 7)])
+    estimates = make_estimates(
+        [
+            {"time_s": 1.0, "x_m": -0.03, "theta_deg": -0.1},
+            {"time_s": 2.0, "x_m": 0.04, "theta_deg": 0.2},
+            {"time_s": 3.0, "x_m": -0.12, "theta_deg": 0.5, "status": "ambiguous"},
+            {"time_s": 4.0, "x_m": 1.0, "theta_deg": -3.0, "status": "lost"},
+            {"time_s": 5.0, "x_m": np.nan, "y_m": np.nan, "theta_deg": np.nan,
+             "status": "too_few_segments"},
+            {"time_s": 60.0},
+        ]
+    )  # fmt: skip
+    return table1(estimates, survey)
+
+
+def test_summary_scores_every_pose_with_an_estimate_whatever_its_status():
+    table = mixed_table()
+    stats = summary(table)
+    assert stats.loc["RMS", "err_x_cm"] == pytest.approx(
+        math.sqrt((3.0**2 + 4.0**2 + 12.0**2 + 100.0**2) / 4)
+    )
+    assert stats.loc["max", "err_x_cm"] == pytest.approx(100.0)
+    assert stats.loc["max", "err_theta_deg"] == pytest.approx(3.0)
+    assert stats.attrs["n_scored"] == 4
+    assert stats.attrs["n_no_estimate"] == 2  # no pose in row 5; no estimate for pose 6
+    assert stats.attrs["status_counts"] == {
+        "ok": 2,
+        "ambiguous": 1,
+        "lost": 1,
+        "no_estimate": 1,
+        "too_few_segments": 1,
+    }
+    old = summary(table, only_ok=True)
+    assert old.loc["RMS", "err_x_cm"] == pytest.approx(math.sqrt((3.0**2 + 4.0**2) / 2))
+    assert old.attrs["n_scored"] == 2
+    text = format_table(table, stats, "md")
+    assert text.splitlines()[-2:] == [
+        "6 surveyed poses: ok 2, ambiguous 1, lost 1, too_few_segments 1, no_estimate 1.",
+        "RMS and max of X, Y, θ cover the 4 poses with an estimate, whatever their status; "
+        "2 surveyed poses have no estimate. Errors are surveyed minus computed.",
+    ]
+    assert (
+        format_table(table, old, "md")
+        .splitlines()[-1]
+        .startswith("RMS and max of X, Y, θ cover the 2 poses with status ok; 2 surveyed poses")
+    )
+
+
+def test_gate_counts_in_every_format():
+    table = mixed_table()
+    stats = summary(table, fail_above_cm=3.5, fail_above_deg=0.3)
+    assert (stats.attrs["n_beyond"], stats.attrs["n_gate_failed"]) == (3, 4)
+    # Beyond: -4 cm (ok), 12 cm (ambiguous), -100 cm (lost); failing also too_few_segments.
+    assert len({m.split(":")[0] for m in gate(table, 3.5, 0.3)}) == 4
+    md = format_table(table, stats, "md")
+    assert md.splitlines()[-1] == (
+        "3 of 4 poses beyond 3.5 cm / 0.3°; the gate fails 4, counting 1 without an accepted "
+        "estimate (status other than ok)."
+    )
+    document = json.loads(format_table(table, stats, "json"))
+    assert document["summary"]["gate"] == {
+        "fail_above_cm": 3.5,
+        "fail_above_deg": 0.3,
+        "n_beyond": 3,
+        "n_gate_failed": 4,
+    }
+    assert [p["beyond_gate"] for p in document["poses"]] == [False, True, True, True, False]
+    assert [p["scored"] for p in document["poses"]] == [True, True, True, True, False]
+    assert document["summary"]["status_counts"]["no_estimate"] == 1
+    assert (document["summary"]["n_surveyed"], document["summary"]["n_no_estimate"]) == (6, 2)
+    back = pd.read_csv(io.StringIO(format_table(table, stats, "csv")))
+    assert back["beyond_gate"].tolist() == [0, 1, 1, 1, 0]
+    assert back["scored"].tolist() == [1, 1, 1, 1, 0]
+    latex = format_table(table, stats, "latex")
+    assert r"3 of 4 poses beyond 3.5 cm / 0.3$^\circ$" in latex
+    # Without a gate the csv column is empty and the json gate null.
+    plain = summary(table)
+    assert pd.read_csv(io.StringIO(format_table(table, plain, "csv")))["beyond_gate"].isna().all()
+    assert json.loads(format_table(table, plain, "json"))["summary"]["gate"] is None
 
 
 def test_summary_of_paper_rows():
@@ -289,7 +431,7 @@ def test_gate_rejects_negative_limit():
 def test_csv_round_trips_at_full_precision():
     table = small_table()
     back = pd.read_csv(io.StringIO(format_table(table, summary(table), "csv")))
-    assert back.columns.tolist() == table.columns.tolist()
+    assert back.columns.tolist() == [*table.columns, "scored", "beyond_gate"]
     assert back["pose_id"].tolist() == [1, 2, 3]
     assert back["status"].tolist() == ["ok", "ok", "diverged"]
     numeric = [c for c in table.columns if c not in ("pose_id", "status")]
@@ -323,7 +465,8 @@ def test_markdown_table_has_paper_header_precision_and_summary_rows():
     body = rows[2:]  # rows[1] is the alignment line
     assert [r[0] for r in body] == ["1", "2", "3", "RMS", "max"]
     assert body[0] == ["1", "0.00", "10.0", "0.0", "0.00", "3.0", "0.0", "0.10", "ok"]
-    assert body[4][5] == "4.0"
+    assert body[4][5] == "100.0"  # the diverged pose has an estimate, so it is scored
+    assert md_rows(format_table(table, summary(table, only_ok=True), "md"))[6][5] == "4.0"
 
 
 def test_markdown_marks_missing_values():
@@ -332,7 +475,10 @@ def test_markdown_marks_missing_values():
     table = table1(estimates, survey)
     text = format_table(table, summary(table), "md")
     assert md_rows(text)[2][5] == "—"
-    assert "1 poses, 1 failed" in text
+    assert "1 surveyed poses: no_scan 1." in text
+    assert (
+        "cover the 0 poses with an estimate, whatever their status; 1 surveyed pose has no" in text
+    )
 
 
 def test_latex_is_a_tabular_with_escaped_status():
@@ -343,10 +489,94 @@ def test_latex_is_a_tabular_with_escaped_status():
     assert text.startswith("\\begin{tabular}{lrrrrrrrl}")
     assert text.rstrip().endswith("\\end{tabular}")
     assert "too\\_few\\_segments" in text
-    assert text.count("\\midrule") == 2
+    assert text.count("\\midrule") == 3
+    assert "\\multicolumn{9}{l}{\\footnotesize 1 surveyed poses: too\\_few\\_segments 1.}" in text
 
 
 def test_unknown_format_names_the_choices():
     table = small_table()
     with pytest.raises(ValueError, match="unknown table format 'xlsx'; choose one of md, csv"):
         format_table(table, summary(table), "xlsx")
+
+
+# --- the command line -----------------------------------------------------------------------
+
+
+def run_segloc(capsys, *args) -> tuple[int, str, str]:
+    """``segloc ARGS`` in-process: (exit status, stdout, stderr)."""
+    from segloc_cli.cli import main
+
+    capsys.readouterr()
+    try:
+        main([str(a) for a in args])
+        code = 0
+    except SystemExit as exc:
+        code = exc.code if isinstance(exc.code, int) else 1
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+@pytest.fixture
+def run_files(tmp_path):
+    """An estimates CSV (ok, ambiguous 12 cm off) and its survey, written as the tools do."""
+    from segloc_cli.io.tables import write_estimates, write_pose_table
+
+    survey = make_survey([(1, 1.0, 0.0, 0.0, 0.0), (2, 2.0, 0.0, 0.0, 0.0)])
+    estimates = make_estimates(
+        [{"time_s": 1.0, "x_m": -0.03}, {"time_s": 2.0, "x_m": -0.12, "status": "ambiguous"}]
+    )
+    write_pose_table(tmp_path / "survey.csv", survey)
+    write_estimates(tmp_path / "est.csv", estimates)
+    return tmp_path / "est.csv", tmp_path / "survey.csv"
+
+
+def test_cli_scores_all_poses_and_only_ok_on_request(run_files, capsys):
+    est, survey = run_files
+    code, out, _ = run_segloc(capsys, "evaluate", est, "--survey", survey, "--format", "json")
+    assert code == 0
+    assert json.loads(out)["summary"]["max"]["err_x_cm"] == pytest.approx(12.0)
+    code, out, _ = run_segloc(
+        capsys, "evaluate", est, "--survey", survey, "--format", "json", "--only-ok"
+    )
+    assert code == 0
+    assert json.loads(out)["summary"]["max"]["err_x_cm"] == pytest.approx(3.0)
+    code, out, err = run_segloc(capsys, "evaluate", est, "--survey", survey, "--fail-above-cm", 5)
+    assert code == 1
+    assert out.splitlines()[-2] == "1 of 2 poses beyond 5 cm."
+    assert err.splitlines() == ["segloc: gate: pose 2: status ambiguous"]
+    code, out, err = run_segloc(capsys, "evaluate", est, "--survey", survey, "--fail-above-cm", 20)
+    assert code == 1
+    assert out.splitlines()[-2] == (
+        "0 of 2 poses beyond 20 cm; the gate fails 1, counting 1 without an accepted estimate "
+        "(status other than ok)."
+    )
+
+
+def test_cli_out_needs_force_and_is_checked_before_the_inputs(run_files, tmp_path, capsys):
+    est, survey = run_files
+    out = tmp_path / "table.md"
+    out.write_text("keep me\n")
+    # The inputs do not exist: the refusal of the output comes first.
+    code, _, err = run_segloc(
+        capsys, "evaluate", tmp_path / "none.csv", "--survey", survey, "--out", out
+    )
+    assert (code, err) == (2, f"segloc: error: {out}: file exists; choose another --out or pass "
+                               "--force\n")  # fmt: skip
+    assert out.read_text() == "keep me\n"
+    code, _, err = run_segloc(capsys, "evaluate", est, "--survey", survey, "--out", out, "--force")
+    assert code == 0, err
+    assert out.read_text().startswith("| pose")
+
+
+def test_cli_plots_refuse_existing_figures_before_work(run_files, tmp_path, capsys):
+    est, survey = run_files
+    plots = tmp_path / "figures"
+    plots.mkdir()
+    (plots / "errors.pdf").write_text("old figure")
+    code, out, err = run_segloc(capsys, "evaluate", est, "--survey", survey, "--plots", plots)
+    assert code == 2 and out == ""
+    assert err == (
+        f"segloc: error: {plots / 'errors.pdf'}: file exists; choose another --plots or pass "
+        "--force\n"
+    )
+    assert (plots / "errors.pdf").read_text() == "old figure"

@@ -17,7 +17,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 from conftest import HALL_POSE, HALL_WORLD, ParrotDevice, SilentDevice
-from hypothesis import HealthCheck, given, settings
+from fuzzing import fuzz_settings
+from hypothesis import given
 from hypothesis import strategies as st
 
 from segloc_cli.devices.base import ClockUnwrapper, DeviceError
@@ -37,6 +38,7 @@ from segloc_cli.devices.explorer import (
     Nak,
     NakCode,
     Scan,
+    ScanDecoder,
     crc16_ccitt_false,
     decode_frame,
     decode_message,
@@ -91,6 +93,7 @@ def test_crc_matches_the_catalogued_check_value():
 
 
 @given(st.binary(max_size=64))
+@fuzz_settings
 def test_crc_matches_its_definition(data):
     assert crc16_ccitt_false(data) == crc_bitwise(data)
 
@@ -249,6 +252,8 @@ def test_a_corrupt_huge_length_does_not_hold_up_the_frames_after_it():
     found = stream.feed(false_starts + b"".join(frames))
     assert found == [decode_frame(f) for f in frames]
     assert stream.dropped == 2  # one per false start
+    alone = ExplorerStream()
+    assert alone.feed(false_starts[:7]) == [] and alone.buffered == 0  # nothing waits
 
 
 def test_a_false_start_inside_a_spoiled_frame_counts_once():
@@ -269,9 +274,34 @@ def test_a_frame_hidden_behind_a_false_start_is_found():
     assert ExplorerStream().feed(data) == [decode_frame(good)]
 
 
-# -- fuzzing ---------------------------------------------------------------------------
+def test_scan_decoder_holds_scans_to_the_settings_in_effect():
+    decoder = ScanDecoder(readings=128, rev_hundredths=250, range_max_mm=20_000)
+    good = decode_frame(encode_message(scan_message(128, 1_000_000, 0x8000), 5))
+    frame = decoder.take(good)
+    assert (frame.sequence, frame.device_time_s, frame.range_max_m) == (5, 1.0, 20.0)
+    assert frame.angles_rad[0] == pytest.approx(np.pi)
+    assert frame.ranges_m[:2].tolist() == [1.0, 1.007]
+    far = scan_message(128)
+    far.ranges_mm[3] = 20_001
+    cases = [
+        (scan_message(256), "scan of 256 readings while 128 are set"),
+        (Scan(0, 200, 0, scan_message(128).ranges_mm), "scan at speed 200 while 250 is set"),
+        (far, "scan with a range of 20001 mm, beyond range_max"),
+    ]
+    for message, reason in cases:
+        with pytest.raises(FrameError, match=re.escape(reason)):
+            decoder.take(decode_frame(encode_message(message, 6)))
+    assert decoder.take(decode_frame(encode_message(Empty(Kind.STOP_ACK), 7))) is None
 
-FUZZ = settings(deadline=None, max_examples=150, suppress_health_check=[HealthCheck.too_slow])
+
+def test_scan_decoder_without_settings_takes_any_offered_count_at_a_speed_on_offer():
+    decoder = ScanDecoder()
+    assert decoder.take(decode_frame(encode_message(scan_message(2048), 0))).ranges_m.size == 2048
+    with pytest.raises(FrameError, match="speed 0 while None"):
+        decoder.take(decode_frame(encode_message(Scan(0, 0, 0, scan_message().ranges_mm), 1)))
+
+
+# -- fuzzing ---------------------------------------------------------------------------
 
 messages = st.one_of(
     st.sampled_from([m for m in EVERY_MESSAGE if not isinstance(m, Scan)]),
@@ -325,8 +355,8 @@ def is_subsequence(wanted: list, found: list) -> bool:
     return all(any(f == w for f in rest) for w in wanted)
 
 
-@FUZZ
 @given(st.binary(max_size=6000), st.lists(st.integers(0, 6000), max_size=20))
+@fuzz_settings
 def test_random_bytes_never_raise_and_only_real_frames_come_out(data, cuts):
     stream, frames = fed_in_pieces(data, cuts)
     for frame in frames:
@@ -334,11 +364,11 @@ def test_random_bytes_never_raise_and_only_real_frames_come_out(data, cuts):
     assert len(stream._buf) <= MAX_FRAME
 
 
-@FUZZ
 @given(
     st.lists(st.tuples(messages, damage), min_size=1, max_size=12),
     st.lists(st.integers(0, 20_000), max_size=20),
 )
+@fuzz_settings
 def test_every_intact_frame_after_damage_is_found(plan, cuts):
     pieces, intact, any_damage = [], [], False
     for sequence, (message, how) in enumerate(plan):
@@ -362,8 +392,8 @@ def test_every_intact_frame_after_damage_is_found(plan, cuts):
     assert (stream.dropped > 0) == any_damage
 
 
-@FUZZ
 @given(st.lists(messages, min_size=1, max_size=8), st.floats(0, 1))
+@fuzz_settings
 def test_a_truncated_stream_gives_every_frame_before_the_cut(plan, where):
     frames = [encode_message(m, i) for i, m in enumerate(plan)]
     data = b"".join(frames)
@@ -585,6 +615,44 @@ def test_driver_checks_settings_before_sending_them():
         driver.configure(1024, 4.5)
     with pytest.raises(DeviceError, match="port is not open"):
         driver.configure(1024, 4.0)  # settings on offer do go to the port
+
+
+class MisreportingExplorer(ExplorerDevice):
+    """Acknowledges every CONFIGURE with ``ack`` instead of the settings taken."""
+
+    def __init__(self, ack: ConfigAck):
+        super().__init__(np.zeros_like)
+        self.ack = ack
+
+    def _configure(self, command: Configure, now_s: float):
+        super()._configure(command, now_s)
+        return self.ack
+
+
+@pytest.mark.parametrize(
+    ("ack", "message"),
+    [
+        (ConfigAck(512, 200, 30_000), "with readings=512, not the 1024 asked for"),
+        (ConfigAck(1024, 400, 30_000), "with speed=400, not the 200 asked for"),
+        (ConfigAck(1024, 200, 0), "with range_max=0 mm; a scanner that sees nothing"),
+    ],
+)
+def test_driver_refuses_an_acknowledgement_of_other_settings(ack, message, explorer_on):
+    driver = explorer_on(lambda: MisreportingExplorer(ack))
+    with pytest.raises(DeviceError) as error:
+        driver.configure(1024, 2.0)
+    assert str(error.value).startswith(f"{driver.port}: the device acknowledged CONFIGURE ")
+    assert message in str(error.value) and "\n" not in str(error.value)
+
+
+def test_driver_skips_and_counts_scans_unlike_the_settings(explorer_on):
+    good = encode_message(scan_message(128), 1)  # 128 readings at 2.50 rev/s, as configured
+    script = encode_message(scan_message(256), 0) + good
+    driver = explorer_on(lambda: ScriptedExplorer(script))
+    driver.configure(128, 2.5)
+    driver.start()
+    assert driver.read_scan().sequence == 1
+    assert driver.skipped == 1
 
 
 def test_driver_turns_the_devices_refusal_into_an_error(explorer_on):

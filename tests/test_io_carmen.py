@@ -78,7 +78,9 @@ def check_basic(log, name: str) -> None:
     )
     assert log.sensor == {
         "range_max_m": "81.83",
-        "range_max_from": "inferred: the largest reading, 81.83 m is 20 % of the readings",
+        "range_max_from": (
+            "inferred: 81.83 m, the largest reading that repeats, is 20 % of the readings"
+        ),
         "readings": "5",
         "fov_deg": "180",
         "laser": "front",
@@ -140,7 +142,7 @@ def test_rear_laser_angles_offset_and_record_choice(tmp_path):
             "PARAM robot_rearlaser_offset 0.2 h 0",
             "PARAM robot_frontlaser_offset 0.5 h 0",
             "PARAM robot_rear_laser_max 5.5 h 0",
-            laser_line([1.0, 2.0, 3.0], (0.0, 0.0, 0.0), (1.0, 1.0, HALF_PI), 1.0),
+            laser_line([1.0, 3.0, 3.0], (0.0, 0.0, 0.0), (1.0, 1.0, HALF_PI), 1.0),
             laser_line([4.0, 5.0, 6.0], (1.0, 1.0, 0.5), (1.0, 1.0, 0.5), 1.5, kind="RLASER"),
             laser_line([4.0, 5.0, 6.0], (9.0, 9.0, 0.0), (1.0, 2.0, 0.0), 2.0, kind="RLASER"),
         ],
@@ -174,7 +176,7 @@ def test_rear_laser_angles_offset_and_record_choice(tmp_path):
     # The rear maximum is not the front laser's: inferred from the FLASER readings.
     assert front.sensor["range_max_m"] == "3"
     assert front.sensor["range_max_from"] == (
-        "inferred: the largest reading, 3 m is 33.3 % of the readings"
+        "inferred: 3 m, the largest reading that repeats, is 66.7 % of the readings"
     )
 
 
@@ -246,7 +248,8 @@ def test_robotlaser1_records(tmp_path):
     assert log.sensor == {
         "range_max_m": "8",
         "range_max_from": (
-            "ROBOTLASER1 maximum_range; inferred: the largest reading, 8 m is 50 % of the readings"
+            "ROBOTLASER1 maximum_range; "
+            "inferred: 8 m, the largest reading that repeats, is 50 % of the readings"
         ),
         "readings": "3,4",
         "fov_deg": "28.64788976,171.8873385,180",
@@ -315,25 +318,75 @@ def test_unusable_param_falls_back_to_inference_with_a_warning(tmp_path):
     ]
 
 
-@pytest.mark.parametrize(
-    ("n", "expected", "rule"),
-    [
-        (200, 9.0, "inferred: the largest reading, 9 m is 0.5 % of the readings"),
-        (
-            201,
-            math.inf,
-            "none: the largest reading, 9 m is 0.498 % of the readings, "
-            "is too rare to be a no-return value",
-        ),
-    ],
+NO_MAXIMUM = (
+    "no maximum range found, no reading value repeats often enough at the top of the "
+    "readings to be a no-return value (the largest reading is {} m); every positive reading "
+    "counts as a return (pass --range-max-m if the scanner has a maximum range)"
 )
-def test_inferred_range_max_needs_half_a_percent(tmp_path, n, expected, rule):
-    ranges = [1.0] * (n - 1) + [9.0]
-    log = read_carmen(write(tmp_path / "rare.log", [laser_line(ranges, (0,) * 3, (0,) * 3, 1.0)]))
+
+
+@pytest.mark.parametrize(("n", "expected"), [(400, 9.0), (401, math.inf)])
+def test_inferred_range_max_needs_half_a_percent(tmp_path, n, expected):
+    # 1.0 repeats far more often, but 9.0 lies above it: only 9.0 can be the no-return value.
+    ranges = [1.0] * (n - 2) + [9.0, 9.0]
+    path = write(tmp_path / "rare.log", [laser_line(ranges, (0,) * 3, (0,) * 3, 1.0)])
+    log = read_carmen(path)
     assert log.scans[0].range_max_m == expected
     assert bool(log.scans[0].valid[-1]) is math.isinf(expected)
-    assert log.sensor["range_max_m"] == ("inf" if math.isinf(expected) else "9")
-    assert log.sensor["range_max_from"] == rule
+    if math.isinf(expected):
+        assert log.sensor["range_max_m"] == "inf"
+        assert log.sensor["range_max_from"] == (
+            "none: no reading value repeats often enough at the top of the readings to be a "
+            "no-return value (the largest reading is 9 m)"
+        )
+        assert log.warnings == [f"{path}: " + NO_MAXIMUM.format(9)]
+    else:
+        assert log.sensor["range_max_m"] == "9"
+        assert log.sensor["range_max_from"] == (
+            "inferred: 9 m, the largest reading that repeats, is 0.5 % of the readings"
+        )
+        assert log.warnings == []
+
+
+def test_a_lone_outlier_does_not_set_the_range_max(tmp_path):
+    # 20 scans of 181 readings; every fifth reading is the 81.83 m no-return value, and
+    # one reading is a corrupt 99999 m: the maximum stays 81.83 and 99999 is no return.
+    lines = []
+    for k in range(20):
+        ranges = 0.5 + 0.001 * np.arange(181) + 0.2 * k
+        ranges[::5] = 81.83
+        if k == 7:
+            ranges[3] = 99999.0
+        lines.append(laser_line(ranges, (0,) * 3, (0,) * 3, float(k)))
+    path = write(tmp_path / "outlier.log", lines)
+    log = read_carmen(path)
+    assert [s.range_max_m for s in log.scans] == [81.83] * 20
+    assert log.sensor["range_max_from"] == (
+        "inferred: 81.83 m, the largest reading that repeats, is 20.4 % of the readings; "
+        "the 1 larger reading counts as no return"
+    )
+    assert not log.scans[7].valid[3]
+    assert sum(int(np.count_nonzero(~s.valid)) for s in log.scans) == 20 * 37 + 1
+    assert log.warnings == []
+
+
+@pytest.mark.parametrize(
+    ("ranges", "largest"),
+    [
+        (np.linspace(0.5, 30.0, 500), "30"),  # every value once
+        # 2 m repeats in half the readings, but half lie above it: a wall, not a sentinel.
+        (np.concatenate([np.full(100, 2.0), np.linspace(3.0, 20.0, 100)]), "20"),
+    ],
+)
+def test_no_repeating_top_value_means_no_maximum_and_a_warning(tmp_path, ranges, largest):
+    path = write(tmp_path / "plain.log", [laser_line(ranges, (0,) * 3, (0,) * 3, 1.0)])
+    log = read_carmen(path)
+    assert log.scans[0].range_max_m == math.inf
+    assert log.scans[0].valid.all()
+    assert log.sensor["range_max_m"] == "inf"
+    assert log.warnings == [f"{path}: " + NO_MAXIMUM.format(largest)]
+    # A given maximum, or a ROBOTLASER1 record's own, needs no warning.
+    assert read_carmen(path, range_max_m=25.0).warnings == []
 
 
 BAD_RECORDS = [
@@ -374,22 +427,23 @@ def test_bad_records_are_skipped_and_counted(tmp_path):
     np.testing.assert_array_equal(log.odom_poses, [[0, 0, 0], [3, 4, -0.5], [0, 0, 0]])
     assert log.warnings == [
         f"{path}: skipped 3 FLASER records with a wrong field count (lines 2, 3, 21)",
-        f"{path}: skipped 3 FLASER records with a missing or invalid reading count "
-        "(lines 4, 5, 15)",
+        f"{path}: skipped 3 FLASER records with a missing, invalid or too large reading count "
+        "(at most 100,000) (lines 4, 5, 15)",
         f"{path}: skipped 5 FLASER records with non-numeric or non-finite values "
         "(lines 6, 7, 8, 17, 18)",
-        f"{path}: skipped 3 FLASER records with a negative or non-finite timestamp "
-        "(lines 9, 10, 11)",
+        f"{path}: skipped 3 FLASER records with a negative, non-finite or too large timestamp "
+        "(at most 4294967296 s) (lines 9, 10, 11)",
         f"{path}: skipped 1 ODOM record with a wrong field count (line 12)",
         f"{path}: skipped 1 ODOM record with non-numeric or non-finite values (line 13)",
-        f"{path}: skipped 1 ODOM record with a negative or non-finite timestamp (line 14)",
+        f"{path}: skipped 1 ODOM record with a negative, non-finite or too large timestamp "
+        "(at most 4294967296 s) (line 14)",
         f"{path}: skipped 1 ROBOTLASER1 record with a wrong field count (line 20)",
     ]
 
 
 def test_long_runs_of_bad_lines_show_the_first_five(tmp_path):
-    good = laser_line([1.0, 2.0], (0,) * 3, (0,) * 3, 1.0)
-    path = write(tmp_path / "many.log.gz", [good] + ["FLASER 2 1.0"] * 7 + [good])
+    first, last = (laser_line([1.0, 2.0], (0,) * 3, (0,) * 3, t) for t in (1.0, 2.0))
+    path = write(tmp_path / "many.log.gz", [first] + ["FLASER 2 1.0"] * 7 + [last])
     log = read_carmen(path, range_max_m=10.0)
     assert len(log.scans) == 2
     assert log.warnings == [
@@ -427,7 +481,8 @@ def test_garbage_in_a_gzip_keeps_the_lines_before_it(tmp_path, partial):
     assert_first_four(log)
     assert log.warnings == [
         f"{path}: the compressed data is corrupt (Error -3 while decompressing data: "
-        "invalid block type); stopped at line 5, keeping the 4 complete lines before it"
+        "invalid block type); records from line 5 on are lost; "
+        "the 4 complete lines before it are kept"
     ]
 
 
@@ -439,7 +494,7 @@ def test_gzip_cut_short_keeps_the_complete_lines(tmp_path):
     assert_first_four(log)
     assert log.warnings == [
         f"{path}: the file ends in the middle of the compressed data (truncated); "
-        "stopped at line 5, keeping the 4 complete lines before it"
+        "records from line 5 on are lost; the 4 complete lines before it are kept"
     ]
 
 
@@ -455,11 +510,12 @@ def test_gzip_cut_in_half_gives_a_prefix(tmp_path):
     assert [s.time_s for s in log.scans] == [float(i) for i in range(complete)]
     assert log.warnings == [
         f"{path}: the file ends in the middle of the compressed data (truncated); "
-        f"stopped at line {complete + 1}, keeping the {complete} complete lines before it"
+        f"records from line {complete + 1} on are lost; the {complete} complete lines before it "
+        "are kept"
     ]
 
 
-def test_gzip_with_a_bad_checksum_or_trailing_junk(tmp_path):
+def test_gzip_with_a_bad_checksum_keeps_the_lines_and_names_them(tmp_path):
     data = bytearray(gzip.compress(("\n".join(GOOD) + "\n").encode()))
     data[-8] ^= 0xFF  # first byte of the CRC-32 in the trailer
     path = tmp_path / "crc.log.gz"
@@ -467,17 +523,46 @@ def test_gzip_with_a_bad_checksum_or_trailing_junk(tmp_path):
     log = read_carmen(path, range_max_m=20.0)
     assert_first_four(log)
     assert log.warnings == [
-        f"{path}: the compressed data is corrupt (Error -3 while decompressing data: "
-        "incorrect data check); stopped at line 5, keeping the 4 complete lines before it"
+        f"{path}: lines 1–4 may hold damaged values; "
+        "the checksum at the end of the compressed data does not match"
     ]
 
+
+@pytest.mark.parametrize(
+    ("flip", "what"), [(-8, "the checksum"), (-1, "the length")], ids=["crc", "length"]
+)
+def test_bad_trailer_in_one_member_names_only_its_lines(tmp_path, flip, what):
+    members = [GOOD[:2], GOOD[2:], LATER[:1], LATER[1:]]
+    parts = [bytearray(gzip.compress(("\n".join(m) + "\n").encode())) for m in members]
+    parts[1][flip] ^= 0x01
+    path = tmp_path / "members.log.gz"
+    path.write_bytes(b"".join(parts))
+    log = read_carmen(path, range_max_m=20.0)
+    # Every record is kept, also those after the member whose trailer does not match.
+    assert [s.time_s for s in log.scans] == [0.0, 1.0, 2.0, 3.0, 10.0, 11.0, 12.0]
+    np.testing.assert_array_equal(log.scans[4].ranges_m, [5.5, 7.25, 0.0])
+    assert log.warnings == [
+        f"{path}: lines 3–4 may hold damaged values; "
+        f"{what} at the end of the compressed data does not match"
+    ]
+
+    parts[1][flip] ^= 0x01
+    parts[2][-8] ^= 0x80
+    path.write_bytes(b"".join(parts))
+    assert read_carmen(path, range_max_m=20.0).warnings == [
+        f"{path}: line 5 may hold damaged values; "
+        "the checksum at the end of the compressed data does not match"
+    ]
+
+
+def test_gzip_followed_by_junk(tmp_path):
     junk = tmp_path / "junk.log.gz"
     junk.write_bytes(gzip.compress(("\n".join(GOOD) + "\n").encode()) + b"not gzip")
     log = read_carmen(junk, range_max_m=20.0)
     assert_first_four(log)
     assert log.warnings == [
         f"{junk}: the compressed data is followed by bytes that are not gzip; "
-        "stopped at line 5, keeping the 4 complete lines before it"
+        "records from line 5 on are lost; the 4 complete lines before it are kept"
     ]
 
 
@@ -547,7 +632,8 @@ def test_no_readable_records_says_why(tmp_path):
         f"{path}: no FLASER records (nor ROBOTLASER1) that can be read (all 2 were skipped); "
         "record types found: FLASER ×2; "
         "skipped 1 FLASER record with a wrong field count (line 1); "
-        "skipped 1 FLASER record with a negative or non-finite timestamp (line 2)"
+        "skipped 1 FLASER record with a negative, non-finite or too large timestamp "
+        "(at most 4294967296 s) (line 2)"
     )
 
     damaged = tmp_path / "damaged.log.gz"
@@ -557,7 +643,7 @@ def test_no_readable_records_says_why(tmp_path):
     assert str(raised.value) == (
         f"{damaged}: no FLASER records (nor ROBOTLASER1); the file has no records; "
         "the compressed data is corrupt (Error -3 while decompressing data: invalid block type); "
-        "stopped at line 1, keeping the 0 complete lines before it"
+        "records from line 1 on are lost"
     )
 
 
@@ -595,3 +681,166 @@ def test_round_trip_through_the_mcap_log(tmp_path):
     np.testing.assert_array_equal(back.odom_times_s, log.odom_times_s)
     np.testing.assert_array_equal(back.odom_poses[:, :2], log.odom_poses[:, :2])
     np.testing.assert_allclose(back.odom_poses[:, 2], log.odom_poses[:, 2], rtol=0, atol=1e-12)
+
+
+# --- colliding times ----------------------------------------------------------------
+
+
+def timed(times: list) -> list[str]:
+    """One small FLASER record per time, written as given (a string stays as printed)."""
+    return [laser_line([1.0, 2.0, 2.0], (k, 0, 0), (k, 0, 0), t) for k, t in enumerate(times)]
+
+
+COLLIDING = (
+    "laser records share their time with another record or go back in time; "
+    "gave them distinct times in file order (see README: colliding times)"
+)
+
+
+def test_all_times_zero_become_one_second_apart(tmp_path):
+    path = write(tmp_path / "zeros.log", timed(["0", "0", "0", "0"]))
+    log = read_carmen(path)
+    assert [s.time_s for s in log.scans] == [0.0, 1.0, 2.0, 3.0]
+    np.testing.assert_array_equal(log.odom_times_s, [0.0, 1.0, 2.0, 3.0])
+    np.testing.assert_array_equal(log.original_times_s, [0.0, 0.0, 0.0, 0.0])
+    np.testing.assert_array_equal(log.laser_poses[:, 0], [0, 1, 2, 3])  # order kept
+    assert log.warnings == [f"{path}: 4 of 4 {COLLIDING}"]
+
+
+def test_six_significant_digits_are_spread_over_their_gap(tmp_path):
+    path = write(tmp_path / "coarse.log.gz", timed(["1.13486e+09"] * 3 + ["1.13487e+09"] * 2))
+    log = read_carmen(path)
+    t0, t1 = 1.13486e9, 1.13487e9
+    step = (t1 - t0) / 3
+    # The last group is spaced as the groups before it, but at most 1 s apart.
+    assert [s.time_s for s in log.scans] == [t0, t0 + step, t0 + 2 * step, t1, t1 + 1.0]
+    np.testing.assert_array_equal(log.odom_times_s, [s.time_s for s in log.scans])
+    np.testing.assert_array_equal(log.original_times_s, [t0] * 3 + [t1] * 2)
+    assert log.warnings == [f"{path}: 5 of 5 {COLLIDING}"]
+
+
+def test_one_step_back_and_increasing_times(tmp_path):
+    path = write(tmp_path / "back.log", timed(["10.0", "11.0", "12.0", "11.5", "14.0"]))
+    log = read_carmen(path)
+    assert [s.time_s for s in log.scans] == [10.0, 11.0, 12.0, 13.0, 14.0]
+    np.testing.assert_array_equal(log.original_times_s, [10.0, 11.0, 12.0, 11.5, 14.0])
+    assert log.warnings == [f"{path}: 2 of 5 {COLLIDING}"]
+
+    increasing = read_carmen(write(tmp_path / "fine.log", timed(["0.5", "0.75", "2"])))
+    assert [s.time_s for s in increasing.scans] == [0.5, 0.75, 2.0]
+    np.testing.assert_array_equal(increasing.original_times_s, [0.5, 0.75, 2.0])
+    assert increasing.warnings == []
+
+
+def test_distinct_times_survive_the_mcap_log(tmp_path):
+    log = read_carmen(write(tmp_path / "zeros.log", timed(["0"] * 3)))
+    out = tmp_path / "zeros.mcap"
+    odom = [(t, Pose2(*pose)) for t, pose in zip(log.odom_times_s, log.odom_poses, strict=True)]
+    write_log(out, log.scans, odom, log.sensor)
+    back = read_log(out)
+    assert [s.time_s for s in back.scans] == [0.0, 1.0, 2.0]
+    np.testing.assert_array_equal(back.odom_times_s, [0.0, 1.0, 2.0])
+
+
+# --- NUL bytes and odd bytes ----------------------------------------------------------
+
+
+def test_lines_with_nul_bytes_are_skipped_and_counted(tmp_path):
+    lines = list(BASIC)
+    lines[0] = "# CARMEN Logfile \x00\x00 written by a crashed logger"
+    lines.insert(9, "FLASER 5 1 2 3 4 5 0 0 0 0 0 0 33.7 pip\x00po 33.7")
+    path = write(tmp_path / "nul.log", lines)
+    log = read_carmen(path)
+    assert [s.time_s for s in log.scans] == [32.9068, 33.5, 34.0]
+    assert log.warnings == [f"{path}: skipped 2 lines holding NUL bytes (lines 1, 10)"]
+
+
+def test_mostly_nul_lines_or_no_record_besides_them_is_not_text(tmp_path):
+    expected = "not a text file; expected a CARMEN log (text, or gzip-compressed text)"
+    wide = tmp_path / "utf16.log"
+    wide.write_bytes(("\n".join(BASIC) + "\n").encode("utf-16-le"))
+    many = write(tmp_path / "many.log", [GOOD[0], "a\x00", "b\x00", "c\x00", GOOD[1]])
+    only = write(tmp_path / "only.log", ["# fine", "\x00\x00\x00", "ODOM 0 0 0 0 0 0 1 h 1"])
+    for path in (wide, many, only):
+        with pytest.raises(InputError) as raised:
+            read_carmen(path)
+        assert str(raised.value) == f"{path}: {expected}"
+    # Two of five lines is not most of them.
+    log = read_carmen(write(tmp_path / "some.log", [GOOD[0], "a\x00", "b\x00", *GOOD[1:3]]))
+    assert len(log.scans) == 3
+
+
+ODD_RECORDS = [
+    laser_line([1.0, 2.0, 2.0], (0,) * 3, (0,) * 3, 1.0),  # 1 good
+    "FLASER 999999999999 1 2 3 0 0 0 0 0 0 2.0 h 2.0",  # 2 huge count
+    "FLASER " + "9" * 5000 + " 1 0 0 0 0 0 0 3.0 h 3.0",  # 3 count beyond int()'s digits
+    "FLASER 3 1e400 2 3 0 0 0 0 0 0 4.0 h 4.0",  # 4 overflows to inf
+    "FLASER 3 1 2 3 0 0 0 0 0 0 5e9 h 5e9",  # 5 time beyond 2^32 s
+    "FLASER 3 1 2 2 0 0 0 0 0 0 -0.0 h 6.0",  # 6 negative zero: time 0
+    "FLASER 3 1 inf 3 0 0 0 0 0 0 7.0 h 7.0",  # 7 inf reading
+    "FLASER 3 1 2 3 0 nan 0 0 0 0 8.0 h 8.0",  # 8 nan pose
+    "FL\xc3\xa9SER 3 1 2 3 0 0 0 0 0 0 9.0 h 9.0",  # 9 not a record type
+    "FLASER 3 1 2 \xff 0 0 0 0 0 0 10.0 h 10.0",  # 10 invalid UTF-8 reading
+    "FLASER 100001 " + "1 " * 100001 + "0 0 0 0 0 0 11.0 h 11.0",  # 11 above MAX_READINGS
+    "ROBOTLASER1 0 -90 180 1 80 0.01 0 2 1.0 2.0 0 0 0 0 0 0 0 0 0 1 0.5 1 12.0 h 12.0",  # 12 deg
+    laser_line([1.5, 2.5, 2.5], (1,) * 3, (1,) * 3, 13.0),  # 13 good
+]
+
+
+def test_odd_bytes_and_numbers_are_skipped_and_counted(tmp_path):
+    path = tmp_path / "odd.log"
+    path.write_bytes(("\n".join(ODD_RECORDS) + "\n").encode("latin-1"))
+    log = read_carmen(path)
+    assert [s.time_s for s in log.scans] == [1.0, 7.0, 13.0]  # 0.0 went back: after 1.0
+    assert log.original_times_s.tolist() == [1.0, 0.0, 13.0]
+    assert math.copysign(1.0, log.original_times_s[1]) == 1.0  # not -0.0
+    assert log.warnings == [
+        f"{path}: skipped 3 FLASER records with a missing, invalid or too large reading count "
+        "(at most 100,000) (lines 2, 3, 11)",
+        f"{path}: skipped 4 FLASER records with non-numeric or non-finite values "
+        "(lines 4, 7, 8, 10)",
+        f"{path}: skipped 1 FLASER record with a negative, non-finite or too large timestamp "
+        "(at most 4294967296 s) (line 5)",
+        f"{path}: skipped 1 ROBOTLASER1 record with a beam fan that is degenerate, wider than "
+        "a full turn or beyond ±4π rad (line 12)",
+        f"{path}: 2 of 3 {COLLIDING}",
+    ]
+
+
+def test_unprintable_names_are_escaped_in_messages(tmp_path):
+    path = tmp_path / "names.log"
+    path.write_bytes(b"\xffFLASER\x1b[2J 1 2\nPARAM robot_front_laser_max \x85far\x07 h 0\n")
+    with pytest.raises(InputError) as raised:
+        read_carmen(path)
+    message = str(raised.value)
+    assert message == f"{path}: no FLASER records (nor ROBOTLASER1); record types found: " + (
+        "PARAM ×1, \\xffFLASER\\x1b[2J ×1"
+    )
+    path.write_bytes(b"PARAM robot_front_laser_max \x85far\x07 h 0\n" + GOOD[0].encode() + b"\n")
+    assert read_carmen(path).warnings[0] == (
+        f"{path}: PARAM robot_front_laser_max is '\\x85far\\x07', not a number (line 1); ignored"
+    )
+
+
+def test_an_absurd_laser_offset_is_ignored(tmp_path):
+    path = write(
+        tmp_path / "offset.log",
+        ["PARAM robot_frontlaser_offset 1e300 h 0", laser_line([1, 2], (0,) * 3, (1, 0, 0), 1.0)],
+    )
+    log = read_carmen(path, range_max_m=5.0)
+    np.testing.assert_array_equal(log.odom_poses, [[1.0, 0.0, 0.0]])
+    assert log.sensor["laser_offset_m"] == "0"
+    assert log.warnings == [
+        f"{path}: PARAM robot_frontlaser_offset is 1e+300 m, more than 10 m; ignored"
+    ]
+
+
+def test_times_spread_past_the_limit_are_refused(tmp_path):
+    # The last group's records, 1 s apart, run past 2**32 s.
+    path = write(tmp_path / "far.log", timed(["0", "4294967295", "4294967295", "4294967295"]))
+    with pytest.raises(InputError) as raised:
+        read_carmen(path)
+    assert str(raised.value) == (
+        f"{path}: the times of the laser records, made distinct, run past 4294967296 s "
+        "(the year 2106); the log's times are not plausible (see README: colliding times)"
+    )

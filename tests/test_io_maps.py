@@ -8,14 +8,24 @@ import numpy as np
 import pytest
 
 from segloc_cli.errors import InputError
-from segloc_cli.io.maps import World, read_map, read_world, write_map, write_world
+from segloc_cli.io.files import OutputError
+from segloc_cli.io.maps import (
+    MAX_MAP_BYTES,
+    MAX_SEGMENTS,
+    World,
+    bounds_problem,
+    read_map,
+    read_world,
+    write_map,
+    write_world,
+)
 
 SEGMENTS = np.array(
     [
         [0.0, 0.0, 10.0, 0.0],
         [10.0, 0.0, 10.0, 7.5],
         [0.1, 0.2, 1.0 / 3.0, -2.0 / 7.0],
-        [-1e-9, 123456.789, 5e-324, 1.0],
+        [-1e-9, 1234.56789, 5e-324, 1.0],
     ]
 )
 
@@ -184,3 +194,84 @@ def test_world_with_no_segments(tmp_path):
     path.write_text(json.dumps({"format": "segloc-world", "version": 1, "segments": []}))
     with pytest.raises(InputError, match=r"world\.json: world has no segments"):
         read_world(path)
+
+
+# --- bounds ----------------------------------------------------------------------------------
+
+
+def _map_text(segments_text: str) -> str:
+    return '{"format": "segloc-map", "version": 1, "segments": ' + segments_text + "}"
+
+
+@pytest.mark.parametrize(
+    ("segments", "message"),
+    [
+        ("[[0, 0, 1, 1], [1e12, 0, 1, 1]]", r"segment 1 has a coordinate beyond ±1e\+07 m"),
+        ("[[0, 0, 1, 0], [0, 0, 2500, 0]]", r"map spans 2500 m × 0 m, more than 2000 m across"),
+        ("[[0, 0, 1, 0], [2000, 1500, 2001, 1500]]", r"map spans 2001 m × 1500 m"),
+        ("[[0, 0, 1, 1], [5, 5, 5.0000001, 5]]", r"segment 1 has zero length \(its ends lie"),
+        ("[[0, 0, 1, " + "1" + "0" * 400 + "]]", r"segment 0 must be 4 finite numbers"),
+        ("[[0, 0, 1, " + "9" * 5000 + "]]", r"segment 0 must be 4 finite numbers"),
+        ("[[0, 0, 1, 1e400]]", r"segment 0 must be 4 finite numbers"),
+        ("[[0, 0, 1, -Infinity]]", r"segment 0 must be 4 finite numbers"),
+        ("[" * 100_000 + "]" * 100_000, r"not a map: its JSON is nested too deeply"),
+    ],
+)
+def test_map_bounds(tmp_path, segments, message):
+    path = tmp_path / "map.json"
+    path.write_text(_map_text(segments))
+    with pytest.raises(InputError, match=r"map\.json: " + message) as caught:
+        read_map(path)
+    assert "\n" not in str(caught.value) and len(str(caught.value)) < 300
+
+
+def test_map_extent_at_the_bound_is_read(tmp_path):
+    path = tmp_path / "map.json"
+    segments = np.array([[0.0, 0.0, 1.0, 0.0], [1999.0, 2000.0, 2000.0, 2000.0]])
+    write_map(path, segments)
+    np.testing.assert_array_equal(read_map(path), segments)
+    assert bounds_problem(segments) is None
+
+
+def test_too_many_segments(tmp_path):
+    path = tmp_path / "map.json"
+    path.write_text(_map_text(json.dumps([[0, 0, 1, 0]] * (MAX_SEGMENTS + 1))))
+    with pytest.raises(InputError, match=r"map\.json: 100001 segments, more than a map may hold"):
+        read_map(path)
+
+
+def test_too_much_wall(tmp_path):
+    # 600 walls of 1,999 m each: each inside the extent, 1,199 km in all.
+    walls = [[0.0, float(k), 1999.0, float(k)] for k in range(600)]
+    path = tmp_path / "map.json"
+    path.write_text(_map_text(json.dumps(walls)))
+    with pytest.raises(InputError, match=r"map\.json: segments total 1\.1994e\+06 m, more than"):
+        read_map(path)
+
+
+def test_file_too_large_is_not_read(tmp_path):
+    path = tmp_path / "map.json"
+    with open(path, "wb") as stream:
+        stream.truncate(MAX_MAP_BYTES + 1)  # sparse: nothing is written
+    with pytest.raises(InputError, match=r"map\.json: file is 33554433 bytes, more than a map"):
+        read_map(path)
+
+
+def test_long_values_are_cut_in_messages(tmp_path):
+    path = tmp_path / "map.json"
+    path.write_text(_map_text(json.dumps([[0, 0, 1, "x" * 10_000]])))
+    with pytest.raises(InputError, match=r"segment 0 must be 4 finite numbers") as caught:
+        read_map(path)
+    assert len(str(caught.value)) < 300 and str(caught.value).endswith("...")
+
+
+def test_writers_are_atomic(tmp_path):
+    path = tmp_path / "map.json"
+    write_map(path, SEGMENTS)
+    before = path.read_bytes()
+    with pytest.raises(ValueError, match="non-finite"):
+        write_map(path, np.array([[0.0, 0.0, np.nan, 1.0]]))
+    assert path.read_bytes() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["map.json"]
+    with pytest.raises(OutputError, match=r"missing/world\.json: cannot write file"):
+        write_world(tmp_path / "missing" / "world.json", World(SEGMENTS))

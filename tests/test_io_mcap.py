@@ -11,12 +11,13 @@ import pytest
 from mcap.reader import make_reader
 from mcap.records import Channel, Message
 from mcap.stream_reader import StreamReader
-from mcap.writer import Writer
+from mcap.writer import CompressionType, Writer
 
 from segloc_cli.errors import InputError
 from segloc_cli.geometry import Pose2, wrap_angle
-from segloc_cli.io.mcap_log import LogWriter, read_log, write_log
-from segloc_cli.scan import Scan
+from segloc_cli.io.files import OutputError
+from segloc_cli.io.mcap_log import MAX_CHUNK_BYTES, LogWriter, read_log, write_log
+from segloc_cli.scan import MAX_RANGE_M, MAX_READINGS, Scan, fan_defect
 
 RANGE_MAX_M = 8.0
 
@@ -326,30 +327,45 @@ def raw_scan_log(path, payloads: list[bytes]) -> None:
 GOOD = json.dumps(
     {"timestamp": {"sec": 0, "nsec": 0}, "start_angle": 0.0, "end_angle": 0.0, "ranges": [1.0]}
 ).encode()
+GOOD_LATER = GOOD.replace(b'"sec": 0', b'"sec": 1')
 
 
-def test_scan_message_not_json(tmp_path):
+def test_scan_message_not_json_is_skipped(tmp_path):
     path = tmp_path / "bad.mcap"
-    raw_scan_log(path, [GOOD, b"{not json"])
-    with pytest.raises(InputError, match=r"bad\.mcap: /scan message 2 is not valid JSON"):
-        read_log(path)
+    raw_scan_log(path, [GOOD, b"{not json", GOOD_LATER])
+    contents = read_log(path)
+    assert [s.time_s for s in contents.scans] == [0.0, 1.0]
+    assert contents.message_counts == {"/scan": 3}
+    assert contents.warnings == [
+        "bad.mcap: skipped 1 /scan message [not a JSON object: malformed, nested too deep or "
+        "numbers too long to read]: message 2 (not valid JSON: Expecting property name "
+        "enclosed in double quotes: line 1 column 2 (char 1))"
+    ]
 
 
-def test_scan_message_missing_field(tmp_path):
+def test_scan_message_missing_field_is_skipped(tmp_path):
     path = tmp_path / "bad.mcap"
     message = json.loads(GOOD)
     del message["end_angle"]
-    raw_scan_log(path, [GOOD, GOOD, json.dumps(message).encode()])
-    with pytest.raises(InputError, match=r"/scan message 3 lacks field 'end_angle'"):
-        read_log(path)
+    raw_scan_log(path, [GOOD, GOOD_LATER, json.dumps(message).encode()])
+    contents = read_log(path)
+    assert len(contents.scans) == 2
+    assert contents.warnings == [
+        "bad.mcap: skipped 1 /scan message [start_angle or end_angle missing, not a number or "
+        "not finite]: message 3 (lacks field 'end_angle')"
+    ]
 
 
-def test_scan_message_bad_ranges(tmp_path):
+def test_only_bad_scans_refuse_the_file(tmp_path):
     path = tmp_path / "bad.mcap"
     message = json.loads(GOOD)
     message["ranges"] = [1.0, "far"]
-    raw_scan_log(path, [json.dumps(message).encode()])
-    with pytest.raises(InputError, match=r"/scan message 1: field 'ranges' must be a list"):
+    raw_scan_log(path, [json.dumps(message).encode(), b"[]"])
+    with pytest.raises(
+        InputError,
+        match=r"bad\.mcap: every /scan message is unusable \(2 skipped; first, message 1: "
+        r"field 'ranges' is an array holding 'far'\)$",
+    ):
         read_log(path)
 
 
@@ -366,3 +382,387 @@ def test_message_counts_cover_every_channel(tmp_path):
             log._writer.add_message(notes, log_time=k, data=b"{}", publish_time=k)
     contents = read_log(path)
     assert contents.message_counts == {"/scan": len(scans), "/odom": 1, "/notes": 3}
+
+
+# --- hostile content: skipped and counted, never passed on ------------------------
+
+
+def scan_payload(sec=1, start=0.0, end=1.0, ranges=(1.0, 2.0), **extra) -> bytes:
+    message = {
+        "timestamp": {"sec": sec, "nsec": 0},
+        "start_angle": start,
+        "end_angle": end,
+        "ranges": list(ranges),
+        **extra,
+    }
+    return json.dumps(message).encode()
+
+
+def odom_payload(sec=1, x=0.0, y=0.0, q=(0.0, 0.0, 0.0, 1.0)) -> bytes:
+    message = {
+        "timestamp": {"sec": sec, "nsec": 0},
+        "pose": {
+            "position": {"x": x, "y": y, "z": 0.0},
+            "orientation": dict(zip("xyzw", q, strict=True)),
+        },
+    }
+    return json.dumps(message).encode()
+
+
+def hand_log(path, scans, odom=(), sensor=None, chunked=False, compression="NONE", times=None):
+    """A log with the given raw /scan and /odom payloads; log time = publish time = ``times``
+    (ns, default the message index)."""
+    with open(path, "wb") as stream:
+        writer = Writer(stream, use_chunking=chunked, compression=CompressionType[compression])
+        writer.start()
+        if sensor is not None:
+            writer.add_metadata("segloc.sensor", sensor)
+        schema = writer.register_schema("foxglove.LaserScan", "jsonschema", b"{}")
+        scan_channel = writer.register_channel("/scan", "json", schema)
+        odom_channel = writer.register_channel("/odom", "json", schema)
+        for i, payload in enumerate(scans):
+            t = i if times is None else times[i]
+            writer.add_message(scan_channel, t, payload, t)
+        for i, payload in enumerate(odom):
+            writer.add_message(odom_channel, i, payload, i)
+        writer.finish()
+
+
+def test_non_finite_and_huge_angles_are_skipped(tmp_path):
+    path = tmp_path / "angles.mcap"
+    hand_log(
+        path,
+        [
+            scan_payload(sec=1),
+            b'{"timestamp": {"sec": 2, "nsec": 0}, "start_angle": NaN, "end_angle": 1.0,'
+            b' "ranges": [1.0]}',
+            scan_payload(sec=3, end=10**400),
+            scan_payload(sec=4, start="0"),
+            scan_payload(sec=5, start=True),
+            scan_payload(sec=6),
+        ],
+    )
+    contents = read_log(path)
+    assert contents.scan_times_s.tolist() == [1.0, 6.0]
+    assert contents.warnings == [
+        "angles.mcap: skipped 4 /scan messages [start_angle or end_angle missing, not a number "
+        "or not finite]: messages 2, 3, 4, 5 (first: field 'start_angle' is nan, expected a "
+        "finite number)"
+    ]
+
+
+@pytest.mark.parametrize(
+    ("start", "end", "n", "why"),
+    [
+        (0.5, 0.5, 2, "degenerate fan: all 2 beams at 0.5 rad"),
+        (-4.0, 4.0, 3, "fan spans 8 rad, more than a full turn"),
+        (0.0, 20.0, 3, "fan angles 0 to 20 rad lie beyond ±4π (corrupt, or not radians)"),
+    ],
+)
+def test_fans_that_are_not_fans_are_skipped(tmp_path, start, end, n, why):
+    path = tmp_path / "fan.mcap"
+    hand_log(path, [scan_payload(sec=1), scan_payload(sec=2, start=start, end=end, ranges=[1] * n)])
+    contents = read_log(path)
+    assert len(contents.scans) == 1
+    assert contents.warnings == [
+        "fan.mcap: skipped 1 /scan message [not a fan: all beams on one ray, over a full turn, "
+        f"or angles beyond ±4π]: message 2 ({why})"
+    ]
+
+
+def test_full_turn_and_single_beam_fans_are_kept(tmp_path):
+    path = tmp_path / "fans.mcap"
+    hand_log(
+        path,
+        [
+            scan_payload(sec=1, start=-math.pi, end=math.pi, ranges=[1.0] * 5),
+            scan_payload(sec=2, start=0.25, end=0.25, ranges=[1.0]),
+            scan_payload(sec=3, start=1.0, end=-1.0, ranges=[1.0] * 3),
+        ],
+    )
+    contents = read_log(path)
+    assert contents.warnings == []
+    np.testing.assert_allclose(contents.scans[0].angles_rad, np.linspace(-np.pi, np.pi, 5))
+    assert contents.scans[1].angles_rad.tolist() == [0.25]
+    assert contents.scans[2].angles_rad.tolist() == [1.0, 0.0, -1.0]
+
+
+def test_absurd_ranges_are_no_returns(tmp_path):
+    path = tmp_path / "far.mcap"
+    hand_log(
+        path,
+        [
+            b'{"timestamp": {"sec": 1, "nsec": 0}, "start_angle": 0, "end_angle": 1,'
+            b' "ranges": [1e30, Infinity, NaN, -2, 999.5, 1000.0, ' + b"9" * 400 + b", 3]}"
+        ],
+    )
+    (scan,) = read_log(path).scans
+    assert scan.range_max_m == math.inf
+    assert scan.ranges_m.tolist() == [0.0, 0.0, 0.0, 0.0, 999.5, 0.0, 0.0, 3.0]
+    assert scan.valid.tolist() == [False] * 4 + [True, False, False, True]
+
+
+def test_too_many_readings_and_bad_ranges_are_skipped(tmp_path):
+    path = tmp_path / "big.mcap"
+    hand_log(
+        path,
+        [
+            scan_payload(sec=1),
+            scan_payload(sec=2, ranges=[0] * (MAX_READINGS + 1)),
+            scan_payload(sec=3, ranges=[1.0, None]),
+            scan_payload(sec=4, ranges=[[1.0]]),
+            json.dumps(
+                {
+                    "timestamp": {"sec": 5, "nsec": 0},
+                    "start_angle": 0,
+                    "end_angle": 1,
+                    "ranges": "1,2",
+                }
+            ).encode(),
+        ],
+    )
+    contents = read_log(path)
+    assert len(contents.scans) == 1
+    assert contents.warnings == [
+        f"big.mcap: skipped 1 /scan message [over 16777216 bytes or over {MAX_READINGS} "
+        "readings]: message 2 (100001 readings)",
+        "big.mcap: skipped 3 /scan messages [ranges missing or not a list of numbers]: "
+        "messages 3, 4, 5 (first: field 'ranges' is an array holding None)",
+    ]
+
+
+def test_deep_and_overlong_json_is_skipped(tmp_path):
+    path = tmp_path / "deep.mcap"
+    deep = b'{"a": ' + b"[" * 100_000 + b"]" * 100_000 + b"}"
+    long_number = scan_payload(sec=3).replace(b'"end_angle": 1.0', b'"end_angle": ' + b"7" * 5000)
+    hand_log(path, [scan_payload(sec=1), deep, long_number, b"[1, 2]", b"\xff\xfe{"])
+    contents = read_log(path)
+    assert len(contents.scans) == 1
+    (warning,) = contents.warnings
+    assert warning.startswith(
+        "deep.mcap: skipped 4 /scan messages [not a JSON object: malformed, nested too deep or "
+        "numbers too long to read]: messages 2, 3, 4, 5 (first: not valid JSON: nested too deep)"
+    )
+
+
+@pytest.mark.parametrize(
+    ("stamp", "why"),
+    [
+        ({"sec": 1.5, "nsec": 0}, "timestamp.sec is 1.5, expected an integer"),
+        ({"sec": "1", "nsec": 0}, "timestamp.sec is '1', expected an integer"),
+        ({"sec": -1, "nsec": 0}, "timestamp -1 s 0 ns out of range"),
+        ({"sec": 10**12, "nsec": 0}, "timestamp 1000000000000 s 0 ns out of range"),
+        ({"sec": 0}, "lacks field 'timestamp.nsec'"),
+    ],
+)
+def test_bad_timestamps_are_skipped(tmp_path, stamp, why):
+    path = tmp_path / "time.mcap"
+    bad = json.loads(scan_payload())
+    bad["timestamp"] = stamp
+    hand_log(path, [scan_payload(sec=7), json.dumps(bad).encode()])
+    contents = read_log(path)
+    assert contents.scan_times_s.tolist() == [7.0]
+    assert contents.warnings == [
+        "time.mcap: skipped 1 /scan message [no valid timestamp: whole sec and nsec, from 0 to "
+        f"2^63 ns]: message 2 ({why})"
+    ]
+
+
+def test_whole_float_timestamps_are_read(tmp_path):
+    path = tmp_path / "time.mcap"
+    payload = scan_payload().replace(b'"sec": 1', b'"sec": 2.0')
+    hand_log(path, [payload])
+    assert read_log(path).scan_times_s.tolist() == [2.0]
+
+
+def test_bad_odometry_is_skipped(tmp_path):
+    path = tmp_path / "odom.mcap"
+    hand_log(
+        path,
+        [scan_payload()],
+        odom=[
+            odom_payload(sec=1, x=1.0, y=2.0, q=(0.0, 0.0, 1e-200, 1e-200)),
+            odom_payload(sec=2, q=(0.0, 0.0, 0.0, 0.0)),
+            odom_payload(sec=3, x=float("nan")),
+            odom_payload(sec=4, y=10**400),
+            odom_payload(sec=5, x=3.0, q=(0.0, 0.0, 1e200, 0.0)),
+        ],
+    )
+    contents = read_log(path)
+    assert contents.odom_times_s.tolist() == [1.0, 5.0]
+    np.testing.assert_allclose(contents.odom_poses, [[1.0, 2.0, np.pi / 2], [3.0, 0.0, -np.pi]])
+    assert contents.warnings == [
+        "odom.mcap: skipped 2 /odom messages [position or orientation missing, not numbers or "
+        "not finite]: messages 3, 4 (first: field 'pose.position.x' is nan, expected a finite "
+        "number)",
+        "odom.mcap: skipped 1 /odom message [orientation quaternion all zeros]: message 2 "
+        "(orientation is (0, 0, 0, 0))",
+    ]
+
+
+def test_intensities_that_do_not_fit_are_dropped(tmp_path):
+    path = tmp_path / "int.mcap"
+    hand_log(
+        path,
+        [
+            scan_payload(sec=1, intensities=[1.0]),
+            scan_payload(sec=2, intensities=["a", 1]),
+            scan_payload(sec=3, intensities=[5.0, float("inf")]),
+        ],
+    )
+    contents = read_log(path)
+    assert [s.intensities.tolist() for s in contents.scans] == [[], [], [5.0, 0.0]]
+    assert contents.warnings == [
+        "int.mcap: dropped the intensities of 2 /scan messages [not one number per reading; "
+        "the scans are kept]: messages 1, 2 (first: 1 values for 2 readings)"
+    ]
+
+
+@pytest.mark.parametrize("value", ["nan", "1e400", "-3", "0", "eight", "x" * 1000, "1\n2"])
+def test_unusable_range_max_refuses_the_file(tmp_path, value):
+    path = tmp_path / "sensor.mcap"
+    hand_log(path, [scan_payload()], sensor={"range_max_m": value})
+    with pytest.raises(InputError) as error:
+        read_log(path)
+    message = str(error.value)
+    assert "\n" not in message
+    assert message.startswith(f"{path}: metadata segloc.sensor: range_max_m is ")
+    assert message.endswith("expected a positive finite number in metres or 'inf'")
+    assert len(message) < len(str(path)) + 140
+
+
+@pytest.mark.parametrize("value", ["inf", "Infinity", "+inf", " 30 "])
+def test_range_max_spellings(tmp_path, value):
+    path = tmp_path / "sensor.mcap"
+    hand_log(path, [scan_payload()], sensor={"range_max_m": value})
+    (scan,) = read_log(path).scans
+    assert scan.range_max_m == (30.0 if value == " 30 " else math.inf)
+
+
+def test_repeated_and_backward_times_are_reported_not_changed(tmp_path):
+    path = tmp_path / "times.mcap"
+    hand_log(path, [scan_payload(sec=s) for s in (1, 2, 2, 1, 3, 3)])
+    contents = read_log(path)
+    assert contents.scan_times_s.tolist() == [1.0, 2.0, 2.0, 1.0, 3.0, 3.0]
+    assert contents.warnings == [
+        "times.mcap: 3 scans repeat an earlier scan's time or go back in time (first: /scan "
+        "message 3 at 2.000000000 s); pairing scans by time may refuse them"
+    ]
+
+
+def test_chunked_compressed_logs_are_read(tmp_path):
+    for compression in ("ZSTD", "LZ4", "NONE"):
+        path = tmp_path / f"{compression}.mcap"
+        hand_log(
+            path,
+            [scan_payload(sec=s) for s in range(1, 4)],
+            odom=[odom_payload()],
+            chunked=True,
+            compression=compression,
+        )
+        contents = read_log(path)
+        assert contents.scan_times_s.tolist() == [1.0, 2.0, 3.0]
+        assert len(contents.odom_times_s) == 1
+        assert contents.warnings == []
+
+
+def test_chunk_claiming_too_much_memory_is_corrupt(tmp_path):
+    path = tmp_path / "bomb.mcap"
+    hand_log(path, [scan_payload(sec=1)], chunked=True, compression="ZSTD")
+    data = bytearray(path.read_bytes())
+    offset = 8
+    while data[offset] != 0x06:  # the first chunk record
+        offset += 9 + int.from_bytes(data[offset + 1 : offset + 9], "little")
+    size_field = offset + 9 + 16
+    data[size_field : size_field + 8] = (MAX_CHUNK_BYTES + 1).to_bytes(8, "little")
+    path.write_bytes(bytes(data))
+    with pytest.raises(InputError, match=r"bomb\.mcap: no /scan channel; .*has a corrupt chunk"):
+        read_log(path)
+
+
+# --- original times and the writer ----------------------------------------------------
+
+
+def test_original_times_round_trip(tmp_path):
+    path = tmp_path / "log.mcap"
+    scans = make_scans()
+    originals = [12.345678901, 12.345678901, 11.0, 1_000.0]
+    write_log(path, scans, sensor=SENSOR, original_times_s=originals)
+    contents = read_log(path)
+    assert contents.scan_times_s.tolist() == [s.time_s for s in scans]
+    assert contents.scan_original_times_s.tolist() == originals
+    with open(path, "rb") as stream:
+        publish = [m.publish_time for _, _, m in make_reader(stream).iter_messages()]
+    assert publish == [12_345_678_901, 12_345_678_901, 11_000_000_000, 1_000_000_000_000]
+
+
+def test_original_times_default_to_scan_times(log_path):
+    contents = read_log(log_path)
+    np.testing.assert_array_equal(contents.scan_original_times_s, contents.scan_times_s)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"original_times_s": [1.0]}, "1 original times for 4 scans"),
+        ({"original_times_s": [1.0, 2.0, math.nan, 3.0]}, "log times must be finite"),
+        ({"odom": [(-1.0, Pose2(0.0, 0.0, 0.0))]}, "log times must be finite and from 0"),
+        ({"odom": [(1.0, Pose2(math.inf, 0.0, 0.0))]}, "odometry at t=1.0 s is not finite"),
+        ({"sensor": {"range_max_m": "nan"}}, "range_max_m must be a positive number"),
+    ],
+)
+def test_write_log_checks_before_creating_the_file(tmp_path, kwargs, match):
+    path = tmp_path / "log.mcap"
+    with pytest.raises(ValueError, match=match):
+        write_log(path, make_scans(), **kwargs)
+    assert not path.exists()
+
+
+def test_uneven_scan_is_refused_before_the_file_is_created(tmp_path):
+    path = tmp_path / "log.mcap"
+    uneven = Scan(1.0, np.array([0.0, 0.1, 0.3]), np.array([1.0, 1.0, 1.0]))
+    with pytest.raises(ValueError, match="not evenly spaced"):
+        write_log(path, [make_scans()[0], uneven])
+    assert not path.exists()
+
+
+def test_write_errors_name_the_file(tmp_path):
+    with pytest.raises(OutputError, match=r"^/dev/full: cannot write file \(No space left"):
+        write_log("/dev/full", make_scans(), sensor=SENSOR)
+    with pytest.raises(OutputError, match=r"log\.mcap: cannot write file"):
+        LogWriter(tmp_path / "missing" / "log.mcap", SENSOR)
+    with pytest.raises(OutputError, match="cannot write file"):
+        LogWriter(tmp_path, SENSOR)
+
+
+# --- the Scan type ------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("bad", [math.nan, math.inf, -math.inf])
+def test_scan_refuses_non_finite_angles(bad):
+    with pytest.raises(ValueError, match="beam angles must be finite"):
+        Scan(1.0, np.array([0.0, bad]), np.array([1.0, 1.0]))
+
+
+def test_scan_valid_ignores_readings_beyond_the_physical_bound():
+    scan = Scan(0.0, np.zeros(4), np.array([999.0, MAX_RANGE_M, 1e30, 5.0]))
+    assert scan.valid.tolist() == [True, False, False, True]
+    limited = Scan(0.0, np.zeros(4), np.array([999.0, MAX_RANGE_M, 1e30, 5.0]), range_max_m=5.0)
+    assert limited.valid.tolist() == [False, False, False, False]
+
+
+@pytest.mark.parametrize(
+    ("n", "start", "end", "defect"),
+    [
+        (0, 0.0, 0.0, None),
+        (1, 3.0, 3.0, None),
+        (3, 0.0, 2 * math.pi, None),
+        (3, 4 * math.pi - 1.0, 2 * math.pi, None),
+        (2, 1.0, 1.0, "degenerate fan: all 2 beams at 1 rad"),
+        (3, 0.0, 2 * math.pi + 0.01, "fan spans 6.29319 rad, more than a full turn"),
+        (3, math.nan, 1.0, "non-finite fan angles (nan to 1.0 rad)"),
+        (1, 13.0, 13.0, "fan angles 13 to 13 rad lie beyond ±4π (corrupt, or not radians)"),
+    ],
+)
+def test_fan_defect(n, start, end, defect):
+    assert fan_defect(n, start, end) == defect

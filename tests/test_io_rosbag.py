@@ -325,13 +325,13 @@ def test_single_odometry_message_covers_only_its_own_instant(tmp_path):
     store = ROS1_STORE
     # One odometry message only: its own instant is the whole span.
     messages = [
-        scan_record(store, 1, 10, scan_ranges(0)),
-        scan_record(store, 2, 20, scan_ranges(1)),
-        odom_record(store, 3, 20, Pose2(-1.0, 4.0, -2.0)),
+        scan_record(store, 1, 10_000_000, scan_ranges(0)),
+        scan_record(store, 2, 20_000_000, scan_ranges(1)),
+        odom_record(store, 3, 20_000_000, Pose2(-1.0, 4.0, -2.0)),
     ]
     log = read_rosbag(write_bag("ros1", tmp_path, TOPICS, messages))
 
-    assert log.odom_times_s.tolist() == [(EPOCH_S * 1_000_000_000 + 20) / 1_000_000_000]
+    assert log.odom_times_s.tolist() == [EPOCH_S + 0.02]
     np.testing.assert_allclose(log.odom_poses, [[-1.0, 4.0, -2.0]], rtol=0, atol=1e-12)
 
 
@@ -342,7 +342,7 @@ def test_odd_scans_are_read_with_warnings(tmp_path):
         # angle_max one beam short of what 181 ranges at this increment span
         scan_record(store, 1, 0, ranges, angle_max=ANGLE_MAX - ANGLE_INCREMENT),
         # three intensities for 181 ranges
-        scan_record(store, 2, 100, ranges, [1.0, 2.0, 3.0]),
+        scan_record(store, 2, 100_000_000, ranges, [1.0, 2.0, 3.0]),
     ]
     path = write_bag("ros1", tmp_path, TOPICS, messages)
     log = read_rosbag(path, odom_topic=None)
@@ -531,3 +531,86 @@ def test_odometry_topic_without_messages_is_a_warning(tmp_path):
     assert len(log.scans) == 6
     assert log.odom_poses.shape == (0, 3)
     assert log.warnings == ["test.bag: topic /odom holds no odometry; none imported"]
+
+
+# --- colliding stamps --------------------------------------------------------------------
+
+
+def test_colliding_stamps_get_distinct_times_and_odometry_at_the_real_stamp(kind, tmp_path):
+    store = store_of(kind)
+    record_ns = EPOCH_S * 1_000_000_000
+    # Three scans stamped alike (a driver with a coarse clock), then one 0.3 s later; the
+    # odometry runs from x = 0 at the common stamp to x = 3 at 0.3 s.
+    messages = [scan_record(store, record_ns + k, 0, scan_ranges(k)) for k in range(3)]
+    messages += [
+        scan_record(store, record_ns + 3, 300_000_000, scan_ranges(3)),
+        odom_record(store, record_ns + 4, 0, Pose2(0.0, 0.0, 0.0)),
+        odom_record(store, record_ns + 5, 300_000_000, Pose2(3.0, 0.0, 0.0)),
+    ]
+    path = write_bag(kind, tmp_path, TOPICS, messages)
+    log = read_rosbag(path)
+
+    start = float(EPOCH_S)
+    assert [s.time_s for s in log.scans] == [start, start + 0.1, start + 0.2, start + 0.3]
+    assert log.original_times_s.tolist() == [start, start, start, start + 0.3]
+    # Equal stamps stay in bag order.
+    for k, scan in enumerate(log.scans):
+        np.testing.assert_array_equal(scan.ranges_m, expected_ranges(k))
+    # The odometry is filed under the distinct times but taken at the real stamps: the three
+    # scans stamped alike all get the pose at that stamp, not one further along.
+    assert log.odom_times_s.tolist() == [s.time_s for s in log.scans]
+    np.testing.assert_allclose(
+        log.odom_poses, [[0, 0, 0], [0, 0, 0], [0, 0, 0], [3, 0, 0]], rtol=0, atol=1e-12
+    )
+    assert log.warnings == [
+        f"{path.name}: 3 of 4 scans share their time (header.stamp in seconds) with another "
+        "scan; gave them distinct times in stamp and bag order (see README: colliding times)"
+    ]
+
+
+def test_scans_stamped_before_1970_are_skipped(tmp_path):
+    store = ROS2_STORE
+    early = laser_scan(store, 0, scan_ranges(0))
+    early.header.stamp.sec = -5
+    messages = [
+        ("/scan", 1, serialize(store, early, SCAN_TYPE)),
+        scan_record(store, 2, 0, scan_ranges(1)),
+    ]
+    path = write_bag("ros2-folder", tmp_path, TOPICS, messages)
+    log = read_rosbag(path, odom_topic=None)
+    assert [s.time_s for s in log.scans] == [float(EPOCH_S)]
+    np.testing.assert_array_equal(log.scans[0].ranges_m, expected_ranges(1))
+    assert log.warnings == [
+        "test_bag: skipped 1 scan(s) on /scan stamped before 1970 (negative header.stamp)"
+    ]
+
+    only = write_bag("ros2-folder", tmp_path / "only", TOPICS, messages[:1])
+    with pytest.raises(InputError) as info:
+        read_rosbag(only, odom_topic=None)
+    assert str(info.value) == (
+        f"{only}: topic /scan holds no usable laser scans; "
+        "skipped 1 scan(s) on /scan stamped before 1970 (negative header.stamp)"
+    )
+
+
+def test_scans_with_unusable_fans_or_too_many_readings_are_skipped(tmp_path):
+    store = ROS1_STORE
+    bad_fan = laser_scan(store, 0, scan_ranges(0))
+    bad_fan.angle_increment = float("nan")
+    one_ray = laser_scan(store, 10_000_000, scan_ranges(1))
+    one_ray.angle_increment = 0.0
+    messages = [
+        ("/scan", 1, serialize(store, bad_fan, SCAN_TYPE)),
+        ("/scan", 2, serialize(store, one_ray, SCAN_TYPE)),
+        scan_record(store, 3, 20_000_000, np.ones(100_001, dtype=np.float32)),
+        scan_record(store, 4, 30_000_000, scan_ranges(3)),
+    ]
+    path = write_bag("ros1", tmp_path, TOPICS, messages)
+    log = read_rosbag(path, odom_topic=None)
+    assert [s.time_s for s in log.scans] == [EPOCH_S + 0.03]
+    np.testing.assert_array_equal(log.scans[0].ranges_m, expected_ranges(3))
+    assert log.warnings == [
+        "test.bag: skipped 2 scan(s) on /scan with an unusable beam fan "
+        "(first: non-finite fan angles (-1.5707963705062866 to nan rad))",
+        "test.bag: skipped 1 scan(s) on /scan with more than 100,000 readings",
+    ]

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -12,10 +13,14 @@ from hypothesis import strategies as st
 
 from segloc_cli.errors import InputError
 from segloc_cli.geometry import heading_to_quaternion, quaternion_to_heading
+from segloc_cli.io.files import OutputError
 from segloc_cli.io.tables import (
     ESTIMATE_COLUMNS,
+    EstimatesWriter,
     PoseTable,
+    TumWriter,
     nearest_by_time,
+    pair_by_time,
     read_estimates,
     read_pose_table,
     write_estimates,
@@ -85,6 +90,51 @@ def test_pose_table_without_times_round_trip(tmp_path):
     np.testing.assert_array_equal(back.pose_id, [1, 2])
     assert np.isnan(back.time_s).all()
     np.testing.assert_allclose(back.poses, table.poses, rtol=0, atol=1e-15)
+
+
+def test_pose_table_extra_columns_follow_and_are_ignored_by_the_reader(tmp_path):
+    table = PoseTable(np.array([1, 2]), np.array([0.5, 0.75]), np.array([[1.0, 2, 0], [3, 4, 0]]))
+    path = tmp_path / "survey.csv"
+    write_pose_table(
+        path,
+        table,
+        extra_columns={"original_time_s": np.array([0.0, np.nan]), "source": ["a", "b,c"]},
+    )
+    assert path.read_text().splitlines() == [
+        "pose_id,time_s,x_m,y_m,theta_deg,original_time_s,source",
+        "1,0.5,1.0,2.0,0.0,0.0,a",
+        '2,0.75,3.0,4.0,0.0,,"b,c"',
+    ]
+    back = read_pose_table(path)
+    np.testing.assert_array_equal(back.time_s, table.time_s)
+    np.testing.assert_array_equal(back.poses, table.poses)
+    with pytest.raises(ValueError, match="extra column 'x_m' clashes"):
+        write_pose_table(path, table, extra_columns={"x_m": np.zeros(2)})
+    with pytest.raises(ValueError, match="extra column 'e' has 3 values for 2 poses"):
+        write_pose_table(path, table, extra_columns={"e": np.zeros(3)})
+
+
+def test_writers_refuse_a_missing_folder_with_one_line(tmp_path):
+    table = PoseTable(np.array([1]), np.array([0.0]), np.zeros((1, 3)))
+    target = tmp_path / "no" / "survey.csv"
+    for write in (
+        lambda: write_pose_table(target, table),
+        lambda: write_estimates(target, estimates_frame()),
+        lambda: write_tum(target, estimates_frame()),
+    ):
+        with pytest.raises(OutputError, match=r"no/survey\.csv: cannot write file"):
+            write()
+
+
+def test_a_failed_write_keeps_the_old_file(tmp_path):
+    path = tmp_path / "est.csv"
+    path.write_text("old\n")
+    frame = estimates_frame()
+    frame.loc[0, "pose_id"] = np.nan
+    with pytest.raises(ValueError, match="pose_id"):
+        write_estimates(path, frame)
+    assert path.read_text() == "old\n"
+    assert [p.name for p in tmp_path.iterdir()] == ["est.csv"]
 
 
 def test_write_refuses_some_missing_times(tmp_path):
@@ -179,11 +229,80 @@ def test_tum_errors(tmp_path):
         read_pose_table(path)
 
 
-def test_csv_without_x_m_header_gets_a_hint(tmp_path):
+def test_csv_without_x_m_is_a_csv_error_not_a_tum_one(tmp_path):
     path = tmp_path / "survey.csv"
     path.write_text("id,t,x,y,theta\n1,0,0,0,0\n")
-    with pytest.raises(InputError, match=r"row 1: .*header pose_id,time_s,x_m,y_m,theta_deg"):
+    with pytest.raises(InputError) as caught:
         read_pose_table(path)
+    assert str(caught.value) == (
+        f"{path}: missing column 'x_m'; a survey CSV needs the header "
+        "pose_id,time_s,x_m,y_m,theta_deg (pose_id optional)"
+    )
+    # A header of one word is a CSV header too (not numeric); the message mentions TUM.
+    path.write_text("timestamp tx ty tz qx qy qz qw\n1 0 0 0 0 0 0 1\n")
+    with pytest.raises(InputError, match=r"missing column 'x_m'.*TUM trajectory has 8 numbers"):
+        read_pose_table(path)
+
+
+def test_numeric_first_line_is_tum_and_its_errors_say_so(tmp_path):
+    path = tmp_path / "traj.txt"
+    path.write_text("# t x y z qx qy qz qw\n1.5 0 0 0 0 0 0 1\n2.5 0 0\n")
+    with pytest.raises(InputError) as caught:
+        read_pose_table(path)
+    assert str(caught.value).startswith(
+        f"{path}, row 2: expected 8 whitespace-separated values 't x y z qx qy qz qw' (TUM), got 3"
+    )
+
+
+def test_comment_lines_before_a_csv_header(tmp_path):
+    path = tmp_path / "survey.csv"
+    path.write_text("# surveyed 2024-05-01\n\npose_id,time_s,x_m,y_m,theta_deg\n4,1.5,1,2,90\n")
+    table = read_pose_table(path)
+    np.testing.assert_array_equal(table.pose_id, [4])
+    np.testing.assert_array_equal(table.poses[:, :2], [[1.0, 2.0]])
+
+
+def test_pose_ids_are_exact_int64(tmp_path):
+    path = tmp_path / "survey.csv"
+    big = 2**53 + 1  # not a float64
+    path.write_text(f"pose_id,time_s,x_m,y_m,theta_deg\n{big},0,0,0,0\n{big - 1},1,0,0,0\n")
+    np.testing.assert_array_equal(read_pose_table(path).pose_id, [big, big - 1])
+    path.write_text(f"pose_id,time_s,x_m,y_m,theta_deg\n{2**63},0,0,0,0\n")
+    with pytest.raises(InputError) as caught:
+        read_pose_table(path)
+    assert str(caught.value) == (
+        f"{path}, row 1: column pose_id is '9223372036854775808'; "
+        "expected an integer within ±9223372036854775807"
+    )
+
+
+def test_long_fields_are_cut_in_messages(tmp_path):
+    path = tmp_path / "survey.csv"
+    path.write_text("pose_id,time_s,x_m,y_m,theta_deg\n1,0," + "9" * 500 + "x,0,0\n")
+    with pytest.raises(InputError) as caught:
+        read_pose_table(path)
+    assert str(caught.value) == (
+        f"{path}, row 1: column x_m is '{'9' * 40}'…; expected a finite number"
+    )
+
+
+def test_positions_beyond_the_bound_are_refused(tmp_path):
+    path = tmp_path / "survey.csv"
+    path.write_text("pose_id,time_s,x_m,y_m,theta_deg\n1,0,500000,5000000,0\n2,1,0,1e9,0\n")
+    with pytest.raises(InputError) as caught:
+        read_pose_table(path)
+    assert str(caught.value) == (
+        f"{path}, row 2: position (0, 1e+09) m is beyond ±1e+07 m; expected coordinates in metres"
+    )
+
+
+@pytest.mark.parametrize("scale", [1e-300, 1.0, 1e300])
+def test_tum_quaternions_at_any_scale(tmp_path, scale):
+    path = tmp_path / "traj.txt"
+    path.write_text(f"1 0 0 0 0 0 {scale!r} {scale!r}\n2 0 0 0 0 0 {-scale!r} {scale!r}\n")
+    np.testing.assert_allclose(
+        read_pose_table(path).poses[:, 2], [np.pi / 2, -np.pi / 2], rtol=0, atol=1e-15
+    )
 
 
 def test_quaternion_helpers_agree():
@@ -258,6 +377,83 @@ def test_nearest_empty_and_nan():
     np.testing.assert_array_equal(nearest_by_time([1.0, 2.0], [], 1.0), [-1, -1])
     np.testing.assert_array_equal(nearest_by_time([np.nan, 1.0], [1.0, np.nan], 0.1), [-1, 0])
     assert nearest_by_time([], [1.0], 1.0).shape == (0,)
+
+
+# --- pair_by_time ------------------------------------------------------------------
+
+
+def pair(query, ref, tolerance_s=0.05, **options):
+    return pair_by_time(
+        query, ref, tolerance_s, query_path="log.mcap", ref_path="survey.csv", **options
+    )
+
+
+def test_pairing_40_hz_scans_with_a_table_at_their_times():
+    # Neighbours 25 ms away lie within 50 ms of every scan; the nearest is unique, so no refusal.
+    scans_s = 1_700_000_000.0 + np.arange(400) * 0.025
+    np.testing.assert_array_equal(
+        pair(scans_s, scans_s[::-1], query_label="scan"), np.arange(400)[::-1]
+    )
+    # Distinct scans may share one row of a sparser table.
+    np.testing.assert_array_equal(pair([0.975, 1.0, 1.025], [1.0, 2.0]), [0, 0, 0])
+
+
+def test_pairing_refuses_rows_sharing_the_nearest_time():
+    ref = [12.0, 12.5, 12.5, 13.0]
+    with pytest.raises(InputError) as caught:
+        pair([12.0, 12.5], ref, query_label="scan")
+    assert str(caught.value) == (
+        "survey.csv, rows 2 and 3: both have time 12.500 s, so a scan at 12.500 s matches more "
+        "than one row; give every row a distinct time"
+    )
+    assert caught.value.path == "survey.csv"
+    with pytest.raises(InputError) as caught:
+        pair([12.52], ref, query_label="scan")
+    assert str(caught.value) == (
+        "survey.csv, rows 2 and 3: both have time 12.500 s, so a scan at 12.520 s matches more "
+        "than one row; give every row a distinct time (or lower --tolerance-ms)"
+    )
+    with pytest.raises(InputError, match=r"^survey\.csv, rows 1, 2, 3 and 2 more: all have time 0"):
+        pair(np.zeros(3), np.zeros(5))
+
+
+def test_pairing_ignores_shared_times_that_are_not_nearest():
+    # 12.5 twice lies within the tolerance of 12.52, but 12.52 itself is nearer.
+    np.testing.assert_array_equal(pair([12.52, 20.0], [12.5, 12.5, 12.52]), [2, -1])
+
+
+def test_pairing_refuses_queries_sharing_a_time():
+    with pytest.raises(InputError) as caught:
+        pair([1.0, 2.0, 2.0, 2.0], [1.0, 2.0], query_label="scan")
+    assert str(caught.value) == (
+        "log.mcap, scans 2, 3 and 4: all have time 2.000 s, so all would be paired with row 2 "
+        "of survey.csv; give every scan a distinct time"
+    )
+    assert caught.value.path == "log.mcap"
+    # Unmatched queries may share a time; so may any when asked (relations share times).
+    np.testing.assert_array_equal(pair([5.0, 5.0, 1.0], [1.0, 2.0]), [-1, -1, 0])
+    np.testing.assert_array_equal(pair([2.0, 2.0], [1.0, 2.0], distinct_queries=False), [1, 1])
+
+
+times_with_repeats = st.lists(st.integers(0, 12).map(lambda k: k * 0.25), max_size=10)
+
+
+@settings(max_examples=100, deadline=None)
+@given(query=times_with_repeats, ref=times_with_repeats, tolerance_steps=st.integers(0, 4))
+def test_pairing_is_nearest_or_refused(query, ref, tolerance_steps):
+    tolerance_s = tolerance_steps * 0.25
+    nearest = nearest_by_time(query, ref, tolerance_s)
+    hit = nearest >= 0
+    matched_ref = np.asarray(ref)[nearest[hit]] if ref else np.zeros(0)
+    ambiguous = any(ref.count(t) > 1 for t in matched_ref)
+    ambiguous |= len(set(np.asarray(query)[hit])) < int(np.count_nonzero(hit))
+    try:
+        got = pair(query, ref, tolerance_s)
+    except InputError:
+        assert ambiguous
+    else:
+        assert not ambiguous
+        np.testing.assert_array_equal(got, nearest)
 
 
 # --- estimates ---------------------------------------------------------------------
@@ -378,3 +574,107 @@ def test_write_tum_finite_rows_read_back(tmp_path):
     matrix = np.loadtxt(path, comments="#")
     assert matrix.shape == (2, 8)
     np.testing.assert_allclose(np.linalg.norm(matrix[:, 4:], axis=1), 1.0)
+
+
+# --- streamed estimates ------------------------------------------------------------
+
+
+def frame_rows(frame: pd.DataFrame) -> list[dict]:
+    return [dict(zip(frame.columns, values, strict=True)) for values in frame.to_numpy(object)]
+
+
+def test_estimates_writer_writes_what_write_estimates_writes(tmp_path):
+    frame = estimates_frame()
+    whole, streamed = tmp_path / "whole.csv", tmp_path / "streamed.csv"
+    write_estimates(whole, frame)
+    with EstimatesWriter(streamed) as writer:
+        assert streamed.read_text() == HEADER + "\n"  # the header is there at once
+        for i, row in enumerate(frame_rows(frame), start=1):
+            writer.write_row({**row, "debug": "not written"})
+            # Every finished row is on disk before the writer is closed.
+            pd.testing.assert_frame_equal(
+                read_estimates(streamed), frame.iloc[:i], check_exact=True, check_dtype=False
+            )
+        assert writer.rows == 3
+    assert streamed.read_bytes() == whole.read_bytes()
+    writer.close()  # a second close does nothing
+
+
+def test_estimates_writer_rejects_rows_without_required_values(tmp_path):
+    path = tmp_path / "est.csv"
+    row = frame_rows(estimates_frame())[0]
+    with EstimatesWriter(path) as writer:
+        with pytest.raises(ValueError, match="time_s must have a value"):
+            writer.write_row({**row, "time_s": np.nan})
+        with pytest.raises(ValueError, match=r"lacks columns \['status'\]"):
+            writer.write_row({k: v for k, v in row.items() if k != "status"})
+        writer.write_row(row)
+    assert len(read_estimates(path)) == 1
+    with pytest.raises(OutputError, match=r"missing/est\.csv: cannot write file"):
+        EstimatesWriter(tmp_path / "missing" / "est.csv")
+
+
+def test_tum_writer_writes_what_write_tum_writes(tmp_path):
+    frame = estimates_frame()
+    whole, streamed = tmp_path / "whole.tum", tmp_path / "streamed.tum"
+    write_tum(whole, frame)
+    with TumWriter(streamed) as writer:
+        for row in frame_rows(frame):
+            writer.write_row(row)
+        assert writer.rows == 2  # the row without a pose has no line
+    assert streamed.read_bytes() == whole.read_bytes()
+
+
+# --- pairing on the command line -------------------------------------------------------
+
+HALL = Path(__file__).resolve().parents[1] / "datasets" / "hall"
+
+
+def run_segloc(capsys, *args) -> tuple[int, str]:
+    """``segloc ARGS`` in-process: (exit status, stderr)."""
+    from segloc_cli.cli import main
+
+    capsys.readouterr()
+    try:
+        main([str(a) for a in args])
+        code = 0
+    except SystemExit as exc:
+        code = exc.code if isinstance(exc.code, int) else 1
+    return code, capsys.readouterr().err
+
+
+def hall_survey_with_row_3_at(tmp_path, time_s: float) -> Path:
+    """The hall's survey (scans at 1, 2, ... 10 s) with row 3's time changed."""
+    lines = (HALL / "survey.csv").read_text().splitlines()
+    fields = lines[3].split(",")
+    fields[1] = repr(time_s)
+    lines[3] = ",".join(fields)
+    path = tmp_path / "survey.csv"
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def test_map_build_refuses_survey_rows_sharing_a_scan_time(tmp_path, capsys):
+    survey = hall_survey_with_row_3_at(tmp_path, 2.0)
+    out = tmp_path / "map.json"
+    code, err = run_segloc(
+        capsys, "map", "build", HALL / "log.mcap", "--survey", survey, "--out", out
+    )
+    assert code == 2
+    assert err == (
+        f"segloc: error: {survey}, rows 2 and 3: both have time 2.000 s, so a scan at 2.000 s "
+        "matches more than one row; give every row a distinct time\n"
+    )
+    assert not out.exists()
+
+
+def test_localize_refuses_guess_rows_sharing_a_scan_time(tmp_path, capsys):
+    guesses = hall_survey_with_row_3_at(tmp_path, 2.0)
+    out = tmp_path / "est.csv"
+    code, err = run_segloc(
+        capsys, "localize", HALL / "log.mcap", "--map", HALL / "map.json",
+        "--initial", guesses, "--out", out,
+    )  # fmt: skip
+    assert code == 2
+    assert err.startswith(f"segloc: error: {guesses}, rows 2 and 3: both have time 2.000 s")
+    assert len(err.splitlines()) == 1

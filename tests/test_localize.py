@@ -6,8 +6,20 @@ import numpy as np
 import pytest
 
 from segloc_cli.align import align
+from segloc_cli.extract import extract_segments
 from segloc_cli.geometry import Pose2, segment_orientations, wrap_angle
-from segloc_cli.localize import STATUS_OK, STATUS_TOO_FEW_SEGMENTS, Localizer
+from segloc_cli.localize import (
+    STATUS_OK,
+    STATUS_TOO_FEW_SEGMENTS,
+    LocalizeParams,
+    Localizer,
+    localize_scans,
+    point_spread_m,
+    track_scans,
+    usable_points,
+)
+from segloc_cli.scan import Scan
+from segloc_cli.sim import NOISE_FREE, random_free_poses, random_world, simulate_scan
 
 
 def _pieces(x1, y1, x2, y2, n):
@@ -63,3 +75,114 @@ def test_too_few_local_segments_get_a_status_not_a_pose():
     est = Localizer(MAP).localize(LOCAL[:1], Pose2(0.0, 0.0, 0.0))
     assert est.status == STATUS_TOO_FEW_SEGMENTS
     assert np.isnan(est.pose.x) and est.n_local_segments == 1
+
+
+# --- scans too poor to pin a pose ------------------------------------------------------------
+
+ROOM_SEED = 5
+
+
+def _room_and_scan():
+    """A random room (no symmetry), a free pose in it and a noise-free 1024-beam scan there."""
+    rng = np.random.default_rng(ROOM_SEED)
+    world = random_world(rng)
+    truth = Pose2(*random_free_poses(world, 1, rng)[0])
+    return world, truth, simulate_scan(world, truth, NOISE_FREE, rng, 0.0)
+
+
+def _near(truth: Pose2) -> Pose2:
+    return Pose2(truth.x + 0.3, truth.y - 0.2, truth.theta + np.deg2rad(3.0))
+
+
+def _readings(scan: Scan, keep: np.ndarray) -> Scan:
+    return Scan(scan.time_s, scan.angles_rad[keep], scan.ranges_m[keep], scan.range_max_m)
+
+
+def test_point_spread_by_hand():
+    assert point_spread_m(np.array([[0.0, 0.0], [1.0, 1.0], [3.0, 3.0]])) == pytest.approx(0.0)
+    cross = np.array([[1.0, 0.0], [-1.0, 0.0], [0.0, 2.0], [0.0, -2.0]])
+    # Covariance diag(0.5, 2): the smaller spread is √0.5 whatever the rotation.
+    assert point_spread_m(cross) == pytest.approx(np.sqrt(0.5))
+    turned = cross @ np.array([[0.6, -0.8], [0.8, 0.6]])
+    assert point_spread_m(turned) == pytest.approx(np.sqrt(0.5))
+    assert point_spread_m(np.zeros((1, 2))) == 0.0
+
+
+def test_usable_points_drop_rows_that_are_not_finite():
+    points = np.array([[1.0, 2.0], [np.nan, 0.0], [0.0, np.inf], [3.0, 4.0]])
+    np.testing.assert_array_equal(usable_points(points), [[1.0, 2.0], [3.0, 4.0]])
+    assert usable_points(None) is None
+
+
+def test_a_normal_scan_is_still_ok():
+    world, truth, scan = _room_and_scan()
+    (row,) = localize_scans([scan], [_near(truth)], [0], Localizer(world.segments))
+    assert row["status"] == STATUS_OK
+    assert np.hypot(row["x_m"] - truth.x, row["y_m"] - truth.y) < 1e-3
+
+
+def test_non_finite_points_are_left_out_not_counted_against_the_scan():
+    world, truth, scan = _room_and_scan()
+    points = scan.points()
+    points[::5] = np.nan
+    est = Localizer(world.segments).localize(extract_segments(scan), _near(truth), points)
+    assert est.status == STATUS_OK
+    assert est.inlier_ratio == pytest.approx(1.0)
+
+
+def test_two_readings_are_too_few_segments_never_ok():
+    world, truth, scan = _room_and_scan()
+    two = _readings(scan, np.flatnonzero(scan.valid)[[100, 400]])
+    localizer = Localizer(world.segments)
+    (row,) = localize_scans([two], [_near(truth)], [0], localizer)
+    assert row["status"] == STATUS_TOO_FEW_SEGMENTS
+    assert row["n_local_segments"] == 0
+    (row,) = localize_scans([two], None, [0], localizer)
+    assert row["status"] == STATUS_TOO_FEW_SEGMENTS
+
+
+def test_nineteen_readings_on_three_walls_are_too_few_points():
+    """Three segments' worth of readings but under ``min_points``: the stages may run, the
+    status still says the scan is too poor."""
+    world, truth, scan = _room_and_scan()
+    points = scan.points()[:19]
+    local = np.array([[1.0, 0.0, 2.0, 0.0], [0.0, 1.0, 0.0, 2.0], [-1.0, 0.0, -2.0, 0.5]])
+    est = Localizer(world.segments).localize(local, _near(truth), points)
+    assert est.status == STATUS_TOO_FEW_SEGMENTS
+
+
+def test_a_fan_on_one_ray_is_not_ok():
+    """Every beam at the same angle (a file whose start and end angles are equal): the points
+    lie on one ray, which fixes no pose, whatever the search finds."""
+    world, truth, scan = _room_and_scan()
+    ray = Scan(0.0, np.zeros(len(scan)), scan.ranges_m, scan.range_max_m)
+    assert point_spread_m(ray.points()) == pytest.approx(0.0, abs=1e-9)
+    localizer = Localizer(world.segments)
+    (row,) = localize_scans([ray], [_near(truth)], [0], localizer)
+    assert row["status"] == STATUS_TOO_FEW_SEGMENTS
+    (row,) = localize_scans([ray], None, [0], localizer)
+    assert row["status"] == STATUS_TOO_FEW_SEGMENTS
+
+
+def test_one_wall_seen_alone_is_not_ok():
+    """Points along one straight wall pin a heading and one offset, not a pose."""
+    wall = np.column_stack([np.linspace(-3.0, 3.0, 200), np.full(200, 2.0)])
+    local = np.array([[-3.0, 2.0, -1.0, 2.0], [-1.0, 2.0, 1.0, 2.0], [1.0, 2.0, 3.0, 2.0]])
+    est = Localizer(MAP).localize(local, Pose2(0.0, 0.0, 0.0), wall)
+    assert est.status == STATUS_TOO_FEW_SEGMENTS
+
+
+def test_tracking_carries_the_guess_through_a_scan_too_poor_to_match():
+    world, truth, scan = _room_and_scan()
+    sparse = _readings(scan, np.flatnonzero(scan.valid)[::100])  # 11 readings
+    assert sparse.points().shape[0] < LocalizeParams().min_points
+    odometry = [truth, truth, truth]
+    rows = list(
+        track_scans([scan, sparse, scan], odometry, _near(truth), [0, 1, 2],
+                    Localizer(world.segments))
+    )  # fmt: skip
+    assert [r["status"] for r in rows] == [STATUS_OK, STATUS_TOO_FEW_SEGMENTS, STATUS_OK]
+    # The sparse scan's row holds the dead-reckoning guess: the previous estimate, unmoved.
+    assert (rows[1]["x_m"], rows[1]["y_m"]) == (rows[1]["init_x_m"], rows[1]["init_y_m"])
+    assert rows[1]["x_m"] == pytest.approx(rows[0]["x_m"])
+    assert np.hypot(rows[2]["x_m"] - truth.x, rows[2]["y_m"] - truth.y) < 1e-3

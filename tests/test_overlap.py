@@ -336,3 +336,13 @@ def test_coarse_to_fine_no_overlap_stays_put():
     np.testing.assert_array_equal(r.track, np.tile(start.as_array(), (4, 1)))
     np.testing.assert_array_equal(r.best_overlaps_m, [0.0, 0.0, 0.0])
     assert r.overlap_m == 0.0
+
+
+def test_an_empty_local_map_overlaps_nothing_and_leaves_the_start():
+    world = np.array([[0.0, 0.0, 4.0, 0.0], [0.0, 0.0, 0.0, 3.0]])
+    start = Pose2(1.0, 1.0, 0.2)
+    result = coarse_to_fine(world, np.zeros((0, 4)), start)
+    assert result.overlap_m == 0.0
+    assert (result.pose.x, result.pose.y, result.pose.theta) == (1.0, 1.0, 0.2)
+    pairs = candidate_pairs(world, np.zeros((0, 4)), start, 1.0, 0.1, 0.1)
+    assert pairs[0].size == 0 and pairs[1].size == 0

@@ -21,6 +21,8 @@ import numpy as np
 import pytest
 from conftest import HALL, HALL_POSE, SEGLOC
 
+from segloc_cli.devices.explorer import ExplorerDevice
+from segloc_cli.devices.scip2 import URG_04LX_PARAMETERS, Scip2Device
 from segloc_cli.io.mcap_log import read_log
 from segloc_cli.io.tables import PoseTable, write_pose_table
 
@@ -163,6 +165,25 @@ def test_device_failure_finishes_the_file_with_what_arrived(fault, message, emul
     assert contents.finished and len(contents.scans) == 3
 
 
+def test_a_device_sending_only_spoiled_frames_is_told_apart_from_a_silent_one(
+    device_process, tmp_path
+):
+    port = device_process(lambda: ExplorerDevice(np.ones_like, corrupt=lambda: True))
+    log = tmp_path / "spoiled.mcap"
+    result = run_segloc(
+        "record", "--device", f"explorer:{port}", "--rev-per-s", "4", "--stall-timeout", "1",
+        "--out", log,
+    )  # fmt: skip
+    error = one_line_error(result)
+    assert re.search(
+        r"no scan for 1 s \(\d+ frames came but were damaged or inconsistent and were "
+        r"skipped\); the log keeps the 0 scans received",
+        error,
+    ), error
+    contents = read_log(log)
+    assert contents.finished and len(contents.scans) == 0
+
+
 def test_spoiled_frames_are_skipped_and_counted(emulator, tmp_path):
     port = emulator("explorer", "--faults", "garbage,checksum", "--fault-rate", "0.5")
     log = tmp_path / "noisy.mcap"
@@ -265,6 +286,19 @@ def test_existing_output_is_not_overwritten(tmp_path):
     )
     assert "--force" in error
     assert log.read_bytes() == b"precious"
+
+
+def test_a_device_reporting_an_impossible_geometry_is_refused(device_process, tmp_path):
+    bogus = {**URG_04LX_PARAMETERS, "AMAX": "99999999999"}
+    port = device_process(lambda: Scip2Device(np.ones_like, parameters=bogus))
+    log = tmp_path / "bogus.mcap"
+    error = one_line_error(run_segloc("record", "--device", f"scip2:{port}", "--out", log))
+    assert error == (
+        f"segloc: error: {port}: the device's PP parameter AMAX=99999999999 is out of bounds "
+        "(the last step must be 0..1023: below ARES=1024, at most 9999); "
+        "refusing a device that reports it"
+    )
+    assert not log.exists()
 
 
 def test_wrong_protocol_for_the_device(emulator, tmp_path):

@@ -86,3 +86,26 @@ def test_no_points_or_no_map_returns_the_guess():
     guess = Pose2(1.0, 2.0, 0.3)
     assert refine_pose(np.zeros((0, 2)), np.array([[0.0, 0.0, 1.0, 0.0]]), guess).pose == guess
     assert refine_pose(np.ones((5, 2)), np.zeros((0, 4)), guess).pose == guess
+
+
+def test_points_that_are_not_finite_take_no_part_in_the_fit():
+    segments = np.array([[0.0, 0.0, 4.0, 0.0], [0.0, 0.0, 0.0, 3.0], [4.0, 0.0, 4.0, 3.0]])
+    truth = Pose2(2.0, 1.0, 0.0)
+    # Points on the three walls, in the robot frame of the truth, plus hostile rows.
+    t = np.linspace(0.1, 0.9, 20)
+    walls = np.vstack(
+        [
+            np.column_stack([4 * t, 0 * t]),
+            np.column_stack([0 * t, 3 * t]),
+            np.column_stack([4 + 0 * t, 3 * t]),
+        ]
+    )
+    points = walls - [truth.x, truth.y]
+    hostile = np.vstack([points, [[np.nan, 0.0], [np.inf, 1.0], [1e30, -1e30]]])
+    guess = Pose2(2.1, 0.95, 0.02)
+    clean = refine_pose(points, segments, guess)
+    fit = refine_pose(hostile, segments, guess)
+    assert fit.pose.x == pytest.approx(truth.x, abs=1e-6)
+    assert fit.pose.y == pytest.approx(truth.y, abs=1e-6)
+    assert fit.pose == clean.pose
+    assert fit.inlier_ratio == pytest.approx(60 / 63)

@@ -244,6 +244,47 @@ def test_trajectory_from_estimates_blanks_poses_that_are_not_ok():
     assert errors.trans_m[0] == pytest.approx(0.0, abs=1e-12)
 
 
+def test_trajectory_keeps_every_pose_unless_only_ok():
+    frame = pd.DataFrame(
+        {
+            "pose_id": [1, 2, 3],
+            "time_s": [0.0, 1.0, 2.0],
+            "x_m": [0.0, 1.1, np.nan],
+            "y_m": [0.0, 0.0, np.nan],
+            "theta_deg": [0.0, 0.0, np.nan],
+            "status": ["ok", "ambiguous", "too_few_segments"],
+        }
+    ).reindex(columns=ESTIMATE_COLUMNS)
+    times_s, poses = trajectory_from_estimates(frame, only_ok=False)
+    np.testing.assert_array_equal(poses[1], [1.1, 0.0, 0.0])
+    assert np.all(np.isnan(poses[2]))
+    errors = relation_errors(times_s, poses, make_relations(TRUTH, pairs=[(0, 1), (1, 2)]))
+    assert (errors.used, errors.skipped) == (1, 1)
+    assert errors.trans_m[0] == pytest.approx(0.1)
+    _, only_ok = trajectory_from_estimates(frame, only_ok=True)
+    assert np.all(np.isnan(only_ok[1]))
+
+
+def test_estimates_sharing_a_relation_time_are_refused():
+    times_s = np.array([0.0, 1.0, 1.0, 2.0])
+    poses = TRUTH[[0, 1, 1, 2]]
+    with pytest.raises(InputError) as caught:
+        relation_errors(
+            times_s, poses, make_relations(TRUTH, pairs=[(0, 1)]), estimates_path="est.csv"
+        )
+    assert str(caught.value) == (
+        "est.csv, rows 2 and 3: both have time 1.000 s, so a relation time at 1.000 s matches "
+        "more than one row; give every row a distinct time"
+    )
+
+
+def test_relations_may_share_their_times():
+    # Many relations start at one pose: that is no collision.
+    errors = relation_errors(TIMES_S, TRUTH, make_relations(TRUTH, pairs=[(0, 1), (0, 2), (0, 3)]))
+    assert (errors.used, errors.skipped) == (3, 0)
+    np.testing.assert_allclose(errors.trans_m, 0.0, atol=1e-12)
+
+
 # --- summary -------------------------------------------------------------------------------
 
 

@@ -11,13 +11,18 @@ from collections.abc import Callable
 import numpy as np
 import pytest
 from conftest import HALL_POSE, HALL_WORLD, ParrotDevice, SilentDevice
-from hypothesis import given, settings
+from fuzzing import fuzz_settings
+from hypothesis import given
 from hypothesis import strategies as st
 
-from segloc_cli.devices.base import ClockUnwrapper, DeviceError, FrameError
+from segloc_cli.devices.base import ClockUnwrapper, DeviceError, FrameError, printable
 from segloc_cli.devices.scip2 import (
+    MAX_REPLY_LINES,
     TIMESTAMP_MODULUS,
+    URG_04LX_PARAMETERS,
+    URG_04LX_VERSION,
     Reply,
+    ScanDecoder,
     ScanRequest,
     Scip2Device,
     Scip2Driver,
@@ -31,6 +36,7 @@ from segloc_cli.devices.scip2 import (
     encode_values,
     format_reply,
     parse_fields,
+    parse_parameters,
     parse_reply,
     parse_scan_request,
     step_angles,
@@ -232,8 +238,8 @@ def _check_items(items: list[Reply | FrameError]) -> None:
                     pass
 
 
-@settings(deadline=None, max_examples=300)
 @given(st.binary(max_size=3000), st.lists(st.integers(1, 200), max_size=20))
+@fuzz_settings
 def test_fuzz_random_bytes(data, chunks):
     _check_items(_feed_all(data, chunks))
 
@@ -248,8 +254,8 @@ def _valid_stream(values: list[list[int]]) -> bytes:
 _SCANS = st.lists(st.lists(st.integers(0, 4095), min_size=1, max_size=60), min_size=1, max_size=4)
 
 
-@settings(deadline=None, max_examples=100)
 @given(_SCANS, st.lists(st.integers(1, 300), max_size=10))
+@fuzz_settings
 def test_fuzz_valid_stream_round_trips_in_any_chunks(values, chunks):
     items = _feed_all(_valid_stream(values), chunks)
     assert [i.echo[:2] for i in items[:2]] == ["VV", "PP"]
@@ -279,13 +285,103 @@ def _mutate(data: bytes, mutations: list[tuple]) -> bytes:
     return bytes(buf)
 
 
-@settings(deadline=None, max_examples=300)
 @given(_SCANS, st.lists(_MUTATION, min_size=1, max_size=6), st.lists(st.integers(1, 300)))
+@fuzz_settings
 def test_fuzz_mutated_valid_stream(values, mutations, chunks):
     data = _mutate(_valid_stream(values), mutations)
     items = _feed_all(data, chunks)
     _check_items(items)
     assert len(items) <= data.count(b"\n")  # bounded: at most one item per line
+
+
+# --- bounds on what a device reports -------------------------------------------------------------
+
+PORT = "/dev/ttyACM7"
+URG_PP = parse_parameters(URG_04LX_PARAMETERS, PORT)
+
+
+def test_the_urg_04lx_parameters_pass_as_numbers():
+    assert URG_PP == {
+        "DMIN": 20,
+        "DMAX": 5600,
+        "ARES": 1024,
+        "AMIN": 44,
+        "AMAX": 725,
+        "AFRT": 384,
+        "SCAN": 600,
+    }
+
+
+@pytest.mark.parametrize(
+    ("field", "value", "message"),
+    [
+        (
+            "AMAX",
+            "99999999999",
+            "PP parameter AMAX=99999999999 is out of bounds (the last step must be "
+            "0..1023: below ARES=1024, at most 9999)",
+        ),
+        ("ARES", "0", "ARES=0 is out of bounds (steps per revolution must be 1..65536)"),
+        ("ARES", "65537", "ARES=65537 is out of bounds (steps per revolution must be 1..65536)"),
+        ("AMAX", "1024", "AMAX=1024 is out of bounds (the last step must be 0..1023"),
+        ("AFRT", "726", "AFRT=726 is out of bounds (the front step must be 0..AMAX=725)"),
+        ("AMIN", "385", "AMIN=385 is out of bounds (the first step must be 0..AFRT=384)"),
+        ("DMAX", "262144", "DMAX=262144 is out of bounds (the largest range must be 2..262143 mm)"),
+        ("DMIN", "0", "DMIN=0 is out of bounds (the smallest range must be 1..5599 mm)"),
+        ("DMIN", "5600", "DMIN=5600 is out of bounds (the smallest range must be 1..5599 mm)"),
+        ("SCAN", "0", "SCAN=0 is out of bounds (the motor speed must be 60..6000 rpm)"),
+        ("SCAN", "1" * 40, "SCAN=" + "1" * 32 + "... is out of bounds"),
+        ("DMIN", "-20", "the PP reply lacks a number for DMIN (got '-20')"),
+        ("AFRT", "3\x1b[2J", "lacks a number for AFRT (got '3\\x1b[2J')"),
+        ("SCAN", "", "the PP reply lacks a number for SCAN (got nothing)"),
+    ],
+)
+def test_pp_numbers_out_of_bounds_are_refused_naming_the_field_and_value(field, value, message):
+    fields = {**URG_04LX_PARAMETERS, field: value}
+    with pytest.raises(DeviceError) as error:
+        parse_parameters(fields, PORT)
+    text = str(error.value)
+    assert text.startswith(f"{PORT}: ") and message in text and "\n" not in text
+
+
+def test_real_scanner_geometries_pass():
+    utm_30lx = {"DMIN": "23", "DMAX": "60000", "ARES": "1440", "AMIN": "0", "AMAX": "1080"}
+    fields = {**URG_04LX_PARAMETERS, **utm_30lx, "AFRT": "540", "SCAN": "2400"}
+    assert parse_parameters(fields, PORT)["AMAX"] == 1080
+
+
+def test_device_text_is_made_printable_on_one_line():
+    assert printable("URG\x1b[31m\nX\xe9") == "URG\\x1b[31m\\nX\\xe9"
+    assert printable(b"\xff ok") == "\\xff ok"
+    assert printable("a" * 40, 4) == "aaaa..."
+
+
+def test_a_scan_of_2161_steps_fits_in_one_reply():
+    # A 0.125° scanner (ARES 2880) over 270°: 2161 values in 3 characters is 102 data lines.
+    values = np.arange(2161) % 5000 + 20
+    echo = ScanRequest("MD", 0, 2160).text().encode()
+    body = b"0000" + bytes([checksum(b"0000")]) + b"\n" + data_lines(encode_values(values, 3))
+    block = format_reply(echo, b"99", body)
+    assert block.count(b"\n") - 1 == 3 + 102 <= MAX_REPLY_LINES
+    (reply,) = Scip2Stream().feed(block)
+    assert decode_scan(reply).values.tolist() == values.tolist()
+
+
+def test_decoder_skips_a_scan_whose_size_disagrees_and_ignores_other_requests():
+    decoder = ScanDecoder(URG_PP, ScanRequest("MD", 44, 46), PORT)
+    short = b"0CB1Dh" + bytes([checksum(b"0CB1Dh")])  # two values where three are due
+    with pytest.raises(FrameError, match="expected 3 values"):
+        decoder.take(parse_reply(_lines(HAND_MD.replace(b"0CB1Dh007Y", short))))
+    frame = decoder.take(parse_reply(_lines(HAND_MD)))
+    assert (frame.sequence, frame.device_time_s) == (0, 1.0)
+    assert frame.ranges_m.tolist() == [1.234, 5.432, 0.0] and frame.range_max_m == 5.6
+    other = HAND_MD.replace(b"MD0044004601000", b"MD0044004602000")  # cluster 2: not ours
+    assert decoder.take(parse_reply(_lines(other))) is None
+    stopped = Reply("MD0044004601000", "50")
+    with pytest.raises(
+        DeviceError, match=r"^/dev/ttyACM7: the scanner stopped scanning: status 50"
+    ):
+        decoder.take(stopped)
 
 
 # --- the emulated URG-04LX ----------------------------------------------------------------------
@@ -535,6 +631,25 @@ def test_driver_facing_another_protocol_says_it_is_not_scip2(urg):
     driver = urg(lambda: ParrotDevice(bytes(range(256))), timeout_s=0.2)
     with pytest.raises(DeviceError, match=r"not in SCIP 2\.0.*other protocols: explorer"):
         driver.identify()
+
+
+def test_driver_refuses_a_urg_reporting_an_impossible_last_step(urg):
+    bogus = {**URG_04LX_PARAMETERS, "AMAX": "99999999999"}
+    driver = urg(lambda: Scip2Device(_ramp_render, parameters=bogus))
+    with pytest.raises(DeviceError) as error:
+        driver.identify()
+    assert str(error.value) == (
+        f"{driver.port}: the device's PP parameter AMAX=99999999999 is out of bounds "
+        "(the last step must be 0..1023: below ARES=1024, at most 9999); "
+        "refusing a device that reports it"
+    )
+
+
+def test_driver_keeps_device_text_printable(urg):
+    version = {**URG_04LX_VERSION, "PROD": "URG\x1b[31m", "SERI": "H\x07"}
+    driver = urg(lambda: Scip2Device(_ramp_render, version=version))
+    info = driver.identify()
+    assert (info.model, info.serial_number) == ("URG\\x1b[31m", "H\\x07")
 
 
 # --- through a pseudo-terminal, the emulator in another process ---------------------------------

@@ -16,9 +16,9 @@ from segloc_cli.confidence import (
 )
 from segloc_cli.extract import extract_segments
 from segloc_cli.field import coarse_bound, score_raster
-from segloc_cli.geometry import Pose2, wrap_angle
+from segloc_cli.geometry import Pose2, point_segment_distances, wrap_angle
 from segloc_cli.io.maps import World
-from segloc_cli.localize import LocalizeParams, Localizer
+from segloc_cli.localize import STATUS_TOO_FEW_SEGMENTS, LocalizeParams, Localizer
 from segloc_cli.search import HypothesisSearch, distinct
 from segloc_cli.sim import NOISE_FREE, random_free_poses, random_world, simulate_scan
 
@@ -107,8 +107,9 @@ def test_global_localization_in_a_world_without_symmetry(seed):
         assert est.inlier_ratio == pytest.approx(1.0)
 
 
-def test_global_localization_needs_points_not_segments():
-    """A local map too small for the two stages does not stop the search: the points decide."""
+def test_global_localization_with_too_few_segments_keeps_the_pose_but_not_the_trust():
+    """A local map too small for the two stages does not stop the search: the points find the
+    pose, which the row keeps, but the status says the scan was too poor to trust it."""
     rng = np.random.default_rng(5)
     world = random_world(rng)
     true = Pose2(*random_free_poses(world, 1, rng)[0])
@@ -118,7 +119,7 @@ def test_global_localization_needs_points_not_segments():
     est = localizer.localize_global(local, scan.points())
     position, heading = _errors(est.pose, true)
     assert position < 1e-3 and heading < 0.01
-    assert est.status == STATUS_OK
+    assert est.status == STATUS_TOO_FEW_SEGMENTS
     assert np.isnan(est.align_theta_rad)  # stage 1 did not run
 
 
@@ -136,3 +137,56 @@ def test_global_localization_in_a_symmetric_room_is_ambiguous():
         position, heading = _errors(pose, expected)
         assert position < 1e-3 and heading < 0.01
     assert est.runner_up_ratio == pytest.approx(est.inlier_ratio)
+
+
+def test_distance_raster_visits_every_cell_within_reach():
+    """Walking each segment column by column gives the distances of a full scan of the grid."""
+    rng = np.random.default_rng(3)
+    segments = np.vstack(
+        [
+            rng.uniform(0.0, 6.0, (12, 4)),
+            [[1.0, 1.0, 1.0, 5.0], [0.5, 2.0, 5.5, 2.0], [3.0, 3.0, 3.0 + 1e-12, 4.0]],
+        ]
+    )
+    raster = score_raster(segments, cell_m=0.05, radius_m=0.1, margin_m=0.1)
+    nx, ny = raster.score.shape
+    centres = raster.origin + 0.05 * np.stack(
+        np.meshgrid(np.arange(nx), np.arange(ny), indexing="ij"), axis=-1
+    ).reshape(-1, 2)
+    d = point_segment_distances(centres, segments).min(axis=1)
+    expected = np.clip(1.0 - (np.minimum(d, 0.1).astype(np.float32) / 0.1) ** 2, 0.0, 1.0)
+    np.testing.assert_allclose(raster.score.reshape(-1), expected, atol=2e-6)
+
+
+def test_raster_past_its_cell_budget_takes_coarser_cells():
+    wall = np.array([[0.0, 0.0, 10.0, 0.0]])
+    raster = score_raster(wall, cell_m=0.05, radius_m=0.1, margin_m=0.1, max_cells=700)
+    # 5 cm: 205 × 5 cells; 6.25 cm: 165 × 5; 7.8125 cm: 133 × 5 = 665.
+    assert raster.score.shape == (133, 5)
+    assert raster.cell_m == pytest.approx(0.05 * 1.25**2)
+    # The radius grew with the cell (to 2 cells): one cell off the wall scores 1 − (1/2)².
+    points = np.array([[5.0, 0.0], [5.0, raster.cell_m], [5.0, 3 * raster.cell_m]])
+    np.testing.assert_allclose(raster.lookup(points), [1.0, 0.75, 0.0], atol=1e-6)
+
+
+def test_lookup_of_points_that_are_not_finite_or_far_is_zero():
+    raster = score_raster(np.array([[0.0, 0.0, 1.0, 0.0]]), cell_m=0.05, radius_m=0.1, margin_m=0.2)
+    points = np.array([[np.nan, 0.0], [0.5, np.inf], [1e30, 0.0], [-1e300, 0.0], [0.5, 0.0]])
+    np.testing.assert_array_equal(raster.lookup(points), [0.0, 0.0, 0.0, 0.0, 1.0])
+
+
+def test_bounds_in_batches_find_the_same_poses(monkeypatch):
+    """Bounding a few headings at a time (as a large map's global search does) and cutting
+    each batch to its best blocks finds the same hypotheses as bounding all at once."""
+    import segloc_cli.search as search_module
+
+    rng = np.random.default_rng(7303)
+    world = random_world(rng)
+    true = Pose2(*random_free_poses(world, 1, rng)[0])
+    points = simulate_scan(world, true, NOISE_FREE, rng, 0.0).points()
+    whole = HypothesisSearch(world.segments).everywhere(points)
+    monkeypatch.setattr(search_module, "MAX_BOUND_CELLS", 5000)
+    monkeypatch.setattr(search_module, "FULL_SORT_CELLS", 100)
+    batched = HypothesisSearch(world.segments).everywhere(points)
+    assert [h.pose for h in batched] == [h.pose for h in whole]
+    assert [h.score for h in batched] == pytest.approx([h.score for h in whole])

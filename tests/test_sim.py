@@ -9,8 +9,10 @@ import numpy as np
 import pytest
 from conftest import HALL
 
-from segloc_cli.geometry import Pose2, wrap_angle
-from segloc_cli.io.maps import World
+from segloc_cli.geometry import Pose2, point_segment_distances, wrap_angle
+from segloc_cli.io.maps import World, read_map
+from segloc_cli.io.mcap_log import read_log
+from segloc_cli.io.tables import read_pose_table
 from segloc_cli.sim import (
     SensorModel,
     beam_angles,
@@ -381,3 +383,59 @@ def test_hall_poses_are_on_the_floor_and_clear_of_everything():
     assert np.all(free_space_mask(world, xy, 0.6))
     headings = np.array([float(r["theta_deg"]) for r in rows])
     assert np.ptp(headings) > 180.0
+
+
+# --- the hall's mapping run: the map is made without the test scans ---------------------------
+
+
+def read_poses_csv(path) -> np.ndarray:
+    """Rows (N, 5) of a pose CSV: pose_id, time_s, x_m, y_m, theta_deg."""
+    with path.open(encoding="utf-8") as f:
+        rows = list(csv.DictReader(f))
+    assert list(rows[0]) == ["pose_id", "time_s", "x_m", "y_m", "theta_deg"]
+    return np.array([[float(v) for v in row.values()] for row in rows])
+
+
+def test_hall_mapping_run_covers_the_hall_away_from_the_test_poses():
+    world = load_hall()
+    mapping = read_poses_csv(HALL / "mapping_poses.csv")
+    tests = read_poses_csv(HALL / "poses.csv")
+    assert 60 <= len(mapping) <= 150
+    assert mapping[:, 0].tolist() == list(range(1, len(mapping) + 1))
+    assert np.all(np.diff(mapping[:, 1]) > 0)
+    assert np.all(free_space_mask(world, mapping[:, 2:4], 0.5))
+    gaps = np.linalg.norm(mapping[:, None, 2:4] - tests[None, :, 2:4], axis=2)
+    assert gaps.min() >= 0.5
+    # Spread over the hall: scans in every 6 m × 4 m block of the 24 m × 16 m floor.
+    blocks = {(int(x // 6.0), int(y // 4.0)) for x, y in mapping[:, 2:4] if x < 24 and y < 16}
+    assert blocks == {(i, j) for i in range(4) for j in range(4)}
+    assert np.ptp(mapping[:, 4]) > 180.0
+
+
+def test_hall_mapping_log_is_the_mapping_run_with_its_own_noise_and_seed():
+    mapping = read_poses_csv(HALL / "mapping_poses.csv")
+    survey = read_pose_table(HALL / "mapping" / "survey.csv")
+    np.testing.assert_allclose(survey.poses[:, :2], mapping[:, 2:4], atol=1e-9)
+    np.testing.assert_allclose(np.rad2deg(survey.poses[:, 2]), mapping[:, 4], atol=1e-9)
+    log = read_log(HALL / "mapping" / "log.mcap")
+    assert len(log.scans) == len(mapping)
+    np.testing.assert_allclose([s.time_s for s in log.scans], mapping[:, 1])
+    test_log = read_log(HALL / "log.mcap")
+    assert (log.sensor["seed"], log.sensor["noise_cm"]) == ("1000", "1.5")
+    assert (test_log.sensor["seed"], test_log.sensor["noise_cm"]) == ("2000", "1.2")
+
+
+def test_hall_map_covers_what_the_test_poses_see():
+    """Of the world's solid surface seen from each test pose, nearly all lies on the map."""
+    world = load_hall()
+    solid = world.segments[world.materials != "glass"]
+    segments_map = read_map(HALL / "map.json")
+    angles = np.linspace(0.0, 2 * np.pi, 720, endpoint=False)
+    for pose in read_poses_csv(HALL / "poses.csv"):
+        ranges = cast_rays(solid, pose[2:4], angles)
+        hit = np.isfinite(ranges)
+        points = pose[2:4] + ranges[hit, None] * np.column_stack(
+            [np.cos(angles[hit]), np.sin(angles[hit])]
+        )
+        near = point_segment_distances(points, segments_map).min(axis=1) < 0.05
+        assert near.mean() >= 0.9, pose[0]

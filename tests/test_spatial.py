@@ -69,3 +69,28 @@ def test_stage2_with_the_index_equals_stage2_without():
         assert indexed.overlap_m == plain.overlap_m
         np.testing.assert_array_equal(indexed.track, plain.track)
         assert np.hypot(plain.pose.x - truth.x, plain.pose.y - truth.y) < 0.05
+
+
+def test_grid_of_long_diagonals_grows_its_cells_and_still_finds_them(monkeypatch):
+    """Long diagonal segments fill the cells of their whole bounding box; past the filing
+    budget the cells grow, and queries still find exactly the segments in reach."""
+    import segloc_cli.spatial as spatial
+
+    monkeypatch.setattr(spatial, "MAX_FILED", 500)
+    diagonals = np.array([[0.0, k, 100.0, 100.0 + k] for k in range(0, 20, 2)], dtype=float)
+    grid = SegmentGrid(diagonals, cell_m=1.0)
+    # Filed entries: 1 m cells 10 × 101², ..., 16 m cells 504, 32 m cells 160.
+    assert grid.cell_m == 32.0
+    for point in ([50.0, 50.0], [0.0, 19.0], [90.0, 10.0]):
+        expected = np.flatnonzero(point_segment_distances(point, diagonals)[0] <= 3.0)
+        np.testing.assert_array_equal(grid.near(point, 3.0), expected)
+
+
+def test_queries_from_nowhere_find_nothing_and_an_infinite_radius_finds_all():
+    segments = np.array([[0.0, 0.0, 10.0, 0.0], [0.0, 5.0, 1.0, 5.0]])
+    grid = SegmentGrid(segments, cell_m=2.0)
+    assert grid.near([np.nan, 0.0], 1.0).size == 0
+    assert grid.near([0.0, 0.0], np.nan).size == 0
+    assert grid.near([1e30, -1e30], 5.0).size == 0
+    assert grid.near([0.0, 0.0], np.inf).tolist() == [0, 1]
+    assert grid.near([0.0, 0.0], 1e300).tolist() == [0, 1]

@@ -247,6 +247,25 @@ def open_serial(port: str, baud: int, timeout_s: float) -> serial.Serial:
         raise DeviceError(f"{port}: bad serial settings ({exc})") from exc
 
 
+SHOWN_CHARS = 32
+"""Characters of a device-supplied value quoted in a message at most; the rest is cut."""
+
+
+def printable(text: str | bytes, limit: int | None = None) -> str:
+    """Device-supplied text made safe to print on one line and to store as metadata.
+
+    Bytes are read as Latin-1; every character outside printable ASCII becomes its
+    Python escape (``\\n``, ``\\x07``), so nothing a device sends can break a line
+    or upset a terminal.
+    With ``limit``, text longer than that is cut and ends in "...".
+    """
+    if isinstance(text, bytes):
+        text = text.decode("latin-1")
+    if limit is not None and len(text) > limit:
+        text = text[:limit] + "..."
+    return "".join(c if " " <= c <= "~" else c.encode("unicode_escape").decode() for c in text)
+
+
 def _reason(exc: BaseException) -> str:
     text = getattr(exc, "strerror", None) or str(exc) or type(exc).__name__
     return text.splitlines()[0]

@@ -40,6 +40,7 @@ from segloc_cli.devices.base import (
     EmulatedDevice,
     FrameError,
     ScanFrame,
+    printable,
 )
 from segloc_cli.geometry import TWO_PI
 
@@ -60,7 +61,9 @@ CLOCK_WRAP_US = 1 << 32
 SCAN_HEADER_SIZE = 10
 """Timestamp u32, readings u16, speed u16, first-reading angle u16."""
 MAX_PAYLOAD = SCAN_HEADER_SIZE + 2 * max(READINGS_OFFERED)
+"""Largest payload of any frame, bytes (a 2048-reading scan); a longer one is never waited for."""
 MAX_FRAME = HEADER_SIZE + MAX_PAYLOAD + CRC_SIZE
+"""Largest frame, bytes (4115); a receiver never holds more than this waiting."""
 
 _HEADER = struct.Struct("<BHH")  # after the sync bytes
 _CONFIGURE = struct.Struct("<HH")
@@ -335,6 +338,11 @@ class ExplorerStream:
         self._rejections = 0  # candidates counted since the last good frame
         self.dropped = 0
 
+    @property
+    def buffered(self) -> int:
+        """Bytes held waiting for the rest of a frame: always fewer than ``MAX_FRAME``."""
+        return len(self._buf)
+
     def feed(self, data: bytes) -> list[Frame]:
         """Take the next bytes; return the frames they complete, in order."""
         self._buf += data
@@ -393,6 +401,58 @@ class ExplorerStream:
 
 # -- host side -----------------------------------------------------------------------
 
+
+class ScanDecoder:
+    """The scans among checked frames, held to the settings in effect; needs no port.
+
+    ``readings`` and ``rev_hundredths`` are the settings the device acknowledged
+    (None: any it may offer) and ``range_max_mm`` its largest range. A SCAN that
+    disagrees with them, or that holds a range beyond ``range_max_mm``, is
+    broken: ``take`` raises ``FrameError`` for it and the caller counts it as
+    skipped. Each good scan becomes a ``ScanFrame``: angles in radians in the
+    scanner frame, ranges in metres within 0..range_max, the device's revolution
+    counter as sequence and its clock unwrapped to seconds.
+    """
+
+    def __init__(
+        self,
+        readings: int | None = None,
+        rev_hundredths: int | None = None,
+        range_max_mm: int = RANGE_MAX_MM,
+    ):
+        self.readings = readings
+        self.rev_hundredths = rev_hundredths
+        self.range_max_mm = range_max_mm
+        self._clock = ClockUnwrapper(CLOCK_WRAP_US)
+
+    def take(self, frame: Frame) -> ScanFrame | None:
+        """The scan ``frame`` carries; None for a frame of another type."""
+        if frame.kind != Kind.SCAN:
+            return None
+        if not plausible_length(frame.kind, len(frame.payload)):
+            raise FrameError(f"scan frame with a {len(frame.payload)}-byte payload")
+        scan = _decode_scan(frame.payload)
+        n = scan.ranges_mm.size
+        if self.readings is not None and n != self.readings:
+            raise FrameError(f"scan of {n} readings while {self.readings} are set")
+        low, high = REV_HUNDREDTHS_RANGE
+        expected = self.rev_hundredths
+        if not low <= scan.rev_hundredths <= high or expected not in (None, scan.rev_hundredths):
+            raise FrameError(f"scan at speed {scan.rev_hundredths} while {expected} is set")
+        if n and int(scan.ranges_mm.max()) > self.range_max_mm:
+            raise FrameError(
+                f"scan with a range of {int(scan.ranges_mm.max())} mm, beyond range_max"
+            )
+        first_rad = scan.first_angle * TWO_PI / ANGLE_UNITS_PER_REV
+        return ScanFrame(
+            sequence=frame.sequence,
+            device_time_s=self._clock(scan.timestamp_us) / 1e6,
+            angles_rad=first_rad + TWO_PI * np.arange(n) / n,
+            ranges_m=scan.ranges_mm / 1000.0,
+            range_max_m=self.range_max_mm / 1000.0,
+        )
+
+
 _RESENDS = 2
 """Times a command is sent again after the device reports it arrived damaged."""
 
@@ -417,15 +477,19 @@ class ExplorerDriver(Driver):
         self._stream = ExplorerStream()
         self._pending: deque[Frame] = deque()
         self._next_sequence = 0
-        self._clock = ClockUnwrapper(CLOCK_WRAP_US)
-        self._range_max_m = RANGE_MAX_MM / 1000.0
+        self._scans = ScanDecoder()
 
     def identify(self) -> DeviceInfo:
         """IDENTIFY → the model, serial number and firmware the device reports."""
         reply = self._request(Empty(Kind.IDENTIFY), Kind.IDENTITY, "IDENTIFY")
         if isinstance(reply, Nak):
             raise self._refused("IDENTIFY", reply)
-        return DeviceInfo(self.protocol, reply.model, reply.serial_number, reply.firmware)
+        return DeviceInfo(
+            self.protocol,
+            printable(reply.model),
+            printable(reply.serial_number),
+            printable(reply.firmware),
+        )
 
     def configure(self, readings: int | None, rev_per_s: float | None) -> dict[str, str]:
         """Readings per revolution and speed (rev/s); None keeps 1024 and 2.0.
@@ -447,9 +511,23 @@ class ExplorerDriver(Driver):
             if reply.code == NakCode.BAD_SPEED:
                 raise self._bad_speed(rev_per_s)
             raise self._refused("CONFIGURE", reply)
-        self._range_max_m = reply.range_max_mm / 1000.0
+        for name, got, wanted in (
+            ("readings", reply.readings, readings),
+            ("speed", reply.rev_hundredths, rev_hundredths),
+        ):
+            if got != wanted:
+                raise DeviceError(
+                    f"{self.port}: the device acknowledged CONFIGURE with {name}={got}, "
+                    f"not the {wanted} asked for; refusing its scans"
+                )
+        if reply.range_max_mm == 0:
+            raise DeviceError(
+                f"{self.port}: the device acknowledged CONFIGURE with range_max=0 mm; "
+                "a scanner that sees nothing cannot be recorded"
+            )
+        self._scans = ScanDecoder(reply.readings, reply.rev_hundredths, reply.range_max_mm)
         return {
-            "range_max_m": str(self._range_max_m),
+            "range_max_m": str(reply.range_max_mm / 1000.0),
             "readings": str(reply.readings),
             "rev_per_s": str(reply.rev_hundredths / 100),
             "field_of_view_deg": "360",
@@ -468,11 +546,13 @@ class ExplorerDriver(Driver):
         while True:
             while self._pending:
                 frame = self._pending.popleft()
-                if frame.kind != Kind.SCAN:
-                    continue  # a late or repeated reply
-                scan = self._decode(frame)
+                try:
+                    scan = self._scans.take(frame)  # None for a late or repeated reply
+                except FrameError:
+                    self.skipped += 1
+                    continue
                 if scan is not None:
-                    return self._scan_frame(frame.sequence, scan)
+                    return scan
             if time.monotonic() >= deadline:
                 return None
             self._fill()
@@ -533,17 +613,6 @@ class ExplorerDriver(Driver):
             if time.monotonic() >= deadline:
                 raise self._silence(what, heard_bytes, heard_frames)
             heard_bytes += self._fill()
-
-    def _scan_frame(self, sequence: int, scan: Scan) -> ScanFrame:
-        n = scan.ranges_mm.size
-        first_rad = scan.first_angle * TWO_PI / ANGLE_UNITS_PER_REV
-        return ScanFrame(
-            sequence=sequence,
-            device_time_s=self._clock(scan.timestamp_us) / 1e6,
-            angles_rad=first_rad + TWO_PI * np.arange(n) / n,
-            ranges_m=scan.ranges_mm / 1000.0,
-            range_max_m=self._range_max_m,
-        )
 
     def _silence(self, what: str, heard_bytes: int, heard_frames: int) -> DeviceError:
         if heard_bytes and not heard_frames:

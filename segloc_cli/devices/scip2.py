@@ -13,9 +13,16 @@ Scanner geometry (from the PP parameters): step ``s`` looks at
 ``AMIN..AMAX`` are measured; ranges are millimetres and values below ``DMIN``
 are error codes, read here as no return.
 
+Nothing a device reports is trusted: the PP numbers must lie within the
+bounds below (``parse_parameters``; a device outside them is refused naming
+the field and its value), and a scan whose size disagrees with its request is
+skipped and counted like one with a bad checksum. Text from VV and PP is
+kept only as printable ASCII (other characters escaped) in the log and on screen.
+
 The codec is plain functions on bytes and numpy arrays so it can be tested
 without a port; ``Scip2Stream`` cuts a byte stream into replies and survives
-garbage; ``Scip2Driver`` is the host side and ``Scip2Device`` the emulator's.
+garbage; ``ScanDecoder`` turns its replies into scans; ``Scip2Driver`` is the host
+side and ``Scip2Device`` the emulator's.
 """
 
 from __future__ import annotations
@@ -31,6 +38,7 @@ import numpy as np
 
 from segloc_cli.devices import PROTOCOLS
 from segloc_cli.devices.base import (
+    SHOWN_CHARS,
     ClockUnwrapper,
     DeviceError,
     DeviceInfo,
@@ -38,6 +46,7 @@ from segloc_cli.devices.base import (
     EmulatedDevice,
     FrameError,
     ScanFrame,
+    printable,
 )
 
 LF = b"\n"
@@ -52,10 +61,22 @@ CONTINUOUS = ("MD", "MS")
 FIELD_COMMANDS = (b"VV", b"PP", b"II")
 """Commands whose data lines are ``NAME:value;`` parameter lines."""
 MAX_CLUSTER = 99
+"""Largest cluster a scan command can ask for (two digits)."""
+MAX_STEP = 9999
+"""Largest step a scan command can name (four digits): AMAX above it cannot be scanned."""
+MAX_ARES = 65_536
+"""Most steps per revolution (ARES) accepted; real URG/UTM scanners have 1024, 1440 or 2880."""
+MAX_RANGE_MM = (1 << 18) - 1
+"""Largest DMAX accepted, mm: the largest range the 3-character MD encoding can carry."""
+SCAN_RPM_RANGE = (60, 6000)
+"""Motor speeds (SCAN, revolutions per minute) accepted: 1 to 100 scans per second."""
+MAX_PP_DIGITS = 9
+"""Digits a PP number may have; a longer one is out of every bound above."""
 MAX_LINE_BYTES = 512
 """Longer runs without LF are garbage; only their tail is kept (it may end in an echo)."""
-MAX_REPLY_LINES = 64
-"""More lines than any reply has (an 18-bit 1081-step scan needs 52): the end was lost."""
+MAX_REPLY_LINES = 3 + -(-(MAX_STEP + 1) * SCAN_CHARS["MD"] // DATA_LINE_CHARS)
+"""More lines than any reply has (echo, status, timestamp and the data lines of an MD
+scan of every step up to ``MAX_STEP``, 472 in all): the end was lost."""
 
 STATUS_TEXT = {
     "00": "command accepted",
@@ -233,7 +254,14 @@ class Scip2Stream:
         self._block: list[bytes] = []
         self._orphans = 0
 
+    @property
+    def buffered(self) -> int:
+        """Bytes held for replies not yet complete: at most ``MAX_LINE_BYTES`` times
+        ``MAX_REPLY_LINES + 1``, whatever was fed."""
+        return len(self._partial) + sum(map(len, self._block))
+
     def feed(self, data: bytes) -> list[Reply | FrameError]:
+        """Take the next bytes; return the replies (and broken replies) they complete."""
         self._partial += data
         *lines, rest = bytes(self._partial).split(LF)
         self._partial = bytearray(rest[-MAX_LINE_BYTES:])
@@ -426,6 +454,123 @@ def describe_status(status: str) -> str:
 PP_INTEGERS = ("DMIN", "DMAX", "ARES", "AMIN", "AMAX", "AFRT", "SCAN")
 
 
+def parse_parameters(fields: dict[str, str], port: str) -> dict[str, int]:
+    """The PP numbers a driver relies on, each checked against its bounds.
+
+    Steps: 1 ≤ ARES ≤ ``MAX_ARES``; 0 ≤ AMIN ≤ AFRT ≤ AMAX < ARES and AMAX ≤
+    ``MAX_STEP``. Ranges, mm: 1 ≤ DMIN < DMAX ≤ ``MAX_RANGE_MM``. Speed, rpm: SCAN
+    within ``SCAN_RPM_RANGE``. ``DeviceError`` naming ``port``, the first field
+    at fault and its value (printable, cut short) otherwise.
+    """
+    raw = {name: fields.get(name, "").strip() for name in PP_INTEGERS}
+    for name, text in raw.items():
+        if not (text.isascii() and text.isdigit()):
+            got = f"'{printable(text, SHOWN_CHARS)}'" if text else "nothing"
+            raise DeviceError(f"{port}: the PP reply lacks a number for {name} (got {got})")
+    # A number too long to matter is kept as text only for the message.
+    pp = {name: int(text) if len(text) <= MAX_PP_DIGITS else -1 for name, text in raw.items()}
+
+    def out_of_bounds(name: str, bound: str) -> DeviceError:
+        return DeviceError(
+            f"{port}: the device's PP parameter {name}={printable(raw[name], SHOWN_CHARS)} "
+            f"is out of bounds ({bound}); refusing a device that reports it"
+        )
+
+    def within(name: str, low: int, high: int) -> bool:
+        return len(raw[name]) <= MAX_PP_DIGITS and low <= pp[name] <= high
+
+    if not within("ARES", 1, MAX_ARES):
+        raise out_of_bounds("ARES", f"steps per revolution must be 1..{MAX_ARES}")
+    last = min(pp["ARES"] - 1, MAX_STEP)
+    if not within("AMAX", 0, last):
+        raise out_of_bounds(
+            "AMAX", f"the last step must be 0..{last}: below ARES={pp['ARES']}, at most {MAX_STEP}"
+        )
+    if not within("AFRT", 0, pp["AMAX"]):
+        raise out_of_bounds("AFRT", f"the front step must be 0..AMAX={pp['AMAX']}")
+    if not within("AMIN", 0, pp["AFRT"]):
+        raise out_of_bounds("AMIN", f"the first step must be 0..AFRT={pp['AFRT']}")
+    if not within("DMAX", 2, MAX_RANGE_MM):
+        raise out_of_bounds("DMAX", f"the largest range must be 2..{MAX_RANGE_MM} mm")
+    if not within("DMIN", 1, pp["DMAX"] - 1):
+        raise out_of_bounds("DMIN", f"the smallest range must be 1..{pp['DMAX'] - 1} mm")
+    if not within("SCAN", *SCAN_RPM_RANGE):
+        low, high = SCAN_RPM_RANGE
+        raise out_of_bounds("SCAN", f"the motor speed must be {low}..{high} rpm")
+    return pp
+
+
+def cluster_for(readings: int | None, first_step: int, last_step: int) -> int | None:
+    """The cluster size (1..``MAX_CLUSTER``) giving ``readings`` values per scan over
+    steps ``first_step..last_step``, the smallest if several do; 1 for None; None if
+    no cluster size gives that many."""
+    if readings is None:
+        return 1
+    steps = last_step - first_step + 1
+    for cluster in range(1, MAX_CLUSTER + 1):
+        if -(-steps // cluster) == readings:
+            return cluster
+    return None
+
+
+def readings_offered(first_step: int, last_step: int) -> list[int]:
+    """Every count of values per scan some cluster size gives over these steps, largest first."""
+    steps = last_step - first_step + 1
+    return list(dict.fromkeys(-(-steps // cluster) for cluster in range(1, MAX_CLUSTER + 1)))
+
+
+class ScanDecoder:
+    """The scans of one running MD/MS request among a ``Scip2Stream``'s items; needs no port.
+
+    ``params`` are checked PP numbers (``parse_parameters``) and ``request`` the
+    scan command sent. Each scan becomes a ``ScanFrame``: angles from the PP
+    geometry (radians, scanner frame), ranges in metres within DMIN..DMAX and
+    0 for no return, sequence numbers counted here from 0 and the device clock
+    unwrapped to seconds. ``port`` only names the device in errors.
+    """
+
+    def __init__(self, params: dict[str, int], request: ScanRequest, port: str = "device"):
+        self.params = params
+        self.request = request
+        self.port = port
+        self.angles_rad = step_angles(
+            request.start_step, request.end_step, request.cluster, params["ARES"], params["AFRT"]
+        )
+        self._sequence = 0
+        self._clock = ClockUnwrapper(TIMESTAMP_MODULUS)
+
+    def take(self, item: Reply | FrameError) -> ScanFrame | None:
+        """The scan ``item`` carries; None if it carries none of this request's scans.
+
+        Raises ``FrameError`` for a broken scan (damaged, or sized unlike the
+        request): the caller skips and counts it. Raises ``DeviceError`` when the
+        device reports that it stopped scanning.
+        """
+        if isinstance(item, FrameError):
+            raise item
+        if item.command not in CONTINUOUS:
+            return None
+        if item.status not in ("00", "98", "99"):
+            raise DeviceError(
+                f"{self.port}: the scanner stopped scanning: status {printable(item.status)} "
+                f"({describe_status(item.status)})"
+            )
+        if item.status != "99":
+            return None
+        if replace(parse_scan_request(item.echo), scans=self.request.scans) != self.request:
+            return None  # left over from an earlier scan request
+        data = decode_scan(item)
+        frame = ScanFrame(
+            sequence=self._sequence,
+            device_time_s=self._clock(data.timestamp_ms) / 1000.0,
+            angles_rad=self.angles_rad.copy(),
+            ranges_m=values_to_ranges_m(data.values, self.params["DMIN"], self.params["DMAX"]),
+            range_max_m=self.params["DMAX"] / 1000.0,
+        )
+        self._sequence += 1
+        return frame
+
+
 class Scip2Driver(Driver):
     """A Hokuyo URG speaking SCIP 2.0 (USB URGs ignore the baud rate).
 
@@ -447,9 +592,7 @@ class Scip2Driver(Driver):
         self._pp: dict[str, int] = {}
         self._model = "URG"
         self._scan: ScanRequest | None = None
-        self._angles_rad = np.zeros(0)
-        self._sequence = 0
-        self._clock = ClockUnwrapper(TIMESTAMP_MODULUS)
+        self._decoder: ScanDecoder | None = None
 
     # -- requests and replies --
     def _next_item(self, deadline: float) -> Reply | FrameError | None:
@@ -487,7 +630,7 @@ class Scip2Driver(Driver):
     def _expect(self, reply: Reply, what: str, ok: tuple[str, ...] = ("00",)) -> None:
         if reply.status not in ok:
             raise DeviceError(
-                f"{self.port}: the scanner refused {what}: status {reply.status} "
+                f"{self.port}: the scanner refused {what}: status {printable(reply.status)} "
                 f"({describe_status(reply.status)})"
             )
 
@@ -504,14 +647,10 @@ class Scip2Driver(Driver):
             self.parameters = parse_fields(params)
         except FrameError as exc:
             raise DeviceError(f"{self.port}: unreadable VV/PP reply ({exc})") from exc
-        self._pp = {}
-        for name in PP_INTEGERS:
-            value = self.parameters.get(name, "").strip()
-            if not (value.isascii() and value.isdigit()):
-                raise DeviceError(f"{self.port}: the PP reply lacks a number for {name}")
-            self._pp[name] = int(value)
-        if self._pp["ARES"] == 0 or self._pp["AMAX"] < self._pp["AMIN"]:
-            raise DeviceError(f"{self.port}: impossible PP parameters {self.parameters}")
+        self._pp = parse_parameters(self.parameters, self.port)
+        # Text from the device is stored and printed: keep it printable and on one line.
+        info = {printable(k): printable(v) for k, v in info.items()}
+        self.parameters = {printable(k): printable(v) for k, v in self.parameters.items()}
         self._model = info.get("PROD") or self.parameters.get("MODL") or "URG"
         extra = {"protocol_version": info.get("PROT", "")}
         if "VEND" in info:
@@ -539,7 +678,7 @@ class Scip2Driver(Driver):
         cluster = self._cluster_for(readings)
         request = ScanRequest("MD", pp["AMIN"], pp["AMAX"], cluster)
         self._scan = request
-        self._angles_rad = step_angles(
+        angles_rad = step_angles(
             request.start_step, request.end_step, cluster, pp["ARES"], pp["AFRT"]
         )
         settings = {
@@ -547,8 +686,8 @@ class Scip2Driver(Driver):
             "range_max_m": f"{pp['DMAX'] / 1000.0:g}",
             "readings": str(request.readings),
             "rev_per_s": f"{speed:g}",
-            "angle_min_rad": repr(float(self._angles_rad[0])),
-            "angle_max_rad": repr(float(self._angles_rad[-1])),
+            "angle_min_rad": repr(float(angles_rad[0])),
+            "angle_max_rad": repr(float(angles_rad[-1])),
             "angle_increment_rad": repr(cluster * 2.0 * math.pi / pp["ARES"]),
             "encoding": request.command,
             "cluster": str(cluster),
@@ -559,19 +698,15 @@ class Scip2Driver(Driver):
         return settings
 
     def _cluster_for(self, readings: int | None) -> int:
-        steps = self._pp["AMAX"] - self._pp["AMIN"] + 1
-        if readings is None:
-            return 1
-        counts = {}
-        for cluster in range(1, MAX_CLUSTER + 1):
-            counts.setdefault(-(-steps // cluster), cluster)
-        if readings not in counts:
-            possible = ", ".join(str(n) for n in counts)
+        first, last = self._pp["AMIN"], self._pp["AMAX"]
+        cluster = cluster_for(readings, first, last)
+        if cluster is None:
+            possible = ", ".join(map(str, readings_offered(first, last)))
             raise DeviceError(
                 f"{self.port}: the {self._model} cannot give {readings} readings per scan "
-                f"over steps {self._pp['AMIN']}..{self._pp['AMAX']}; possible: {possible}"
+                f"over steps {first}..{last}; possible: {possible}"
             )
-        return counts[readings]
+        return cluster
 
     def start(self) -> None:
         if self._scan is None:
@@ -581,49 +716,21 @@ class Scip2Driver(Driver):
         command = self._scan.text()
         reply = self._request(command, f"{command} (start scanning)", lambda r: r.status != "99")
         self._expect(reply, command)
-        self._sequence = 0
-        self._clock = ClockUnwrapper(TIMESTAMP_MODULUS)
+        self._decoder = ScanDecoder(self._pp, self._scan, self.port)
 
     def read_scan(self) -> ScanFrame | None:
-        if self._scan is None:
+        if self._decoder is None:
             raise DeviceError(f"{self.port}: read_scan before start")
         deadline = time.monotonic() + self.timeout_s
         while (item := self._next_item(deadline)) is not None:
-            if isinstance(item, FrameError):
+            try:
+                frame = self._decoder.take(item)
+            except FrameError:
                 self.skipped += 1
                 continue
-            if item.command not in CONTINUOUS:
-                continue
-            if item.status not in ("00", "98", "99"):
-                raise DeviceError(
-                    f"{self.port}: the scanner stopped scanning: status {item.status} "
-                    f"({describe_status(item.status)})"
-                )
-            frame = self._frame(item)
             if frame is not None:
                 return frame
         return None
-
-    def _frame(self, reply: Reply) -> ScanFrame | None:
-        """The scan in a scan-data reply; None (counted as skipped if broken) otherwise."""
-        if reply.status != "99":
-            return None
-        try:
-            data = decode_scan(reply)
-        except FrameError:
-            self.skipped += 1
-            return None
-        if replace(data.request, scans=self._scan.scans) != self._scan:
-            return None  # left over from an earlier scan request
-        frame = ScanFrame(
-            sequence=self._sequence,
-            device_time_s=self._clock(data.timestamp_ms) / 1000.0,
-            angles_rad=self._angles_rad.copy(),
-            ranges_m=values_to_ranges_m(data.values, self._pp["DMIN"], self._pp["DMAX"]),
-            range_max_m=self._pp["DMAX"] / 1000.0,
-        )
-        self._sequence += 1
-        return frame
 
     def stop(self) -> None:
         try:
@@ -678,6 +785,10 @@ class Scip2Device(EmulatedDevice):
     A cluster reports its smallest valid range, as a URG does; a step with no
     valid return (0, below DMIN, above DMAX or beyond the encoding) is sent as
     error code 1.
+
+    ``version`` and ``parameters`` replace the VV and PP fields it reports (the
+    URG-04LX's by default) without changing how it scans: a device that
+    misreports itself, for testing a host.
     """
 
     protocol = "scip2"
@@ -687,9 +798,14 @@ class Scip2Device(EmulatedDevice):
         render: Callable[[np.ndarray], np.ndarray],
         corrupt: Callable[[], bool] = lambda: False,
         clock_start_ms: int = 0,
+        *,
+        version: dict[str, str] | None = None,
+        parameters: dict[str, str] | None = None,
     ):
         super().__init__(render, corrupt)
         self.clock_start_ms = clock_start_ms
+        self.version = dict(URG_04LX_VERSION if version is None else version)
+        self.parameters = dict(URG_04LX_PARAMETERS if parameters is None else parameters)
         self.laser_on = False
         self._buffer = bytearray()
         self._streaming: _Streaming | None = None
@@ -738,9 +854,9 @@ class Scip2Device(EmulatedDevice):
         tag = line[len(command) :] if semicolon else b""
         name = command[:2]
         if command == "VV":
-            return format_reply(line, b"00", field_lines(URG_04LX_VERSION))
+            return format_reply(line, b"00", field_lines(self.version))
         if command == "PP":
-            return format_reply(line, b"00", field_lines(URG_04LX_PARAMETERS))
+            return format_reply(line, b"00", field_lines(self.parameters))
         if command == "II":
             return format_reply(line, b"00", field_lines(self._state(now_s)))
         if command == "BM":

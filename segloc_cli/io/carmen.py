@@ -36,17 +36,23 @@ Units and frames: ranges in metres; beam angles in radians in the robot frame
 (x forward); poses ``x_m, y_m, theta_rad`` in the log's world frame (odometry
 frame for ``odom_poses``; for ``laser_poses`` whatever the pose fields hold, in
 a SLAM-corrected log the corrected trajectory), headings wrapped into [−π, π).
-Times are the records' ``ipc_timestamp`` in seconds, as written (relative or
-absolute); the logger timestamp is only checked to be a number.
+Times are the records' ``ipc_timestamp`` in seconds (relative or absolute);
+the logger timestamp is only checked to be a number. Laser records that share
+their time with another record or go back in time are given distinct times in
+file order by the rule of ``segloc_cli.io.times`` (one warning says how many);
+``CarmenLog.original_times_s`` keeps the times as written.
 
 Maximum range: a reading at or above it means no return. It is, in order of
 precedence: the ``range_max_m`` argument; a ROBOTLASER1 record's own
 ``maximum_range`` (for that record, when positive); the first ``PARAM`` whose
 name contains "laser", "max" and the laser's side ("front" or "rear"), e.g.
 ``robot_front_laser_max``; else it is inferred from the readings of the chosen
-laser records: the largest reading is the no-return value if it makes up at
-least 0.5 % of all readings (a sentinel such as 81.83 m or 50 m appears
-thousands of times), otherwise there is no maximum (inf).
+laser records. A scanner writes its no-return value (81.83 m, 50 m) thousands
+of times, at the top of its readings; a lone corrupt reading (99999 m) is not
+one. So the maximum is the largest positive reading value that occurs at least
+twice and makes up at least 0.5 % of all readings, provided that at most 0.1 %
+of the readings lie above it (those then count as no return too). When no value
+passes, there is no maximum (inf) and a warning says so.
 
 Laser offset: a non-zero ``PARAM robot_frontlaser_offset`` (``robot_rearlaser_offset``
 for the rear laser) says the scanner sits that many metres from the robot
@@ -62,15 +68,24 @@ so every returned pose is the scanner's:
   moved by the offset along their heading, except in a record whose odometry
   equals its pose fields (a corrected log, where both hold the same pose).
 
-Bad records (wrong field count, bad reading count, non-numeric or non-finite
-values, negative or non-finite time) are skipped; each kind is summarised in
-``CarmenLog.warnings`` with line numbers. A corrupt or truncated gzip stream
-keeps every complete line before the damage and adds a warning.
+Bad records (wrong field count, a reading count below 1 or above
+``segloc_cli.scan.MAX_READINGS``, non-numeric or non-finite values, a time that
+is negative, non-finite or above ``segloc_cli.io.times.MAX_TIME_S``, a
+ROBOTLASER1 fan that ``segloc_cli.scan.fan_defect`` refuses) are skipped; each kind
+is summarised in ``CarmenLog.warnings`` with line numbers. So are lines holding
+NUL bytes; a file where more than half of the lines hold one, or where no laser
+record can be read and any line holds one, is refused as not text.
+
+Damaged gzip: a corrupt or truncated stream keeps every complete line before
+the damage, and the warning says from which line on records are lost. A member
+whose data decompresses completely but does not match the checksum (or length)
+at its end is kept whole, and the warning names its lines as possibly damaged.
 """
 
 from __future__ import annotations
 
 import math
+import re
 import zlib
 from collections import Counter
 from dataclasses import dataclass
@@ -81,7 +96,8 @@ import numpy as np
 from segloc_cli.errors import InputError
 from segloc_cli.geometry import wrap_angle
 from segloc_cli.io.files import reading
-from segloc_cli.scan import Scan, evenly_spaced_angles
+from segloc_cli.io.times import MAX_TIME_S, colliding, distinct_times, past_limit_message
+from segloc_cli.scan import MAX_READINGS, Scan, evenly_spaced_angles, fan_defect
 
 LASER_RECORDS = {"front": ("FLASER", "ROBOTLASER1"), "rear": ("RLASER",)}
 OFFSET_PARAMS = {"front": "robot_frontlaser_offset", "rear": "robot_rearlaser_offset"}
@@ -98,17 +114,33 @@ ROBOTLASER_EXTRA_FIELDS = 24
 ROBOTLASER_N_FIELD = 8
 ODOM_FIELDS = 10
 SENTINEL_MIN_FRACTION = 0.005
+"""Share of all readings the inferred no-return value must make up at least."""
+SENTINEL_MIN_COUNT = 2
+"""Times the inferred no-return value must occur at least: a lone reading never is one."""
+SENTINEL_MAX_ABOVE_FRACTION = 0.001
+"""Largest share of the readings that may lie above the inferred no-return value."""
+MAX_LASER_OFFSET_M = 10.0
+"""Largest magnitude (m) of a laser offset PARAM that is used; a larger one is ignored."""
+BINARY_LINE_FRACTION = 0.5
+"""A file is refused as not text when more than this share of its non-empty lines hold NULs."""
 LINES_SHOWN = 5
+SHOWN_CHARS = 40  # of a record type or PARAM name or value quoted in a message
 GZIP_MAGIC = b"\x1f\x8b"
 GZIP_CHUNK_BYTES = 1 << 16
-BINARY_SNIFF_BYTES = 8192
 EXPECTED = "a CARMEN log (text, or gzip-compressed text)"
+# zlib's messages for a gzip trailer that does not match the data, what they mean,
+# and how many trailer bytes follow the byte at which zlib notices.
+CHECK_FAILURES = {
+    "incorrect data check": ("the checksum", 4),
+    "incorrect length check": ("the length", 0),
+}
 
 REASONS = {
     "count": "a wrong field count",
-    "n": "a missing or invalid reading count",
+    "n": f"a missing, invalid or too large reading count (at most {MAX_READINGS:,})",
     "value": "non-numeric or non-finite values",
-    "time": "a negative or non-finite timestamp",
+    "time": f"a negative, non-finite or too large timestamp (at most {MAX_TIME_S:.0f} s)",
+    "geometry": "a beam fan that is degenerate, wider than a full turn or beyond ±4π rad",
 }
 
 
@@ -117,7 +149,9 @@ class CarmenLog:
     """What ``read_carmen`` found.
 
     ``scans`` (S) in file order, each in the scanner frame with ``time_s`` the
-    record's ipc timestamp; ``odom_times_s`` (S,) the scans' times;
+    record's ipc timestamp made distinct (see the module docstring);
+    ``original_times_s`` (S,) the ipc timestamps as written; ``odom_times_s``
+    (S,) the scans' (distinct) times;
     ``odom_poses`` (S, 3) the odometry pose of each laser record, moved to
     the scanner by the laser offset, and ``laser_poses`` (S, 3) its pose fields,
     both ``x_m, y_m, theta_rad``; ``sensor`` str → str settings for the MCAP
@@ -131,6 +165,7 @@ class CarmenLog:
     laser_poses: np.ndarray
     sensor: dict[str, str]
     warnings: list[str]
+    original_times_s: np.ndarray
 
 
 class _Skip(Exception):
@@ -157,65 +192,124 @@ class _LaserRecord:
 # --- reading the bytes ------------------------------------------------------------
 
 
-def _gunzip(data: bytes) -> tuple[bytes, str | None]:
-    """Decompress gzip ``data`` (one or more members) → (bytes, damage or None).
+@dataclass(frozen=True)
+class _Damage:
+    """Damage met while decompressing.
 
-    On damage, the returned bytes are everything decompressed before it.
+    ``text`` says what; the decompressed bytes from ``start`` up to ``end`` may
+    be wrong (a trailer that does not match), or, with ``end`` None, nothing
+    from ``start`` on could be recovered.
+    """
+
+    text: str
+    start: int
+    end: int | None
+
+
+def _inflate(member: bytes) -> tuple[list[bytes], int, bool, str | None]:
+    """Decompress the gzip member at the start of ``member``.
+
+    Returns the pieces of output, how many input bytes were used, whether the
+    member ended, and zlib's message if it failed. On failure the output is
+    everything before the byte that failed and the count includes that byte.
+    """
+    # wbits 31: gzip header and trailer, checked (CRC and length) at the end.
+    inflater = zlib.decompressobj(31)
+    out: list[bytes] = []
+    position = 0
+    while position < len(member) and not inflater.eof:
+        chunk = member[position : position + GZIP_CHUNK_BYTES]
+        saved = inflater.copy()
+        try:
+            out.append(inflater.decompress(chunk))
+        except zlib.error:
+            # zlib drops the output of a failing call: replay the chunk a byte
+            # at a time to keep everything before the bad byte.
+            inflater = saved
+            for i in range(len(chunk)):
+                try:
+                    out.append(inflater.decompress(chunk[i : i + 1]))
+                except zlib.error as exc:
+                    return out, position + i + 1, False, str(exc)
+            # Not reached in practice (the bytes fail as the chunk did); if it were, bytes
+            # fed after the member's end are in unused_data, as below.
+        position += len(chunk)
+    if not inflater.eof:
+        return out, position, False, None
+    out.append(inflater.flush())
+    return out, position - len(inflater.unused_data), True, None
+
+
+def _gunzip(data: bytes) -> tuple[bytes, list[_Damage]]:
+    """Decompress gzip ``data`` (one or more members) → (bytes, damage found).
+
+    A member whose trailer does not match its data is kept and decompression
+    goes on with the next member; any other damage ends it, keeping everything
+    decompressed before.
     """
     out: list[bytes] = []
-    damage: str | None = None
+    size = 0
+    damages: list[_Damage] = []
     rest = data
     while rest:
-        # wbits 31: gzip header and trailer, checked (CRC and length) at the end.
-        inflater = zlib.decompressobj(31)
-        position = 0
-        try:
-            while position < len(rest) and not inflater.eof:
-                chunk = rest[position : position + GZIP_CHUNK_BYTES]
-                saved = inflater.copy()
-                try:
-                    out.append(inflater.decompress(chunk))
-                except zlib.error:
-                    # zlib drops the output of a failing call: replay the chunk a
-                    # byte at a time to keep everything before the bad byte.
-                    inflater = saved
-                    for i in range(len(chunk)):
-                        out.append(inflater.decompress(chunk[i : i + 1]))
-                    raise
-                position += len(chunk)
-        except zlib.error as exc:
-            damage = f"the compressed data is corrupt ({exc})"
+        start = size
+        pieces, used, ended, failure = _inflate(rest)
+        out += pieces
+        size += sum(len(piece) for piece in pieces)
+        check = next((CHECK_FAILURES[k] for k in CHECK_FAILURES if k in (failure or "")), None)
+        if check is not None:
+            what, trailer_left = check
+            text = f"{what} at the end of the compressed data does not match"
+            damages.append(_Damage(text, start, size))
+            used += trailer_left
+        elif failure is not None:
+            damages.append(_Damage(f"the compressed data is corrupt ({failure})", size, None))
             break
-        if not inflater.eof:
-            damage = "the file ends in the middle of the compressed data (truncated)"
+        elif not ended:
+            text = "the file ends in the middle of the compressed data (truncated)"
+            damages.append(_Damage(text, size, None))
             break
-        out.append(inflater.flush())
-        rest = inflater.unused_data + rest[position:]
+        rest = rest[used:]
         rest = rest if rest.strip(b"\x00") else b""  # zero padding after the last member
         if rest and not rest.startswith(GZIP_MAGIC):
-            damage = "the compressed data is followed by bytes that are not gzip"
+            text = "the compressed data is followed by bytes that are not gzip"
+            damages.append(_Damage(text, size, None))
             break
-    return b"".join(out), damage
+    return b"".join(out), damages
+
+
+def _line_of(data: bytes, offset: int) -> int:
+    """The 1-based number of the line that holds byte ``offset`` of ``data``."""
+    ends = len(re.findall(rb"\r\n|\r|\n", data[:offset]))
+    # A "\r\n" that the offset splits is one line end, of the line before.
+    split_pair = 0 < offset < len(data) and data[offset - 1 : offset + 1] == b"\r\n"
+    return ends + 1 - split_pair
 
 
 def _read_lines(path: Path, warnings: list[str]) -> list[bytes]:
     """The file's lines (bytes, without line ends), decompressing gzip by its magic bytes."""
     with reading(path, EXPECTED):
         data = path.read_bytes()
-    damage = None
+    damages: list[_Damage] = []
     if data.startswith(GZIP_MAGIC):
-        data, damage = _gunzip(data)
-    if b"\x00" in data[:BINARY_SNIFF_BYTES]:
-        raise InputError(f"not a text file; expected {EXPECTED}", path=path)
+        data, damages = _gunzip(data)
     lines = data.splitlines()
-    if damage is not None:
-        # The last piece has no line end when the damage cut it: it is incomplete.
-        if data and not data.endswith((b"\n", b"\r")):
-            lines.pop()
-        warnings.append(
-            f"{path}: {damage}; stopped at line {len(lines) + 1}, "
-            f"keeping the {len(lines)} complete line{'' if len(lines) == 1 else 's'} before it"
-        )
+    for damage in damages:
+        if damage.end is None:
+            # The last piece has no line end when the damage cut it: it is incomplete.
+            if data and not data.endswith((b"\n", b"\r")):
+                lines.pop()
+            n = len(lines)
+            kept = {0: "", 1: "; the 1 complete line before it is kept"}.get(
+                n, f"; the {n} complete lines before it are kept"
+            )
+            warnings.append(f"{path}: {damage.text}; records from line {n + 1} on are lost{kept}")
+        elif damage.end > damage.start:
+            first, last = _line_of(data, damage.start), _line_of(data, damage.end - 1)
+            where = f"line {first}" if first == last else f"lines {first}–{last}"
+            warnings.append(f"{path}: {where} may hold damaged values; {damage.text}")
+        else:
+            warnings.append(f"{path}: {damage.text}, in a part that holds no lines")
     return lines
 
 
@@ -237,7 +331,7 @@ def _count(token: bytes, minimum: int) -> int:
         value = int(token)
     except ValueError:
         raise _Skip("n") from None
-    if value < minimum:
+    if not minimum <= value <= MAX_READINGS:
         raise _Skip("n")
     return value
 
@@ -249,9 +343,9 @@ def _time(fields: list[bytes]) -> float:
         time_s = float(fields[-3])
     except ValueError:
         raise _Skip("value") from None
-    if not (math.isfinite(time_s) and time_s >= 0.0):
+    if not (math.isfinite(time_s) and 0.0 <= time_s <= MAX_TIME_S):
         raise _Skip("time")
-    return time_s
+    return time_s + 0.0  # -0.0 becomes 0.0
 
 
 def sick_fov_rad(n: int) -> float:
@@ -297,6 +391,8 @@ def _parse_robotlaser(kind: str, fields: list[bytes]) -> _LaserRecord:
     poses = _numbers(fields[k_field + 1 + k : k_field + 1 + k + 11])
     time_s = _time(fields)
     _, start, fov, _, maximum_range = config[:5]
+    if fan_defect(n, float(start), float(start + fov)) is not None:
+        raise _Skip("geometry")
     return _LaserRecord(
         kind=kind,
         time_s=time_s,
@@ -349,10 +445,17 @@ def _param_value(
     except ValueError:
         value = math.nan
     if not math.isfinite(value):
-        shown = text.decode("latin-1")
-        warnings.append(f"{path}: PARAM {name} is {shown!r}, not a number (line {line}); ignored")
+        shown = _shown(text[:SHOWN_CHARS]) + ("…" if len(text) > SHOWN_CHARS else "")
+        warnings.append(f"{path}: PARAM {name} is '{shown}', not a number (line {line}); ignored")
         return None
     return value
+
+
+def _shown(token: bytes) -> str:
+    """``token`` as printable ASCII, other bytes as ``\\xNN`` escapes."""
+    if token.isascii() and token.decode("ascii").isprintable():
+        return token.decode("ascii")
+    return "".join(chr(b) if 0x20 <= b < 0x7F else f"\\x{b:02x}" for b in token)
 
 
 def _range_max_param(
@@ -369,16 +472,37 @@ def _range_max_param(
     return None
 
 
-def _infer_range_max(ranges: list[np.ndarray]) -> tuple[float, str]:
+def _infer_range_max(ranges: list[np.ndarray]) -> tuple[float, str, bool]:
+    """The no-return value of ``ranges`` (see the module docstring), how it was
+    found, and whether finding none deserves a warning (there were readings)."""
     readings = np.concatenate(ranges) if ranges else np.zeros(0)
-    if readings.size == 0:
-        return math.inf, "none: no readings to infer it from"
-    largest = float(np.max(readings))
-    fraction = float(np.count_nonzero(readings == largest)) / readings.size
-    share = f"{_fmt(largest)} m is {100.0 * fraction:.3g} % of the readings"
-    if fraction >= SENTINEL_MIN_FRACTION:
-        return largest, f"inferred: the largest reading, {share}"
-    return math.inf, f"none: the largest reading, {share}, is too rare to be a no-return value"
+    positive = readings[readings > 0.0]
+    if positive.size == 0:
+        return math.inf, "none: no positive readings to infer it from", False
+    values, counts = np.unique(positive, return_counts=True)
+    total = readings.size
+    needed = max(SENTINEL_MIN_COUNT, SENTINEL_MIN_FRACTION * total)
+    frequent = np.flatnonzero(counts >= needed)
+    if frequent.size:
+        i = int(frequent[-1])
+        above = int(counts[i + 1 :].sum())
+        if above <= SENTINEL_MAX_ABOVE_FRACTION * total:
+            share = 100.0 * float(counts[i]) / total
+            rule = (
+                f"inferred: {_fmt(float(values[i]))} m, the largest reading that repeats, "
+                f"is {share:.3g} % of the readings"
+            )
+            if above:
+                larger = "readings count" if above > 1 else "reading counts"
+                rule += f"; the {above} larger {larger} as no return"
+            return float(values[i]), rule, False
+    largest = _fmt(float(values[-1]))
+    return (
+        math.inf,
+        "none: no reading value repeats often enough at the top of the readings to be a "
+        f"no-return value (the largest reading is {largest} m)",
+        True,
+    )
 
 
 def _fmt(value: float) -> str:
@@ -435,7 +559,9 @@ def read_carmen(
     docstring for how it is found otherwise).
 
     Raises ``InputError`` naming the file when it is missing, a directory, not
-    text, or holds no usable record of the chosen laser.
+    text, or holds no usable record of the chosen laser. Everything else odd
+    (bad records, NUL bytes, damaged gzip, colliding times, no maximum range
+    found) is a line of ``CarmenLog.warnings``.
     """
     if laser not in LASER_RECORDS:
         raise ValueError(f"laser must be one of {sorted(LASER_RECORDS)}, got {laser!r}")
@@ -450,23 +576,38 @@ def read_carmen(
     counts: Counter = Counter()
     params: dict[str, tuple[bytes, int]] = {}
     skipped: dict[tuple[str, str], list[int]] = {}
+    with_nul: list[int] = []
+    n_lines = 0
     for number, line in enumerate(lines, start=1):
-        fields = line.split()
-        if not fields or fields[0].startswith(b"#"):
+        if b"\x00" in line:
+            with_nul.append(number)
+            n_lines += 1
             continue
-        kind = fields[0].decode("latin-1")
-        counts[kind[:24]] += 1
+        fields = line.split()
+        if not fields:
+            continue
+        n_lines += 1
+        if fields[0].startswith(b"#"):
+            continue
+        kind = _shown(fields[0][:SHOWN_CHARS])
+        counts[kind] += 1
         try:
             if kind in wanted:
                 records.append(PARSERS[kind](kind, fields))
             elif kind == "ODOM":
                 _check_odom(fields)
             elif kind == "PARAM" and len(fields) >= 3:
-                params.setdefault(fields[1].decode("latin-1"), (fields[2], number))
+                params.setdefault(_shown(fields[1][:SHOWN_CHARS]), (fields[2], number))
         except _Skip as skip:
             skipped.setdefault((kind, skip.reason), []).append(number)
+    if with_nul and (len(with_nul) > BINARY_LINE_FRACTION * n_lines or not records):
+        raise InputError(f"not a text file; expected {EXPECTED}", path=path)
     # The damage note, if any, reads best after the per-record summaries.
     warnings[:0] = _skip_warnings(path, skipped)
+    if with_nul:
+        n = len(with_nul)
+        note = f"{path}: skipped {n} line{'s' if n > 1 else ''} holding NUL bytes"
+        warnings.insert(len(skipped), f"{note} ({_line_list(with_nul)})")
 
     if not records:
         raise InputError(_no_records_message(path, laser, counts, warnings), path=path)
@@ -477,7 +618,13 @@ def read_carmen(
         from_param = _range_max_param(path, params, laser, warnings)
         if from_param is None:
             needing = [r.ranges_m for r in records if r.range_max_m is None]
-            fallback, rule = _infer_range_max(needing)
+            fallback, rule, unsure = _infer_range_max(needing)
+            if unsure:
+                warnings.append(
+                    f"{path}: no maximum range found, {rule.removeprefix('none: ')}; every "
+                    "positive reading counts as a return (pass --range-max-m if the scanner "
+                    "has a maximum range)"
+                )
         else:
             fallback, rule = from_param
     per_record = [
@@ -487,18 +634,36 @@ def read_carmen(
     if range_max_m is None and any(r.range_max_m is not None for r in records):
         rule = "ROBOTLASER1 maximum_range" + ("" if len(set(per_record)) == 1 else f"; {rule}")
 
+    original_times_s = np.array([r.time_s for r in records], dtype=float)
+    times_s = distinct_times(original_times_s)
+    if times_s[-1] > MAX_TIME_S:
+        raise InputError(past_limit_message("laser records"), path=path)
+    n_colliding = int(np.count_nonzero(colliding(original_times_s)))
+    if n_colliding:
+        warnings.append(
+            f"{path}: {n_colliding} of {len(records)} laser records share their time with "
+            "another record or go back in time; gave them distinct times in file order "
+            "(see README: colliding times)"
+        )
+
     scans = [
         Scan(
-            time_s=r.time_s,
+            time_s=float(time_s),
             angles_rad=evenly_spaced_angles(len(r.ranges_m), r.start_rad, r.start_rad + r.fov_rad),
             ranges_m=r.ranges_m,
             range_max_m=limit,
             intensities=r.intensities,
         )
-        for r, limit in zip(records, per_record, strict=True)
+        for r, limit, time_s in zip(records, per_record, times_s, strict=True)
     ]
 
     offset_m = _param_value(path, params, OFFSET_PARAMS[laser], warnings) or 0.0
+    if abs(offset_m) > MAX_LASER_OFFSET_M:
+        warnings.append(
+            f"{path}: PARAM {OFFSET_PARAMS[laser]} is {offset_m:g} m, more than "
+            f"{MAX_LASER_OFFSET_M:g} m; ignored"
+        )
+        offset_m = 0.0
     # The rear scanner faces backward: its offset runs along the robot's heading + π.
     along_m = offset_m if laser == "front" else -offset_m
     laser_poses = np.array([r.laser_pose for r in records], dtype=float)
@@ -524,9 +689,10 @@ def read_carmen(
     }
     return CarmenLog(
         scans=scans,
-        odom_times_s=np.array([s.time_s for s in scans], dtype=float),
+        odom_times_s=times_s,
         odom_poses=odom_poses,
         laser_poses=laser_poses,
         sensor=sensor,
         warnings=warnings,
+        original_times_s=original_times_s,
     )

@@ -75,38 +75,45 @@ def writing_error(path: str | Path, exc: OSError) -> OutputError:
 
 
 @contextmanager
-def atomic_write(path: str | Path, mode: str = "w") -> Iterator[IO]:
-    """Open a temporary file beside ``path`` for writing; rename it to ``path`` on success.
+def atomic_path(path: str | Path) -> Iterator[Path]:
+    """A temporary path beside ``path``, renamed to ``path`` when the block ends without error.
 
-    ``mode`` is "w" (text, UTF-8, ``\\n`` line ends) or "wb". On any error
-    inside the block, or while flushing and renaming, the temporary file is
-    removed and ``path`` is left as it was; an ``OSError`` comes out as an
-    ``OutputError`` naming ``path``.
+    For writers that open files themselves (an MCAP writer, a figure). On any
+    error the temporary file is removed and ``path`` is left as it was; an
+    ``OSError`` comes out as an ``OutputError`` naming ``path``.
     """
     path = Path(path)
     folder = path.parent if str(path.parent) else Path(".")
     try:
-        fd, temporary = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=folder)
+        fd, name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=folder)
+        os.close(fd)
     except OSError as exc:
         raise writing_error(path, exc) from None
+    temporary = Path(name)
     try:
-        text = "b" not in mode
-        with os.fdopen(
-            fd, mode, **({"encoding": "utf-8", "newline": ""} if text else {})
-        ) as stream:
-            yield stream
-            stream.flush()
-            os.fsync(stream.fileno())
+        yield temporary
         os.chmod(temporary, 0o666 & ~_umask())
         os.replace(temporary, path)
-    except OSError as exc:
+    except BaseException as exc:
         with contextlib.suppress(OSError):
-            os.unlink(temporary)
-        raise writing_error(path, exc) from None
-    except BaseException:
-        with contextlib.suppress(OSError):
-            os.unlink(temporary)
+            temporary.unlink()
+        if isinstance(exc, OSError) and not isinstance(exc, InputError):
+            raise writing_error(path, exc) from None
         raise
+
+
+@contextmanager
+def atomic_write(path: str | Path, mode: str = "w") -> Iterator[IO]:
+    """Open a temporary file beside ``path`` for writing; rename it to ``path`` on success.
+
+    ``mode`` is "w" (text, UTF-8, line ends as written) or "wb". The data is
+    flushed to disk before the rename; see ``atomic_path`` for failures.
+    """
+    text = {"encoding": "utf-8", "newline": ""} if "b" not in mode else {}
+    with atomic_path(path) as temporary, open(temporary, mode, **text) as stream:
+        yield stream
+        stream.flush()
+        os.fsync(stream.fileno())
 
 
 def write_text_atomic(path: str | Path, text: str) -> None:

@@ -13,6 +13,13 @@ segment::
 
 A world file is accepted wherever a map is (``read_map`` returns its segments).
 Segments are (M, 4) float64 arrays ``x1 y1 x2 y2`` in metres, world frame.
+
+Readers refuse, with one line naming the file, anything the localizer could not
+hold in reasonable memory and time: files over ``MAX_MAP_BYTES``, more than
+``MAX_SEGMENTS`` segments, coordinates beyond ±``MAX_COORDINATE_M``, maps whose
+bounding box is wider or taller than ``MAX_MAP_EXTENT_M`` (the score raster spans
+it), more than ``MAX_TOTAL_LENGTH_M`` of segments in all, and segments shorter than
+``MIN_SEGMENT_LENGTH_M`` (zero length: they have no direction).
 """
 
 from __future__ import annotations
@@ -25,12 +32,34 @@ from pathlib import Path
 import numpy as np
 
 from segloc_cli.errors import InputError
-from segloc_cli.io.files import reading
+from segloc_cli.io.files import reading, write_text_atomic
 
 MAP_FORMAT = "segloc-map"
 WORLD_FORMAT = "segloc-world"
 SUPPORTED_VERSION = 1
 MATERIALS = ("wall", "glass")
+
+MAX_MAP_BYTES = 32 * 1024 * 1024
+"""Largest map or world file read (bytes): ``MAX_SEGMENTS`` segments written at full
+precision take about 13 MB."""
+
+MAX_SEGMENTS = 100_000
+"""Most segments in a map: a multi-storey campus plan holds tens of thousands."""
+
+MAX_COORDINATE_M = 1e7
+"""Largest coordinate magnitude (m); UTM eastings and northings stay below it, and float64
+still resolves nanometres there."""
+
+MAX_MAP_EXTENT_M = 2000.0
+"""Largest width or height (m) of a map's bounding box. The score raster spans it: up to
+about 500 m × 500 m at its 5 cm cells (400 MB), coarser cells beyond (20 cm at 2 km)."""
+
+MAX_TOTAL_LENGTH_M = 1_000_000.0
+"""Largest summed length (m) of a map's segments; building the score raster takes time in
+proportion (about a second per 1,000 km)."""
+
+MIN_SEGMENT_LENGTH_M = 1e-6
+"""Shorter segments (1 µm) count as zero length: their direction is undefined."""
 
 
 @dataclass(frozen=True)
@@ -122,7 +151,7 @@ def read_world(path: str | Path) -> World:
     materials = _parse_materials(path, document, len(segments))
     name = document.get("name", Path(path).stem)
     if not isinstance(name, str):
-        raise InputError(f"`name` must be a string, got {name!r}", path=path)
+        raise InputError(f"`name` must be a string, got {_shown(name)}", path=path)
     return World(segments=segments, materials=materials, name=name)
 
 
@@ -143,19 +172,35 @@ def _checked_array(segments, what: str) -> np.ndarray:
 def _write_json(path: str | Path, document: dict) -> None:
     # json writes floats with repr(), which round-trips float64 exactly.
     text = json.dumps(document, indent=1, allow_nan=False)
-    Path(path).write_text(text + "\n", encoding="utf-8")
+    write_text_atomic(path, text + "\n")
+
+
+def _parse_int(digits: str) -> int | float:
+    # Python refuses to convert ints of more than 4300 digits, and float() of a huge int
+    # overflows: a number that long becomes a float (inf), which the checks then refuse.
+    return int(digits) if len(digits) <= 20 else float(digits)
 
 
 def _read_json(path: str | Path) -> dict:
     path = Path(path)
     with reading(path, "a JSON map or world file"):
+        size = path.stat().st_size
+        if size > MAX_MAP_BYTES:
+            raise InputError(
+                f"file is {size} bytes, more than a map may hold ({MAX_MAP_BYTES} bytes)",
+                path=path,
+            )
         text = path.read_text(encoding="utf-8")
     try:
-        document = json.loads(text)
+        document = json.loads(text, parse_int=_parse_int)
     except json.JSONDecodeError as exc:
         raise InputError(
             f"not valid JSON at line {exc.lineno}, column {exc.colno}: {exc.msg}", path=path
         ) from None
+    except RecursionError:
+        raise InputError("not a map: its JSON is nested too deeply", path=path) from None
+    except ValueError as exc:
+        raise InputError(f"not valid JSON: {_one_line(exc)}", path=path) from None
     if not isinstance(document, dict):
         raise InputError("expected a JSON object with a `format` field", path=path)
     return document
@@ -171,12 +216,12 @@ def _check_header(path, document: dict, accepted: tuple[str, ...]) -> str:
                 '"segloc-world" file with materials',
                 path=path,
             )
-        found = "missing" if kind is None else f"{kind!r}"
+        found = "missing" if kind is None else _shown(kind)
         raise InputError(f"`format` is {found}; expected {wanted}", path=path)
     version = document.get("version")
-    if version != SUPPORTED_VERSION:
+    if isinstance(version, bool) or version != SUPPORTED_VERSION:
         raise InputError(
-            f"unsupported {kind} version {version!r}; this segloc reads version "
+            f"unsupported {kind} version {_shown(version)}; this segloc reads version "
             f"{SUPPORTED_VERSION}",
             path=path,
         )
@@ -184,32 +229,79 @@ def _check_header(path, document: dict, accepted: tuple[str, ...]) -> str:
 
 
 def _is_number(value) -> bool:
-    return (
-        isinstance(value, int | float)
-        and not isinstance(value, bool)
-        and math.isfinite(float(value))
-    )
+    return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
 
 
 def _parse_segments(path, document: dict) -> np.ndarray:
     raw = document.get("segments")
     if not isinstance(raw, list):
         raise InputError("`segments` must be a list of [x1, y1, x2, y2]", path=path)
+    if len(raw) > MAX_SEGMENTS:
+        raise InputError(
+            f"{len(raw)} segments, more than a map may hold ({MAX_SEGMENTS})", path=path
+        )
     for index, item in enumerate(raw):
         if not (isinstance(item, list) and len(item) == 4 and all(_is_number(v) for v in item)):
             raise InputError(
-                f"segment {index} must be 4 finite numbers [x1, y1, x2, y2], got {item!r}",
+                f"segment {index} must be 4 finite numbers [x1, y1, x2, y2], got {_shown(item)}",
                 path=path,
             )
     segments = np.array(raw, dtype=float).reshape(-1, 4)
-    lengths = np.hypot(segments[:, 2] - segments[:, 0], segments[:, 3] - segments[:, 1])
-    zero = np.flatnonzero(lengths == 0.0)
-    if zero.size:
-        raise InputError(
-            f"segment {int(zero[0])} has zero length (both endpoints equal); remove it",
-            path=path,
-        )
+    problem = bounds_problem(segments)
+    if problem is not None:
+        raise InputError(problem, path=path)
     return segments
+
+
+def bounds_problem(segments: np.ndarray) -> str | None:
+    """Why segments (M, 4), metres, world frame, cannot be a map, or None when they can.
+
+    Checks every bound of the module (``MAX_SEGMENTS``, ``MAX_COORDINATE_M``,
+    ``MIN_SEGMENT_LENGTH_M``, ``MAX_MAP_EXTENT_M``, ``MAX_TOTAL_LENGTH_M``) and
+    finiteness; the answer is one line, fit for an error message.
+    """
+    segments = np.asarray(segments, dtype=float).reshape(-1, 4)
+    if segments.shape[0] > MAX_SEGMENTS:
+        return f"{segments.shape[0]} segments, more than a map may hold ({MAX_SEGMENTS})"
+    if segments.shape[0] == 0:
+        return None
+    bad = np.flatnonzero(~np.all(np.isfinite(segments), axis=1))
+    if bad.size:
+        return f"segment {int(bad[0])} has non-finite coordinates"
+    far = np.flatnonzero(np.any(np.abs(segments) > MAX_COORDINATE_M, axis=1))
+    if far.size:
+        return (
+            f"segment {int(far[0])} has a coordinate beyond ±{MAX_COORDINATE_M:g} m "
+            f"({_shown(segments[far[0]].tolist())})"
+        )
+    lengths = np.hypot(segments[:, 2] - segments[:, 0], segments[:, 3] - segments[:, 1])
+    short = np.flatnonzero(lengths < MIN_SEGMENT_LENGTH_M)
+    if short.size:
+        return (
+            f"segment {int(short[0])} has zero length (its ends lie within "
+            f"{MIN_SEGMENT_LENGTH_M:g} m); remove it"
+        )
+    ends = segments.reshape(-1, 2)
+    width, height = ends.max(axis=0) - ends.min(axis=0)
+    if max(width, height) > MAX_MAP_EXTENT_M:
+        return (
+            f"map spans {width:.6g} m × {height:.6g} m, more than {MAX_MAP_EXTENT_M:g} m "
+            "across; split it, or check for a stray segment far from the rest"
+        )
+    total = float(lengths.sum())
+    if total > MAX_TOTAL_LENGTH_M:
+        return f"segments total {total:.6g} m, more than {MAX_TOTAL_LENGTH_M:g} m"
+    return None
+
+
+def _shown(value, limit: int = 80) -> str:
+    """``repr`` of a value from a user's file, cut to ``limit`` characters."""
+    text = _one_line(repr(value))
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def _one_line(value) -> str:
+    return " ".join(str(value).split())
 
 
 def _parse_materials(path, document: dict, n_segments: int) -> np.ndarray:
@@ -226,7 +318,8 @@ def _parse_materials(path, document: dict, n_segments: int) -> np.ndarray:
     for index, material in enumerate(raw):
         if material not in MATERIALS:
             raise InputError(
-                f"segment {index} has unknown material {material!r}; use one of {list(MATERIALS)}",
+                f"segment {index} has unknown material {_shown(material)}; "
+                f"use one of {list(MATERIALS)}",
                 path=path,
             )
     return np.array(raw, dtype=str)

@@ -4,37 +4,71 @@ Layout (JSON message encoding, opens in Foxglove as is):
 
 - ``/scan``: ``foxglove.LaserScan`` in frame ``laser`` with an identity pose.
   Beam angles are evenly spaced from ``start_angle`` to ``end_angle`` inclusive;
-  invalid readings (<= 0, non-finite, >= the maximum range) are written as 0.
+  invalid readings (<= 0, non-finite, >= the maximum range or ``MAX_RANGE_M``)
+  are written as 0.
 - ``/odom``: ``foxglove.PoseInFrame``, the robot's pose in frame ``world``
   (x, y in metres, heading as a rotation about +z).
 - Metadata record ``segloc.sensor``: the sensor settings as str → str,
   including ``range_max_m``. It is written first so that a log cut short keeps it.
 
+Each ``/scan`` record's log time is the scan's time; its publish time is the
+scan's original time when an importer had to make colliding times distinct
+(else the same), so the source's own times survive the conversion.
+
 Messages are written unchunked and the file is flushed after each one, so a
 recorder killed mid-run loses at most the message being written; ``read_log``
 reads such unfinished files record by record and keeps every complete message.
+The file is written in place, not renamed into place: a recording is read
+while it grows. An OS error while writing is an ``OutputError`` naming the file.
+
+Reading a log nobody tuned segloc for. ``read_log`` refuses the whole file
+(``InputError``, one line naming it) only for what spoils every message: not
+MCAP, no ``/scan`` channel, a ``/scan`` or ``/odom`` channel that is not JSON,
+an unusable ``range_max_m`` in ``segloc.sensor`` (it applies to every scan), or
+``/scan`` messages none of which is usable. A single bad message is skipped and
+counted instead, with one warning line per kind of fault giving the count and
+the first message numbers (counted from 1 per topic), so that every good scan
+is kept. Skipped ``/scan`` messages: not a JSON object (malformed, nested too
+deep, numbers too long to read); larger than ``MAX_MESSAGE_BYTES`` or with more
+than ``MAX_READINGS`` readings; a timestamp that is not whole ``sec``/``nsec``
+within 0 to ``MAX_TIME_NS``; ``start_angle``/``end_angle`` missing, not numbers
+or not finite; a fan that is not one (``segloc_cli.scan.fan_defect``: more than
+one reading with ``start_angle == end_angle``, a span over a full turn, angles
+beyond ±4π); ``ranges`` missing or not a list of numbers. Skipped ``/odom``
+messages: not a JSON object, too large, a bad timestamp, a position or
+orientation missing, not numbers or not finite, an all-zero quaternion.
+Intensities that are not one number per reading are dropped (the scan is kept).
+Readings that are invalid (``Scan.valid``: non-finite, <= 0, at or beyond the
+sensor's range or ``MAX_RANGE_M``) read back as 0. Scans whose times repeat or
+go back get a warning; their times are left as they are. Chunked and compressed
+files (zstd, lz4) are read too; a chunk that would decompress to more than
+``MAX_CHUNK_BYTES``, or that cannot be decompressed, ends the reading there like
+a corrupt record (a warning, the messages before it kept).
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
+import os
 import struct
 from collections.abc import Iterable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from types import TracebackType
 
 import numpy as np
-from mcap.exceptions import EndOfFile, McapError
-from mcap.records import Channel, Footer, Message, Metadata
-from mcap.stream_reader import StreamReader
+from mcap.exceptions import EndOfFile
+from mcap.records import Channel, Chunk, Footer, Message, Metadata
+from mcap.stream_reader import StreamReader, breakup_chunk
 from mcap.writer import CompressionType, Writer
 
 from segloc_cli.errors import InputError
 from segloc_cli.geometry import Pose2, heading_to_quaternion, quaternion_to_heading, wrap_angle
-from segloc_cli.io.files import reading
-from segloc_cli.scan import Scan, evenly_spaced_angles
+from segloc_cli.io.files import reading, writing_error
+from segloc_cli.io.maps import MAX_COORDINATE_M
+from segloc_cli.scan import MAX_READINGS, Scan, evenly_spaced_angles, fan_defect
 
 SCAN_TOPIC = "/scan"
 ODOM_TOPIC = "/odom"
@@ -45,6 +79,18 @@ SCAN_FRAME_ID = "laser"
 WORLD_FRAME_ID = "world"
 ANGLE_SPACING_TOLERANCE_RAD = 1e-9
 MCAP_MAGIC = b"\x89MCAP0\r\n"
+
+MAX_MESSAGE_BYTES = 16 * 2**20
+"""Largest ``/scan`` or ``/odom`` message (bytes) that is decoded: ``MAX_READINGS`` readings
+and their intensities take about 5 MB of JSON, so a larger message is skipped unread."""
+
+MAX_CHUNK_BYTES = 512 * 2**20
+"""Largest decompressed MCAP chunk (bytes); a chunk claiming more is taken as corrupt, so that
+a small compressed file cannot expand to fill memory."""
+
+MAX_TIME_NS = 2**63 - 1
+"""Latest time (ns since the epoch of the log's clock) in a log: the signed 64-bit range that
+ROS and MCAP tools use; a later timestamp is corrupt."""
 
 # --- schemas (field layout of the Foxglove JSON schemas) -------------------------
 
@@ -131,9 +177,44 @@ _IDENTITY_POSE = {
 
 
 def _time_ns(time_s: float) -> int:
-    if not math.isfinite(time_s) or time_s < 0:
-        raise ValueError(f"log times must be finite and >= 0 s, got {time_s}")
+    if not math.isfinite(time_s) or time_s < 0 or round(time_s * 1e9) > MAX_TIME_NS:
+        raise ValueError(f"log times must be finite and from 0 to 2^63 ns, got {time_s} s")
     return round(time_s * 1e9)
+
+
+def _range_max(text: str) -> float | None:
+    """The sensor's ``range_max_m`` setting as metres, or None when it is not a positive
+    finite number or an explicit infinity ("inf"): "1e400" overflows and is refused."""
+    if text.strip().lower().lstrip("+") in ("inf", "infinity"):
+        return math.inf
+    try:
+        value = float(text)
+    except ValueError:
+        return None
+    return value if math.isfinite(value) and value > 0 else None
+
+
+def _spacing_error(scan: Scan) -> tuple[float, float, float]:
+    """First and last beam angle of ``scan`` and how far (rad) its angles are from evenly
+    spaced between them."""
+    angles = np.asarray(scan.angles_rad, dtype=float).reshape(-1)
+    n = len(angles)
+    start, end = (float(angles[0]), float(angles[-1])) if n else (0.0, 0.0)
+    error = np.max(np.abs(angles - evenly_spaced_angles(n, start, end)), initial=0.0)
+    return start, end, float(error)
+
+
+def _check_scan(scan: Scan, original_time_s: float | None) -> tuple[float, float, int, int]:
+    """``start, end, time_ns, publish_ns`` of a scan to write; ``ValueError`` if it cannot be."""
+    start, end, spacing_error = _spacing_error(scan)
+    if spacing_error > ANGLE_SPACING_TOLERANCE_RAD:
+        raise ValueError(
+            f"scan at t={scan.time_s} s: beam angles are not evenly spaced "
+            f"(off by up to {spacing_error:.3g} rad); foxglove.LaserScan cannot store them"
+        )
+    time_ns = _time_ns(float(scan.time_s))
+    publish_ns = time_ns if original_time_s is None else _time_ns(float(original_time_s))
+    return start, end, time_ns, publish_ns
 
 
 def _stamp(time_ns: int) -> dict:
@@ -148,33 +229,51 @@ class LogWriter:
     """Writes a segloc MCAP log; use as a context manager.
 
     ``sensor`` holds the recording's settings as str → str and must include
-    ``range_max_m`` (``"inf"`` when the sensor has none). The file is flushed
-    after every message.
+    ``range_max_m``, a positive number or ``"inf"`` when the sensor has none
+    (``ValueError`` otherwise, before the file is created). The file is
+    flushed after every message; an OS error while writing raises
+    ``OutputError`` naming the file.
     """
 
     def __init__(self, path: str | Path, sensor: dict[str, str]):
         sensor = {str(k): str(v) for k, v in sensor.items()}
         if "range_max_m" not in sensor:
             raise ValueError("sensor settings must include 'range_max_m' (use 'inf' if none)")
-        self.range_max_m = float(sensor["range_max_m"])
+        range_max_m = _range_max(sensor["range_max_m"])
+        if range_max_m is None:
+            raise ValueError(
+                f"sensor range_max_m must be a positive number or 'inf', "
+                f"got {sensor['range_max_m']!r}"
+            )
+        self.range_max_m = range_max_m
         self.path = Path(path)
-        self._file = open(self.path, "wb")
-        # Unchunked: each message goes to the file as its own record, so flushing
-        # after it makes it durable without one compressed chunk per message.
-        self._writer = Writer(self._file, use_chunking=False, compression=CompressionType.NONE)
-        self._writer.start(profile="", library="segloc")
-        self._writer.add_metadata(SENSOR_METADATA_NAME, sensor)
-        scan_schema = self._writer.register_schema(
-            SCAN_SCHEMA_NAME, "jsonschema", json.dumps(LASER_SCAN_SCHEMA).encode()
-        )
-        odom_schema = self._writer.register_schema(
-            ODOM_SCHEMA_NAME, "jsonschema", json.dumps(POSE_IN_FRAME_SCHEMA).encode()
-        )
-        self._scan_channel = self._writer.register_channel(SCAN_TOPIC, "json", scan_schema)
-        self._odom_channel = self._writer.register_channel(ODOM_TOPIC, "json", odom_schema)
-        self._sequence = {self._scan_channel: 0, self._odom_channel: 0}
-        self._file.flush()
+        self._closed = True
+        try:
+            self._file = open(self.path, "wb")
+        except OSError as exc:
+            raise writing_error(self.path, exc) from None
         self._closed = False
+        try:
+            # Unchunked: each message goes to the file as its own record, so flushing
+            # after it makes it durable without one compressed chunk per message.
+            self._writer = Writer(self._file, use_chunking=False, compression=CompressionType.NONE)
+            self._writer.start(profile="", library="segloc")
+            self._writer.add_metadata(SENSOR_METADATA_NAME, sensor)
+            scan_schema = self._writer.register_schema(
+                SCAN_SCHEMA_NAME, "jsonschema", json.dumps(LASER_SCAN_SCHEMA).encode()
+            )
+            odom_schema = self._writer.register_schema(
+                ODOM_SCHEMA_NAME, "jsonschema", json.dumps(POSE_IN_FRAME_SCHEMA).encode()
+            )
+            self._scan_channel = self._writer.register_channel(SCAN_TOPIC, "json", scan_schema)
+            self._odom_channel = self._writer.register_channel(ODOM_TOPIC, "json", odom_schema)
+            self._sequence = {self._scan_channel: 0, self._odom_channel: 0}
+            self._file.flush()
+        except OSError as exc:
+            self._closed = True
+            with contextlib.suppress(OSError):
+                self._file.close()
+            raise writing_error(self.path, exc) from None
 
     def __enter__(self) -> LogWriter:
         return self
@@ -187,32 +286,33 @@ class LogWriter:
     ) -> None:
         self.close()
 
-    def _add(self, channel_id: int, time_ns: int, message: dict) -> None:
+    def _add(self, channel_id: int, time_ns: int, message: dict, publish_ns: int) -> None:
+        if self._closed:
+            raise ValueError(f"{self.path}: the log is closed")
         data = json.dumps(message, allow_nan=False, separators=(",", ":")).encode()
-        self._writer.add_message(
-            channel_id,
-            log_time=time_ns,
-            data=data,
-            publish_time=time_ns,
-            sequence=self._sequence[channel_id],
-        )
-        self._sequence[channel_id] += 1
-        self._file.flush()
-
-    def add_scan(self, scan: Scan) -> None:
-        """Append a scan. Its angles must be evenly spaced (``ValueError`` otherwise)."""
-        angles = np.asarray(scan.angles_rad, dtype=float).reshape(-1)
-        ranges = np.asarray(scan.ranges_m, dtype=float).reshape(-1)
-        n = len(angles)
-        start, end = (float(angles[0]), float(angles[-1])) if n else (0.0, 0.0)
-        if n and not np.all(np.isfinite(angles)):
-            raise ValueError(f"scan at t={scan.time_s} s has non-finite beam angles")
-        spacing_error = np.max(np.abs(angles - evenly_spaced_angles(n, start, end)), initial=0.0)
-        if spacing_error > ANGLE_SPACING_TOLERANCE_RAD:
-            raise ValueError(
-                f"scan at t={scan.time_s} s: beam angles are not evenly spaced "
-                f"(off by up to {spacing_error:.3g} rad); foxglove.LaserScan cannot store them"
+        try:
+            self._writer.add_message(
+                channel_id,
+                log_time=time_ns,
+                data=data,
+                publish_time=publish_ns,
+                sequence=self._sequence[channel_id],
             )
+            self._file.flush()
+        except OSError as exc:
+            raise writing_error(self.path, exc) from None
+        self._sequence[channel_id] += 1
+
+    def add_scan(self, scan: Scan, original_time_s: float | None = None) -> None:
+        """Append a scan. Its angles must be evenly spaced and its time finite and >= 0
+        (``ValueError`` otherwise, nothing written).
+
+        ``original_time_s`` (seconds), when given, is the time the scan had in its source
+        before an importer made colliding times distinct; it becomes the record's publish
+        time, and ``read_log`` returns it in ``LogContents.scan_original_times_s``.
+        """
+        start, end, time_ns, publish_ns = _check_scan(scan, original_time_s)
+        ranges = np.asarray(scan.ranges_m, dtype=float).reshape(-1)
         # A reading is kept only if it is valid for the scan and for the log's sensor,
         # so that what is read back is valid exactly when it was written valid.
         with np.errstate(invalid="ignore"):
@@ -220,7 +320,6 @@ class LogWriter:
         ranges_out = np.where(keep, ranges, 0.0)
         intensities = np.asarray(scan.intensities, dtype=float).reshape(-1)
         intensities = np.where(np.isfinite(intensities), intensities, 0.0)
-        time_ns = _time_ns(float(scan.time_s))
         self._add(
             self._scan_channel,
             time_ns,
@@ -233,10 +332,14 @@ class LogWriter:
                 "ranges": ranges_out.tolist(),
                 "intensities": intensities.tolist(),
             },
+            publish_ns,
         )
 
     def add_odom(self, time_s: float, pose: Pose2) -> None:
-        """Append an odometry pose (world frame) at ``time_s`` seconds."""
+        """Append an odometry pose (world frame) at ``time_s`` seconds; ``ValueError`` for a
+        non-finite pose or a time that is not finite and >= 0."""
+        if not all(math.isfinite(float(v)) for v in (pose.x, pose.y, pose.theta)):
+            raise ValueError(f"odometry at t={time_s} s is not finite: {pose}")
         qx, qy, qz, qw = heading_to_quaternion(pose.theta).tolist()
         time_ns = _time_ns(float(time_s))
         self._add(
@@ -250,6 +353,7 @@ class LogWriter:
                     "orientation": {"x": qx, "y": qy, "z": qz, "w": qw},
                 },
             },
+            time_ns,
         )
 
     def close(self) -> None:
@@ -259,8 +363,11 @@ class LogWriter:
         self._closed = True
         try:
             self._writer.finish()
-        finally:
             self._file.close()
+        except OSError as exc:
+            with contextlib.suppress(OSError):
+                self._file.close()
+            raise writing_error(self.path, exc) from None
 
 
 def write_log(
@@ -268,18 +375,32 @@ def write_log(
     scans: Iterable[Scan],
     odom: Iterable[tuple[float, Pose2]] = (),
     sensor: dict[str, str] | None = None,
+    original_times_s: Iterable[float] | None = None,
 ) -> None:
     """Write scans and ``(time_s, Pose2)`` odometry to a new log.
 
     Without ``range_max_m`` in ``sensor``, the first scan's ``range_max_m`` is used.
+    ``original_times_s`` (one per scan, seconds) are the scans' times in their source
+    when they differ from ``Scan.time_s`` (see ``LogWriter.add_scan``). Every argument
+    is checked (``ValueError``) before the file is created.
     """
     scans = list(scans)
+    odom = list(odom)
+    originals = None if original_times_s is None else [float(t) for t in original_times_s]
+    if originals is not None and len(originals) != len(scans):
+        raise ValueError(f"{len(originals)} original times for {len(scans)} scans")
+    for k, scan in enumerate(scans):
+        _check_scan(scan, None if originals is None else originals[k])
+    for time_s, pose in odom:
+        _time_ns(float(time_s))
+        if not all(math.isfinite(float(v)) for v in (pose.x, pose.y, pose.theta)):
+            raise ValueError(f"odometry at t={time_s} s is not finite: {pose}")
     settings = {str(k): str(v) for k, v in (sensor or {}).items()}
     if "range_max_m" not in settings:
         settings["range_max_m"] = str(scans[0].range_max_m if scans else math.inf)
     with LogWriter(path, settings) as writer:
-        for scan in scans:
-            writer.add_scan(scan)
+        for k, scan in enumerate(scans):
+            writer.add_scan(scan, None if originals is None else originals[k])
         for time_s, pose in odom:
             writer.add_odom(time_s, pose)
 
@@ -296,7 +417,11 @@ class LogContents:
     in the world frame; ``sensor`` the settings record (empty if absent);
     ``finished`` whether the file ends with its summary and footer;
     ``message_counts`` messages read per channel topic, including topics
-    segloc does not use; ``warnings`` human-readable notes (e.g. a truncated file).
+    segloc does not use and skipped messages; ``warnings`` human-readable notes
+    (a truncated file, skipped messages, repeated times), one line each;
+    ``scan_original_times_s`` (S,) seconds, the scans' times in their source:
+    the record's publish time where the writer kept an original time, else
+    (and when not given) equal to ``scan_times_s``.
     """
 
     scans: list[Scan]
@@ -306,6 +431,11 @@ class LogContents:
     finished: bool = False
     warnings: list[str] = field(default_factory=list)
     message_counts: dict[str, int] = field(default_factory=dict)
+    scan_original_times_s: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if self.scan_original_times_s is None:
+            object.__setattr__(self, "scan_original_times_s", self.scan_times_s)
 
     @property
     def scan_times_s(self) -> np.ndarray:
@@ -313,121 +443,329 @@ class LogContents:
         return np.array([scan.time_s for scan in self.scans], dtype=float)
 
 
-def _decode(path: Path, topic: str, index: int, data: bytes) -> dict:
+class _Skip(Exception):
+    """A message that cannot be used: ``kind`` picks its warning, ``detail`` says why."""
+
+    def __init__(self, kind: str, detail: str):
+        super().__init__(detail)
+        self.kind = kind
+        self.detail = detail
+
+
+class _CorruptChunk(Exception):
+    """A chunk record that cannot be decompressed or split into records."""
+
+
+_NOT_JSON = "not a JSON object: malformed, nested too deep or numbers too long to read"
+_BAD_TIME = "no valid timestamp: whole sec and nsec, from 0 to 2^63 ns"
+_SCAN_FAULTS = {
+    "json": _NOT_JSON,
+    "size": f"over {MAX_MESSAGE_BYTES} bytes or over {MAX_READINGS} readings",
+    "time": _BAD_TIME,
+    "angles": "start_angle or end_angle missing, not a number or not finite",
+    "fan": "not a fan: all beams on one ray, over a full turn, or angles beyond ±4π",
+    "ranges": "ranges missing or not a list of numbers",
+}
+_ODOM_FAULTS = {
+    "json": _NOT_JSON,
+    "size": f"over {MAX_MESSAGE_BYTES} bytes",
+    "time": _BAD_TIME,
+    "pose": "position or orientation missing, not numbers or not finite",
+    "far": f"position beyond ±{MAX_COORDINATE_M:g} m",
+    "quaternion": "orientation quaternion all zeros",
+}
+_LISTED_NUMBERS = 5
+
+
+class _Faults:
+    """Message numbers per kind of fault, and the first such message's detail."""
+
+    def __init__(self) -> None:
+        self.numbers: dict[str, list[int]] = {}
+        self.first: dict[str, str] = {}
+        self.first_of_all: str | None = None
+
+    def add(self, kind: str, number: int, detail: str) -> None:
+        if self.first_of_all is None:
+            self.first_of_all = f"message {number}: {detail}"
+        if kind not in self.numbers:
+            self.numbers[kind] = []
+            self.first[kind] = detail
+        self.numbers[kind].append(number)
+
+    def total(self) -> int:
+        return sum(len(numbers) for numbers in self.numbers.values())
+
+    def lines(self, name: str, verb: str, topic: str, texts: dict[str, str]) -> list[str]:
+        """One warning per kind, e.g. ``log.mcap: skipped 2 /scan messages [what is wrong]:
+        messages 3, 9 (first: why message 3 is)``."""
+        lines = []
+        for kind, text in texts.items():
+            numbers = self.numbers.get(kind)
+            if numbers:
+                first = "first: " if len(numbers) > 1 else ""
+                lines.append(
+                    f"{name}: {verb} {_plural(len(numbers), topic + ' message')} [{text}]: "
+                    f"{_message_list(numbers)} ({first}{self.first[kind]})"
+                )
+        return lines
+
+
+def _plural(n: int, noun: str) -> str:
+    return f"{n} {noun}" + ("" if n == 1 else "s")
+
+
+def _message_list(numbers: list[int]) -> str:
+    shown = ", ".join(str(n) for n in numbers[:_LISTED_NUMBERS])
+    more = len(numbers) - _LISTED_NUMBERS
+    word = "message" if len(numbers) == 1 else "messages"
+    return f"{word} {shown}" + (f" and {more} more" if more > 0 else "")
+
+
+def _show(value: object) -> str:
+    """A short, one-line rendering of a JSON value for a message."""
+    if isinstance(value, list):
+        return f"an array of {len(value)}"
+    if isinstance(value, dict):
+        return "an object"
+    if isinstance(value, int) and not isinstance(value, bool) and abs(value) >= 10**15:
+        return f"an integer of {len(str(abs(value)))} digits"
+    text = repr(value)
+    return text if len(text) <= 40 else text[:37] + "..."
+
+
+def _clip(text: str, limit: int = 40) -> str:
+    """``text`` with control characters escaped, cut to ``limit`` characters."""
+    text = repr(text)[1:-1]
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def _decode(data: bytes) -> dict:
+    if len(data) > MAX_MESSAGE_BYTES:
+        raise _Skip("size", f"{len(data)} bytes")
     try:
         message = json.loads(data)
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise InputError(f"{topic} message {index} is not valid JSON ({exc})", path=path) from None
+    except (ValueError, RecursionError) as exc:
+        # ValueError covers malformed JSON, bad UTF-8 and integers too long to convert.
+        reason = "nested too deep" if isinstance(exc, RecursionError) else str(exc)
+        raise _Skip("json", f"not valid JSON: {_clip(reason, 100)}") from None
     if not isinstance(message, dict):
-        raise InputError(f"{topic} message {index} is not a JSON object", path=path)
+        raise _Skip("json", f"{_show(message)}, not a JSON object")
     return message
 
 
-def _get(path: Path, topic: str, index: int, message: dict, *keys: str):
+def _get(message: dict, kind: str, *keys: str):
     value = message
     for depth, key in enumerate(keys):
         if not isinstance(value, dict) or key not in value:
-            name = ".".join(keys[: depth + 1])
-            raise InputError(f"{topic} message {index} lacks field {name!r}", path=path)
+            raise _Skip(kind, f"lacks field {'.'.join(keys[: depth + 1])!r}")
         value = value[key]
     return value
 
 
-def _number(path: Path, topic: str, index: int, message: dict, *keys: str) -> float:
-    value = _get(path, topic, index, message, *keys)
-    if isinstance(value, bool) or not isinstance(value, int | float):
-        name = ".".join(keys)
-        raise InputError(
-            f"{topic} message {index}: field {name!r} is {value!r}, expected a number", path=path
-        )
-    return float(value)
+def _is_number(value: object) -> bool:
+    return type(value) is float or type(value) is int
 
 
-def _stamp_s(path: Path, topic: str, index: int, message: dict) -> float:
-    sec = _get(path, topic, index, message, "timestamp", "sec")
-    nsec = _get(path, topic, index, message, "timestamp", "nsec")
-    if not all(isinstance(v, int) and not isinstance(v, bool) for v in (sec, nsec)):
-        raise InputError(f"{topic} message {index}: timestamp sec/nsec must be integers", path=path)
-    # Integer true division rounds once, so times written from float seconds read back
-    # as the same float whenever they were whole nanoseconds.
-    return (sec * 1_000_000_000 + nsec) / 1_000_000_000
+def _to_float(value: int | float) -> float:
+    try:
+        return float(value)
+    except OverflowError:  # an integer beyond the float range
+        return math.inf if value > 0 else -math.inf
 
 
-def _number_array(path: Path, index: int, message: dict, key: str) -> np.ndarray:
-    value = _get(path, SCAN_TOPIC, index, message, key)
-    if not isinstance(value, list) or not all(
-        isinstance(v, int | float) and not isinstance(v, bool) for v in value
-    ):
-        raise InputError(
-            f"{SCAN_TOPIC} message {index}: field {key!r} must be a list of numbers", path=path
-        )
-    return np.array(value, dtype=float)
+def _number(message: dict, kind: str, *keys: str) -> float:
+    """The finite number at ``keys``, else ``_Skip(kind)``."""
+    value = _get(message, kind, *keys)
+    name = ".".join(keys)
+    if not _is_number(value):
+        raise _Skip(kind, f"field {name!r} is {_show(value)}, expected a number")
+    number = _to_float(value)
+    if not math.isfinite(number):
+        raise _Skip(kind, f"field {name!r} is {_show(value)}, expected a finite number")
+    return number
 
 
-def _parse_scan(path: Path, index: int, data: bytes, range_max_m: float) -> Scan:
-    message = _decode(path, SCAN_TOPIC, index, data)
-    time_s = _stamp_s(path, SCAN_TOPIC, index, message)
-    start = _number(path, SCAN_TOPIC, index, message, "start_angle")
-    end = _number(path, SCAN_TOPIC, index, message, "end_angle")
-    ranges = _number_array(path, index, message, "ranges")
-    intensities = (
-        _number_array(path, index, message, "intensities")
-        if "intensities" in message
-        else np.zeros(0)
-    )
-    return Scan(
-        time_s=time_s,
-        angles_rad=evenly_spaced_angles(len(ranges), start, end),
-        ranges_m=ranges,
-        range_max_m=range_max_m,
-        intensities=intensities,
-    )
+def _stamp_ns(message: dict) -> int:
+    """The message's timestamp in whole nanoseconds, else ``_Skip("time")``."""
+    pieces = []
+    for key in ("sec", "nsec"):
+        value = _get(message, "time", "timestamp", key)
+        if type(value) is float and math.isfinite(value) and value.is_integer():
+            value = int(value)
+        if type(value) is not int:
+            raise _Skip("time", f"timestamp.{key} is {_show(value)}, expected an integer")
+        pieces.append(value)
+    time_ns = pieces[0] * 1_000_000_000 + pieces[1]
+    if not 0 <= time_ns <= MAX_TIME_NS:
+        raise _Skip("time", f"timestamp {_show(pieces[0])} s {_show(pieces[1])} ns out of range")
+    return time_ns
 
 
-def _parse_odom(path: Path, index: int, data: bytes) -> tuple[float, list[float]]:
-    message = _decode(path, ODOM_TOPIC, index, data)
-    time_s = _stamp_s(path, ODOM_TOPIC, index, message)
-    x = _number(path, ODOM_TOPIC, index, message, "pose", "position", "x")
-    y = _number(path, ODOM_TOPIC, index, message, "pose", "position", "y")
-    q = [_number(path, ODOM_TOPIC, index, message, "pose", "orientation", k) for k in "xyzw"]
+def _number_list(value: object) -> np.ndarray | None:
+    """A JSON array of numbers as floats (beyond the float range → ±inf), else None."""
+    if not isinstance(value, list) or not all(_is_number(v) for v in value):
+        return None
+    try:
+        return np.array(value, dtype=float)
+    except OverflowError:
+        return np.array([_to_float(v) for v in value], dtype=float)
+
+
+def _first_non_number(value: object) -> str:
+    if not isinstance(value, list):
+        return _show(value)
+    bad = next(v for v in value if not _is_number(v))
+    return f"an array holding {_show(bad)}"
+
+
+@dataclass(frozen=True)
+class _ScanRecord:
+    """A usable ``/scan`` message: times in ns, fan in rad, readings as in the file."""
+
+    number: int
+    time_ns: int
+    original_ns: int
+    start_rad: float
+    end_rad: float
+    ranges: np.ndarray
+    intensities: np.ndarray
+
+
+def _parse_scan(number: int, record: Message, dropped: _Faults) -> _ScanRecord:
+    """A ``/scan`` message, else ``_Skip``; intensities that do not fit are dropped (and
+    noted in ``dropped``)."""
+    message = _decode(record.data)
+    time_ns = _stamp_ns(message)
+    start = _number(message, "angles", "start_angle")
+    end = _number(message, "angles", "end_angle")
+    raw_ranges = _get(message, "ranges", "ranges")
+    if isinstance(raw_ranges, list) and len(raw_ranges) > MAX_READINGS:
+        raise _Skip("size", f"{len(raw_ranges)} readings")
+    ranges = _number_list(raw_ranges)
+    if ranges is None:
+        raise _Skip("ranges", f"field 'ranges' is {_first_non_number(raw_ranges)}")
+    defect = fan_defect(len(ranges), start, end)
+    if defect is not None:
+        raise _Skip("fan", defect)
+    raw_intensities = message.get("intensities")
+    intensities = np.zeros(0) if raw_intensities is None else _number_list(raw_intensities)
+    if intensities is None or len(intensities) not in (0, len(ranges)):
+        shown = "not numbers" if intensities is None else f"{len(intensities)} values"
+        dropped.add("intensities", number, f"{shown} for {len(ranges)} readings")
+        intensities = np.zeros(0)
+    intensities = np.where(np.isfinite(intensities), intensities, 0.0)
+    # The publish time holds the original time only in files that follow segloc's own
+    # layout, where the log time is the scan's timestamp.
+    original_ns = record.publish_time if record.log_time == time_ns else time_ns
+    return _ScanRecord(number, time_ns, original_ns, start, end, ranges, intensities)
+
+
+def _parse_odom(data: bytes) -> tuple[int, list[float]]:
+    """A ``/odom`` message as ``time_ns, [x_m, y_m, theta_rad]``, else ``_Skip``."""
+    message = _decode(data)
+    time_ns = _stamp_ns(message)
+    x = _number(message, "pose", "pose", "position", "x")
+    y = _number(message, "pose", "pose", "position", "y")
+    q = [_number(message, "pose", "pose", "orientation", k) for k in "xyzw"]
+    if max(abs(x), abs(y)) > MAX_COORDINATE_M:
+        raise _Skip("far", f"position ({x:.6g}, {y:.6g}) m")
+    largest = max(abs(c) for c in q)
+    if largest == 0.0:
+        raise _Skip("quaternion", "orientation is (0, 0, 0, 0)")
+    # Scale by a power of two (exact) so that the products in the heading formula neither
+    # overflow nor underflow for quaternions far from unit length.
+    exponent = math.frexp(largest)[1]
+    q = [math.ldexp(c, -exponent) for c in q]
     theta = float(wrap_angle(quaternion_to_heading(*q)))
-    return time_s, [x, y, theta]
+    return time_ns, [x, y, theta]
 
 
 def _sensor_range_max(path: Path, sensor: dict[str, str]) -> float:
     text = sensor.get("range_max_m")
     if text is None:
         return math.inf
-    try:
-        value = float(text)
-    except ValueError:
-        value = math.nan
-    if not value > 0:
+    value = _range_max(text)
+    if value is None:
         raise InputError(
-            f"metadata {SENSOR_METADATA_NAME}: range_max_m is {text!r}, expected a positive "
-            "number or 'inf'",
+            f"metadata {SENSOR_METADATA_NAME}: range_max_m is {_show(text)}, expected a "
+            "positive finite number in metres or 'inf'",
             path=path,
         )
     return value
 
 
-def read_log(path: str | Path) -> LogContents:
-    """Read a segloc MCAP log, including one that was cut short.
+class _Bounded:
+    """A binary file whose reads never ask for more than what is left of it, so that a
+    corrupt length field inside a record gives a short read, not a huge allocation."""
 
-    Records are read in file order; at the first incomplete or corrupt record
-    reading stops with a warning and every complete message before it is kept.
+    def __init__(self, stream, size: int):
+        self._stream = stream
+        self._size = size
+        self.position = stream.tell()
+
+    def read(self, n: int = -1) -> bytes:
+        left = max(self._size - self.position, 0)
+        data = self._stream.read(left if n < 0 else min(n, left))
+        self.position += len(data)
+        return data
+
+
+def _decompressed(chunk: Chunk) -> bytes:
+    if chunk.uncompressed_size > MAX_CHUNK_BYTES:
+        raise _CorruptChunk(f"chunk of {chunk.uncompressed_size} bytes")
+    if chunk.compression == "":
+        return chunk.data
+    if chunk.compression == "zstd":
+        import zstandard
+
+        if zstandard.frame_content_size(chunk.data) > MAX_CHUNK_BYTES:
+            raise _CorruptChunk("zstd frame too large")
+        decompressor = zstandard.ZstdDecompressor()
+        return decompressor.decompress(chunk.data, max_output_size=chunk.uncompressed_size)
+    if chunk.compression == "lz4":
+        import lz4.frame
+
+        decompressor = lz4.frame.LZ4FrameDecompressor()
+        return decompressor.decompress(chunk.data, max_length=chunk.uncompressed_size)
+    raise _CorruptChunk(f"unknown compression {chunk.compression!r}")
+
+
+def _records(reader: StreamReader):
+    """The file's records in order, chunks opened; a chunk that cannot be opened raises
+    ``_CorruptChunk``."""
+    for record in reader.records:
+        if not isinstance(record, Chunk):
+            yield record
+            continue
+        try:
+            inner = breakup_chunk(replace(record, compression="", data=_decompressed(record)))
+        except Exception as exc:  # any failure of the decompressors or parsers
+            raise _CorruptChunk(str(exc)) from None
+        yield from inner
+
+
+def read_log(path: str | Path) -> LogContents:
+    """Read a segloc MCAP log, including one that was cut short or that another tool wrote.
+
+    Records are read in file order (chunked and compressed files too); at the
+    first incomplete or corrupt record reading stops with a warning and every
+    complete message before it is kept. Messages that cannot be used are
+    skipped and counted in warnings (see the module docstring for the kinds).
     Raises ``InputError`` naming the file when it is missing, not MCAP, has no
-    ``/scan`` channel, or holds a ``/scan`` or ``/odom`` message that is not
-    valid JSON or lacks fields (messages counted from 1 per topic).
+    ``/scan`` channel or a non-JSON one, has an unusable ``range_max_m``, or
+    none of its ``/scan`` messages can be used.
     """
     path = Path(path)
     with reading(path, "an MCAP log file"):
         stream = open(path, "rb")
+        size = os.fstat(stream.fileno()).st_size
 
     channels: dict[int, Channel] = {}
     sensor: dict[str, str] = {}
-    raw_scans: list[bytes] = []
-    raw_odom: list[bytes] = []
+    scan_records: list[_ScanRecord] = []
+    odom: list[tuple[int, list[float]]] = []
+    scan_faults, odom_faults, dropped = _Faults(), _Faults(), _Faults()
     n_messages = 0
     counts: dict[str, int] = {}
     finished = False
@@ -440,39 +778,56 @@ def read_log(path: str | Path) -> LogContents:
                 path=path,
             )
         stream.seek(0)
+        bounded = _Bounded(stream, size)
         # A record longer than the file can only be a corrupt length field.
-        reader = StreamReader(stream, record_size_limit=max(path.stat().st_size, 1))
+        reader = StreamReader(bounded, emit_chunks=True, record_size_limit=max(size, 1))
+        records = _records(reader)
         end_of_last_record = len(MCAP_MAGIC)
-        try:
-            for record in reader.records:
-                end_of_last_record = stream.tell()
-                if isinstance(record, Message):
-                    n_messages += 1
-                    channel = channels.get(record.channel_id)
-                    if channel is not None:
-                        counts[channel.topic] = counts.get(channel.topic, 0) + 1
-                    if channel is not None and channel.topic == SCAN_TOPIC:
-                        raw_scans.append(record.data)
-                    elif channel is not None and channel.topic == ODOM_TOPIC:
-                        raw_odom.append(record.data)
-                elif isinstance(record, Channel):
-                    channels[record.id] = record
-                elif isinstance(record, Metadata) and record.name == SENSOR_METADATA_NAME:
-                    sensor = dict(record.metadata)
-                elif isinstance(record, Footer):
-                    finished = True
-        except (EndOfFile, struct.error):
-            finished = False
-            # Ending exactly after a whole record is a recording stopped between messages.
-            if stream.tell() != end_of_last_record:
-                broken = "ends mid-record"
-        except (McapError, ValueError, UnicodeDecodeError, MemoryError):
-            finished = False
-            broken = "has a corrupt record"
+        while True:
+            try:
+                record = next(records)
+            except StopIteration:
+                break
+            except _CorruptChunk:
+                broken = "has a corrupt chunk"
+                break
+            except (EndOfFile, struct.error):
+                # Ending exactly after a whole record is a recording stopped between messages.
+                if bounded.position != end_of_last_record:
+                    broken = "ends mid-record"
+                break
+            except Exception:  # the mcap parser's many ways to fail on corrupt bytes
+                broken = "has a corrupt record"
+                break
+            end_of_last_record = bounded.position
+            if isinstance(record, Message):
+                n_messages += 1
+                channel = channels.get(record.channel_id)
+                if channel is None:
+                    continue
+                number = counts[channel.topic] = counts.get(channel.topic, 0) + 1
+                if channel.message_encoding != "json":
+                    continue  # refused below, once the whole file is read
+                try:
+                    if channel.topic == SCAN_TOPIC:
+                        scan_records.append(_parse_scan(number, record, dropped))
+                    elif channel.topic == ODOM_TOPIC:
+                        odom.append(_parse_odom(record.data))
+                except _Skip as skip:
+                    faults = scan_faults if channel.topic == SCAN_TOPIC else odom_faults
+                    faults.add(skip.kind, number, skip.detail)
+            elif isinstance(record, Channel):
+                channels[record.id] = record
+            elif isinstance(record, Metadata) and record.name == SENSOR_METADATA_NAME:
+                sensor = dict(record.metadata)
+            elif isinstance(record, Footer):
+                finished = True
+    if broken is not None:
+        finished = False
 
     scan_channels = [c for c in channels.values() if c.topic == SCAN_TOPIC]
     if not scan_channels:
-        found = ", ".join(sorted({c.topic for c in channels.values()})) or "none"
+        found = ", ".join(sorted({_clip(c.topic) for c in channels.values()})) or "none"
         cut = "" if broken is None else f"; the file {broken} after {n_messages} messages"
         raise InputError(
             f"no {SCAN_TOPIC} channel; record or import a log with laser scans on "
@@ -482,26 +837,41 @@ def read_log(path: str | Path) -> LogContents:
     for channel in [*scan_channels, *(c for c in channels.values() if c.topic == ODOM_TOPIC)]:
         if channel.message_encoding != "json":
             raise InputError(
-                f"channel {channel.topic} uses message encoding {channel.message_encoding!r}; "
-                "segloc reads JSON-encoded foxglove messages",
+                f"channel {channel.topic} uses message encoding "
+                f"{_show(channel.message_encoding)}; segloc reads JSON-encoded foxglove messages",
                 path=path,
             )
+    if not scan_records and scan_faults.total():
+        raise InputError(
+            f"every {SCAN_TOPIC} message is unusable ({scan_faults.total()} skipped; first, "
+            f"{scan_faults.first_of_all})",
+            path=path,
+        )
 
     range_max_m = _sensor_range_max(path, sensor)
-    scans = [_parse_scan(path, i, data, range_max_m) for i, data in enumerate(raw_scans, 1)]
-    odom = [_parse_odom(path, i, data) for i, data in enumerate(raw_odom, 1)]
-    odom_times_s = np.array([t for t, _ in odom], dtype=float)
+    scans = [_scan(record, range_max_m) for record in scan_records]
+    odom_times_s = np.array([t / 1_000_000_000 for t, _ in odom], dtype=float)
     odom_poses = np.array([p for _, p in odom], dtype=float).reshape(-1, 3)
 
+    name = path.name
     warnings = []
     if broken is not None:
         warnings.append(
-            f"{path.name}: file {broken} after {n_messages} messages; kept {len(scans)} scans"
+            f"{name}: file {broken} after {n_messages} messages; kept {len(scans)} scans"
         )
     elif not finished:
         warnings.append(
-            f"{path.name}: file has no footer (recording was not finished); kept {len(scans)} scans"
+            f"{name}: file has no footer (recording was not finished); kept {len(scans)} scans"
         )
+    warnings += scan_faults.lines(name, "skipped", SCAN_TOPIC, _SCAN_FAULTS)
+    warnings += odom_faults.lines(name, "skipped", ODOM_TOPIC, _ODOM_FAULTS)
+    warnings += dropped.lines(
+        name,
+        "dropped the intensities of",
+        SCAN_TOPIC,
+        {"intensities": "not one number per reading; the scans are kept"},
+    )
+    warnings += _time_order_warnings(name, scan_records)
     return LogContents(
         scans=scans,
         odom_times_s=odom_times_s,
@@ -510,4 +880,37 @@ def read_log(path: str | Path) -> LogContents:
         finished=finished,
         warnings=warnings,
         message_counts={c.topic: counts.get(c.topic, 0) for c in channels.values()},
+        scan_original_times_s=np.array(
+            [r.original_ns / 1_000_000_000 for r in scan_records], dtype=float
+        ),
     )
+
+
+def _scan(record: _ScanRecord, range_max_m: float) -> Scan:
+    """The scan of a usable message, invalid readings as 0."""
+    scan = Scan(
+        # Integer true division rounds once, so times written from float seconds read back
+        # as the same float whenever they were whole nanoseconds.
+        time_s=record.time_ns / 1_000_000_000,
+        angles_rad=evenly_spaced_angles(len(record.ranges), record.start_rad, record.end_rad),
+        ranges_m=record.ranges,
+        range_max_m=range_max_m,
+        intensities=record.intensities,
+    )
+    return replace(scan, ranges_m=np.where(scan.valid, scan.ranges_m, 0.0))
+
+
+def _time_order_warnings(name: str, records: list[_ScanRecord]) -> list[str]:
+    """A warning when scans repeat an earlier scan's time or go back in time."""
+    if len(records) < 2:
+        return []
+    times = np.array([r.time_ns for r in records], dtype=np.int64)
+    behind = np.flatnonzero(times[1:] <= np.maximum.accumulate(times)[:-1]) + 1
+    if behind.size == 0:
+        return []
+    first = records[int(behind[0])]
+    return [
+        f"{name}: {_plural(int(behind.size), 'scan')} repeat an earlier scan's time or go back "
+        f"in time (first: {SCAN_TOPIC} message {first.number} at "
+        f"{first.time_ns / 1_000_000_000:.9f} s); pairing scans by time may refuse them"
+    ]

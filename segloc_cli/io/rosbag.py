@@ -15,7 +15,17 @@ What comes out, in segloc's units and frames:
   odometry frame (the messages' ``header.frame_id``), interpolated to each scan
   time that lies within the odometry's time span: linearly in x and y, along the
   shorter arc in heading. Scans outside that span get no odometry.
-- Times are ``header.stamp`` in seconds (not the times the bag recorded them).
+- Times are ``header.stamp`` in seconds (not the times the bag recorded them);
+  scans stamped before 0 (possible in ROS 2), with more than
+  ``segloc_cli.scan.MAX_READINGS`` readings or with a beam fan that
+  ``segloc_cli.scan.fan_defect`` refuses are skipped and counted in a warning.
+  Scans whose stamps collide (a driver that stamps every scan 0, or stamps
+  coarser than the scan rate) are given distinct times by the rule of
+  ``segloc_cli.io.times``, in stamp order and among equal stamps in bag order;
+  one warning says how many. ``BagLog.original_times_s`` keeps the stamps. The
+  odometry is looked up at the stamps, the real times of the scans, and filed
+  under the scans' distinct times, so that each scan and its odometry share
+  one time in the log.
 """
 
 from __future__ import annotations
@@ -34,7 +44,8 @@ from rosbags.typesys import Stores, get_typestore
 
 from segloc_cli.errors import InputError
 from segloc_cli.geometry import quaternion_to_heading, wrap_angle
-from segloc_cli.scan import Scan
+from segloc_cli.io.times import MAX_TIME_S, colliding, distinct_times, past_limit_message
+from segloc_cli.scan import MAX_READINGS, Scan, fan_defect
 
 SCAN_TYPE = "sensor_msgs/msg/LaserScan"
 ODOM_TYPE = "nav_msgs/msg/Odometry"
@@ -46,17 +57,21 @@ NS_PER_S = 1_000_000_000
 class BagLog:
     """Everything ``read_rosbag`` takes from a bag.
 
-    ``scans`` in time order, scanner frame; ``odom_times_s`` (K,) seconds, the
-    times of the scans inside the odometry's time span; ``odom_poses`` (K, 3)
-    ``x_m, y_m, theta_rad`` in the odometry frame at those times; ``sensor`` the
+    ``scans`` in time order, scanner frame, with distinct times (see the module
+    docstring); ``original_times_s`` (S,) the scans' ``header.stamp`` in
+    seconds; ``odom_times_s`` (K,) seconds, the (distinct) times of the scans
+    inside the odometry's time span; ``odom_poses`` (K, 3) ``x_m, y_m,
+    theta_rad`` in the odometry frame at those scans' stamps; ``sensor`` the
     settings for the MCAP log's metadata record (str → str); ``warnings``
-    human-readable notes (undecodable messages skipped, scans without odometry).
+    human-readable notes (undecodable messages skipped, scans without odometry,
+    colliding stamps).
     """
 
     scans: list[Scan]
     odom_times_s: np.ndarray
     odom_poses: np.ndarray
     sensor: dict[str, str]
+    original_times_s: np.ndarray
     warnings: list[str] = field(default_factory=list)
 
 
@@ -204,17 +219,37 @@ def read_rosbag(
         why = f"; {skipped} could not be decoded" if skipped else ""
         raise InputError(f"topic {scan_topic} holds no laser scans{why}", path=path)
 
-    raw_scans.sort(key=lambda s: s.stamp_ns)
-    scans, scan_warnings = _scans(raw_scans)
+    raw_scans, dropped = _usable(raw_scans)
+    notes = [f"skipped {len(first)} scan(s) on {scan_topic} {why}" for why, first in dropped]
+    warnings += [f"{path.name}: {note}" for note in notes]
+    if not raw_scans:
+        raise InputError(
+            f"topic {scan_topic} holds no usable laser scans; {'; '.join(notes)}", path=path
+        )
+    raw_scans.sort(key=lambda s: s.stamp_ns)  # stable: equal stamps stay in bag order
+    # Integer true division rounds once: the same float read_log gives back.
+    original_times_s = np.array([raw.stamp_ns / NS_PER_S for raw in raw_scans], dtype=float)
+    times_s = distinct_times(original_times_s)
+    if times_s[-1] > MAX_TIME_S:
+        raise InputError(past_limit_message("scans"), path=path)
+    scans, scan_warnings = _scans(raw_scans, times_s)
     warnings += [f"{path.name}: {text}" for text in scan_warnings]
+    n_colliding = int(np.count_nonzero(colliding(original_times_s)))
+    if n_colliding:
+        warnings.append(
+            f"{path.name}: {n_colliding} of {len(scans)} scans share their time "
+            "(header.stamp in seconds) with another scan; gave them distinct times in stamp "
+            "and bag order (see README: colliding times)"
+        )
     scan_ns = np.array([s.stamp_ns for s in raw_scans], dtype=np.int64)
 
     odom_times_s = np.zeros(0)
     odom_poses = np.zeros((0, 3))
     if odom_topic is not None:
         if raw_odom:
+            # Looked up at the real stamps, filed under the scans' distinct times.
             inside, odom_poses = _interpolate_odometry(raw_odom, scan_ns)
-            odom_times_s = np.array([s.time_s for s, ok in zip(scans, inside, strict=True) if ok])
+            odom_times_s = times_s[inside]
             if not np.all(inside):
                 warnings.append(
                     f"{path.name}: {np.count_nonzero(~inside)} of {len(scans)} scans lie outside "
@@ -228,16 +263,39 @@ def read_rosbag(
         odom_times_s=odom_times_s,
         odom_poses=odom_poses,
         sensor=_sensor(path, raw_scans, scan_topic, odom_topic),
+        original_times_s=original_times_s,
         warnings=warnings,
     )
 
 
-def _scans(raw_scans: list[_RawScan]) -> tuple[list[Scan], list[str]]:
-    """Scans (invalid readings as 0.0) from decoded messages, and notes on oddities."""
+def _usable(raw_scans: list[_RawScan]) -> tuple[list[_RawScan], list[tuple[str, list[str]]]]:
+    """The scans that can be imported, and per reason the defects of those that cannot."""
+    kept = []
+    dropped: dict[str, list[str]] = {}
+    for raw in raw_scans:
+        n = len(raw.ranges)
+        last_rad = raw.angle_min + max(n - 1, 0) * raw.angle_increment
+        if raw.stamp_ns < 0:
+            dropped.setdefault("stamped before 1970 (negative header.stamp)", []).append("")
+        elif n > MAX_READINGS:
+            dropped.setdefault(f"with more than {MAX_READINGS:,} readings", []).append("")
+        elif (defect := fan_defect(n, raw.angle_min, last_rad)) is not None:
+            dropped.setdefault("with an unusable beam fan", []).append(defect)
+        else:
+            kept.append(raw)
+    return kept, [
+        (why + (f" (first: {defects[0]})" if defects[0] else ""), defects)
+        for why, defects in dropped.items()
+    ]
+
+
+def _scans(raw_scans: list[_RawScan], times_s: np.ndarray) -> tuple[list[Scan], list[str]]:
+    """Scans (invalid readings as 0.0) at ``times_s`` (S,) seconds from decoded messages,
+    and notes on oddities."""
     scans = []
     n_count_mismatch = 0
     n_intensity_mismatch = 0
-    for raw in raw_scans:
+    for raw, time_s in zip(raw_scans, times_s, strict=True):
         n = len(raw.ranges)
         if raw.angle_increment != 0.0:
             n_spanned = round((raw.angle_max - raw.angle_min) / raw.angle_increment) + 1
@@ -256,8 +314,7 @@ def _scans(raw_scans: list[_RawScan]) -> tuple[list[Scan], list[str]]:
             intensities = np.zeros(0)
         scans.append(
             Scan(
-                # Integer true division rounds once: the same float read_log gives back.
-                time_s=raw.stamp_ns / NS_PER_S,
+                time_s=float(time_s),
                 angles_rad=raw.angle_min + np.arange(n) * raw.angle_increment,
                 ranges_m=np.where(valid, raw.ranges, 0.0),
                 range_max_m=raw.range_max,
@@ -321,6 +378,13 @@ def _interpolate_odometry(
     return inside, np.column_stack([xy, heading])
 
 
+def _largest_range_max(raw_scans: list[_RawScan]) -> str:
+    """The largest usable (finite, positive) range_max of the scans, as text; "inf" if none."""
+    usable = [float(raw.range_max) for raw in raw_scans]
+    usable = [value for value in usable if math.isfinite(value) and value > 0]
+    return repr(max(usable)) if usable else "inf"
+
+
 def _sensor(
     path: Path, raw_scans: list[_RawScan], scan_topic: str, odom_topic: str | None
 ) -> dict[str, str]:
@@ -330,7 +394,7 @@ def _sensor(
     kind = "ROS 1 bag" if path.suffix == ".bag" else "ROS 2 bag"
     return {
         # The largest, so that no reading valid in its own scan is invalid in the log.
-        "range_max_m": repr(max(raw.range_max for raw in raw_scans)),
+        "range_max_m": _largest_range_max(raw_scans),
         "range_min_m": repr(min(raw.range_min for raw in raw_scans)),
         "readings": ",".join(str(n) for n in sorted({len(raw.ranges) for raw in raw_scans})),
         "fov_deg": f"{math.degrees(fov_rad):.6g}",

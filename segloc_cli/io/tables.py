@@ -5,21 +5,39 @@ TUM trajectory: whitespace-separated ``t x y z qx qy qz qw`` lines, ``#`` commen
 the heading is the yaw of the quaternion. Estimates CSV: ``ESTIMATE_COLUMNS``.
 Poses are (N, 3) arrays ``x_m y_m theta_rad`` in the world frame; headings are
 degrees only in the files.
+
+Whole tables are written atomically (a temporary file renamed into place); the
+estimates of a running ``localize`` are streamed row by row instead
+(``EstimatesWriter``, ``TumWriter``), so a killed run keeps every finished row.
+Records of two files are paired by time with ``pair_by_time``, which refuses a
+pairing that is ambiguous rather than choosing one of the candidates silently.
 """
 
 from __future__ import annotations
 
 import csv
+import io
 import math
+import os
+import time
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
+from typing import IO
 
 import numpy as np
 import pandas as pd
 
 from segloc_cli.errors import InputError
 from segloc_cli.geometry import heading_to_quaternion, quaternion_to_heading
-from segloc_cli.io.files import reading
+from segloc_cli.io.files import atomic_write, reading, writing_error
+from segloc_cli.io.maps import MAX_COORDINATE_M
+
+MAX_ABS_ID = 2**63 - 1
+"""Largest |pose_id| (and integer estimates column): ids are stored as int64."""
+
+STREAM_FSYNC_INTERVAL_S = 1.0
+"""Streamed tables are flushed after every row and synced to disk at most this often (s)."""
 
 SURVEY_COLUMNS = ["pose_id", "time_s", "x_m", "y_m", "theta_deg"]
 
@@ -107,6 +125,101 @@ def nearest_by_time(query_times_s, ref_times_s, tolerance_s: float) -> np.ndarra
     return result
 
 
+def _numbered(label: str, indices: np.ndarray, shown: int = 3) -> str:
+    """'rows 4 and 5', 'rows 4, 5 and 9', 'rows 4, 5, 9 and 12 more' from 0-based indices."""
+    numbers = [str(int(i) + 1) for i in indices]
+    if len(numbers) > shown:
+        return f"{label}s {', '.join(numbers[:shown])} and {len(numbers) - shown} more"
+    return f"{label}s {', '.join(numbers[:-1])} and {numbers[-1]}"
+
+
+def _located_error(path: object, where: str, message: str) -> InputError:
+    """An InputError reading ``path, where: message`` (``where`` names several rows)."""
+    error = InputError(f"{path}, {where}: {message}")
+    error.path = path
+    return error
+
+
+def pair_by_time(
+    query_times_s,
+    ref_times_s,
+    tolerance_s: float,
+    *,
+    query_path: object,
+    ref_path: object,
+    query_label: str = "record",
+    ref_label: str = "row",
+    distinct_queries: bool = True,
+) -> np.ndarray:
+    """``nearest_by_time``, refusing every pairing that is not unambiguous.
+
+    ``query_times_s`` (Q,) and ``ref_times_s`` (R,) are seconds; each query is
+    paired with the reference nearest in time within ``tolerance_s``
+    (inclusive). Returns (Q,) int64 indices into ``ref_times_s``, −1 where no
+    reference is close enough or the query is NaN.
+
+    The rule: a pairing is refused (``InputError``, exit status 2) when
+
+    - the reference time nearest a query is held by two or more reference rows
+      (equal times, e.g. all 0 or absolute times printed with too few digits):
+      the query could be paired with either, and the message names
+      ``ref_path`` and those rows; or
+    - ``distinct_queries`` is true and two or more queries that found a
+      reference have the same time: they would all take the same reference
+      row, and the message names ``query_path`` and those queries.
+
+    Nothing else is refused. Other references that lie within the tolerance
+    but farther than the nearest one do not matter: scans 25 ms apart at
+    40 Hz pair one-to-one with a table written at the same times, whatever
+    the tolerance. Two distinct reference times exactly as far from a query
+    on either side are no collision; the earlier one is taken, as in
+    ``nearest_by_time``. Distinct query times may share a reference row (a
+    sparse survey under a dense log). Rows are numbered from 1, in the
+    order given; labels are singular nouns ("scan", "row") made plural with an "s".
+    """
+    query = np.asarray(query_times_s, dtype=float).reshape(-1)
+    ref = np.asarray(ref_times_s, dtype=float).reshape(-1)
+    match = nearest_by_time(query, ref, tolerance_s)
+    hit = np.flatnonzero(match >= 0)
+    if hit.size == 0:
+        return match
+
+    matched_ref_s = ref[match[hit]]
+    sorted_ref = np.sort(ref[np.isfinite(ref)])
+    holders = np.searchsorted(sorted_ref, matched_ref_s, side="right") - np.searchsorted(
+        sorted_ref, matched_ref_s, side="left"
+    )
+    shared = np.flatnonzero(holders > 1)
+    if shared.size:
+        q = int(hit[shared[0]])
+        t_ref = float(ref[match[q]])
+        rows = np.flatnonzero(ref == t_ref)
+        verb = "both have" if rows.size == 2 else "all have"
+        hint = "" if query[q] == t_ref else " (or lower --tolerance-ms)"
+        raise _located_error(
+            ref_path,
+            _numbered(ref_label, rows),
+            f"{verb} time {t_ref:.3f} s, so a {query_label} at {query[q]:.3f} s matches more "
+            f"than one {ref_label}; give every {ref_label} a distinct time{hint}",
+        )
+
+    if distinct_queries and hit.size > 1:
+        matched_query_s = query[hit]
+        _, inverse, counts = np.unique(matched_query_s, return_inverse=True, return_counts=True)
+        repeated = counts[inverse.reshape(-1)] > 1
+        if repeated.any():
+            q = int(hit[np.argmax(repeated)])
+            same = hit[matched_query_s == query[q]]
+            both = "both" if same.size == 2 else "all"
+            raise _located_error(
+                query_path,
+                _numbered(query_label, same),
+                f"{both} have time {query[q]:.3f} s, so {both} would be paired with {ref_label} "
+                f"{int(match[q]) + 1} of {ref_path}; give every {query_label} a distinct time",
+            )
+    return match
+
+
 # --- shared reading helpers -------------------------------------------------------
 
 
@@ -137,6 +250,13 @@ def _read_csv_rows(path: Path, text: str) -> tuple[list[str], list[tuple[int, li
     return header, data
 
 
+def _shown(text: str, limit: int = 40) -> str:
+    """A field as quoted in an error message: 'empty', or its repr cut to ``limit`` characters."""
+    if text == "":
+        return "empty"
+    return repr(text) if len(text) <= limit else repr(text[:limit]) + "…"
+
+
 def _parse_float(path, row: int, column: str, text: str, allow_empty: bool = False) -> float:
     if text == "" and allow_empty:
         return math.nan
@@ -145,18 +265,44 @@ def _parse_float(path, row: int, column: str, text: str, allow_empty: bool = Fal
     except ValueError:
         value = None
     if value is None or not math.isfinite(value):
-        shown = "empty" if text == "" else f"{text!r}"
         raise InputError(
-            f"column {column} is {shown}; expected a finite number", path=path, row=row
+            f"column {column} is {_shown(text)}; expected a finite number", path=path, row=row
         )
     return value
 
 
 def _parse_int(path, row: int, column: str, text: str) -> int:
-    value = _parse_float(path, row, column, text)
-    if not value.is_integer():
-        raise InputError(f"column {column} is {text!r}; expected an integer", path=path, row=row)
-    return int(value)
+    try:
+        # int() first: ids beyond 2**53 would lose digits on the way through a float.
+        value = int(text)
+    except ValueError:
+        number = _parse_float(path, row, column, text)
+        if not number.is_integer():
+            raise InputError(
+                f"column {column} is {_shown(text)}; expected an integer", path=path, row=row
+            ) from None
+        value = int(number)
+    if abs(value) > MAX_ABS_ID:
+        raise InputError(
+            f"column {column} is {_shown(text)}; expected an integer within ±{MAX_ABS_ID}",
+            path=path,
+            row=row,
+        )
+    return value
+
+
+def _check_coordinates(path, poses: np.ndarray) -> None:
+    """Refuse positions beyond ``MAX_COORDINATE_M`` (rows numbered from 1)."""
+    beyond = np.flatnonzero(np.any(np.abs(poses[:, :2]) > MAX_COORDINATE_M, axis=1))
+    if beyond.size:
+        row = int(beyond[0])
+        x, y = poses[row, 0], poses[row, 1]
+        raise InputError(
+            f"position ({x:g}, {y:g}) m is beyond ±{MAX_COORDINATE_M:g} m; "
+            "expected coordinates in metres",
+            path=path,
+            row=row + 1,
+        )
 
 
 def _check_unique_ids(path, pose_id: np.ndarray) -> None:
@@ -179,24 +325,39 @@ def read_pose_table(path: str | Path, require_time: bool = True) -> PoseTable:
 
     Survey CSV columns are found by name: ``x_m, y_m, theta_deg`` required,
     ``time_s`` required when ``require_time``, ``pose_id`` optional (1..N); other
-    columns are ignored. A file whose first non-comment line is not a CSV header
-    naming ``x_m`` is read as TUM (pose ids 1..N). Raises ``InputError`` naming
-    the file and the 1-based data row for missing columns, bad numbers,
-    duplicate ids, or an empty table.
+    columns are ignored. The first line that is neither blank nor a ``#``
+    comment decides the format: one that looks like a CSV header (it holds a
+    comma, or its first whitespace-separated token is not a number) makes the
+    file a survey CSV, and anything else a TUM trajectory (pose ids 1..N).
+    Raises ``InputError`` naming the file and the 1-based data row for missing
+    columns, bad numbers, duplicate ids, positions beyond
+    ``MAX_COORDINATE_M``, or an empty table. Every pose returned is finite.
     """
     path = Path(path)
     text = _read_text(path)
-    first = next(
-        (ln for ln in text.splitlines() if ln.strip() and not ln.lstrip().startswith("#")), ""
+    lines = text.splitlines()
+    start = next(
+        (i for i, ln in enumerate(lines) if ln.strip() and not ln.lstrip().startswith("#")), None
     )
-    if "x_m" in [name.strip() for name in first.split(",")]:
-        table = _read_survey_csv(path, text, require_time)
+    if start is not None and _looks_like_csv_header(lines[start]):
+        table = _read_survey_csv(path, "\n".join(lines[start:]), require_time)
     else:
         table = _read_tum(path, text)
     if len(table) == 0:
         raise InputError("table has no data rows", path=path)
+    _check_coordinates(path, table.poses)
     _check_unique_ids(path, table.pose_id)
     return table
+
+
+def _looks_like_csv_header(line: str) -> bool:
+    if "," in line:
+        return True
+    try:
+        float(line.split()[0])
+    except ValueError:
+        return True
+    return False
 
 
 def _read_survey_csv(path: Path, text: str, require_time: bool) -> PoseTable:
@@ -204,9 +365,10 @@ def _read_survey_csv(path: Path, text: str, require_time: bool) -> PoseTable:
     required = ["x_m", "y_m", "theta_deg"] + (["time_s"] if require_time else [])
     for column in required:
         if column not in header:
+            tum = "; a TUM trajectory has 8 numbers a line instead" if len(header) == 1 else ""
             raise InputError(
                 f"missing column {column!r}; a survey CSV needs the header "
-                "pose_id,time_s,x_m,y_m,theta_deg (pose_id optional)",
+                f"pose_id,time_s,x_m,y_m,theta_deg (pose_id optional){tum}",
                 path=path,
             )
     col = {name: header.index(name) for name in SURVEY_COLUMNS if name in header}
@@ -250,7 +412,9 @@ def _read_tum(path: Path, text: str) -> PoseTable:
     if not rows:
         raise InputError("table has no data rows", path=path)
     matrix = np.array(rows, dtype=float)
-    heading = quaternion_to_heading(matrix[:, 4], matrix[:, 5], matrix[:, 6], matrix[:, 7])
+    # Scaled to a largest component of 1 so that neither 1e-300 nor 1e300 over- or underflows.
+    quats = matrix[:, 4:] / np.max(np.abs(matrix[:, 4:]), axis=1, keepdims=True)
+    heading = quaternion_to_heading(quats[:, 0], quats[:, 1], quats[:, 2], quats[:, 3])
     return PoseTable(
         pose_id=np.arange(1, len(matrix) + 1, dtype=np.int64),
         time_s=matrix[:, 0].copy(),
@@ -263,11 +427,18 @@ def _fmt(value: float) -> str:
     return repr(float(value))
 
 
-def write_pose_table(path: str | Path, table: PoseTable) -> None:
-    """Write ``table`` as a survey CSV (theta in degrees, floats round-trip exactly).
+def write_pose_table(
+    path: str | Path, table: PoseTable, extra_columns: dict[str, np.ndarray] | None = None
+) -> None:
+    """Write ``table`` as a survey CSV (theta in degrees, floats round-trip exactly), atomically.
 
     The ``time_s`` column is left out when every time is NaN; a table with only
-    some NaN times raises ``ValueError``.
+    some NaN times raises ``ValueError``. ``extra_columns`` (name → (N,) values)
+    are written after the standard columns, in the order given: floats as
+    exact text (NaN as an empty field), other values as ``str``; the reader
+    ignores them. A name that clashes with a standard column or a length other
+    than N raises ``ValueError``. An OS error while writing raises
+    ``OutputError`` naming ``path``, and leaves an existing file as it was.
     """
     time_s = np.asarray(table.time_s, dtype=float)
     has_time = not np.all(np.isnan(time_s))
@@ -275,12 +446,30 @@ def write_pose_table(path: str | Path, table: PoseTable) -> None:
         raise ValueError("time_s must be finite in every row, or NaN in every row")
     poses = np.asarray(table.poses, dtype=float).reshape(-1, 3)
     columns = [c for c in SURVEY_COLUMNS if has_time or c != "time_s"]
-    with open(path, "w", newline="", encoding="utf-8") as stream:
+    extra = {name: np.asarray(values).reshape(-1) for name, values in (extra_columns or {}).items()}
+    for name, values in extra.items():
+        if name in SURVEY_COLUMNS:
+            raise ValueError(f"extra column {name!r} clashes with a survey column")
+        if len(values) != len(table.pose_id):
+            raise ValueError(
+                f"extra column {name!r} has {len(values)} values for {len(table.pose_id)} poses"
+            )
+    with atomic_write(path) as stream:
         writer = csv.writer(stream, lineterminator="\n")
-        writer.writerow(columns)
-        for pid, t, (x, y, theta) in zip(table.pose_id, time_s, poses, strict=True):
+        writer.writerow([*columns, *extra])
+        for i, (pid, t, (x, y, theta)) in enumerate(zip(table.pose_id, time_s, poses, strict=True)):
             row = [str(int(pid))] + ([_fmt(t)] if has_time else [])
-            writer.writerow([*row, _fmt(x), _fmt(y), _fmt(math.degrees(theta))])
+            row += [_fmt(x), _fmt(y), _fmt(math.degrees(theta))]
+            writer.writerow([*row, *(_cell(values[i]) for values in extra.values())])
+
+
+def _cell(value: object) -> str:
+    """A CSV field: floats as exact text (NaN empty), integers and text as they are."""
+    if isinstance(value, float | np.floating):
+        return "" if math.isnan(value) else _fmt(value)
+    if isinstance(value, np.integer):
+        return str(int(value))
+    return "" if value is None else str(value)
 
 
 # --- estimates -------------------------------------------------------------------------
@@ -292,32 +481,151 @@ def _check_estimate_frame(frame: pd.DataFrame) -> None:
         raise ValueError(f"estimates frame lacks columns {missing}")
 
 
+def estimate_cells(row: Mapping[str, object]) -> list[str]:
+    """One estimates row (column name → value) as the CSV fields of ``ESTIMATE_COLUMNS``.
+
+    Integer columns as integers, ``status`` as text, other columns as the
+    shortest text that reads back to the same float64; a missing value (NaN,
+    None) is an empty field. Keys beyond ``ESTIMATE_COLUMNS`` are ignored.
+    Raises ``ValueError`` when a column is absent, or an integer column or
+    ``time_s`` has no value.
+    """
+    missing = [c for c in ESTIMATE_COLUMNS if c not in row]
+    if missing:
+        raise ValueError(f"estimates row lacks columns {missing}")
+    cells = []
+    for c in ESTIMATE_COLUMNS:
+        value = row[c]
+        absent = value is None or bool(pd.isna(value))
+        if absent and (c in ESTIMATE_INT_COLUMNS or c in ESTIMATE_REQUIRED_FLOAT_COLUMNS):
+            raise ValueError(f"estimates column {c} must have a value in every row")
+        if absent:
+            cells.append("")
+        elif c in ESTIMATE_INT_COLUMNS:
+            cells.append(str(int(value)))
+        elif c in ESTIMATE_TEXT_COLUMNS:
+            cells.append(str(value))
+        else:
+            cells.append(_fmt(value))
+    return cells
+
+
 def write_estimates(path: str | Path, frame: pd.DataFrame) -> None:
-    """Write the estimates CSV: columns ``ESTIMATE_COLUMNS`` in order (others are
-    not written), floats that round-trip exactly, NaN as an empty field.
+    """Write the estimates CSV atomically: columns ``ESTIMATE_COLUMNS`` in order
+    (others are not written), each row as ``estimate_cells`` formats it.
 
     Raises ``ValueError`` when a column is missing or an integer column
-    (``pose_id``, ``n_local_segments``) or ``time_s`` holds NaN.
+    (``pose_id``, ``n_local_segments``) or ``time_s`` holds NaN, before
+    anything is written; ``OutputError`` naming ``path`` on an OS error.
     """
     _check_estimate_frame(frame)
     for column in [*ESTIMATE_INT_COLUMNS, *ESTIMATE_REQUIRED_FLOAT_COLUMNS]:
         if frame[column].isna().any():
             raise ValueError(f"estimates column {column} must have a value in every row")
     columns = {c: frame[c].tolist() for c in ESTIMATE_COLUMNS}
-    with open(path, "w", newline="", encoding="utf-8") as stream:
+    with atomic_write(path) as stream:
         writer = csv.writer(stream, lineterminator="\n")
         writer.writerow(ESTIMATE_COLUMNS)
         for i in range(len(frame)):
-            row = []
-            for c in ESTIMATE_COLUMNS:
-                value = columns[c][i]
-                if c in ESTIMATE_INT_COLUMNS:
-                    row.append(str(int(value)))
-                elif c in ESTIMATE_TEXT_COLUMNS:
-                    row.append("" if pd.isna(value) else str(value))
-                else:
-                    row.append("" if pd.isna(value) else _fmt(value))
-            writer.writerow(row)
+            writer.writerow(estimate_cells({c: columns[c][i] for c in ESTIMATE_COLUMNS}))
+
+
+class _RowStream:
+    """A text file written in place, one line at a time, each flushed as written.
+
+    Every line reaches the operating system before ``write_line`` returns, so a
+    killed process leaves every line it finished; ``os.fsync`` runs at most
+    every ``STREAM_FSYNC_INTERVAL_S`` and on ``close``, bounding what a power
+    cut can take. OS errors come out as ``OutputError`` naming the file.
+    """
+
+    def __init__(self, path: str | Path, header: str):
+        self.path = Path(path)
+        self.rows = 0
+        try:
+            self._stream: IO[str] | None = open(self.path, "w", encoding="utf-8", newline="")
+        except OSError as exc:
+            raise writing_error(self.path, exc) from None
+        self._synced_at = time.monotonic()
+        self._write(header)
+        self._sync()
+
+    def _write(self, line: str) -> None:
+        if self._stream is None:
+            raise ValueError(f"{self.path} is closed")
+        try:
+            self._stream.write(line + "\n")
+            self._stream.flush()
+        except OSError as exc:
+            raise writing_error(self.path, exc) from None
+
+    def _sync(self) -> None:
+        assert self._stream is not None
+        try:
+            os.fsync(self._stream.fileno())
+        except OSError as exc:
+            raise writing_error(self.path, exc) from None
+        self._synced_at = time.monotonic()
+
+    def write_line(self, line: str) -> None:
+        self._write(line)
+        self.rows += 1
+        if time.monotonic() - self._synced_at >= STREAM_FSYNC_INTERVAL_S:
+            self._sync()
+
+    def close(self) -> None:
+        """Sync and close the file; closing again does nothing."""
+        if self._stream is None:
+            return
+        stream, self._stream = self._stream, None
+        try:
+            stream.flush()
+            os.fsync(stream.fileno())
+        except OSError as exc:
+            raise writing_error(self.path, exc) from None
+        finally:
+            stream.close()
+
+
+class EstimatesWriter:
+    """The estimates CSV written row by row as a run makes them.
+
+    Opens ``path`` in place (truncating it; checking that it may be
+    overwritten is the caller's job) and writes the ``ESTIMATE_COLUMNS`` header
+    at once. ``write_row(row)`` writes one row exactly as ``write_estimates``
+    would (``estimate_cells``) and flushes it, so a killed run leaves a file
+    of whole rows that ``read_estimates`` reads; the file is synced to disk at
+    most every ``STREAM_FSYNC_INTERVAL_S`` and on ``close``. A context manager:
+    leaving the block closes the file, whatever happened. ``rows`` counts the
+    rows written.
+    """
+
+    def __init__(self, path: str | Path):
+        self._out = _RowStream(path, ",".join(ESTIMATE_COLUMNS))
+
+    @property
+    def path(self) -> Path:
+        return self._out.path
+
+    @property
+    def rows(self) -> int:
+        return self._out.rows
+
+    def write_row(self, row: Mapping[str, object]) -> None:
+        """Write one estimates row (column → value); ``ValueError`` as ``estimate_cells``."""
+        cells = estimate_cells(row)
+        buffer = io.StringIO()
+        csv.writer(buffer, lineterminator="").writerow(cells)
+        self._out.write_line(buffer.getvalue())
+
+    def close(self) -> None:
+        self._out.close()
+
+    def __enter__(self) -> EstimatesWriter:
+        return self
+
+    def __exit__(self, *exc_info) -> None:
+        self.close()
 
 
 def read_estimates(path: str | Path) -> pd.DataFrame:
@@ -367,16 +675,71 @@ def read_estimates(path: str | Path) -> pd.DataFrame:
     return frame
 
 
+TUM_HEADER = "# segloc estimates: t x y z qx qy qz qw"
+
+
+def _tum_lines(numbers: np.ndarray) -> list[str]:
+    """Rows (K, 4) ``time_s, x_m, y_m, theta_deg`` → TUM lines ``t x y 0 qx qy qz qw``."""
+    quats = heading_to_quaternion(np.deg2rad(numbers[:, 3]))
+    return [
+        " ".join(_fmt(v) for v in (t, x, y, 0.0, *q))
+        for (t, x, y, _), q in zip(numbers, quats, strict=True)
+    ]
+
+
+def _tum_numbers(rows: Mapping[str, object] | pd.DataFrame) -> np.ndarray:
+    """``time_s, x_m, y_m, theta_deg`` of the rows whose four values are all finite, (K, 4)."""
+    columns = ["time_s", "x_m", "y_m", "theta_deg"]
+    if isinstance(rows, pd.DataFrame):
+        numbers = rows[columns].to_numpy(dtype=float)
+    else:
+        numbers = np.array(
+            [[np.nan if rows[c] is None else float(rows[c]) for c in columns]], dtype=float
+        )
+    return numbers[np.all(np.isfinite(numbers), axis=1)]
+
+
 def write_tum(path: str | Path, frame: pd.DataFrame) -> None:
-    """Write the estimates as a TUM trajectory ``t x y 0 qx qy qz qw``.
+    """Write the estimates as a TUM trajectory ``t x y 0 qx qy qz qw``, atomically.
 
     Only rows whose ``time_s, x_m, y_m, theta_deg`` are all finite are written.
     """
     _check_estimate_frame(frame)
-    numbers = frame[["time_s", "x_m", "y_m", "theta_deg"]].to_numpy(dtype=float)
-    numbers = numbers[np.all(np.isfinite(numbers), axis=1)]
-    quats = heading_to_quaternion(np.deg2rad(numbers[:, 3]))
-    lines = ["# segloc estimates: t x y z qx qy qz qw"]
-    for (t, x, y, _), q in zip(numbers, quats, strict=True):
-        lines.append(" ".join(_fmt(v) for v in (t, x, y, 0.0, *q)))
-    Path(path).write_text("\n".join(lines) + "\n", encoding="utf-8")
+    lines = [TUM_HEADER, *_tum_lines(_tum_numbers(frame))]
+    with atomic_write(path) as stream:
+        stream.write("\n".join(lines) + "\n")
+
+
+class TumWriter:
+    """A TUM trajectory written row by row, as ``EstimatesWriter`` writes the CSV.
+
+    ``write_row(row)`` takes an estimates row and writes the line
+    ``write_tum`` would write for it (none when its time or pose is not
+    finite); every line is flushed as written and synced as in
+    ``EstimatesWriter``. A context manager; ``rows`` counts the lines written.
+    """
+
+    def __init__(self, path: str | Path):
+        self._out = _RowStream(path, TUM_HEADER)
+
+    @property
+    def path(self) -> Path:
+        return self._out.path
+
+    @property
+    def rows(self) -> int:
+        return self._out.rows
+
+    def write_row(self, row: Mapping[str, object]) -> None:
+        """Write the pose of one estimates row (needs ``time_s, x_m, y_m, theta_deg``)."""
+        for line in _tum_lines(_tum_numbers(row)):
+            self._out.write_line(line)
+
+    def close(self) -> None:
+        self._out.close()
+
+    def __enter__(self) -> TumWriter:
+        return self
+
+    def __exit__(self, *exc_info) -> None:
+        self.close()
