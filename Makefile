@@ -6,7 +6,7 @@ STAMP := $(VENV)/.installed
 DEMO_OUT := out/demo
 HALL := datasets/hall
 
-.PHONY: setup demo test bench bench-real bench-peers figures lint hall clean
+.PHONY: setup demo test fuzz bench bench-real bench-peers figures lint hall clean
 
 setup: $(STAMP)
 
@@ -27,6 +27,13 @@ demo: $(STAMP)
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q
+
+# Every reader's fuzz suite at FUZZ_EXAMPLES cases per test (make test runs a few dozen);
+# hypothesis prints how many cases each test ran and how long they took.
+FUZZ_EXAMPLES ?= 10000
+fuzz: $(STAMP)
+	SEGLOC_FUZZ_EXAMPLES=$(FUZZ_EXAMPLES) $(BIN)/python -m pytest -q -p no:cacheprovider \
+		--hypothesis-show-statistics tests/test_fuzz_*.py
 
 bench: $(STAMP)
 	$(BIN)/python -m pytest benchmarks -q --benchmark-only -s --benchmark-columns=median,min,max,rounds --benchmark-sort=name --benchmark-warmup=on

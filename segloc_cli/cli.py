@@ -746,47 +746,49 @@ def localize(
 
 
 def _localize_rows(rows, n_scans: int, out_path: Path, tum_path: Path | None, skipped: int):
-    """Run the localization, writing each row to ``out_path`` as it comes; print the summary.
+    """Run the localization, writing each row to ``out_path`` (and ``tum_path``) as it comes;
+    print the summary. Ctrl-C and SIGTERM stop it between scans with every finished row kept
+    (exit 130)."""
+    from collections import Counter
+    from contextlib import ExitStack
 
-    Ctrl-C and SIGTERM stop it between scans with every finished row kept (exit 130).
-    """
-    import pandas as pd
-
-    from segloc_cli.io.tables import EstimatesWriter, write_tum
+    from segloc_cli.io.tables import EstimatesWriter, TumWriter
     from segloc_cli.stopping import stop_requests
 
     t0 = time.perf_counter()
-    done: list[dict] = []
+    statuses: list[str] = []
+    runtimes_ms: list[float] = []
     stream = sys.stderr if n_scans >= PROGRESS_MIN_SCANS else io.StringIO()
-    with (
-        stop_requests() as stops,
-        EstimatesWriter(out_path) as writer,
-        click.progressbar(rows, length=n_scans, label="localizing", file=stream) as bar,
-    ):
+    with ExitStack() as stack:
+        stops = stack.enter_context(stop_requests())
+        writers = [stack.enter_context(EstimatesWriter(out_path))]
+        if tum_path is not None:
+            writers.append(stack.enter_context(TumWriter(tum_path)))
+        bar = stack.enter_context(
+            click.progressbar(rows, length=n_scans, label="localizing", file=stream)
+        )
         try:
             for row in bar:
-                writer.write_row(row)
-                done.append(row)
+                for writer in writers:
+                    writer.write_row(row)
+                statuses.append(row["status"])
+                runtimes_ms.append(row["runtime_ms"])
                 if stops:
                     break
         except KeyboardInterrupt:  # Ctrl-C that arrived outside the stop handler
             stops.append("Ctrl-C")
     elapsed = time.perf_counter() - t0
-    frame = pd.DataFrame(done, columns=list(done[0]) if done else None)
-    if tum_path is not None and done:
-        write_tum(tum_path, frame)
+    done = len(statuses)
     if stops:
         kept = f"their estimates are in {out_path}" if done else f"{out_path} holds the header only"
         click.echo(
-            f"segloc: interrupted ({stops[0]}) after {len(done)} of {n_scans} scans; {kept}",
-            err=True,
+            f"segloc: interrupted ({stops[0]}) after {done} of {n_scans} scans; {kept}", err=True
         )
         sys.exit(EXIT_INTERRUPTED)
-    counts = frame["status"].value_counts()
-    statuses = ", ".join(f"{n} {status}" for status, n in counts.items())
+    counts = ", ".join(f"{n} {status}" for status, n in Counter(statuses).most_common())
     _info(
-        f"{out_path}: {len(frame)} scans localized ({statuses}) in {elapsed:.2f} s, "
-        f"median {frame['runtime_ms'].median():.1f} ms per scan"
+        f"{out_path}: {done} scans localized ({counts}) in {elapsed:.2f} s, "
+        f"median {np.median(runtimes_ms):.1f} ms per scan"
         + (f"; {skipped} scans skipped (no initial guess or odometry)" if skipped else "")
     )
 

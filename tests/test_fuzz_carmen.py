@@ -10,41 +10,13 @@ from __future__ import annotations
 import gzip
 
 import numpy as np
-from fuzzing import fuzz_settings, outcome
+from fuzzing import ODD_TOKENS, fuzz_settings, outcome
 from hypothesis import given
 from hypothesis import strategies as st
 
 from segloc_cli.errors import InputError
 from segloc_cli.io.carmen import CarmenLog, read_carmen
 
-# Tokens that have broken or might break a parser of numbers and counts.
-ODD_TOKENS = [
-    "nan",
-    "NaN",
-    "inf",
-    "-inf",
-    "-0",
-    "-0.0",
-    "1e400",
-    "-1e400",
-    "1e-400",
-    "999999999999",
-    "9" * 400,
-    "0x10",
-    "1_000",
-    "+.5",
-    "",
-    "\x00",
-    "\xff\xfe",
-    "é",
-    "1e10",
-    "4294967296",
-    "-1",
-    "0",
-    "1.7976931348623157e308",
-    "FLASER",
-    "#",
-]
 RECORD_KINDS = ["FLASER", "RLASER", "ROBOTLASER1", "ODOM", "PARAM", "SYNC", "# comment"]
 
 

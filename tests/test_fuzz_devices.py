@@ -14,7 +14,7 @@ import math
 import re
 
 import numpy as np
-from fuzzing import fuzz_settings
+from fuzzing import byte_mutations, fuzz_settings, mutate
 from hypothesis import given
 from hypothesis import strategies as st
 
@@ -61,27 +61,6 @@ PORT = "/dev/ttyFUZZ"
 URG = parse_parameters(URG_04LX_PARAMETERS, PORT)
 
 _CHUNKS = st.lists(st.integers(1, 400), max_size=12)
-_MUTATION = st.one_of(
-    st.tuples(st.just("insert"), st.integers(0, 10**6), st.binary(min_size=1, max_size=40)),
-    st.tuples(st.just("delete"), st.integers(0, 10**6), st.integers(1, 40)),
-    st.tuples(st.just("flip"), st.integers(0, 10**6), st.integers(0, 7)),
-    st.tuples(st.just("truncate"), st.integers(0, 10**6), st.just(0)),
-)
-
-
-def _mutate(data: bytes, mutations: list[tuple]) -> bytes:
-    buf = bytearray(data)
-    for kind, where, what in mutations:
-        at = where % (len(buf) + 1)
-        if kind == "insert":
-            buf[at:at] = what
-        elif kind == "delete":
-            del buf[at : at + what]
-        elif kind == "flip" and at < len(buf):
-            buf[at] ^= 1 << what
-        elif kind == "truncate":
-            del buf[at:]
-    return bytes(buf)
 
 
 def _pieces(data: bytes, chunks: list[int]) -> list[bytes]:
@@ -166,14 +145,14 @@ def test_scip2_intact_scan_stream_decodes_every_scan(request, seeds, chunks):
 @given(
     _REQUESTS,
     st.lists(st.integers(0, 2**32), min_size=1, max_size=4),
-    st.lists(_MUTATION, min_size=1, max_size=6),
+    st.lists(byte_mutations(), min_size=1, max_size=6),
     _CHUNKS,
 )
 @fuzz_settings
 def test_scip2_mangled_scan_stream_gives_bounded_scans_or_counted_skips(
     request, seeds, mutations, chunks
 ):
-    data = _mutate(_md_stream(request, seeds), mutations)
+    data = mutate(_md_stream(request, seeds), mutations)
     scans, skipped = _run_scip2(data, chunks, request)
     assert scans + skipped <= data.count(b"\n")
 
@@ -358,7 +337,7 @@ def test_explorer_random_bytes_give_only_bounded_scans_or_counted_skips(data, ch
 
 @given(
     st.lists(_SCANS, min_size=1, max_size=5),
-    st.lists(_MUTATION, max_size=5),
+    st.lists(byte_mutations(), max_size=5),
     _CHUNKS,
     _DECODERS,
 )
@@ -366,7 +345,7 @@ def test_explorer_random_bytes_give_only_bounded_scans_or_counted_skips(data, ch
 def test_explorer_mangled_scans_give_bounded_scans_or_counted_skips(
     messages, mutations, chunks, decoder
 ):
-    data = _mutate(b"".join(encode_message(m, i) for i, m in enumerate(messages)), mutations)
+    data = mutate(b"".join(encode_message(m, i) for i, m in enumerate(messages)), mutations)
     _run_explorer(data, chunks, decoder)
 
 

@@ -12,7 +12,7 @@ import math
 from pathlib import Path
 
 import numpy as np
-from fuzzing import fuzz_settings, outcome
+from fuzzing import byte_mutations, fuzz_settings, mutate, outcome
 from hypothesis import given
 from hypothesis import strategies as st
 from mcap.writer import CompressionType, Writer
@@ -278,31 +278,7 @@ def _valid_logs(folder: Path) -> list[bytes]:
 # Where in the file, as a fraction of its length; mostly past the header and schemas, where
 # the channels, metadata and messages are.
 _where = st.one_of(st.floats(0.0, 1.0), st.floats(0.6, 1.0), st.floats(0.6, 1.0))
-_mutation = st.one_of(
-    st.tuples(st.just("flip"), _where, st.integers(1, 255)),
-    st.tuples(st.just("truncate"), _where, st.just(0)),
-    st.tuples(st.just("insert"), _where, st.binary(min_size=1, max_size=9)),
-    st.tuples(st.just("delete"), _where, st.integers(1, 9)),
-    st.tuples(st.just("length"), _where, st.sampled_from([2**32 - 1, 2**63, 10**7])),
-)
-
-
-def _mangle(data: bytes, mutations: list[tuple]) -> bytes:
-    buffer = bytearray(data)
-    for kind, where, arg in mutations:
-        at = min(int(where * len(buffer)), len(buffer))
-        if kind == "flip" and at < len(buffer):
-            buffer[at] ^= arg
-        elif kind == "truncate":
-            del buffer[at:]
-        elif kind == "insert":
-            buffer[at:at] = arg
-        elif kind == "delete":
-            del buffer[at : at + arg]
-        elif kind == "length":
-            # A plausible-looking but absurd length where a length field might be.
-            buffer[at : at + 8] = arg.to_bytes(8, "little")
-    return bytes(buffer)
+_mutation = byte_mutations(_where, length_fields=True)
 
 
 @given(which=st.integers(0, 2), mutations=st.lists(_mutation, min_size=1, max_size=4))
@@ -310,5 +286,5 @@ def _mangle(data: bytes, mutations: list[tuple]) -> bytes:
 def test_mangled_logs(tmp_path, which, mutations):
     base = _valid_logs(tmp_path)[which]
     path = tmp_path / "mangled.mcap"
-    path.write_bytes(_mangle(base, mutations))
+    path.write_bytes(mutate(base, mutations))
     check(path)

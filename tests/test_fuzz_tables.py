@@ -12,7 +12,7 @@ import math
 
 import numpy as np
 import pandas as pd
-from fuzzing import fuzz_settings, outcome
+from fuzzing import ODD_TOKENS, fuzz_settings, outcome
 from hypothesis import given
 from hypothesis import strategies as st
 
@@ -26,39 +26,6 @@ from segloc_cli.io.tables import (
     read_pose_table,
 )
 from segloc_cli.relations import Relations, read_relations
-
-# Numbers and non-numbers that have broken or might break a parser.
-ODD_TOKENS = [
-    "nan",
-    "NaN",
-    "inf",
-    "-inf",
-    "-0",
-    "1e400",
-    "-1e400",
-    "1e-400",
-    "1" + "0" * 400,  # 10**400
-    str(2**63),
-    str(-(2**63) - 1),
-    str(2**64 + 1),
-    "9" * 5000,  # beyond the digits int() accepts
-    "1e308",
-    "1.7976931348623157e308",
-    "4.9e-324",
-    "0x10",
-    "1_000",
-    "+.5",
-    "",
-    " ",
-    "\x00",
-    "\ufeff",
-    "é",
-    '"',
-    '"1,2"',
-    "#",
-    "ok",
-]
-
 
 GOOD_NUMBERS = st.one_of(
     st.floats(min_value=-1e3, max_value=1e3, allow_nan=False).map(repr),

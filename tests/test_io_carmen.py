@@ -692,7 +692,7 @@ def timed(times: list) -> list[str]:
 
 
 COLLIDING = (
-    "laser records share their time with another record or go back in time; "
+    "laser records share their time with another or go back in time; "
     "gave them distinct times in file order (see README: colliding times)"
 )
 

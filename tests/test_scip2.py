@@ -11,7 +11,7 @@ from collections.abc import Callable
 import numpy as np
 import pytest
 from conftest import HALL_POSE, HALL_WORLD, ParrotDevice, SilentDevice
-from fuzzing import fuzz_settings
+from fuzzing import byte_mutations, fuzz_settings, mutate
 from hypothesis import given
 from hypothesis import strategies as st
 
@@ -262,33 +262,10 @@ def test_fuzz_valid_stream_round_trips_in_any_chunks(values, chunks):
     assert [decode_scan(i).values.tolist() for i in items[2:]] == values
 
 
-_MUTATION = st.one_of(
-    st.tuples(st.just("insert"), st.integers(0, 10**6), st.binary(min_size=1, max_size=40)),
-    st.tuples(st.just("delete"), st.integers(0, 10**6), st.integers(1, 40)),
-    st.tuples(st.just("flip"), st.integers(0, 10**6), st.integers(0, 7)),
-    st.tuples(st.just("truncate"), st.integers(0, 10**6), st.just(0)),
-)
-
-
-def _mutate(data: bytes, mutations: list[tuple]) -> bytes:
-    buf = bytearray(data)
-    for kind, where, what in mutations:
-        at = where % (len(buf) + 1)
-        if kind == "insert":
-            buf[at:at] = what
-        elif kind == "delete":
-            del buf[at : at + what]
-        elif kind == "flip" and at < len(buf):
-            buf[at] ^= 1 << what
-        elif kind == "truncate":
-            del buf[at:]
-    return bytes(buf)
-
-
-@given(_SCANS, st.lists(_MUTATION, min_size=1, max_size=6), st.lists(st.integers(1, 300)))
+@given(_SCANS, st.lists(byte_mutations(), min_size=1, max_size=6), st.lists(st.integers(1, 300)))
 @fuzz_settings
 def test_fuzz_mutated_valid_stream(values, mutations, chunks):
-    data = _mutate(_valid_stream(values), mutations)
+    data = mutate(_valid_stream(values), mutations)
     items = _feed_all(data, chunks)
     _check_items(items)
     assert len(items) <= data.count(b"\n")  # bounded: at most one item per line

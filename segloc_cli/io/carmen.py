@@ -96,7 +96,7 @@ import numpy as np
 from segloc_cli.errors import InputError
 from segloc_cli.geometry import wrap_angle
 from segloc_cli.io.files import reading
-from segloc_cli.io.times import MAX_TIME_S, colliding, distinct_times, past_limit_message
+from segloc_cli.io.times import MAX_TIME_S, importer_times
 from segloc_cli.scan import MAX_READINGS, Scan, evenly_spaced_angles, fan_defect
 
 LASER_RECORDS = {"front": ("FLASER", "ROBOTLASER1"), "rear": ("RLASER",)}
@@ -635,16 +635,10 @@ def read_carmen(
         rule = "ROBOTLASER1 maximum_range" + ("" if len(set(per_record)) == 1 else f"; {rule}")
 
     original_times_s = np.array([r.time_s for r in records], dtype=float)
-    times_s = distinct_times(original_times_s)
-    if times_s[-1] > MAX_TIME_S:
-        raise InputError(past_limit_message("laser records"), path=path)
-    n_colliding = int(np.count_nonzero(colliding(original_times_s)))
-    if n_colliding:
-        warnings.append(
-            f"{path}: {n_colliding} of {len(records)} laser records share their time with "
-            "another record or go back in time; gave them distinct times in file order "
-            "(see README: colliding times)"
-        )
+    times_s, collided = importer_times(
+        original_times_s, path, "laser records", "file order", str(path)
+    )
+    warnings += [collided] if collided else []
 
     scans = [
         Scan(

@@ -44,7 +44,7 @@ from rosbags.typesys import Stores, get_typestore
 
 from segloc_cli.errors import InputError
 from segloc_cli.geometry import quaternion_to_heading, wrap_angle
-from segloc_cli.io.times import MAX_TIME_S, colliding, distinct_times, past_limit_message
+from segloc_cli.io.times import importer_times
 from segloc_cli.scan import MAX_READINGS, Scan, fan_defect
 
 SCAN_TYPE = "sensor_msgs/msg/LaserScan"
@@ -229,18 +229,12 @@ def read_rosbag(
     raw_scans.sort(key=lambda s: s.stamp_ns)  # stable: equal stamps stay in bag order
     # Integer true division rounds once: the same float read_log gives back.
     original_times_s = np.array([raw.stamp_ns / NS_PER_S for raw in raw_scans], dtype=float)
-    times_s = distinct_times(original_times_s)
-    if times_s[-1] > MAX_TIME_S:
-        raise InputError(past_limit_message("scans"), path=path)
+    times_s, collided = importer_times(
+        original_times_s, path, "scans", "stamp and bag order", path.name
+    )
     scans, scan_warnings = _scans(raw_scans, times_s)
     warnings += [f"{path.name}: {text}" for text in scan_warnings]
-    n_colliding = int(np.count_nonzero(colliding(original_times_s)))
-    if n_colliding:
-        warnings.append(
-            f"{path.name}: {n_colliding} of {len(scans)} scans share their time "
-            "(header.stamp in seconds) with another scan; gave them distinct times in stamp "
-            "and bag order (see README: colliding times)"
-        )
+    warnings += [collided] if collided else []
     scan_ns = np.array([s.stamp_ns for s in raw_scans], dtype=np.int64)
 
     odom_times_s = np.zeros(0)

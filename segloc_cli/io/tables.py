@@ -23,7 +23,7 @@ import time
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import IO
+from typing import IO, Self
 
 import numpy as np
 import pandas as pd
@@ -586,8 +586,14 @@ class _RowStream:
         finally:
             stream.close()
 
+    def __enter__(self) -> Self:
+        return self
 
-class EstimatesWriter:
+    def __exit__(self, *exc_info) -> None:
+        self.close()
+
+
+class EstimatesWriter(_RowStream):
     """The estimates CSV written row by row as a run makes them.
 
     Opens ``path`` in place (truncating it; checking that it may be
@@ -601,31 +607,14 @@ class EstimatesWriter:
     """
 
     def __init__(self, path: str | Path):
-        self._out = _RowStream(path, ",".join(ESTIMATE_COLUMNS))
-
-    @property
-    def path(self) -> Path:
-        return self._out.path
-
-    @property
-    def rows(self) -> int:
-        return self._out.rows
+        super().__init__(path, ",".join(ESTIMATE_COLUMNS))
 
     def write_row(self, row: Mapping[str, object]) -> None:
         """Write one estimates row (column → value); ``ValueError`` as ``estimate_cells``."""
         cells = estimate_cells(row)
         buffer = io.StringIO()
         csv.writer(buffer, lineterminator="").writerow(cells)
-        self._out.write_line(buffer.getvalue())
-
-    def close(self) -> None:
-        self._out.close()
-
-    def __enter__(self) -> EstimatesWriter:
-        return self
-
-    def __exit__(self, *exc_info) -> None:
-        self.close()
+        self.write_line(buffer.getvalue())
 
 
 def read_estimates(path: str | Path) -> pd.DataFrame:
@@ -710,7 +699,7 @@ def write_tum(path: str | Path, frame: pd.DataFrame) -> None:
         stream.write("\n".join(lines) + "\n")
 
 
-class TumWriter:
+class TumWriter(_RowStream):
     """A TUM trajectory written row by row, as ``EstimatesWriter`` writes the CSV.
 
     ``write_row(row)`` takes an estimates row and writes the line
@@ -720,26 +709,9 @@ class TumWriter:
     """
 
     def __init__(self, path: str | Path):
-        self._out = _RowStream(path, TUM_HEADER)
-
-    @property
-    def path(self) -> Path:
-        return self._out.path
-
-    @property
-    def rows(self) -> int:
-        return self._out.rows
+        super().__init__(path, TUM_HEADER)
 
     def write_row(self, row: Mapping[str, object]) -> None:
         """Write the pose of one estimates row (needs ``time_s, x_m, y_m, theta_deg``)."""
         for line in _tum_lines(_tum_numbers(row)):
-            self._out.write_line(line)
-
-    def close(self) -> None:
-        self._out.close()
-
-    def __enter__(self) -> TumWriter:
-        return self
-
-    def __exit__(self, *exc_info) -> None:
-        self.close()
+            self.write_line(line)

@@ -26,7 +26,11 @@ absolute). The original times are kept by the importers beside the new ones.
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
+
+from segloc_cli.errors import InputError
 
 LAST_GROUP_STEP_S = 1.0
 """Largest spacing (s) of the records of the last group (and the spacing when all times
@@ -96,11 +100,29 @@ def distinct_times(times_s: np.ndarray) -> np.ndarray:
     return out
 
 
-def past_limit_message(records: str) -> str:
-    """The error for ``records`` (e.g. "laser records") whose distinct times pass ``MAX_TIME_S``."""
-    return (
-        f"the times of the {records}, made distinct, run past {MAX_TIME_S:.0f} s "
-        "(the year 2106); the log's times are not plausible (see README: colliding times)"
+def importer_times(
+    original_times_s: np.ndarray, path: Path, records: str, order: str, where: str
+) -> tuple[np.ndarray, str | None]:
+    """An importer's distinct times (S,) for its records, and the warning to give, if any.
+
+    ``original_times_s`` (S,) seconds, in the order ``order`` names ("file order");
+    ``records`` names them in messages ("laser records"), ``where`` is how the
+    warning names the file. Raises ``InputError`` naming ``path`` when the
+    distinct times run past ``MAX_TIME_S``.
+    """
+    times_s = distinct_times(original_times_s)
+    if times_s.size and times_s[-1] > MAX_TIME_S:
+        raise InputError(
+            f"the times of the {records}, made distinct, run past {MAX_TIME_S:.0f} s "
+            "(the year 2106); the log's times are not plausible (see README: colliding times)",
+            path=path,
+        )
+    n_colliding = int(np.count_nonzero(colliding(original_times_s)))
+    if not n_colliding:
+        return times_s, None
+    return times_s, (
+        f"{where}: {n_colliding} of {times_s.size} {records} share their time with another "
+        f"or go back in time; gave them distinct times in {order} (see README: colliding times)"
     )
 
 
