@@ -60,7 +60,9 @@ SEGLOC = str(Path(sys.executable).parent / "segloc")
 
 
 def run(commands: list[str], *args) -> subprocess.CompletedProcess:
-    """Run one segloc command, record it, fail loudly."""
+    """Run one segloc command (replacing its outputs from an earlier run), record it, fail
+    loudly."""
+    args = (*args, "--force")
     argv = [SEGLOC, *map(str, args)]
     commands.append(" ".join(["segloc", *map(str, args)]))
     proc = subprocess.run(argv, capture_output=True, text=True, check=False)
@@ -85,9 +87,9 @@ def prepare(name: str, files: tuple[str, str, str], data: Path, work: Path, log:
         "--survey-out",
         work / "reference.csv",
     )
+    # The importer gives colliding records (mit-csail's six-digit times) distinct times,
+    # in the log and the reference alike.
     ref = read_pose_table(work / "reference.csv")
-    if np.unique(ref.time_s).size < len(ref):
-        ref = _retime_by_order(work, ref, log)
     held = np.zeros(len(ref), dtype=bool)
     held[::HOLD_OUT_EVERY] = True
     log.append(
@@ -455,27 +457,6 @@ def same_scans(wanted: list, scans: list, look_back: int = 50, look_ahead: int =
                 out[k], last = i, i
                 break
     return out
-
-
-def _retime_by_order(work: Path, ref: PoseTable, log: list) -> PoseTable:
-    """Give a log whose printed times collide (mit-csail's corrected log keeps six
-    significant digits) one scan per second, in file order, log and reference alike.
-    This protocol uses the corrected log alone, so only the pairing needs the times."""
-    from segloc_cli.io.mcap_log import read_log, write_log
-    from segloc_cli.scan import Scan
-
-    contents = read_log(work / "corrected.mcap")
-    times = np.arange(1.0, len(contents.scans) + 1.0)
-    scans = [
-        Scan(t, s.angles_rad, s.ranges_m, s.range_max_m, s.intensities)
-        for t, s in zip(times, contents.scans, strict=True)
-    ]
-    odom = [(t, Pose2(*p)) for t, p in zip(times, contents.odom_poses, strict=True)]
-    write_log(work / "corrected.mcap", scans, odom, contents.sensor)
-    log.append("# scan times collide in this log: renumbered 1, 2, 3, ... s in file order")
-    retimed = PoseTable(ref.pose_id, times, ref.poses)
-    write_pose_table(work / "reference.csv", retimed)
-    return retimed
 
 
 def _distances(est: pd.DataFrame, poses: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
