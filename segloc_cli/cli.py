@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import io
 import itertools
+import math
 import sys
 import time
 from dataclasses import asdict
@@ -16,6 +17,7 @@ from segloc_cli import __version__
 from segloc_cli.align import VOTE_SCHEMES
 from segloc_cli.errors import InputError, SeglocError
 from segloc_cli.geometry import Pose2
+from segloc_cli.scan import MAX_RANGE_M
 
 PROGRESS_MIN_SCANS = 20
 """Show a progress bar when a command works through at least this many scans."""
@@ -29,6 +31,16 @@ EXIT_INTERNAL_ERROR = 70
 """An unexpected error (a bug): one line, and the traceback in a file it names (sysexits'
 EX_SOFTWARE)."""
 EXIT_INTERRUPTED = 130
+
+
+class FiniteRange(click.FloatRange):
+    """``click.FloatRange`` that also refuses NaN and the infinities (which pass its bounds)."""
+
+    def convert(self, value, param, ctx):
+        number = super().convert(value, param, ctx)
+        if not math.isfinite(number):
+            self.fail(f"{value!r} is not a finite number.", param, ctx)
+        return number
 
 
 def _warn(message: str) -> None:
@@ -52,7 +64,7 @@ def _tolerance_option(pairing: str):
     """The ``--tolerance-ms`` option, for pairing the records named by ``pairing``."""
     return click.option(
         "--tolerance-ms",
-        type=click.FloatRange(min=0),
+        type=FiniteRange(min=0, max=60_000),
         default=TIME_TOLERANCE_MS,
         show_default=True,
         help=f"Largest time difference when {pairing}.",
@@ -106,10 +118,11 @@ def _parse_init_errors(value: str) -> tuple[str, float, float]:
         except ValueError:
             pass
         else:
-            if xy >= 0 and theta >= 0:
+            if 0 <= xy <= MAX_RANGE_M and 0 <= theta <= 180:
                 return ("uniform", xy, theta)
     raise click.BadParameter(
-        f"{value!r}; use 'paper' or 'uniform:XY_M,THETA_DEG' (e.g. uniform:1.5,20)",
+        f"{value!r}; use 'paper' or 'uniform:XY_M,THETA_DEG' with XY_M in 0..{MAX_RANGE_M:g} "
+        "and THETA_DEG in 0..180 (e.g. uniform:1.5,20)",
         param_hint="--init-errors",
     )
 
@@ -135,7 +148,7 @@ def _parse_init_errors(value: str) -> tuple[str, float, float]:
 )
 @click.option(
     "--noise-cm",
-    type=click.FloatRange(min=0),
+    type=FiniteRange(min=0, max=100),
     default=1.2,
     show_default=True,
     help="Gaussian range noise σ.",
@@ -158,7 +171,7 @@ def simulate(world_path, poses_path, out_dir, readings, noise_cm, seed, init_err
     Explorer: Gaussian range noise, 1 mm resolution, dropouts, short spurious
     returns from people, and glass that rarely returns.
     """
-    from segloc_cli.io.files import atomic_path, check_output
+    from segloc_cli.io.files import atomic_path, check_outputs
     from segloc_cli.io.maps import read_world
     from segloc_cli.io.mcap_log import LogWriter
     from segloc_cli.io.tables import PoseTable, read_pose_table, write_pose_table
@@ -175,8 +188,8 @@ def simulate(world_path, poses_path, out_dir, readings, noise_cm, seed, init_err
         raise InputError("is a file; --out takes a folder", path=out_dir)
     log_path, survey_path = out_dir / "log.mcap", out_dir / "survey.csv"
     if out_dir.is_dir():
-        for path in (log_path, survey_path):
-            check_output(path, force)
+        outputs = {"--out (log.mcap)": log_path, "--out (survey.csv)": survey_path}
+        check_outputs(outputs, [world_path, poses_path], force)
     world = read_world(world_path)
     truth = read_pose_table(poses_path, require_time=False)
     times = truth.time_s
@@ -263,7 +276,7 @@ def _write_imported(log, out_path: Path) -> None:
 )
 @click.option(
     "--range-max-m",
-    type=click.FloatRange(min=0, min_open=True),
+    type=FiniteRange(min=0, max=MAX_RANGE_M, min_open=True),
     default=None,
     help="Readings at or beyond this mean no return (default: from PARAM lines, or "
     "the sentinel value the log repeats).",
@@ -281,12 +294,10 @@ def import_carmen(log_path, out_path, survey_out, laser, range_max_m, force):
     publish time and in the survey's original_time_s column.
     """
     from segloc_cli.io.carmen import read_carmen
-    from segloc_cli.io.files import check_output
+    from segloc_cli.io.files import check_outputs
     from segloc_cli.io.tables import PoseTable, write_pose_table
 
-    check_output(out_path, force)
-    if survey_out is not None:
-        check_output(survey_out, force, "--survey-out")
+    check_outputs({"--out": out_path, "--survey-out": survey_out}, [log_path], force)
     log = read_carmen(log_path, laser=laser, range_max_m=range_max_m)
     _write_imported(log, out_path)
     if survey_out is not None:
@@ -316,10 +327,10 @@ def import_carmen(log_path, out_path, survey_out, laser, range_max_m, force):
 @force_option
 def import_rosbag(bag_path, out_path, scan_topic, odom_topic, force):
     """Import a ROS 1 .bag, a ROS 2 bag folder or a ROS 2 .mcap file."""
-    from segloc_cli.io.files import check_output
+    from segloc_cli.io.files import check_outputs
     from segloc_cli.io.rosbag import read_rosbag
 
-    check_output(out_path, force)
+    check_outputs({"--out": out_path}, [bag_path], force)
     log = read_rosbag(bag_path, scan_topic=scan_topic, odom_topic=odom_topic or None)
     _write_imported(log, out_path)
 
@@ -354,12 +365,12 @@ def map_build(log_path, survey_path, out_path, tolerance_ms, force):
     touch become one.
     """
     from segloc_cli.extract import ExtractParams, extract_segments
-    from segloc_cli.io.files import check_output
+    from segloc_cli.io.files import check_outputs
     from segloc_cli.io.maps import bounds_problem, write_map
     from segloc_cli.io.tables import pair_by_time, read_pose_table
     from segloc_cli.mapping import FuseParams, build_global_map
 
-    check_output(out_path, force)
+    check_outputs({"--out": out_path}, [log_path, survey_path], force)
     log = _load_log(log_path)
     survey = read_pose_table(survey_path)
     times = log.scan_times_s
@@ -502,7 +513,7 @@ def _initial_guesses(initial: str, log, log_path: Path, tolerance_s: float):
 )
 @click.option(
     "--window-deg",
-    type=click.FloatRange(min=0, max=180),
+    type=FiniteRange(min=0, max=180),
     default=20.0,
     show_default=True,
     help="Stage 1 searches headings within ± this of the initial heading.",
@@ -523,21 +534,21 @@ def _initial_guesses(initial: str, log, log_path: Path, tolerance_s: float):
 )
 @click.option(
     "--bin-deg",
-    type=click.FloatRange(min=0.05, max=45),
+    type=FiniteRange(min=0.05, max=45),
     default=1.0,
     show_default=True,
     help="Stage-1 orientation bin width (must divide 180).",
 )
 @click.option(
     "--grid-m",
-    type=click.FloatRange(min=0, min_open=True),
+    type=FiniteRange(min=0, max=50, min_open=True),
     default=1.5,
     show_default=True,
     help="Stage-2 initial grid spacing η0 (halved every iteration).",
 )
 @click.option(
     "--dtheta-deg",
-    type=click.FloatRange(min=0),
+    type=FiniteRange(min=0, max=90),
     default=4.0,
     show_default=True,
     help="Stage-2 initial heading step Δα0 (halved every iteration).",
@@ -551,7 +562,7 @@ def _initial_guesses(initial: str, log, log_path: Path, tolerance_s: float):
 )
 @click.option(
     "--ratio",
-    type=click.FloatRange(min=0, max=1, min_open=True),
+    type=FiniteRange(min=0, max=1, min_open=True),
     default=0.9,
     show_default=True,
     help="Candidates within this ratio of the best overlap are averaged.",
@@ -660,7 +671,7 @@ def localize(
     Rows are written to OUT as they are made: Ctrl-C, SIGTERM or even a
     killed process leaves every finished row in the file.
     """
-    from segloc_cli.io.files import check_output
+    from segloc_cli.io.files import check_outputs
     from segloc_cli.io.maps import read_map
     from segloc_cli.localize import LocalizeParams, Localizer, track_scans
     from segloc_cli.parallel import localize_scans_parallel
@@ -689,9 +700,8 @@ def localize(
         click.get_current_context().get_parameter_source("initial")
         == click.core.ParameterSource.DEFAULT
     )
-    check_output(out_path, force)
-    if tum_path is not None:
-        check_output(tum_path, force, "--tum")
+    guess_file = None if initial == "odom" else Path(initial)
+    check_outputs({"--out": out_path, "--tum": tum_path}, [*log_paths, map_path, guess_file], force)
     segments_world = read_map(map_path)
     params = LocalizeParams(
         window_deg=None if no_prior_heading else window_deg,
@@ -713,6 +723,7 @@ def localize(
         localizer = peer_localizer(method, segments_world, **options)
 
     tolerance_s = tolerance_ms / 1e3
+    stops: list[str] = []  # signals asking the run to stop, noted while it runs
     streams = []  # one iterator of estimates rows per log
     n_scans = skipped = 0
     for log_path in log_paths:
@@ -738,17 +749,24 @@ def localize(
             keep = idx
             guesses = None if global_search else poses
             scans = [log.scans[i] for i in idx]
-            streams.append(localize_scans_parallel(scans, guesses, ids, localizer, jobs))
+            streams.append(
+                localize_scans_parallel(
+                    scans, guesses, ids, localizer, jobs, stop=lambda: bool(stops)
+                )
+            )
         n_scans += keep.size
         skipped += len(log.scans) - keep.size
 
-    _localize_rows(itertools.chain.from_iterable(streams), n_scans, out_path, tum_path, skipped)
+    rows = itertools.chain.from_iterable(streams)
+    _localize_rows(rows, n_scans, out_path, tum_path, skipped, stops)
 
 
-def _localize_rows(rows, n_scans: int, out_path: Path, tum_path: Path | None, skipped: int):
+def _localize_rows(
+    rows, n_scans: int, out_path: Path, tum_path: Path | None, skipped: int, stops: list[str]
+):
     """Run the localization, writing each row to ``out_path`` (and ``tum_path``) as it comes;
-    print the summary. Ctrl-C and SIGTERM stop it between scans with every finished row kept
-    (exit 130)."""
+    print the summary. Ctrl-C, SIGTERM and SIGHUP, noted in ``stops``, stop it between scans
+    with every finished row kept (exit 130)."""
     from collections import Counter
     from contextlib import ExitStack
 
@@ -760,7 +778,7 @@ def _localize_rows(rows, n_scans: int, out_path: Path, tum_path: Path | None, sk
     runtimes_ms: list[float] = []
     stream = sys.stderr if n_scans >= PROGRESS_MIN_SCANS else io.StringIO()
     with ExitStack() as stack:
-        stops = stack.enter_context(stop_requests())
+        stack.enter_context(stop_requests(stops))
         writers = [stack.enter_context(EstimatesWriter(out_path))]
         if tum_path is not None:
             writers.append(stack.enter_context(TumWriter(tum_path)))
@@ -841,13 +859,13 @@ def _localize_rows(rows, n_scans: int, out_path: Path, tum_path: Path | None, sk
 )
 @click.option(
     "--fail-above-cm",
-    type=click.FloatRange(min=0),
+    type=FiniteRange(min=0),
     default=None,
     help="Exit 1 if any pose's |X| or |Y| error exceeds this, or any pose is not ok.",
 )
 @click.option(
     "--fail-above-deg",
-    type=click.FloatRange(min=0),
+    type=FiniteRange(min=0),
     default=None,
     help="Exit 1 if any pose's |θ| error exceeds this, or any pose is not ok.",
 )
@@ -916,7 +934,7 @@ def evaluate(
     error of the estimated relative motion, and how many relations were used
     and skipped.
     """
-    from segloc_cli.io.files import check_output
+    from segloc_cli.io.files import check_outputs
     from segloc_cli.io.tables import read_estimates
 
     if (survey_path is None) == (relations_path is None):
@@ -930,8 +948,8 @@ def evaluate(
     if relations_path is None and published is not None:
         raise click.UsageError("--published goes with --relations")
     # Outputs are checked before any input is read, so a refusal costs no work.
-    if out_path is not None:
-        check_output(out_path, force)
+    inputs = [estimates_path, survey_path, relations_path, map_path, log_path]
+    check_outputs({"--out": out_path}, inputs, force)
     if plots_dir is not None:
         _check_plots(plots_dir, with_map=map_path is not None and log_path is not None, force=force)
     estimates = read_estimates(estimates_path)
@@ -1092,12 +1110,18 @@ def _protocol_choice() -> click.Choice:
 
 
 def _parse_pose(value: str) -> Pose2:
+    from segloc_cli.io.maps import MAX_COORDINATE_M
+
     try:
         x, y, theta_deg = (float(v) for v in value.split(","))
     except ValueError:
+        x = y = theta_deg = math.nan
+    if not (max(abs(x), abs(y)) <= MAX_COORDINATE_M and math.isfinite(theta_deg)):
         raise click.BadParameter(
-            f"{value!r}; use X_M,Y_M,THETA_DEG (e.g. 2.5,1.0,90)", param_hint="--pose"
-        ) from None
+            f"{value!r}; use X_M,Y_M,THETA_DEG, finite and within ±{MAX_COORDINATE_M:g} m "
+            "(e.g. 2.5,1.0,90)",
+            param_hint="--pose",
+        )
     return Pose2(x, y, float(np.deg2rad(theta_deg)))
 
 
@@ -1134,7 +1158,7 @@ def _parse_pose(value: str) -> Pose2:
 )
 @click.option(
     "--fault-rate",
-    type=click.FloatRange(0, 1),
+    type=FiniteRange(0, 1),
     default=0.2,
     show_default=True,
     help="Chance per scan of a garbage burst or a spoiled checksum.",
@@ -1148,7 +1172,7 @@ def _parse_pose(value: str) -> Pose2:
 )
 @click.option(
     "--noise-cm",
-    type=click.FloatRange(min=0),
+    type=FiniteRange(min=0, max=100),
     default=1.2,
     show_default=True,
     help="Gaussian range noise σ of the simulated scanner.",
@@ -1221,7 +1245,10 @@ def emulate(protocol, world_path, pose, path_csv, faults, fault_rate, fault_afte
 )
 @click.option("--scans", type=click.IntRange(min=1), help="Stop after this many scans.")
 @click.option(
-    "--duration", "duration_s", type=click.FloatRange(min=0, min_open=True), help="Stop after S s."
+    "--duration",
+    "duration_s",
+    type=FiniteRange(min=0, max=1e7, min_open=True),
+    help="Stop after S s.",
 )
 @click.option(
     "--readings",
@@ -1231,14 +1258,14 @@ def emulate(protocol, world_path, pose, path_csv, faults, fault_rate, fault_afte
 )
 @click.option(
     "--rev-per-s",
-    type=click.FloatRange(min=0, min_open=True),
+    type=FiniteRange(min=0, max=100, min_open=True),
     help="Revolutions per second (Explorer: 0.5 to 4). Default: the device's.",
 )
 @click.option("--baud", type=click.IntRange(min=1), help="Baud rate. Default: the protocol's.")
 @click.option(
     "--timeout",
     "timeout_s",
-    type=click.FloatRange(min=0, min_open=True),
+    type=FiniteRange(min=0, max=3600, min_open=True),
     default=1.0,
     show_default=True,
     help="Seconds to wait for the device to answer a command.",
@@ -1246,12 +1273,12 @@ def emulate(protocol, world_path, pose, path_csv, faults, fault_rate, fault_afte
 @click.option(
     "--stall-timeout",
     "stall_s",
-    type=click.FloatRange(min=0, min_open=True),
+    type=FiniteRange(min=0, max=3600, min_open=True),
     default=3.0,
     show_default=True,
     help="Seconds without a scan after which the device counts as stalled.",
 )
-@click.option("--force", is_flag=True, help="Overwrite OUT if it exists.")
+@force_option
 def record(
     device, out_path, scans, duration_s, readings, rev_per_s, baud, timeout_s, stall_s, force
 ):
@@ -1269,6 +1296,7 @@ def record(
       segloc info hall.mcap
     """
     from segloc_cli.devices import driver_class, parse_device
+    from segloc_cli.io.files import check_outputs
     from segloc_cli.record import RecordSettings
     from segloc_cli.record import record as run_record
 
@@ -1276,8 +1304,7 @@ def record(
         protocol, port = parse_device(device)
     except ValueError as exc:
         raise click.BadParameter(str(exc), param_hint="--device") from None
-    if out_path.exists() and not force:
-        raise InputError("file exists; choose another --out or pass --force", path=out_path)
+    check_outputs({"--out": out_path}, [port], force)
     settings = RecordSettings(scans, duration_s, readings, rev_per_s, stall_s)
     driver = driver_class(protocol)(port, baud, timeout_s)
     interactive = sys.stderr.isatty()
@@ -1362,10 +1389,8 @@ def main(argv: list[str] | None = None) -> None:
     """
     try:
         cli.main(args=argv, prog_name="segloc", standalone_mode=False)
-    except click.exceptions.Abort:
-        click.echo("segloc: aborted", err=True)
-        sys.exit(EXIT_INTERRUPTED)
-    except KeyboardInterrupt:
+    except (click.exceptions.Abort, KeyboardInterrupt):
+        # Click turns Ctrl-C (and SIGTERM or SIGHUP, which the entry point makes alike) into Abort.
         click.echo("segloc: interrupted", err=True)
         sys.exit(EXIT_INTERRUPTED)
     except click.ClickException as exc:

@@ -280,7 +280,8 @@ class Localizer:
         if not robust:
             if stage2 is None or stage2.overlap_m <= 0:
                 return Estimate(NAN_POSE, heading, 0.0, n_local, STATUS_NO_OVERLAP)
-            return Estimate(stage2.pose, heading, stage2.overlap_m, n_local, STATUS_OK, stage2.pose)
+            est = Estimate(stage2.pose, heading, stage2.overlap_m, n_local, STATUS_OK, stage2.pose)
+            return est if points_robot is None else self._checked_by_points(est, points_robot)
         seeds = [] if stage2 is None else [stage2.pose]
         if searching:
             window = 180.0 if p.window_deg is None else p.window_deg
@@ -315,6 +316,15 @@ class Localizer:
         if degenerate or not enough:
             est = replace(est, status=STATUS_TOO_FEW_SEGMENTS)
         return est
+
+    def _checked_by_points(self, est: Estimate, points_robot: np.ndarray) -> Estimate:
+        """The paper's answer with a verdict from the scan's points: overlap alone rates a
+        pose that shares a few segments with the map as highly as the right one, so the
+        answer is ``lost`` unless enough of the points lie on the map there."""
+        band = (self.params.refine or RefineParams()).final_gate_m
+        ratio = inlier_ratio(points_robot, self.segments_world, est.pose, band)
+        status = judge(ratio, 0.0, self.params.confidence)
+        return replace(est, inlier_ratio=ratio, status=status)
 
     def _stage2(self, segments_robot: np.ndarray, initial: Pose2, peaks: np.ndarray):
         """Stage 2 from each stage-1 peak: (heading, result) of the largest overlap."""

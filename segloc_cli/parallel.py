@@ -10,10 +10,14 @@ a single process gives except ``runtime_ms``, a measured time.
 
 from __future__ import annotations
 
+import contextlib
+import ctypes
+import ctypes.util
 import multiprocessing
+import os
 import signal
 import weakref
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 
 from segloc_cli.extract import ExtractParams
 from segloc_cli.geometry import Pose2
@@ -22,17 +26,28 @@ from segloc_cli.scan import Scan
 
 BLOCK_SCANS = 4
 """Scans per task: small enough to keep both cores busy to the end of a short log."""
+POLL_S = 0.25
+"""How often (s) the parent, waiting for a block, checks whether it was asked to stop."""
+PR_SET_PDEATHSIG = 1
+"""Linux prctl option: the signal a process gets when its parent dies."""
 
 _job: tuple | None = None
 """The work of the current run, set before the workers are forked (they inherit it)."""
 
 
-def _ignore_interrupts() -> None:
-    # Ctrl-C reaches every process of the terminal's group; the parent alone handles it.
+def _worker_signals() -> None:
+    """A worker leaves stopping to the parent, dies when the pool is closed, and dies with
+    the parent even if that is killed outright (Linux; elsewhere the pipe's end stops it)."""
+    # Ctrl-C and a closing terminal reach every process of the group; the parent handles them.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    # The parent may turn SIGTERM into a stop request; a worker must still die of it when
-    # the pool is closed.
+    signal.signal(signal.SIGHUP, signal.SIG_IGN)
+    # Closing the pool sends SIGTERM, whatever handler the parent had when it forked us.
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    with contextlib.suppress(OSError, AttributeError, TypeError):
+        libc = ctypes.CDLL(ctypes.util.find_library("c"), use_errno=True)
+        libc.prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
+    if os.getppid() == 1:  # the parent died before the line above took effect
+        os._exit(1)
 
 
 def _localize_block(bounds: tuple[int, int]) -> list[dict]:
@@ -67,10 +82,13 @@ def localize_scans_parallel(
     localizer: ScanMatcher,
     jobs: int,
     extract_params: ExtractParams | None = None,
+    stop: Callable[[], bool] = lambda: False,
 ) -> Iterator[dict]:
     """``localize_scans`` spread over ``jobs`` processes; rows are yielded in scan order.
 
-    With ``jobs`` 1 (or a single scan) this is ``localize_scans`` itself.
+    With ``jobs`` 1 (or a single scan) this is ``localize_scans`` itself. While
+    waiting for a block the parent asks ``stop()`` every ``POLL_S``; when it
+    says so, no more rows come and the workers are ended.
     """
     if jobs <= 1 or len(scans) <= 1:
         yield from localize_scans(scans, initial_poses, pose_ids, localizer, extract_params)
@@ -81,8 +99,16 @@ def localize_scans_parallel(
     _job = (list(scans), initial_poses, list(pose_ids), localizer, extract_params)
     try:
         context = multiprocessing.get_context("fork")
-        with context.Pool(jobs, initializer=_ignore_interrupts) as pool:
-            for rows in pool.imap(_localize_block, blocks):
+        with context.Pool(jobs, initializer=_worker_signals) as pool:
+            results = pool.imap(_localize_block, blocks)
+            for _ in blocks:
+                while True:
+                    try:
+                        rows = results.next(timeout=POLL_S)
+                        break
+                    except multiprocessing.TimeoutError:
+                        if stop():
+                            return
                 yield from rows
     finally:
         _job = None

@@ -33,6 +33,7 @@ from matplotlib.figure import Figure
 from segloc_cli.align import VOTE_SCHEMES, RTable, accumulate, align, candidate_headings
 from segloc_cli.extract import ExtractParams, extract_segments
 from segloc_cli.geometry import Pose2, transform_points, transform_segments, wrap_angle
+from segloc_cli.io.files import atomic_path
 from segloc_cli.io.tables import PoseTable, pair_by_time
 from segloc_cli.localize import ESTIMATED, LocalizeParams
 from segloc_cli.overlap import coarse_to_fine
@@ -214,8 +215,11 @@ def save_figure(fig: Figure, out_dir: str | Path, name: str) -> list[Path]:
     """
     out_dir = Path(out_dir)
     png, pdf = out_dir / f"{name}.png", out_dir / f"{name}.pdf"
-    fig.savefig(png, dpi=FIGURE_DPI)
-    fig.savefig(pdf, metadata={"CreationDate": None})
+    # Each written beside its target and renamed into place, so no figure is ever half drawn.
+    with atomic_path(png) as partial:
+        fig.savefig(partial, format="png", dpi=FIGURE_DPI)
+    with atomic_path(pdf) as partial:
+        fig.savefig(partial, format="pdf", metadata={"CreationDate": None})
     return [png, pdf]
 
 

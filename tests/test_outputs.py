@@ -218,3 +218,122 @@ def test_a_stopped_localize_keeps_every_finished_row(tmp_path, how):
         assert "Traceback" not in err
     else:
         assert proc.returncode == -signal.SIGKILL
+
+
+# --------------------------------------------------------------------------- inputs kept
+
+
+@pytest.mark.parametrize(
+    ("command", "fragment"),
+    [
+        (["localize", LOG, "--map", MAP, "--out", LOG], "is an input of this command"),
+        (["localize", LOG, "--map", MAP, "--out", MAP], "is an input of this command"),
+        (["map", "build", LOG, "--survey", SURVEY, "--out", SURVEY], "is an input"),
+        (["evaluate", SURVEY, "--survey", SURVEY, "--out", SURVEY], "is an input"),
+    ],
+    ids=["localize-log", "localize-map", "map-build-survey", "evaluate-survey"],
+)
+def test_force_never_overwrites_an_input(capsys, tmp_path, command, fragment):
+    before = {p: p.read_bytes() for p in (LOG, MAP, SURVEY)}
+    result = run_cli(capsys, *command, "--force")
+    assert_one_line_error(result, fragment)
+    assert {p: p.read_bytes() for p in before} == before
+
+
+def test_an_input_reached_through_a_link_is_kept(capsys, tmp_path):
+    log = tmp_path / "log.mcap"
+    log.write_bytes(LOG.read_bytes())
+    link = tmp_path / "est.csv"
+    link.symlink_to(log)
+    result = run_cli(capsys, "localize", log, "--map", MAP, "--out", link, "--force")
+    assert_one_line_error(result, str(log), "is an input")
+    assert log.read_bytes() == LOG.read_bytes()
+
+
+def test_two_outputs_naming_one_file_are_refused(capsys, tmp_path):
+    out = tmp_path / "est.csv"
+    result = run_cli(capsys, "localize", LOG, "--map", MAP, "--out", out, "--tum", out)
+    assert_one_line_error(result, "--out and --tum name the same file")
+    assert not out.exists()
+
+
+def test_a_device_is_not_an_output(capsys):
+    result = run_cli(
+        capsys, "map", "build", LOG, "--survey", SURVEY, "--out", "/dev/null", "--force"
+    )
+    assert_one_line_error(result, "/dev/null", "not a regular file")
+
+
+@pytest.mark.parametrize(
+    ("option", "value"),
+    [("--grid-m", "nan"), ("--grid-m", "inf"), ("--dtheta-deg", "nan"), ("--ratio", "nan"),
+     ("--window-deg", "nan"), ("--tolerance-ms", "inf"), ("--grid-m", "1e308")],
+)  # fmt: skip
+def test_option_values_must_be_finite_and_in_range(capsys, tmp_path, option, value):
+    out = tmp_path / "est.csv"
+    result = run_cli(capsys, "localize", LOG, "--map", MAP, "--out", out, option, value)
+    assert_one_line_error(result, option)
+    assert not out.exists()
+
+
+def test_the_papers_answer_is_lost_where_the_points_are_not_on_the_map(capsys, tmp_path):
+    # Two segments of the hall: stage 2 finds some overlap anywhere, the points say no.
+    from segloc_cli.io.maps import read_map, write_map
+
+    two = tmp_path / "two.json"
+    write_map(two, read_map(MAP)[:2])
+    out = tmp_path / "est.csv"
+    result = run_cli(capsys, "localize", LOG, "--map", two, "--no-refine", "--out", out)
+    assert result.code == 0, result.err
+    rows = _complete_rows(out)
+    assert len(rows) == 10 and all(r["status"] != "ok" for r in rows)
+
+
+# --------------------------------------------------------------------------- signals
+
+
+def _started(command: list, **kwargs) -> subprocess.Popen:
+    return subprocess.Popen(
+        [str(SEGLOC), *map(str, command)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env={**os.environ, "PYTHONIOENCODING": "utf-8"},
+        **kwargs,
+    )
+
+
+def test_sigterm_before_any_work_is_one_line_and_leaves_no_file(tmp_path):
+    out = tmp_path / "map.json"
+    proc = _started(["map", "build", LOG, "--survey", SURVEY, "--out", out])
+    time.sleep(0.3)  # still importing, or reading
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=60)
+    if proc.returncode == 0:
+        pytest.skip("map build finished before the signal arrived")
+    assert proc.returncode == 130
+    assert err.strip().splitlines() == ["segloc: interrupted"]
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_stopping_parallel_workers_ends_every_process(tmp_path):
+    log = tmp_path / "long.mcap"
+    _long_log(log, copies=60)
+    out = tmp_path / "est.csv"
+    command = ["localize", log, "--map", MAP, "--out", out, "--jobs", "2"]
+    proc = _started(command, start_new_session=True)
+    try:
+        _rows_when(out, 8, proc)
+        os.killpg(proc.pid, signal.SIGTERM)  # the whole group, as a terminal or a job runner does
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    rows = _complete_rows(out)
+    assert proc.returncode == 130
+    assert f"interrupted (SIGTERM) after {len(rows)} of 600 scans" in err
+    time.sleep(0.5)
+    alive = subprocess.run(
+        ["ps", "-o", "pid=", "-s", str(proc.pid)], capture_output=True, text=True
+    )
+    assert alive.stdout.split() == [], "worker processes outlived the run"

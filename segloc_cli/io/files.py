@@ -17,7 +17,7 @@ from __future__ import annotations
 import contextlib
 import os
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator, Mapping
 from contextlib import contextmanager
 from pathlib import Path
 from typing import IO
@@ -57,6 +57,11 @@ def check_output(path: str | Path, force: bool, option: str = "--out") -> Path:
     path = Path(path)
     if path.is_dir():
         raise OutputError(f"is a directory; {option} takes a file path", path=path)
+    if path.exists() and not path.is_file():
+        raise OutputError(
+            f"is not a regular file (a device, pipe or socket); {option} takes a file path",
+            path=path,
+        )
     if path.exists() and not force:
         raise OutputError(f"file exists; choose another {option} or pass --force", path=path)
     folder = path.parent if str(path.parent) else Path(".")
@@ -67,6 +72,40 @@ def check_output(path: str | Path, force: bool, option: str = "--out") -> Path:
     if not os.access(folder, os.W_OK | os.X_OK):
         raise OutputError(f"folder {folder} is not writable; choose another {option}", path=path)
     return path
+
+
+def check_outputs(
+    outputs: Mapping[str, str | Path | None],
+    inputs: Iterable[str | Path | None],
+    force: bool,
+) -> None:
+    """``check_output`` for every output (option name → path, None when not asked for), and
+    refuse an output that is one of the ``inputs`` or another output, which writing would
+    destroy: ``--force`` overwrites results, never the data they are made from.
+    """
+    named = {option: Path(path) for option, path in outputs.items() if path is not None}
+    seen: dict[str, str] = {}
+    for option, path in named.items():
+        check_output(path, force, option)
+        key = _identity(path)
+        if key in seen:
+            raise OutputError(f"{seen[key]} and {option} name the same file", path=path)
+        seen[key] = option
+    for source in inputs:
+        if source is not None and _identity(Path(source)) in seen:
+            option = seen[_identity(Path(source))]
+            raise OutputError(
+                f"is an input of this command; choose another {option}", path=Path(source)
+            )
+
+
+def _identity(path: Path) -> str:
+    """The file ``path`` names (links, hard ones too, followed), whether or not it exists."""
+    try:
+        status = path.stat()
+    except OSError:
+        return str(path.resolve())
+    return f"{status.st_dev}:{status.st_ino}"
 
 
 def writing_error(path: str | Path, exc: OSError) -> OutputError:
