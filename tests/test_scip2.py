@@ -32,6 +32,7 @@ from segloc_cli.devices.scip2 import (
     decode_scan,
     decode_value,
     decode_values,
+    describe_status,
     encode_value,
     encode_values,
     format_reply,
@@ -720,3 +721,17 @@ def test_pty_stalled_device_gives_none_not_a_hang(emulator):
         driver.stop()
         driver.close()
     assert [f is None for f in frames] == [False, False, True]
+
+
+@pytest.mark.parametrize(
+    ("status", "words"),
+    [
+        ("25", "processing stopped to check an error"),
+        ("60", "hardware trouble (laser or motor)"),
+        ("\u00b99", "unknown status"),  # a superscript one: a digit to str.isdigit, not to int()
+        ("\u0661\u0662", "unknown status"),  # Arabic-Indic digits
+        ("zz", "unknown status"),
+    ],
+)
+def test_status_words_for_any_two_characters(status, words):
+    assert describe_status(status) == words

@@ -442,9 +442,11 @@ def describe_status(status: str) -> str:
     """Words for a status code, as the specification groups them."""
     if status in STATUS_TEXT:
         return STATUS_TEXT[status]
-    if status.isdigit() and 21 <= int(status) <= 49:
+    # isdigit() alone takes superscripts and other scripts' digits, which int() refuses.
+    code = int(status) if status.isascii() and status.isdigit() else -1
+    if 21 <= code <= 49:
         return "processing stopped to check an error"
-    if status.isdigit() and 50 <= int(status) <= 97:
+    if 50 <= code <= 97:
         return "hardware trouble (laser or motor)"
     return "unknown status"
 
