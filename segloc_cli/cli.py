@@ -1261,7 +1261,9 @@ def emulate(protocol, world_path, pose, path_csv, faults, fault_rate, fault_afte
     type=FiniteRange(min=0, max=100, min_open=True),
     help="Revolutions per second (Explorer: 0.5 to 4). Default: the device's.",
 )
-@click.option("--baud", type=click.IntRange(min=1), help="Baud rate. Default: the protocol's.")
+@click.option(
+    "--baud", type=click.IntRange(min=1, max=10_000_000), help="Baud rate. Default: the protocol's."
+)
 @click.option(
     "--timeout",
     "timeout_s",
@@ -1335,6 +1337,8 @@ def record(
         f"{out_path}: {progress.scans} scans in {progress.elapsed_s:.1f} s, "
         f"{progress.skipped} frames skipped (stopped by {progress.ended_by})"
     )
+    if progress.ended_by.startswith("SIG"):  # interrupted: the file is whole, the run cut short
+        sys.exit(EXIT_INTERRUPTED)
 
 
 @cli.command()
@@ -1365,6 +1369,18 @@ def info(log_path):
 def _one_line(text: object) -> str:
     """``text`` on one line: the contract of every message segloc prints for an error."""
     return " ".join(str(text).split())
+
+
+def _interrupted(exc: BaseException) -> bool:
+    """Whether ``exc`` came of an interrupt: compiled code that Ctrl-C (or SIGTERM) reaches
+    returns with the KeyboardInterrupt set, and Python reports that as a SystemError."""
+    seen: set[int] = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, KeyboardInterrupt):
+            return True
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return False
 
 
 def _report_internal_error(exc: BaseException) -> str:
@@ -1421,6 +1437,9 @@ def main(argv: list[str] | None = None) -> None:
         )
         sys.exit(EXIT_BAD_INPUT)
     except Exception as exc:
+        if _interrupted(exc):
+            click.echo("segloc: interrupted", err=True)
+            sys.exit(EXIT_INTERRUPTED)
         where = _report_internal_error(exc)
         click.echo(
             f"segloc: internal error: {type(exc).__name__}: {_one_line(exc)} "

@@ -16,8 +16,12 @@ import ctypes.util
 import multiprocessing
 import os
 import signal
+import time
 import weakref
+from collections import deque
 from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import Future, ProcessPoolExecutor
+from concurrent.futures import TimeoutError as FutureTimeout
 
 from segloc_cli.extract import ExtractParams
 from segloc_cli.geometry import Pose2
@@ -36,12 +40,12 @@ _job: tuple | None = None
 
 
 def _worker_signals() -> None:
-    """A worker leaves stopping to the parent, dies when the pool is closed, and dies with
-    the parent even if that is killed outright (Linux; elsewhere the pipe's end stops it)."""
+    """A worker leaves stopping to the parent, dies of SIGTERM (as the whole process group
+    gets it from a job runner), and dies with the parent even if that is killed outright
+    (Linux; elsewhere the pipe's end stops it). The pool takes a dead worker in its stride."""
     # Ctrl-C and a closing terminal reach every process of the group; the parent handles them.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGHUP, signal.SIG_IGN)
-    # Closing the pool sends SIGTERM, whatever handler the parent had when it forked us.
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
     with contextlib.suppress(OSError, AttributeError, TypeError):
         libc = ctypes.CDLL(ctypes.util.find_library("c"), use_errno=True)
@@ -88,7 +92,8 @@ def localize_scans_parallel(
 
     With ``jobs`` 1 (or a single scan) this is ``localize_scans`` itself. While
     waiting for a block the parent asks ``stop()`` every ``POLL_S``; when it
-    says so, no more rows come and the workers are ended.
+    says so (or a worker died of the signal that asked it), no more rows come
+    and the workers are killed.
     """
     if jobs <= 1 or len(scans) <= 1:
         yield from localize_scans(scans, initial_poses, pose_ids, localizer, extract_params)
@@ -97,18 +102,46 @@ def localize_scans_parallel(
     _warm_up(localizer, scans, initial_poses, extract_params)
     blocks = [(i, min(i + BLOCK_SCANS, len(scans))) for i in range(0, len(scans), BLOCK_SCANS)]
     _job = (list(scans), initial_poses, list(pose_ids), localizer, extract_params)
+    context = multiprocessing.get_context("fork")
+    pool = ProcessPoolExecutor(jobs, mp_context=context, initializer=_worker_signals)
     try:
-        context = multiprocessing.get_context("fork")
-        with context.Pool(jobs, initializer=_worker_signals) as pool:
-            results = pool.imap(_localize_block, blocks)
-            for _ in blocks:
-                while True:
-                    try:
-                        rows = results.next(timeout=POLL_S)
-                        break
-                    except multiprocessing.TimeoutError:
-                        if stop():
-                            return
-                yield from rows
+        # A few blocks ahead per worker keep both busy; the rest are sent as rows come back.
+        pending = deque(pool.submit(_localize_block, b) for b in blocks[: 2 * jobs])
+        for following in [*blocks[2 * jobs :], *([None] * len(pending))]:
+            rows = _result(pending.popleft(), stop)
+            if rows is None:
+                return
+            if following is not None:
+                pending.append(pool.submit(_localize_block, following))
+            yield from rows
     finally:
         _job = None
+        _shut_down(pool)
+
+
+def _result(future: Future, stop: Callable[[], bool]) -> list[dict] | None:
+    """The rows of a block, or None once ``stop()`` says the run is to end."""
+    while True:
+        try:
+            return future.result(timeout=POLL_S)
+        except FutureTimeout:
+            if stop():
+                return None
+        except Exception:
+            # A worker ended by the signal that stops the run fails its block; that is the stop.
+            time.sleep(POLL_S)  # let the parent's own handler note the signal first
+            if stop():
+                return None
+            raise
+
+
+def _shut_down(pool: ProcessPoolExecutor) -> None:
+    """End the workers at once, busy or not, and let the pool tidy up without waiting."""
+    processes = list(getattr(pool, "_processes", {}).values())
+    pool.shutdown(wait=False, cancel_futures=True)
+    for process in processes:
+        with contextlib.suppress(OSError, ValueError):
+            process.kill()
+    for process in processes:
+        with contextlib.suppress(OSError, ValueError, AssertionError):
+            process.join(timeout=5.0)

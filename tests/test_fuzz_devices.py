@@ -209,6 +209,8 @@ def test_pp_numbers_are_accepted_within_bounds_or_refused_naming_the_field(field
     assert scip2.parse_scan_request(request.text()) == request  # the command can say it
     angles = step_angles(pp["AMIN"], pp["AMAX"], cluster, pp["ARES"], pp["AFRT"])
     assert angles.shape == (request.readings,) and np.all(np.abs(angles) < 2 * math.pi)
+    # Evenly spaced, as a log's laser scan must be.
+    np.testing.assert_allclose(np.diff(angles), np.diff(angles)[:1], rtol=0, atol=1e-9)
 
 
 def _latin1_line(text: str) -> str:

@@ -303,17 +303,22 @@ def _started(command: list, **kwargs) -> subprocess.Popen:
     )
 
 
-def test_sigterm_before_any_work_is_one_line_and_leaves_no_file(tmp_path):
-    out = tmp_path / "map.json"
-    proc = _started(["map", "build", LOG, "--survey", SURVEY, "--out", out])
-    time.sleep(0.3)  # still importing, or reading
+def test_sigterm_mid_command_is_one_line_and_leaves_no_fragment(capsys, tmp_path):
+    estimates = tmp_path / "est.csv"
+    assert run_cli(capsys, "localize", LOG, "--map", MAP, "--out", estimates).code == 0
+    figures = tmp_path / "figures"
+    command = ["evaluate", estimates, "--survey", SURVEY, "--plots", figures]
+    proc = _started([*command, "--map", MAP, "--log", LOG])
+    time.sleep(1.5)  # past start-up, drawing the figures (which takes several seconds)
     proc.send_signal(signal.SIGTERM)
     _, err = proc.communicate(timeout=60)
     if proc.returncode == 0:
-        pytest.skip("map build finished before the signal arrived")
-    assert proc.returncode == 130
-    assert err.strip().splitlines() == ["segloc: interrupted"]
-    assert list(tmp_path.iterdir()) == []
+        pytest.skip("evaluate finished before the signal arrived")
+    assert proc.returncode == 130, err
+    assert err.strip().splitlines()[-1] == "segloc: interrupted"
+    assert "Traceback" not in err
+    left = [p.name for p in figures.iterdir()] if figures.exists() else []
+    assert not [name for name in left if name.endswith(".tmp")], left
 
 
 def test_stopping_parallel_workers_ends_every_process(tmp_path):

@@ -504,21 +504,23 @@ def parse_parameters(fields: dict[str, str], port: str) -> dict[str, int]:
 
 def cluster_for(readings: int | None, first_step: int, last_step: int) -> int | None:
     """The cluster size (1..``MAX_CLUSTER``) giving ``readings`` values per scan over
-    steps ``first_step..last_step``, the smallest if several do; 1 for None; None if
-    no cluster size gives that many."""
+    steps ``first_step..last_step``; 1 for None; None if no cluster size gives that many.
+
+    Only sizes that divide the steps evenly count: a last, shorter cluster would put
+    its value off the even spacing of the others, which a laser scan cannot hold.
+    """
     if readings is None:
         return 1
     steps = last_step - first_step + 1
-    for cluster in range(1, MAX_CLUSTER + 1):
-        if -(-steps // cluster) == readings:
-            return cluster
-    return None
+    cluster, rest = divmod(steps, readings) if readings > 0 else (0, 1)
+    return cluster if rest == 0 and 1 <= cluster <= MAX_CLUSTER else None
 
 
 def readings_offered(first_step: int, last_step: int) -> list[int]:
-    """Every count of values per scan some cluster size gives over these steps, largest first."""
+    """Every count of values per scan that a cluster size dividing these steps evenly gives,
+    largest first."""
     steps = last_step - first_step + 1
-    return list(dict.fromkeys(-(-steps // cluster) for cluster in range(1, MAX_CLUSTER + 1)))
+    return [steps // c for c in range(1, MAX_CLUSTER + 1) if steps % c == 0]
 
 
 class ScanDecoder:
