@@ -11,6 +11,7 @@ import numpy as np
 
 from segloc_cli.align import RTable, align
 from segloc_cli.confidence import (
+    STATUS_AMBIGUOUS,
     STATUS_LOST,
     STATUS_OK,
     ConfidenceParams,
@@ -19,7 +20,7 @@ from segloc_cli.confidence import (
 from segloc_cli.extract import ExtractParams, extract_segments
 from segloc_cli.geometry import Pose2, wrap_angle
 from segloc_cli.overlap import coarse_to_fine
-from segloc_cli.refine import Refinement, RefineParams, inlier_ratio, refine_pose
+from segloc_cli.refine import Refinement, RefineParams, inlier_ratio, refine_pose, support
 from segloc_cli.scan import Scan
 from segloc_cli.search import HypothesisSearch, SearchParams, distinct
 from segloc_cli.spatial import SegmentGrid
@@ -321,10 +322,18 @@ class Localizer:
         """The paper's answer with a verdict from the scan's points: overlap alone rates a
         pose that shares a few segments with the map as highly as the right one, so the
         answer is ``lost`` unless enough of the points lie on the map there."""
-        band = (self.params.refine or RefineParams()).final_gate_m
-        ratio = inlier_ratio(points_robot, self.segments_world, est.pose, band)
-        status = judge(ratio, 0.0, self.params.confidence)
+        ratio, hold = support(points_robot, self.segments_world, est.pose, self._band_m)
+        status = judge(ratio, 0.0, self.params.confidence, hold)
         return replace(est, inlier_ratio=ratio, status=status)
+
+    @property
+    def _band_m(self) -> float:
+        """How near the map a point must lie to count as on it (refinement's final gate)."""
+        return (self.params.refine or RefineParams()).final_gate_m
+
+    def hold_points(self, points_robot: np.ndarray, pose: Pose2) -> float:
+        """How firmly the points on the map fix the position at ``pose`` (``refine.support``)."""
+        return support(points_robot, self.segments_world, pose, self._band_m)[1]
 
     def _stage2(self, segments_robot: np.ndarray, initial: Pose2, peaks: np.ndarray):
         """Stage 2 from each stage-1 peak: (heading, result) of the largest overlap."""
@@ -377,7 +386,12 @@ class Localizer:
             heading,
             overlap_m,
             n_local,
-            judge(best.inlier_ratio, runner_up_ratio, p.confidence),
+            judge(
+                best.inlier_ratio,
+                runner_up_ratio,
+                p.confidence,
+                self.hold_points(points_robot, best.pose),
+            ),
             stage2_pose,
             best.inlier_ratio,
             None if runner_up is None else runner_up.pose,
@@ -544,6 +558,10 @@ def track_scans(
             lost_in_a_row = lost_in_a_row + 1 if status == STATUS_LOST else 0
         if status in ESTIMATED:
             carried = est.pose
+            # Along a corridor the odometry, not the scan, fixes the position: say so.
+            hold = localizer.hold_points(points, est.pose)
+            if hold < p.confidence.min_hold_points:
+                status = STATUS_AMBIGUOUS
         else:
             carried = guess
             est = replace(est, pose=guess)

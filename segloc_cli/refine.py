@@ -153,14 +153,33 @@ def _gates(params: RefineParams) -> list[float]:
     return gates
 
 
+def support(
+    points_robot: np.ndarray, segments_world: np.ndarray, pose: Pose2, band_m: float
+) -> tuple[float, float]:
+    """How well the map explains the scan at ``pose``: the share of the points (robot frame)
+    within ``band_m`` of a map segment, and how firmly those points fix the position along
+    the direction they fix it least, in points' worth.
+
+    Each point on a segment pins the position across that segment's line only:
+    the smaller eigenvalue of the sum of n·nᵀ over the points on the map (n the
+    unit normal of the segment each lies on) counts how many points' worth pin
+    the weakest direction. Along a corridor or a lone wall it is about 0,
+    however many of the points lie on the map.
+    """
+    if points_robot.shape[0] == 0 or not np.isfinite(pose.x):
+        return 0.0, 0.0
+    segments = np.asarray(segments_world, dtype=float).reshape(-1, 4)
+    index, dist = nearest_segments(transform_points(points_robot, pose), segments)
+    on_map = dist <= band_m
+    normals = _line_normals(segments[index[on_map]])
+    return float(np.mean(on_map)), float(np.linalg.eigvalsh(normals.T @ normals)[0])
+
+
 def inlier_ratio(
     points_robot: np.ndarray, segments_world: np.ndarray, pose: Pose2, band_m: float
 ) -> float:
     """Share of the points (robot frame) within ``band_m`` of a map segment at ``pose``."""
-    if points_robot.shape[0] == 0 or not np.isfinite(pose.x):
-        return 0.0
-    _, dist = nearest_segments(transform_points(points_robot, pose), segments_world)
-    return float(np.mean(dist <= band_m))
+    return support(points_robot, segments_world, pose, band_m)[0]
 
 
 def refine_pose(

@@ -21,7 +21,7 @@ from segloc_cli.confidence import ConfidenceParams, judge
 from segloc_cli.errors import SeglocError
 from segloc_cli.geometry import Pose2
 from segloc_cli.localize import NAN_POSE, STATUS_NO_OVERLAP, Estimate
-from segloc_cli.refine import RefineParams, inlier_ratio
+from segloc_cli.refine import RefineParams, support
 
 METHODS = ("two-stage", "icp", "correlative")
 """Values of ``segloc localize --method``."""
@@ -65,10 +65,12 @@ def judged_estimate(
     """A peer's answer as an ``Estimate``, with the inlier share and verdict the two stages get.
 
     ``pose`` None (the matcher gave up) yields a ``no_overlap`` row. Peers
-    report no rival, so the verdict is ``ok`` or ``lost`` by the inlier share.
+    report no rival, so the verdict is ``lost`` by the inlier share, else
+    ``ambiguous`` where the points cannot fix the position (a corridor), else
+    ``ok``.
     """
     if pose is None or not np.isfinite([pose.x, pose.y, pose.theta]).all():
         return Estimate(NAN_POSE, float("nan"), 0.0, 0, STATUS_NO_OVERLAP)
-    ratio = inlier_ratio(points_robot, segments_world, pose, RefineParams().final_gate_m)
-    status = judge(ratio, 0.0, ConfidenceParams())
+    ratio, hold = support(points_robot, segments_world, pose, RefineParams().final_gate_m)
+    status = judge(ratio, 0.0, ConfidenceParams(), hold)
     return Estimate(pose, float("nan"), 0.0, 0, status, None, ratio)
