@@ -30,7 +30,10 @@ What comes out, in segloc's units and frames:
 
 from __future__ import annotations
 
+import contextlib
 import math
+import struct
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -44,6 +47,7 @@ from rosbags.typesys import Stores, get_typestore
 
 from segloc_cli.errors import InputError
 from segloc_cli.geometry import quaternion_to_heading, wrap_angle
+from segloc_cli.io.ros1_salvage import salvage_ros1
 from segloc_cli.io.times import importer_times
 from segloc_cli.scan import MAX_READINGS, Scan, fan_defect
 
@@ -132,13 +136,23 @@ def _open(path: Path) -> AnyReader:
     try:
         reader = AnyReader([path], default_typestore=get_typestore(store))
         reader.open()
-    except AnyReaderError as exc:
-        raise InputError(
-            f"not a readable ROS bag ({exc}); expected {EXPECTED_BAG}", path=path
-        ) from None
-    except OSError as exc:
+    except PermissionError as exc:
         raise InputError(f"cannot read ({exc.strerror or exc})", path=path) from None
+    except Exception as exc:  # the bag library meets damaged bytes in many ways
+        raise InputError(
+            f"not a readable ROS bag ({_why(exc)}); expected {EXPECTED_BAG}", path=path
+        ) from None
     return reader
+
+
+def _why(exc: Exception) -> str:
+    """An exception as a short phrase for a one-line message."""
+    text = " ".join(str(exc).split())[:200]
+    return (
+        text
+        if isinstance(exc, AnyReaderError | Ros1ReaderError | Ros2ReaderError)
+        else (f"{type(exc).__name__}: {text}")
+    )
 
 
 def _topic_connections(path: Path, reader: AnyReader, topic: str, msgtype: str) -> list[Connection]:
@@ -165,28 +179,57 @@ def _read_messages(
     odom_connections = (
         [] if odom_topic is None else _topic_connections(path, reader, odom_topic, ODOM_TYPE)
     )
+    messages = (
+        (connection.topic, connection.msgtype, data)
+        for connection, _, data in reader.messages([*scan_connections, *odom_connections])
+    )
+    return _decoded(messages, reader.deserialize, scan_topic)
+
+
+def _decoded(
+    messages: Iterable[tuple[str, str, bytes]], deserialize: Callable, scan_topic: str
+) -> tuple[list[_RawScan], list[_RawOdom], dict[str, list[str]]]:
+    """Scans and odometry from (topic, type, raw bytes) in bag order (every topic but the scan
+    topic is odometry), and per topic the messages that could not be decoded."""
     raw_scans: list[_RawScan] = []
     raw_odom: list[_RawOdom] = []
     failures: dict[str, list[str]] = {}
-    n_read = 0
-    try:
-        for connection, _, data in reader.messages([*scan_connections, *odom_connections]):
-            n_read += 1
-            try:
-                message = reader.deserialize(data, connection.msgtype)
-            except AnyReaderError as exc:
-                failures.setdefault(connection.topic, []).append(str(exc))
-                continue
-            if connection.topic == scan_topic:
+    for topic, msgtype, data in messages:
+        wanted = SCAN_TYPE if topic == scan_topic else ODOM_TYPE
+        try:
+            if msgtype != wanted:
+                raise ValueError(f"type {msgtype}, expected {wanted}")
+            message = deserialize(data, msgtype)
+            if topic == scan_topic:
                 raw_scans.append(_raw_scan(message))
             else:
                 raw_odom.append(_raw_odom(message))
-    except (Ros1ReaderError, Ros2ReaderError) as exc:
-        topics = scan_topic if odom_topic is None else f"{scan_topic} and {odom_topic}"
-        raise InputError(
-            f"bag is damaged after {n_read} message(s) on {topics} ({exc})", path=path
-        ) from None
+        except (AnyReaderError, ValueError, struct.error, IndexError, KeyError) as exc:
+            failures.setdefault(topic, []).append(str(exc))
     return raw_scans, raw_odom, failures
+
+
+def _salvaged(
+    path: Path, scan_topic: str, odom_topic: str | None, refusal: InputError
+) -> tuple[list[_RawScan], list[_RawOdom], dict[str, list[str]], str]:
+    """A ROS 1 bag that the reader refused, read without its index (``ros1_salvage``), and
+    the warning that says so; ``refusal`` is raised when that finds nothing either."""
+    topics = {scan_topic} | ({odom_topic} if odom_topic else set())
+    try:
+        salvage = salvage_ros1(path, topics)
+    except (OSError, ValueError):
+        raise refusal from None
+    typestore = get_typestore(Stores.ROS1_NOETIC)
+    decoded = _decoded(salvage.messages, typestore.deserialize_ros1, scan_topic)
+    if not decoded[0]:
+        raise refusal from None
+    where = "" if salvage.stopped is None else f", up to where {salvage.stopped}"
+    note = (
+        f"{path.name}: the bag's index is missing or damaged (a recording cut short?); read "
+        f"its {len(salvage.messages)} messages on {', '.join(sorted(topics))} record by "
+        f"record{where}"
+    )
+    return (*decoded, note)
 
 
 # --- reading -------------------------------------------------------------------------
@@ -203,13 +246,29 @@ def read_rosbag(
     that cannot be decoded is skipped and counted in ``warnings``.
     """
     path = Path(path)
-    reader = _open(path)
+    salvage_note = []
     try:
-        raw_scans, raw_odom, failures = _read_messages(path, reader, scan_topic, odom_topic)
-    finally:
-        reader.close()
+        reader, refusal = _open(path), None
+    except InputError as refused:
+        reader, refusal = None, refused
+    if reader is not None:
+        try:
+            raw_scans, raw_odom, failures = _read_messages(path, reader, scan_topic, odom_topic)
+        except InputError:
+            raise
+        except Exception as exc:  # the bag library meets damaged bytes in many ways
+            refusal = InputError(f"the bag is damaged ({_why(exc)})", path=path)
+        finally:
+            with contextlib.suppress(Exception):
+                reader.close()
+    if refusal is not None:
+        # A ROS 1 bag cut short has no index (it is written last) but whole chunks.
+        if path.suffix != ".bag" or not path.is_file():
+            raise refusal
+        *decoded, note = _salvaged(path, scan_topic, odom_topic, refusal)
+        (raw_scans, raw_odom, failures), salvage_note = decoded, [note]
 
-    warnings = [
+    warnings = salvage_note + [
         f"{path.name}: skipped {len(errors)} message(s) on {topic} that could not be decoded "
         f"(first: {errors[0]})"
         for topic, errors in failures.items()
