@@ -8,9 +8,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from fuzzing import byte_mutations, fuzz_settings, mutate, outcome
-from hypothesis import given
-from hypothesis import strategies as st
 from rosbags.rosbag1 import Writer as Ros1Writer
 from rosbags.rosbag2 import StoragePlugin
 from rosbags.rosbag2 import Writer as Ros2Writer
@@ -668,16 +665,3 @@ def test_a_cut_bag_without_a_whole_scan_is_still_refused(tmp_path):
     cut.write_bytes(path.read_bytes()[:200])
     with pytest.raises(InputError, match=r"cut\.bag: not a readable ROS bag"):
         read_rosbag(cut)
-
-
-@given(mutations=st.lists(byte_mutations(length_fields=True), min_size=1, max_size=4))
-@fuzz_settings
-def test_a_mangled_ros1_bag_gives_scans_or_one_line(tmp_path_factory, mutations):
-    folder = tmp_path_factory.mktemp("mangled")
-    whole = write_ros1_in_chunks(folder / "whole.bag", "BZ2")
-    path = folder / "mangled.bag"
-    path.write_bytes(mutate(whole.read_bytes(), mutations))
-    result = outcome(read_rosbag, path)
-    if not isinstance(result, InputError):
-        assert all(np.all(np.isfinite(s.angles_rad)) for s in result.scans)
-        assert np.all(np.diff([s.time_s for s in result.scans]) > 0)
