@@ -17,6 +17,7 @@ import re
 import subprocess
 from dataclasses import dataclass
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import pytest
@@ -59,8 +60,9 @@ SURVEY_HEADER = "pose_id,time_s,x_m,y_m,theta_deg"
 # --------------------------------------------------------------------------- helpers
 
 
-@dataclass(frozen=True)
-class Result:
+class Result(NamedTuple):
+    """What a run of ``segloc`` gave: exit status, standard output, standard error."""
+
     code: int
     out: str
     err: str

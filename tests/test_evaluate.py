@@ -9,6 +9,7 @@ import math
 import numpy as np
 import pandas as pd
 import pytest
+from test_cli import run_cli
 
 from segloc_cli.errors import InputError
 from segloc_cli.evaluate import format_table, gate, summary, table1
@@ -502,20 +503,6 @@ def test_unknown_format_names_the_choices():
 # --- the command line -----------------------------------------------------------------------
 
 
-def run_segloc(capsys, *args) -> tuple[int, str, str]:
-    """``segloc ARGS`` in-process: (exit status, stdout, stderr)."""
-    from segloc_cli.cli import main
-
-    capsys.readouterr()
-    try:
-        main([str(a) for a in args])
-        code = 0
-    except SystemExit as exc:
-        code = exc.code if isinstance(exc.code, int) else 1
-    out, err = capsys.readouterr()
-    return code, out, err
-
-
 @pytest.fixture
 def run_files(tmp_path):
     """An estimates CSV (ok, ambiguous 12 cm off) and its survey, written as the tools do."""
@@ -532,19 +519,19 @@ def run_files(tmp_path):
 
 def test_cli_scores_all_poses_and_only_ok_on_request(run_files, capsys):
     est, survey = run_files
-    code, out, _ = run_segloc(capsys, "evaluate", est, "--survey", survey, "--format", "json")
+    code, out, _ = run_cli(capsys, "evaluate", est, "--survey", survey, "--format", "json")
     assert code == 0
     assert json.loads(out)["summary"]["max"]["err_x_cm"] == pytest.approx(12.0)
-    code, out, _ = run_segloc(
+    code, out, _ = run_cli(
         capsys, "evaluate", est, "--survey", survey, "--format", "json", "--only-ok"
     )
     assert code == 0
     assert json.loads(out)["summary"]["max"]["err_x_cm"] == pytest.approx(3.0)
-    code, out, err = run_segloc(capsys, "evaluate", est, "--survey", survey, "--fail-above-cm", 5)
+    code, out, err = run_cli(capsys, "evaluate", est, "--survey", survey, "--fail-above-cm", 5)
     assert code == 1
     assert out.splitlines()[-2] == "1 of 2 poses beyond 5 cm."
     assert err.splitlines() == ["segloc: gate: pose 2: status ambiguous"]
-    code, out, err = run_segloc(capsys, "evaluate", est, "--survey", survey, "--fail-above-cm", 20)
+    code, out, err = run_cli(capsys, "evaluate", est, "--survey", survey, "--fail-above-cm", 20)
     assert code == 1
     assert out.splitlines()[-2] == (
         "0 of 2 poses beyond 20 cm; the gate fails 1, counting 1 without an accepted estimate "
@@ -557,13 +544,13 @@ def test_cli_out_needs_force_and_is_checked_before_the_inputs(run_files, tmp_pat
     out = tmp_path / "table.md"
     out.write_text("keep me\n")
     # The inputs do not exist: the refusal of the output comes first.
-    code, _, err = run_segloc(
+    code, _, err = run_cli(
         capsys, "evaluate", tmp_path / "none.csv", "--survey", survey, "--out", out
     )
     assert (code, err) == (2, f"segloc: error: {out}: file exists; choose another --out or pass "
                                "--force\n")  # fmt: skip
     assert out.read_text() == "keep me\n"
-    code, _, err = run_segloc(capsys, "evaluate", est, "--survey", survey, "--out", out, "--force")
+    code, _, err = run_cli(capsys, "evaluate", est, "--survey", survey, "--out", out, "--force")
     assert code == 0, err
     assert out.read_text().startswith("| pose")
 
@@ -573,7 +560,7 @@ def test_cli_plots_refuse_existing_figures_before_work(run_files, tmp_path, caps
     plots = tmp_path / "figures"
     plots.mkdir()
     (plots / "errors.pdf").write_text("old figure")
-    code, out, err = run_segloc(capsys, "evaluate", est, "--survey", survey, "--plots", plots)
+    code, out, err = run_cli(capsys, "evaluate", est, "--survey", survey, "--plots", plots)
     assert code == 2 and out == ""
     assert err == (
         f"segloc: error: {plots / 'errors.pdf'}: file exists; choose another --plots or pass "

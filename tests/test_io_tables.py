@@ -10,6 +10,7 @@ import pandas as pd
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from test_cli import run_cli
 
 from segloc_cli.errors import InputError
 from segloc_cli.geometry import heading_to_quaternion, quaternion_to_heading
@@ -630,19 +631,6 @@ def test_tum_writer_writes_what_write_tum_writes(tmp_path):
 HALL = Path(__file__).resolve().parents[1] / "datasets" / "hall"
 
 
-def run_segloc(capsys, *args) -> tuple[int, str]:
-    """``segloc ARGS`` in-process: (exit status, stderr)."""
-    from segloc_cli.cli import main
-
-    capsys.readouterr()
-    try:
-        main([str(a) for a in args])
-        code = 0
-    except SystemExit as exc:
-        code = exc.code if isinstance(exc.code, int) else 1
-    return code, capsys.readouterr().err
-
-
 def hall_survey_with_row_3_at(tmp_path, time_s: float) -> Path:
     """The hall's survey (scans at 1, 2, ... 10 s) with row 3's time changed."""
     lines = (HALL / "survey.csv").read_text().splitlines()
@@ -657,7 +645,7 @@ def hall_survey_with_row_3_at(tmp_path, time_s: float) -> Path:
 def test_map_build_refuses_survey_rows_sharing_a_scan_time(tmp_path, capsys):
     survey = hall_survey_with_row_3_at(tmp_path, 2.0)
     out = tmp_path / "map.json"
-    code, err = run_segloc(
+    code, _, err = run_cli(
         capsys, "map", "build", HALL / "log.mcap", "--survey", survey, "--out", out
     )
     assert code == 2
@@ -671,7 +659,7 @@ def test_map_build_refuses_survey_rows_sharing_a_scan_time(tmp_path, capsys):
 def test_localize_refuses_guess_rows_sharing_a_scan_time(tmp_path, capsys):
     guesses = hall_survey_with_row_3_at(tmp_path, 2.0)
     out = tmp_path / "est.csv"
-    code, err = run_segloc(
+    code, _, err = run_cli(
         capsys, "localize", HALL / "log.mcap", "--map", HALL / "map.json",
         "--initial", guesses, "--out", out,
     )  # fmt: skip
