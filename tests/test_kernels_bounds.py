@@ -4,8 +4,9 @@ A scan or a map no one tuned segloc for must end in a status, never in a read
 outside an array (which, unchecked, corrupts memory and kills the process with
 no message). One subprocess compiles every kernel with ``NUMBA_BOUNDSCHECK=1``
 (its cache in a temporary folder, so the checked code never reaches the normal
-cache) and runs the localizer's every path over a corpus of bad scans and maps;
-an out-of-bounds index there raises instead of corrupting memory, and fails.
+cache) and runs the localizer's every path over a corpus of bad scans and maps,
+hand-made and drawn at random; an out-of-bounds index there raises instead of
+corrupting memory, and fails.
 """
 
 from __future__ import annotations
@@ -146,6 +147,24 @@ CORPUS = textwrap.dedent(
                 emit(map=map_name, scan="track", how="track", status=row["status"])
                 rows += 1
 
+    # A seeded random corpus, as the fuzz suites draw theirs: every kind of value mixed in.
+    odd = np.array([np.nan, np.inf, -np.inf, 1e30, -1e30, 1e6, 0.0, -1.0, 1e-300])
+    room = Localizer(world.segments)
+    room_two_stage = room.with_params(replace(room.params, refine=None))
+    for k in range(150):
+        n = int(rng.integers(0, 400))
+        angles = np.sort(rng.uniform(-np.pi, np.pi, n))
+        ranges = rng.uniform(0.1, 15.0, n)
+        for values in (angles, ranges):
+            hit = rng.random(n) < rng.choice([0.0, 0.05, 0.5])
+            values[hit] = rng.choice(odd, int(hit.sum()))
+        scan = raw_scan(angles, ranges)
+        local = extract_segments(scan)
+        for how, matcher in (("random", room), ("random_two_stage", room_two_stage)):
+            est = matcher.localize(local, guesses["near"], scan.points())
+            emit(map="room", scan=f"random{k}", guess="near", how=how, status=est.status)
+            rows += 1
+
     # The kernels called directly with points no Scan would give.
     bad_points = np.array([[np.nan, 0.0], [np.inf, -np.inf], [1e30, -1e30], [1e6, 3.0],
                            [0.5, 0.5], [-1e300, 1e-300]])
@@ -180,7 +199,7 @@ def test_every_path_on_hostile_input_stays_inside_its_arrays(tmp_path):
     lines = [json.loads(line) for line in done.stdout.splitlines()]
     rows, (last,) = lines[:-1], lines[-1:]
     assert last == {"done": len(rows)}
-    assert len(rows) > 250
+    assert len(rows) > 550
     assert {row["status"] for row in rows} <= STATUSES
     by_case = {(row["map"], row["scan"], row.get("guess"), row["how"]): row for row in rows}
     # The scans that cannot pin a pose are never trusted, whatever the map.
