@@ -766,3 +766,20 @@ def test_scan_valid_ignores_readings_beyond_the_physical_bound():
 )
 def test_fan_defect(n, start, end, defect):
     assert fan_defect(n, start, end) == defect
+
+
+def test_a_ros2_bag_in_mcap_points_at_the_importer(tmp_path):
+    path = tmp_path / "ros2.mcap"
+    with open(path, "wb") as stream:
+        writer = Writer(stream)
+        writer.start(profile="ros2", library="rosbag2")
+        schema = writer.register_schema("sensor_msgs/msg/LaserScan", "ros2msg", b"")
+        channel = writer.register_channel("/scan", "cdr", schema)
+        writer.add_message(channel, log_time=0, data=b"\x00\x01", publish_time=0)
+        writer.finish()
+    with pytest.raises(InputError) as caught:
+        read_log(path)
+    assert str(caught.value) == (
+        f"{path}: channel /scan uses message encoding 'cdr'; segloc reads JSON-encoded foxglove "
+        f"messages; it is a ROS bag: convert it with `segloc import rosbag {path}`"
+    )

@@ -80,6 +80,8 @@ WORLD_FRAME_ID = "world"
 ANGLE_SPACING_TOLERANCE_RAD = 1e-9
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 
+ROS_ENCODINGS = ("cdr", "ros1", "ros2msg")
+"""Message encodings of ROS bags written as MCAP (``segloc import rosbag`` reads them)."""
 MAX_MESSAGE_BYTES = 16 * 2**20
 """Largest ``/scan`` or ``/odom`` message (bytes) that is decoded: ``MAX_READINGS`` readings
 and their intensities take about 5 MB of JSON, so a larger message is skipped unread."""
@@ -825,20 +827,24 @@ def read_log(path: str | Path) -> LogContents:
     if broken is not None:
         finished = False
 
+    # A ROS 2 bag stored as MCAP is an MCAP file too, but of ROS messages.
+    ros = any(c.message_encoding in ROS_ENCODINGS for c in channels.values())
+    to_import = f"; it is a ROS bag: convert it with `segloc import rosbag {path}`" if ros else ""
     scan_channels = [c for c in channels.values() if c.topic == SCAN_TOPIC]
     if not scan_channels:
         found = ", ".join(sorted({_clip(c.topic) for c in channels.values()})) or "none"
         cut = "" if broken is None else f"; the file {broken} after {n_messages} messages"
         raise InputError(
             f"no {SCAN_TOPIC} channel; record or import a log with laser scans on "
-            f"{SCAN_TOPIC} (channels found: {found}){cut}",
+            f"{SCAN_TOPIC} (channels found: {found}){cut}{to_import}",
             path=path,
         )
     for channel in [*scan_channels, *(c for c in channels.values() if c.topic == ODOM_TOPIC)]:
         if channel.message_encoding != "json":
             raise InputError(
                 f"channel {channel.topic} uses message encoding "
-                f"{_show(channel.message_encoding)}; segloc reads JSON-encoded foxglove messages",
+                f"{_show(channel.message_encoding)}; segloc reads JSON-encoded foxglove messages"
+                f"{to_import}",
                 path=path,
             )
     if not scan_records and scan_faults.total():
