@@ -19,6 +19,8 @@ from segloc_cli.errors import InputError, SeglocError
 from segloc_cli.geometry import Pose2
 from segloc_cli.scan import MAX_RANGE_M
 
+GATE_SHOWN = 5
+"""Violations of an evaluate gate named on its one line; the table shows them all."""
 PROGRESS_MIN_SCANS = 20
 """Show a progress bar when a command works through at least this many scans."""
 
@@ -109,6 +111,29 @@ def cli() -> None:
 # --------------------------------------------------------------------------- simulate
 
 
+def _check_increasing_times(times_s: np.ndarray, path: Path, what: str) -> None:
+    """Refuse, naming the row, times that are negative, past ``MAX_TIME_S`` or not increasing
+    (a log of such times could not be paired with its survey)."""
+    from segloc_cli.io.times import MAX_TIME_S
+
+    outside = np.flatnonzero(~((times_s >= 0) & (times_s <= MAX_TIME_S)))
+    if outside.size:
+        row = int(outside[0])
+        raise InputError(
+            f"column time_s is {times_s[row]:g}; {what} must be from 0 to {MAX_TIME_S:.0f} s",
+            path=path,
+            row=row + 1,
+        )
+    stalled = np.flatnonzero(np.diff(times_s) <= 0)
+    if stalled.size:
+        row = int(stalled[0]) + 1
+        raise InputError(
+            f"column time_s is {times_s[row]:g}, not after the row before; {what} must increase",
+            path=path,
+            row=row + 1,
+        )
+
+
 def _parse_init_errors(value: str) -> tuple[str, float, float]:
     if value == "paper":
         return ("paper", 0.0, 0.0)
@@ -195,14 +220,7 @@ def simulate(world_path, poses_path, out_dir, readings, noise_cm, seed, init_err
     times = truth.time_s
     if np.isnan(times).any():
         times = np.arange(1, len(truth) + 1, dtype=float)
-    negative = np.flatnonzero(~(times >= 0))
-    if negative.size:
-        row = int(negative[0])
-        raise InputError(
-            f"column time_s is {times[row]:g}; log times must be >= 0 s",
-            path=poses_path,
-            row=row + 1,
-        )
+    _check_increasing_times(times, poses_path, "log times")
     rng = np.random.default_rng(seed)
     if mode == "paper":
         errors = paper_initial_errors(len(truth))
@@ -1002,9 +1020,10 @@ def evaluate(
             (survey_path, estimates_path),
         )
     violations = gate(table, fail_above_cm, fail_above_deg)
-    for line in violations:
-        click.echo(f"segloc: gate: {line}", err=True)
     if violations:
+        shown = "; ".join(violations[:GATE_SHOWN])
+        more = len(violations) - GATE_SHOWN
+        click.echo(f"segloc: gate: {shown}" + (f"; and {more} more" if more > 0 else ""), err=True)
         sys.exit(EXIT_GATE_FAILED)
 
 
@@ -1207,6 +1226,7 @@ def emulate(protocol, world_path, pose, path_csv, faults, fault_rate, fault_afte
         trajectory = Trajectory(np.zeros(1), _parse_pose(pose).as_array()[None, :])
     else:
         table = read_pose_table(path_csv)
+        _check_increasing_times(table.time_s, path_csv, "the path's times")
         trajectory = Trajectory(table.time_s - table.time_s[0], table.poses)
 
     def announce(device_path: str) -> None:

@@ -652,6 +652,9 @@ def test_pipeline_evaluate_gate_fails(hall):
     )
     assert result.code == 1, f"a 0.001 cm gate must fail; exit {result.code}, stderr:\n{result.err}"
     assert "Traceback" not in result.err
+    # One line, naming the first violations and counting the rest (the table shows them all).
+    (line,) = result.err.splitlines()
+    assert line.startswith("segloc: gate: pose ") and re.search(r"; and \d+ more$", line), line
     assert re.search(r"\bpose (10|[1-9])\b", result.err), (
         f"stderr must name a pose that exceeds the limit: {result.err!r}"
     )

@@ -665,3 +665,33 @@ def test_a_cut_bag_without_a_whole_scan_is_still_refused(tmp_path):
     cut.write_bytes(path.read_bytes()[:200])
     with pytest.raises(InputError, match=r"cut\.bag: not a readable ROS bag"):
         read_rosbag(cut)
+
+
+@pytest.mark.parametrize("range_max", [float("nan"), 0.0, -1.0, RANGE_MIN / 2])
+def test_range_limits_that_cannot_apply_keep_the_readings_with_a_warning(tmp_path, range_max):
+    ranges = scan_ranges(0)
+    messages = [scan_record(ROS1_STORE, 1, 0, ranges, range_max=range_max)]
+    log = read_rosbag(write_bag("ros1", tmp_path, TOPICS, messages), odom_topic=None)
+    (scan,) = log.scans
+    kept = np.isfinite(ranges) & (ranges > 0)
+    np.testing.assert_allclose(scan.ranges_m[kept], ranges[kept].astype(np.float32), rtol=0)
+    assert scan.range_max_m == math.inf
+    assert log.warnings == [
+        f"test.bag: 1 scan(s) give range limits that cannot be applied (first: range_min "
+        f"{float(np.float32(RANGE_MIN))!r}, range_max {float(np.float32(range_max))!r} m); "
+        "their readings count up to 1000 m"
+    ]
+
+
+def test_odometry_that_is_not_a_pose_is_skipped_and_counted(tmp_path):
+    good = [odom_record(ROS1_STORE, 10 + k, k * 100_000_000, Pose2(k, 0.0, 0.0)) for k in range(3)]
+    bad = odom_record(ROS1_STORE, 5, 50_000_000, Pose2(float("nan"), 0.0, 0.0))
+    scans = [scan_record(ROS1_STORE, 20 + k, k * 100_000_000, scan_ranges(k)) for k in range(3)]
+    log = read_rosbag(
+        write_bag("ros1", tmp_path, TOPICS, sorted([*good, bad, *scans], key=lambda m: m[1]))
+    )
+    np.testing.assert_allclose(log.odom_poses[:, 0], [0.0, 1.0, 2.0])
+    assert log.warnings == [
+        "test.bag: skipped 1 message(s) on /odom that could not be decoded (first: the pose is "
+        "not finite)"
+    ]

@@ -49,7 +49,7 @@ from segloc_cli.errors import InputError
 from segloc_cli.geometry import quaternion_to_heading, wrap_angle
 from segloc_cli.io.ros1_salvage import salvage_ros1
 from segloc_cli.io.times import importer_times
-from segloc_cli.scan import MAX_READINGS, Scan, fan_defect
+from segloc_cli.scan import MAX_RANGE_M, MAX_READINGS, Scan, fan_defect
 
 SCAN_TYPE = "sensor_msgs/msg/LaserScan"
 ODOM_TYPE = "nav_msgs/msg/Odometry"
@@ -115,9 +115,17 @@ def _raw_scan(m: Any) -> _RawScan:
 
 
 def _raw_odom(message: Any) -> _RawOdom:
+    """The pose of an Odometry message; ``ValueError`` (the message is skipped and counted)
+    when it is not finite or its orientation is no rotation."""
     pose = message.pose.pose
     q = pose.orientation
-    return (_stamp_ns(message), pose.position.x, pose.position.y, q.x, q.y, q.z, q.w)
+    row = (_stamp_ns(message), pose.position.x, pose.position.y, q.x, q.y, q.z, q.w)
+    values = np.array(row[1:], dtype=float)
+    if not np.all(np.isfinite(values)):
+        raise ValueError("the pose is not finite")
+    if not np.any(values[2:]):
+        raise ValueError("the orientation quaternion is all zeros")
+    return row
 
 
 # --- opening -------------------------------------------------------------------------
@@ -342,13 +350,29 @@ def _usable(raw_scans: list[_RawScan]) -> tuple[list[_RawScan], list[tuple[str, 
     ]
 
 
+def _with_usable_limits(raw: _RawScan) -> _RawScan:
+    """``raw`` with range limits that can be applied: a range_max that is not a positive
+    number, or not above range_min, is no maximum (inf) and such a range_min none (0), so
+    that a driver's bad limits do not make every reading invalid."""
+    low, high = raw.range_min, raw.range_max
+    if not (math.isfinite(low) and low >= 0.0):
+        low = 0.0
+    if not (high > low):  # NaN, 0, negative, or not above the minimum
+        low, high = 0.0, math.inf
+    return raw._replace(range_min=low, range_max=high)
+
+
 def _scans(raw_scans: list[_RawScan], times_s: np.ndarray) -> tuple[list[Scan], list[str]]:
     """Scans (invalid readings as 0.0) at ``times_s`` (S,) seconds from decoded messages,
     and notes on oddities."""
     scans = []
     n_count_mismatch = 0
     n_intensity_mismatch = 0
-    for raw, time_s in zip(raw_scans, times_s, strict=True):
+    bad_limits: list[str] = []
+    for given, time_s in zip(raw_scans, times_s, strict=True):
+        raw = _with_usable_limits(given)
+        if (raw.range_min, raw.range_max) != (given.range_min, given.range_max):
+            bad_limits.append(f"range_min {given.range_min!r}, range_max {given.range_max!r}")
         n = len(raw.ranges)
         if raw.angle_increment != 0.0:
             n_spanned = round((raw.angle_max - raw.angle_min) / raw.angle_increment) + 1
@@ -375,6 +399,11 @@ def _scans(raw_scans: list[_RawScan], times_s: np.ndarray) -> tuple[list[Scan], 
             )
         )
     notes = []
+    if bad_limits:
+        notes.append(
+            f"{len(bad_limits)} scan(s) give range limits that cannot be applied (first: "
+            f"{bad_limits[0]} m); their readings count up to {MAX_RANGE_M:g} m"
+        )
     if n_count_mismatch:
         notes.append(
             f"{n_count_mismatch} scan(s) hold a number of ranges other than angle_min to "
@@ -385,7 +414,7 @@ def _scans(raw_scans: list[_RawScan], times_s: np.ndarray) -> tuple[list[Scan], 
             f"{n_intensity_mismatch} scan(s) hold a number of intensities other than the "
             "number of ranges; their intensities were dropped"
         )
-    range_maxes = sorted({raw.range_max for raw in raw_scans})
+    range_maxes = sorted({s.range_max_m for s in scans})
     if len(range_maxes) > 1:
         notes.append(
             f"range_max varies between scans ({range_maxes[0]!r} to {range_maxes[-1]!r} m); "
