@@ -721,6 +721,8 @@ def localize(
     guess_file = None if initial == "odom" else Path(initial)
     check_outputs({"--out": out_path, "--tum": tum_path}, [*log_paths, map_path, guess_file], force)
     segments_world = read_map(map_path)
+    if global_search:
+        _check_global_extent(segments_world, map_path)
     params = LocalizeParams(
         window_deg=None if no_prior_heading else window_deg,
         bin_deg=bin_deg,
@@ -744,6 +746,7 @@ def localize(
     stops: list[str] = []  # signals asking the run to stop, noted while it runs
     streams = []  # one iterator of estimates rows per log
     n_scans = skipped = 0
+    spans = []  # (log, first and last time localized), to catch logs that overlap in time
     for log_path in log_paths:
         log = _load_log(log_path)
         if every_scan:
@@ -760,6 +763,12 @@ def localize(
             # The first scan with a guess seeds the track; odometry carries it on.
             odom_rows = _odometry_rows(log, log_path, tolerance_s)
             keep = np.flatnonzero((odom_rows >= 0) & (np.arange(len(log.scans)) >= idx[0]))
+            if keep.size == 0:
+                raise InputError(
+                    f"no scan from the first guess on has odometry within {tolerance_ms:g} ms; "
+                    "tracking needs /odom at the scans",
+                    path=log_path,
+                )
             odometry = [Pose2(*log.odom_poses[r]) for r in odom_rows[keep]]
             scans = [log.scans[i] for i in keep]
             streams.append(track_scans(scans, odometry, poses[0], keep + 1, localizer))
@@ -774,9 +783,40 @@ def localize(
             )
         n_scans += keep.size
         skipped += len(log.scans) - keep.size
+        if keep.size:
+            times = log.scan_times_s[keep]
+            spans.append((log_path, times.min(), times.max()))
+    _warn_overlapping(spans)
 
     rows = itertools.chain.from_iterable(streams)
     _localize_rows(rows, n_scans, out_path, tum_path, skipped, stops)
+
+
+def _warn_overlapping(spans: list[tuple[Path, float, float]]) -> None:
+    """Warn when two logs' localized scans overlap in time: their rows share a time span, and
+    scoring them against one survey would pair rows it cannot tell apart."""
+    ordered = sorted(spans, key=lambda span: span[1])
+    for (first, _, end), (second, start, _) in itertools.pairwise(ordered):
+        if start <= end:
+            _warn(
+                f"{first} and {second} overlap in time ({start:.3f}–{end:.3f} s); their rows "
+                "in the estimates cannot be told apart by time (evaluate will refuse them)"
+            )
+
+
+def _check_global_extent(segments_world: np.ndarray, map_path: Path) -> None:
+    """Refuse ``--global`` on a map too large to search whole in reasonable time."""
+    from segloc_cli.localize import MAX_GLOBAL_AREA_M2
+
+    width, height = np.ptp(segments_world[:, 0::2]), np.ptp(segments_world[:, 1::2])
+    if width * height > MAX_GLOBAL_AREA_M2:
+        raise InputError(
+            f"--global searches the whole map, and this one spans {width:.0f} m × "
+            f"{height:.0f} m, more than the {MAX_GLOBAL_AREA_M2:,.0f} m² it searches in about "
+            "a minute per scan; give initial guesses (--initial) or a map of the area the "
+            "robot is in",
+            path=map_path,
+        )
 
 
 def _localize_rows(

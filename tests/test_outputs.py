@@ -342,3 +342,34 @@ def test_stopping_parallel_workers_ends_every_process(tmp_path):
         ["ps", "-o", "pid=", "-s", str(proc.pid)], capture_output=True, text=True
     )
     assert alive.stdout.split() == [], "worker processes outlived the run"
+
+
+# --------------------------------------------------------------------------- inputs
+
+
+def test_a_pipe_is_refused_rather_than_waited_on(capsys, tmp_path):
+    fifo = tmp_path / "log.mcap"
+    os.mkfifo(fifo)  # nobody will ever write to it
+    result = run_cli(capsys, "info", fifo)
+    assert_one_line_error(result, str(fifo), "not a regular file")
+
+
+def test_global_search_of_a_map_too_large_to_search_is_refused(capsys, tmp_path):
+    from segloc_cli.io.maps import write_map
+
+    wide = tmp_path / "wide.json"
+    write_map(wide, [[0.0, 0.0, 1999.0, 0.0], [0.0, 0.0, 0.0, 1999.0]])
+    out = tmp_path / "est.csv"
+    result = run_cli(capsys, "localize", LOG, "--map", wide, "--global", "--out", out)
+    assert_one_line_error(result, str(wide), "1999 m × 1999 m", "--initial")
+    assert not out.exists()
+
+
+def test_logs_that_overlap_in_time_are_named(capsys, tmp_path):
+    copy = tmp_path / "again.mcap"
+    copy.write_bytes(LOG.read_bytes())
+    out = tmp_path / "est.csv"
+    result = run_cli(capsys, "localize", LOG, copy, "--map", MAP, "--out", out, "--no-refine")
+    assert result.code == 0, result.err
+    assert f"segloc: warning: {LOG} and {copy} overlap in time (1.000–10.000 s)" in result.err
+    assert len(_complete_rows(out)) == 20

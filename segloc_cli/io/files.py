@@ -29,8 +29,14 @@ from segloc_cli.errors import InputError
 def reading(path: Path, expected: str) -> Iterator[None]:
     """Turn OS and decoding errors raised inside the block into ``InputError``.
 
-    ``expected`` names what the file should be ("a JSON map or world", ...).
+    ``expected`` names what the file should be ("a JSON map or world", ...). A pipe,
+    socket or device is refused before the block runs: reading one could wait forever.
     """
+    path = Path(path)
+    if path.exists() and not path.is_file() and not path.is_dir():
+        raise InputError(
+            f"is not a regular file (a pipe, socket or device); expected {expected}", path=path
+        )
     try:
         yield
     except FileNotFoundError:

@@ -135,6 +135,10 @@ def _open(path: Path) -> AnyReader:
     """Open ``path`` as a bag; every way that fails becomes an ``InputError``."""
     if not path.exists():
         raise InputError("file or folder not found; check the path", path=path)
+    if not path.is_file() and not path.is_dir():
+        raise InputError(
+            f"is not a regular file (a pipe, socket or device); expected {EXPECTED_BAG}", path=path
+        )
     if path.is_dir() and not (path / "metadata.yaml").is_file():
         raise InputError(f"folder has no metadata.yaml; expected {EXPECTED_BAG}", path=path)
     # AnyReader reads a path ending in .bag as ROS 1 and anything else as ROS 2. The
