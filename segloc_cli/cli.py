@@ -439,17 +439,16 @@ def map_build(log_path, survey_path, out_path, tolerance_ms, force):
 # --------------------------------------------------------------------------- localize
 
 
-def _odometry_rows(log, log_path: Path, tolerance_s: float) -> np.ndarray:
+def _odometry_rows(log, log_path: Path, tolerance_s: float, missing: str) -> np.ndarray:
     """Index of the /odom message nearest each scan in time (−1 where none is close enough).
 
-    Two /odom messages at the time nearest a scan, or two scans at one time, are refused.
+    Two /odom messages at the time nearest a scan, or two scans at one time, are refused;
+    a log without /odom is refused with "the log has no /odom messages" + ``missing``.
     """
     from segloc_cli.io.tables import pair_by_time
 
     if log.odom_times_s.size == 0:
-        raise InputError(
-            "the log has no /odom messages; tracking needs odometry between scans", path=log_path
-        )
+        raise InputError(f"the log has no /odom messages{missing}", path=log_path)
     return pair_by_time(
         log.scan_times_s,
         log.odom_times_s,
@@ -471,27 +470,20 @@ def _initial_guesses(initial: str, log, log_path: Path, tolerance_s: float):
     from segloc_cli.io.tables import pair_by_time, read_pose_table
 
     if initial == "odom":
-        if log.odom_times_s.size == 0:
-            raise InputError(
-                "the log has no /odom messages to take initial guesses from; "
-                "pass --initial FILE.csv",
-                path=log_path,
-            )
-        ref_times, ref_poses, ref_ids = log.odom_times_s, log.odom_poses, None
-        ref_path, ref_label = log_path, "/odom message"
+        missing = " to take initial guesses from; pass --initial FILE.csv"
+        rows = _odometry_rows(log, log_path, tolerance_s, missing)
+        ref_poses, ref_ids = log.odom_poses, None
     else:
         table = read_pose_table(Path(initial))
-        ref_times, ref_poses, ref_ids = table.time_s, table.poses, table.pose_id
-        ref_path, ref_label = Path(initial), "row"
-    rows = pair_by_time(
-        log.scan_times_s,
-        ref_times,
-        tolerance_s,
-        query_path=log_path,
-        ref_path=ref_path,
-        query_label="scan",
-        ref_label=ref_label,
-    )
+        ref_poses, ref_ids = table.poses, table.pose_id
+        rows = pair_by_time(
+            log.scan_times_s,
+            table.time_s,
+            tolerance_s,
+            query_path=log_path,
+            ref_path=Path(initial),
+            query_label="scan",
+        )
     idx = np.flatnonzero(rows >= 0)
     poses = [Pose2(*ref_poses[r]) for r in rows[idx]]
     return idx, poses, idx + 1 if ref_ids is None else ref_ids[rows[idx]]
@@ -761,7 +753,8 @@ def localize(
             )
         if track:
             # The first scan with a guess seeds the track; odometry carries it on.
-            odom_rows = _odometry_rows(log, log_path, tolerance_s)
+            missing = "; tracking needs odometry between scans"
+            odom_rows = _odometry_rows(log, log_path, tolerance_s, missing)
             keep = np.flatnonzero((odom_rows >= 0) & (np.arange(len(log.scans)) >= idx[0]))
             if keep.size == 0:
                 raise InputError(

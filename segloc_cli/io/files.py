@@ -97,12 +97,10 @@ def check_outputs(
         if key in seen:
             raise OutputError(f"{seen[key]} and {option} name the same file", path=path)
         seen[key] = option
-    for source in inputs:
-        if source is not None and _identity(Path(source)) in seen:
-            option = seen[_identity(Path(source))]
-            raise OutputError(
-                f"is an input of this command; choose another {option}", path=Path(source)
-            )
+    for source in (Path(s) for s in inputs if s is not None):
+        option = seen.get(_identity(source))
+        if option is not None:
+            raise OutputError(f"is an input of this command; choose another {option}", path=source)
 
 
 def _identity(path: Path) -> str:
