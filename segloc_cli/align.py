@@ -15,10 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from segloc_cli.config import VOTE_SCHEMES
 from segloc_cli.geometry import segment_lengths, segment_orientations, wrap_angle
-
-VOTE_SCHEMES = ("product", "count", "local", "sum")
-"""Vote weights of the paper: eq. (1) λL·λG, eq. (2) 1, eq. (3) λL, eq. (4) λL + λG."""
 
 
 def vote_weight(scheme: str, local_len_m: np.ndarray, global_len_m: np.ndarray) -> np.ndarray:

@@ -13,30 +13,14 @@ could tell such places apart at all.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
-MIN_HOLD_POINTS = 3.0
-"""Fewest points' worth that must pin the position along its weakest direction: fewer, and
-the position along a corridor or a lone wall rests on one or two readings, or on none."""
+from segloc_cli.config import ConfidenceParams
 
 STATUS_OK = "ok"
 STATUS_AMBIGUOUS = "ambiguous"
 """A distinct pose explains the scan nearly as well as the answer."""
 STATUS_LOST = "lost"
 """Too little of the scan lies on the map at the answer."""
-
-
-@dataclass(frozen=True)
-class ConfidenceParams:
-    """Thresholds on inlier ratios (shares of the scan's points, 0–1)."""
-
-    min_inlier_ratio: float = 0.5
-    """Below this share of points on the map the answer is ``lost``."""
-    min_margin: float = 0.1
-    """The answer's share must beat the best distinct alternative's by this, else ``ambiguous``."""
-    min_hold_points: float = MIN_HOLD_POINTS
-    """The points on the map must fix the position in every direction by this many points'
-    worth (``refine.support``), else ``ambiguous``."""
 
 
 def judge(

@@ -20,6 +20,7 @@ import math
 import numpy as np
 import pandas as pd
 
+from segloc_cli.config import TIME_TOLERANCE_MS
 from segloc_cli.errors import InputError
 from segloc_cli.geometry import wrap_angle
 from segloc_cli.io.tables import ESTIMATE_COLUMNS, PoseTable, pair_by_time
@@ -86,7 +87,7 @@ def _status_text(status: np.ndarray) -> np.ndarray:
 def table1(
     estimates: pd.DataFrame,
     survey: PoseTable,
-    tolerance_s: float = 0.05,
+    tolerance_s: float = TIME_TOLERANCE_MS / 1e3,
     *,
     estimates_path: object = "estimates",
     survey_path: object = "survey",

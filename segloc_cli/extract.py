@@ -13,33 +13,12 @@ That, not per-point filtering, is what makes the local map robust to noise.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from itertools import pairwise
 
 import numpy as np
 
+from segloc_cli.config import ExtractParams
 from segloc_cli.scan import Scan
-
-
-@dataclass(frozen=True)
-class ExtractParams:
-    """Extraction settings (metres, degrees at the edge)."""
-
-    range_sigma_m: float = 0.012
-    """Range noise σ of the scanner; sets the breakpoint slack and the fit tolerance."""
-    breakpoint_lambda_deg: float = 10.0
-    """Shallowest incidence angle on a surface that is still one surface (Borges & Aldon's λ)."""
-    split_m: float = 0.05
-    """Largest distance of a point from its segment's line."""
-    min_points: int = 4
-    """Fewest readings on a segment; four leave two degrees of freedom to judge the fit."""
-    min_length_m: float = 0.25
-    max_direction_sigma_deg: float = 3.0
-    """Largest standard error of a segment's direction (see ``direction_sigma_rad``).
-
-    Equal to the map fusion's orientation tolerance: a piece whose direction is
-    less certain than that could not be told to lie on its wall.
-    """
 
 
 def breakpoints(ranges_m: np.ndarray, angles_rad: np.ndarray, params: ExtractParams) -> np.ndarray:

@@ -19,7 +19,7 @@ import numpy as np
 from numba import njit
 
 from segloc_cli.geometry import as_segments
-from segloc_cli.overlap import _point_segment_distance
+from segloc_cli.kernels import point_segment_distance
 
 INDEX_LIMIT = 2**40
 """Cell indices are clipped to ±this before they reach the compiled sums: far beyond any
@@ -80,7 +80,7 @@ def _distance_raster(segments, x0, y0, cell, nx, ny, max_d):
             j_lo = _clamped_index(np.floor((min(ya, yb) - reach - y0) / cell), ny)
             j_hi = _clamped_index(np.ceil((max(ya, yb) + reach - y0) / cell), ny)
             for j in range(j_lo, j_hi + 1):
-                d = _point_segment_distance(cx, y0 + j * cell, x1, y1, x2, y2)
+                d = point_segment_distance(cx, y0 + j * cell, x1, y1, x2, y2)
                 if d < dist[i, j]:
                     dist[i, j] = d
     return dist

@@ -1,28 +1,27 @@
-"""The two stages together: one local map → one pose, and a whole log → estimates."""
+"""The two stages together: one local map → one pose, and a log's scans → estimates rows.
+
+Tracking along a log, where each scan starts from the one before, is ``tracking.py``.
+"""
 
 from __future__ import annotations
 
 import time
 from collections.abc import Iterator, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from typing import Protocol
 
 import numpy as np
 
 from segloc_cli.align import RTable, align
-from segloc_cli.confidence import (
-    STATUS_AMBIGUOUS,
-    STATUS_LOST,
-    STATUS_OK,
-    ConfidenceParams,
-    judge,
-)
-from segloc_cli.extract import ExtractParams, extract_segments
-from segloc_cli.geometry import Pose2, wrap_angle
+from segloc_cli.confidence import STATUS_OK, judge
+from segloc_cli.config import ExtractParams, LocalizeParams, RefineParams, SearchParams
+from segloc_cli.extract import extract_segments
+from segloc_cli.geometry import Pose2
+from segloc_cli.io.tables import EstimateRow
 from segloc_cli.overlap import coarse_to_fine
-from segloc_cli.refine import Refinement, RefineParams, inlier_ratio, refine_pose, support
+from segloc_cli.refine import Refinement, refine_pose, support
 from segloc_cli.scan import Scan
-from segloc_cli.search import HypothesisSearch, SearchParams, distinct
+from segloc_cli.search import HypothesisSearch, distinct
 from segloc_cli.spatial import SegmentGrid
 
 STATUS_TOO_FEW_SEGMENTS = "too_few_segments"
@@ -36,60 +35,24 @@ ESTIMATED = (STATUS_OK, STATUS_RECOVERED)
 (``ambiguous`` and ``lost`` rows hold a pose too, the best found, but it is not trusted.)"""
 
 
-MIN_POINT_SPREAD_M = 0.1
-"""Smallest spread (m) of a scan's points across their main direction for a trusted pose.
-Every scan of the Intel Research Lab log spreads at least 0.2 m; one wall seen alone, or a
-fan whose beams all lie on one ray, spreads about the range noise (a centimetre)."""
-
-
-@dataclass(frozen=True)
-class LocalizeParams:
-    """Settings of both stages (paper defaults: Table 1 used η0 = 1.5 m and Δα0 = 4°)."""
-
-    window_deg: float | None = 20.0
-    """Stage-1 half window around the prior heading; None scores the whole circle."""
-    bin_deg: float = 1.0
-    vote: str = "product"
-    max_peaks: int = 8
-    grid_m: float = 1.5
-    dtheta_deg: float = 4.0
-    iterations: int = 8
-    """Halvings K; the paper leaves K to the accuracy wanted (last grid η0 / 2^(K−1))."""
-    ratio: float = 0.9
-    recentres: int = 8
-    """Extra same-scale iterations while the estimate still moves (0 = the paper's schedule)."""
-    min_segments: int = 3
-    """Fewer local segments and the status is ``too_few_segments`` (stage 2 does not run)."""
-    min_points: int = 20
-    """Fewer valid readings and the status is ``too_few_segments``. The verdict compares
-    inlier shares with a margin of 0.1: below 20 points two stray readings would decide it, and
-    three segments of extraction's 4 readings each leave little to check a fit against."""
-    min_spread_m: float = MIN_POINT_SPREAD_M
-    """Points spread less than this across their main direction: ``too_few_segments``."""
-    refine: RefineParams | None = field(default_factory=RefineParams)
-    """Least-squares fit of the scan's points after stage 2; None stops at stage 2 (the paper)."""
-    search: SearchParams | None = field(default_factory=SearchParams)
-    """With refinement: also refine the best poses of a search of the prior window by the
-    scan's points, and keep the fit that puts them closest to the map."""
-    confidence: ConfidenceParams = field(default_factory=ConfidenceParams)
-
-
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Estimate:
-    """Outcome for one scan. ``pose`` and ``align_theta_rad`` are NaN-filled when not ok.
+    """Outcome for one scan, world frame. ``pose`` is NaN-filled when nothing was found.
 
-    ``stage2_pose`` is where the coarse-to-fine search ended; ``pose`` is the
-    refined pose (the same when refinement is off). ``inlier_ratio`` is the
-    share of the scan's points on the map at ``pose`` (NaN when not measured).
-    ``runner_up`` is the best fit distinct from ``pose`` among the hypotheses
-    refined, with its own inlier share (None and NaN when there was none).
+    ``align_theta_rad`` is stage 1's heading (NaN when it did not run);
+    ``overlap_m`` the stage-2 overlap (0 without stage 2); ``stage2_pose`` is
+    where the coarse-to-fine search ended; ``pose`` is the refined pose (the
+    same when refinement is off). ``inlier_ratio`` is the share of the scan's
+    points on the map at ``pose`` (NaN when not measured). ``runner_up`` is
+    the best fit distinct from ``pose`` among the hypotheses refined, with its
+    own inlier share (None and NaN when there was none).
     """
 
     pose: Pose2
-    align_theta_rad: float
-    overlap_m: float
-    n_local_segments: int
     status: str
+    n_local_segments: int
+    align_theta_rad: float = float("nan")
+    overlap_m: float = 0.0
     stage2_pose: Pose2 | None = None
     inlier_ratio: float = float("nan")
     runner_up: Pose2 | None = None
@@ -151,28 +114,50 @@ NO_SEGMENTS = np.zeros((0, 4))
 
 
 class ScanMatcher(Protocol):
-    """What ``localize_scans`` needs of a localizer: ``Localizer`` and the peers have it."""
+    """What ``localize_scans`` needs of a localizer: ``Localizer`` and the peers have it.
 
-    uses_segments: bool
+    ``uses_segments`` says whether ``localize`` reads the scan's segments; when
+    False none are extracted for it (an empty (0, 4) array is passed).
+    ``supports_global`` says whether ``localize_global`` can find a pose with no
+    initial guess; a matcher without it raises ``ValueError`` there.
+    """
+
     segments_world: np.ndarray
+    uses_segments: bool
+    supports_global: bool
 
     def localize(
         self, segments_robot: np.ndarray, initial: Pose2, points_robot: np.ndarray
     ) -> Estimate: ...
 
+    def localize_global(self, segments_robot: np.ndarray, points_robot: np.ndarray) -> Estimate: ...
+
 
 class Localizer:
-    """Localizes local maps against one global map (M, 4), world frame."""
+    """Localizes local maps against one global map (M, 4), world frame.
+
+    ``index``, ``rtable`` and ``search`` let a localizer with other settings
+    share what another built on the same map (see ``with_params``); by default
+    they are built here (the search on first use).
+    """
 
     uses_segments = True
-    """The scan's segments are what it matches (peers that match points alone say False)."""
+    supports_global = True
 
-    def __init__(self, segments_world: np.ndarray, params: LocalizeParams | None = None):
+    def __init__(
+        self,
+        segments_world: np.ndarray,
+        params: LocalizeParams | None = None,
+        *,
+        index: SegmentGrid | None = None,
+        rtable: RTable | None = None,
+        search: HypothesisSearch | None = None,
+    ):
         self.params = params or LocalizeParams()
         self.segments_world = np.asarray(segments_world, dtype=float)
-        self.rtable = RTable.build(self.segments_world, self.params.bin_deg)
-        self.index = SegmentGrid(self.segments_world)
-        self._search: HypothesisSearch | None = None
+        self.rtable = rtable or RTable.build(self.segments_world, self.params.bin_deg)
+        self.index = index or SegmentGrid(self.segments_world)
+        self._search = search
 
     def with_params(self, params: LocalizeParams) -> Localizer:
         """A localizer on the same map with other settings, sharing what they leave unchanged.
@@ -180,17 +165,15 @@ class Localizer:
         The R-table is shared when the bin width is the same, the score
         raster when the search settings are.
         """
-        other = object.__new__(Localizer)
-        other.params = params
-        other.segments_world = self.segments_world
-        other.index = self.index
         same_bins = params.bin_deg == self.params.bin_deg
-        other.rtable = (
-            self.rtable if same_bins else RTable.build(self.segments_world, params.bin_deg)
-        )
         same_search = params.search is not None and params.search == self.params.search
-        other._search = self.hypothesis_search if same_search else None
-        return other
+        return Localizer(
+            self.segments_world,
+            params,
+            index=self.index,
+            rtable=self.rtable if same_bins else None,
+            search=self.hypothesis_search if same_search else None,
+        )
 
     @property
     def hypothesis_search(self) -> HypothesisSearch:
@@ -259,7 +242,7 @@ class Localizer:
         searching = robust and p.search is not None
         enough = n_local >= p.min_segments
         if not enough and not searching:
-            return Estimate(NAN_POSE, float("nan"), 0.0, n_local, STATUS_TOO_FEW_SEGMENTS)
+            return Estimate(pose=NAN_POSE, status=STATUS_TOO_FEW_SEGMENTS, n_local_segments=n_local)
         est = self._localize(segments_robot, initial, points_robot, enough, robust, searching)
         if degenerate or not enough:
             # Whatever was found stays in the row for the user to see, but is not trusted.
@@ -284,8 +267,20 @@ class Localizer:
             heading, stage2 = self._stage2(segments_robot, initial, peaks)
         if not robust:
             if stage2 is None or stage2.overlap_m <= 0:
-                return Estimate(NAN_POSE, heading, 0.0, n_local, STATUS_NO_OVERLAP)
-            est = Estimate(stage2.pose, heading, stage2.overlap_m, n_local, STATUS_OK, stage2.pose)
+                return Estimate(
+                    pose=NAN_POSE,
+                    status=STATUS_NO_OVERLAP,
+                    n_local_segments=n_local,
+                    align_theta_rad=heading,
+                )
+            est = Estimate(
+                pose=stage2.pose,
+                status=STATUS_OK,
+                n_local_segments=n_local,
+                align_theta_rad=heading,
+                overlap_m=stage2.overlap_m,
+                stage2_pose=stage2.pose,
+            )
             return est if points_robot is None else self._checked_by_points(est, points_robot)
         seeds = [] if stage2 is None else [stage2.pose]
         if searching:
@@ -371,7 +366,13 @@ class Localizer:
         """Refine every seed; the best fit score wins, judged against its best distinct rival."""
         p = self.params
         if not seeds:
-            return Estimate(NAN_POSE, heading, 0.0, n_local, STATUS_NO_OVERLAP, stage2_pose)
+            return Estimate(
+                pose=NAN_POSE,
+                status=STATUS_NO_OVERLAP,
+                n_local_segments=n_local,
+                align_theta_rad=heading,
+                stage2_pose=stage2_pose,
+            )
         fits: list[Refinement] = sorted(
             (refine_pose(points_robot, self.segments_world, s, p.refine) for s in seeds),
             key=lambda fit: -fit.score,
@@ -385,51 +386,49 @@ class Localizer:
         ]
         runner_up = rivals[0] if rivals else None
         runner_up_ratio = 0.0 if runner_up is None else runner_up.inlier_ratio
+        hold = self.hold_points(points_robot, best.pose)
         return Estimate(
-            best.pose,
-            heading,
-            overlap_m,
-            n_local,
-            judge(
-                best.inlier_ratio,
-                runner_up_ratio,
-                p.confidence,
-                self.hold_points(points_robot, best.pose),
-            ),
-            stage2_pose,
-            best.inlier_ratio,
-            None if runner_up is None else runner_up.pose,
-            runner_up_ratio,
+            pose=best.pose,
+            status=judge(best.inlier_ratio, runner_up_ratio, p.confidence, hold),
+            n_local_segments=n_local,
+            align_theta_rad=heading,
+            overlap_m=overlap_m,
+            stage2_pose=stage2_pose,
+            inlier_ratio=best.inlier_ratio,
+            runner_up=None if runner_up is None else runner_up.pose,
+            runner_up_ratio=runner_up_ratio,
         )
 
 
-def _row(pose_id: int, scan: Scan, initial: Pose2, est: Estimate, runtime_ms: float, status: str):
-    """One row of the estimates table (``ESTIMATE_COLUMNS``): metres and degrees."""
+def estimate_row(
+    pose_id: int, scan: Scan, initial: Pose2, est: Estimate, runtime_ms: float, status: str
+) -> EstimateRow:
+    """The estimates row of one scan: ``est`` in metres and degrees, under ``status``."""
     stage2 = est.stage2_pose or NAN_POSE
     runner_up = est.runner_up or NAN_POSE
-    return {
-        "pose_id": int(pose_id),
-        "time_s": scan.time_s,
-        "init_x_m": initial.x,
-        "init_y_m": initial.y,
-        "init_theta_deg": initial.theta_deg,
-        "align_theta_deg": float(np.rad2deg(est.align_theta_rad)),
-        "stage2_x_m": stage2.x,
-        "stage2_y_m": stage2.y,
-        "stage2_theta_deg": stage2.theta_deg,
-        "x_m": est.pose.x,
-        "y_m": est.pose.y,
-        "theta_deg": est.pose.theta_deg,
-        "overlap": est.overlap_m,
-        "inlier_ratio": est.inlier_ratio,
-        "runner_up_x_m": runner_up.x,
-        "runner_up_y_m": runner_up.y,
-        "runner_up_theta_deg": runner_up.theta_deg,
-        "runner_up_ratio": est.runner_up_ratio,
-        "n_local_segments": est.n_local_segments,
-        "runtime_ms": runtime_ms,
-        "status": status,
-    }
+    return EstimateRow(
+        pose_id=int(pose_id),
+        time_s=scan.time_s,
+        init_x_m=initial.x,
+        init_y_m=initial.y,
+        init_theta_deg=initial.theta_deg,
+        align_theta_deg=float(np.rad2deg(est.align_theta_rad)),
+        stage2_x_m=stage2.x,
+        stage2_y_m=stage2.y,
+        stage2_theta_deg=stage2.theta_deg,
+        x_m=est.pose.x,
+        y_m=est.pose.y,
+        theta_deg=est.pose.theta_deg,
+        overlap=est.overlap_m,
+        inlier_ratio=est.inlier_ratio,
+        runner_up_x_m=runner_up.x,
+        runner_up_y_m=runner_up.y,
+        runner_up_theta_deg=runner_up.theta_deg,
+        runner_up_ratio=est.runner_up_ratio,
+        n_local_segments=est.n_local_segments,
+        runtime_ms=runtime_ms,
+        status=status,
+    )
 
 
 def localize_scans(
@@ -438,217 +437,24 @@ def localize_scans(
     pose_ids: Sequence[int],
     localizer: ScanMatcher,
     extract_params: ExtractParams | None = None,
-) -> Iterator[dict]:
+) -> Iterator[EstimateRow]:
     """Localize each scan from its initial guess, yielding one estimates row per scan.
 
     With ``initial_poses`` None every scan is localized globally (the whole
-    map searched, the initial-pose columns left empty). Rows hold the
-    estimates columns (``ESTIMATE_COLUMNS``): angles in degrees, positions in
-    metres, ``runtime_ms`` covering extraction and the search. Yielding row
-    by row lets a caller keep what is done if the run is cut short.
+    map searched, the initial-pose columns left empty); the localizer must
+    support that. Angles in degrees, positions in metres, ``runtime_ms``
+    covering extraction (for a matcher that uses segments) and the search.
+    Yielding row by row lets a caller keep what is done if the run is cut short.
     """
+    if initial_poses is None and not localizer.supports_global:
+        raise ValueError(f"{type(localizer).__name__} needs an initial guess for every scan")
     guesses = [None] * len(scans) if initial_poses is None else initial_poses
     for scan, initial, pose_id in zip(scans, guesses, pose_ids, strict=True):
         t0 = time.perf_counter()
-        local = extract_segments(scan, extract_params)
+        local = extract_segments(scan, extract_params) if localizer.uses_segments else NO_SEGMENTS
         if initial is None:
             est = localizer.localize_global(local, scan.points())
         else:
             est = localizer.localize(local, initial, scan.points())
         runtime_ms = (time.perf_counter() - t0) * 1e3
-        yield _row(pose_id, scan, initial or NAN_POSE, est, runtime_ms, est.status)
-
-
-@dataclass(frozen=True)
-class TrackParams:
-    """How each tracked scan is fitted and when the fit is accepted (metres, degrees)."""
-
-    min_inlier_ratio: float = 0.5
-    """Share of the scan's points that must lie on the map (within refinement's final gate)."""
-    max_jump_m: float = 0.5
-    """Largest correction of the dead-reckoning guess accepted (position)."""
-    max_jump_deg: float = 15.0
-    widen: float = 2.0
-    """The recovery search multiplies the grid, the heading window and the jump limits by this..."""
-    max_widenings: int = 3
-    """...once more for every scan lost in a row, up to this many times in all."""
-    odom_sigma_m: float = 0.02
-    """Spread of the guess per scan when standing still (position, per axis)..."""
-    odom_sigma_per_m: float = 0.1
-    """...plus this much per metre the odometry moved since the previous scan."""
-    odom_sigma_deg: float = 1.0
-    """Spread of the guess's heading per scan when not turning..."""
-    odom_sigma_per_deg: float = 0.2
-    """...plus this much per degree the odometry turned since the previous scan."""
-
-    def prior(self, increment: Pose2) -> tuple[float, float]:
-        """Spread (m, °) of a guess made by moving the previous estimate by ``increment``."""
-        return (
-            self.odom_sigma_m + self.odom_sigma_per_m * float(np.hypot(increment.x, increment.y)),
-            self.odom_sigma_deg + self.odom_sigma_per_deg * abs(increment.theta_deg),
-        )
-
-
-def track_scans(
-    scans: Sequence[Scan],
-    odometry: Sequence[Pose2],
-    first_guess: Pose2,
-    pose_ids: Sequence[int],
-    localizer: Localizer,
-    extract_params: ExtractParams | None = None,
-    track: TrackParams | None = None,
-) -> Iterator[dict]:
-    """Track along a log: each scan's guess is the previous estimate moved by the odometry since.
-
-    ``odometry`` holds the dead-reckoning pose at each scan (any world frame:
-    only increments are used); ``first_guess`` seeds the first scan.
-
-    With refinement on, the scan's points are fitted from the guess with the
-    odometry as a prior (it holds the pose where the points say nothing, as
-    along a corridor); with it off, the two stages run from the guess. A match
-    is accepted when enough of the scan lies on the map and the correction of
-    the guess is plausible. Otherwise a wider search is tried (status
-    ``recovered`` if it passes): the two stages with the grid, heading window
-    and jump limits widened and, as odometry errs most in heading, fits from
-    the guessed position at stage 1's headings and at a fan of headings around
-    the guess. Failing that the scan is ``lost``, the dead-reckoning guess
-    carries the track on, and the next scan's recovery search is wider still.
-    A scan with fewer than ``min_points`` points or points along one line
-    (``scan_is_degenerate``) is ``too_few_segments`` and the guess carries on
-    through it likewise; with refinement on, the local segments are not
-    counted, since the odometry prior holds what a corridor's two walls
-    cannot.
-    """
-    track = track or TrackParams()
-    p = localizer.params
-    wider: dict[float, Localizer] = {}  # recovery localizers by widening factor
-
-    def widened(factor: float) -> Localizer:
-        if factor not in wider:
-            window = None if p.window_deg is None else min(180.0, p.window_deg * factor)
-            wider[factor] = localizer.with_params(
-                replace(p, grid_m=p.grid_m * factor, window_deg=window)
-            )
-        return wider[factor]
-
-    lost_in_a_row = 0
-    previous: tuple[Pose2, Pose2] | None = None  # (estimate, odometry) at the previous scan
-    for scan, odom, pose_id in zip(scans, odometry, pose_ids, strict=True):
-        t0 = time.perf_counter()
-        guess, increment = first_guess, None
-        if previous is not None:
-            increment = previous[1].inverse().compose(odom)
-            guess = previous[0].compose(increment)
-        local = extract_segments(scan, extract_params)
-        points = usable_points(scan.points())
-        est = _track_match(localizer, local, points, guess, increment, track)
-        status = est.status
-        # The first guess may be rough: only its overlap is checked, not the jump.
-        scale = 1.0 if previous is not None else np.inf
-        if scan_is_degenerate(points, local, p):
-            status = STATUS_TOO_FEW_SEGMENTS  # the guess carries on, as for a lost scan
-        elif status in (STATUS_OK, STATUS_NO_OVERLAP) and not _accepted(est, guess, track, scale):
-            factor = track.widen ** min(lost_in_a_row + 1, track.max_widenings)
-            wide = widened(factor)
-            candidates = [_measured(localizer, wide.localize(local, guess, points), points)]
-            candidates += _heading_fits(wide, local, points, guess, track, factor)
-            passing = [c for c in candidates if _accepted(c, guess, track, scale * factor)]
-            if passing:
-                est = max(passing, key=lambda c: c.inlier_ratio)
-                status = STATUS_RECOVERED
-            else:
-                status = STATUS_LOST
-        if status != STATUS_TOO_FEW_SEGMENTS:  # a scan that says nothing leaves the count
-            lost_in_a_row = lost_in_a_row + 1 if status == STATUS_LOST else 0
-        if status in ESTIMATED:
-            carried = est.pose
-            # Along a corridor the odometry, not the scan, fixes the position: say so.
-            hold = localizer.hold_points(points, est.pose)
-            if hold < p.confidence.min_hold_points:
-                status = STATUS_AMBIGUOUS
-        else:
-            carried = guess
-            est = replace(est, pose=guess)
-        previous = (carried, odom)
-        yield _row(pose_id, scan, guess, est, (time.perf_counter() - t0) * 1e3, status)
-
-
-def _track_match(
-    localizer: Localizer,
-    local: np.ndarray,
-    points: np.ndarray,
-    guess: Pose2,
-    increment: Pose2 | None,
-    track: TrackParams,
-) -> Estimate:
-    """The first match of a tracked scan, with its inlier share measured."""
-    p = localizer.params
-    points = usable_points(points)
-    if p.refine is None:
-        return _measured(localizer, localizer.localize(local, guess), points)
-    sigma_m, sigma_deg = (None, None) if increment is None else track.prior(increment)
-    fit = refine_pose(
-        points,
-        localizer.segments_world,
-        guess,
-        replace(p.refine, prior_sigma_m=sigma_m, prior_sigma_deg=sigma_deg),
-    )
-    n_local = int(local.shape[0])
-    return Estimate(fit.pose, float("nan"), 0.0, n_local, STATUS_OK, guess, fit.inlier_ratio)
-
-
-HEADING_STEP_DEG = 10.0
-"""Spacing of the headings tried around the guess when a tracked match fails."""
-
-
-def _heading_fits(
-    localizer: Localizer,
-    local: np.ndarray,
-    points: np.ndarray,
-    guess: Pose2,
-    track: TrackParams,
-    factor: float,
-) -> list[Estimate]:
-    """Fits from the guessed position at other headings, the position held by a prior.
-
-    The headings are stage 1's peaks and a fan every ``HEADING_STEP_DEG``
-    within the widened jump limit: on sparse scans stage 1 can miss by more
-    than the fit's reach, and odometry errs most in heading (a slipping turn).
-    """
-    if localizer.params.refine is None:
-        return []
-    reach = min(180.0, track.max_jump_deg * factor)
-    fan = np.deg2rad(np.arange(-reach, reach + 1e-9, HEADING_STEP_DEG))
-    headings = guess.theta + fan
-    if local.shape[0] >= localizer.params.min_segments:
-        headings = np.concatenate([localizer.headings(local, guess), headings])
-    params = replace(localizer.params.refine, prior_sigma_m=track.max_jump_m * factor / 4.0)
-    out, n_local = [], int(local.shape[0])
-    for heading in headings:
-        start = Pose2(guess.x, guess.y, float(wrap_angle(heading)))
-        fit = refine_pose(points, localizer.segments_world, start, params)
-        out.append(
-            Estimate(fit.pose, start.theta, 0.0, n_local, STATUS_OK, start, fit.inlier_ratio)
-        )
-    return out
-
-
-def _measured(localizer: Localizer, est: Estimate, points: np.ndarray) -> Estimate:
-    """``est`` with its inlier share filled in where refinement did not measure it."""
-    if est.status != STATUS_OK or np.isfinite(est.inlier_ratio):
-        return est
-    band = (localizer.params.refine or RefineParams()).final_gate_m
-    return replace(est, inlier_ratio=inlier_ratio(points, localizer.segments_world, est.pose, band))
-
-
-def _accepted(est: Estimate, guess: Pose2, track: TrackParams, scale: float) -> bool:
-    """Whether a tracked match passes the inlier and plausible-jump checks.
-
-    The search's own verdict (``ambiguous``, ``lost``) is not asked: along a
-    track the odometry, through the jump limits, decides among look-alikes.
-    """
-    if not np.isfinite(est.pose.x) or not est.inlier_ratio >= track.min_inlier_ratio:
-        return False
-    jump_m = np.hypot(est.pose.x - guess.x, est.pose.y - guess.y)
-    jump_deg = abs(np.rad2deg(wrap_angle(est.pose.theta - guess.theta)))
-    return bool(jump_m <= track.max_jump_m * scale and jump_deg <= track.max_jump_deg * scale)
+        yield estimate_row(pose_id, scan, initial or NAN_POSE, est, runtime_ms, est.status)

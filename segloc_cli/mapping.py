@@ -16,24 +16,10 @@ regrown from its longest member, one line at a time.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
+from segloc_cli.config import FuseParams
 from segloc_cli.geometry import Pose2, segment_lengths, transform_segments
-
-
-@dataclass(frozen=True)
-class FuseParams:
-    """When two world-frame segments are one wall (metres, degrees)."""
-
-    angle_deg: float = 3.0
-    """Largest difference of undirected orientation."""
-    offset_m: float = 0.06
-    """Largest distance of either segment's endpoints from the other's line."""
-    gap_m: float = 0.15
-    """Largest gap between their extents along the common line (negative = overlap)."""
-
 
 TOUCH_M = 1e-9
 """Overlap (metres) below which two pieces only touch: rounding, not a shared stretch."""

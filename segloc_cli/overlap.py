@@ -33,9 +33,19 @@ import numpy as np
 from numba import njit
 
 from segloc_cli.geometry import Pose2
+from segloc_cli.kernels import (
+    angular_interval,
+    into_frame,
+    out_of_frame,
+    point_into_frame,
+    point_segment_distance,
+    segment_distance,
+    wrap,
+)
 from segloc_cli.spatial import SegmentGrid
 
 
+@njit(cache=True)
 def band_halfwidth(grid_m: float) -> float:
     """δ for grid spacing η: the largest distance from a point to its nearest grid node."""
     return np.sqrt(2.0) * grid_m / 2.0
@@ -47,11 +57,6 @@ MIN_INCIDENCE_DEG = 5.0
 # The two hot loops below run once per candidate × pair, tens of thousands of
 # times per pose, on a handful of scalars each; compiled, they cost less than
 # the array bookkeeping a vectorised version needs at these sizes.
-
-
-@njit(cache=True)
-def _wrap(angle: float) -> float:
-    return angle - 2.0 * np.pi * np.floor((angle + np.pi) / (2.0 * np.pi))
 
 
 @njit(cache=True)
@@ -111,6 +116,8 @@ def _pair_overlap(gax, gay, gbx, gby, lax, lay, lbx, lby, band_m, sin2_min) -> f
 
 @njit(cache=True)
 def _overlaps_kernel(g, loc, poses, pair_g, pair_l, band_m, sin2_min):
+    """Overlap (C,) of local segments ``loc`` (robot frame) placed at each pose (C, 3) with
+    global segments ``g`` (world frame), summed over the listed (global, local) pairs."""
     out = np.zeros(poses.shape[0])
     for c in range(poses.shape[0]):
         px, py = poses[c, 0], poses[c, 1]
@@ -118,19 +125,10 @@ def _overlaps_kernel(g, loc, poses, pair_g, pair_l, band_m, sin2_min):
         total = 0.0
         for k in range(pair_g.shape[0]):
             m, n = pair_g[k], pair_l[k]
-            x1, y1 = g[m, 0] - px, g[m, 1] - py
-            x2, y2 = g[m, 2] - px, g[m, 3] - py
+            gax, gay = point_into_frame(g[m, 0], g[m, 1], px, py, cs, sn)
+            gbx, gby = point_into_frame(g[m, 2], g[m, 3], px, py, cs, sn)
             total += _pair_overlap(
-                cs * x1 + sn * y1,
-                cs * y1 - sn * x1,
-                cs * x2 + sn * y2,
-                cs * y2 - sn * x2,
-                loc[n, 0],
-                loc[n, 1],
-                loc[n, 2],
-                loc[n, 3],
-                band_m,
-                sin2_min,
+                gax, gay, gbx, gby, loc[n, 0], loc[n, 1], loc[n, 2], loc[n, 3], band_m, sin2_min
             )
         out[c] = total
     return out
@@ -163,46 +161,6 @@ def overlap_at_poses(
 
 
 @njit(cache=True)
-def _point_segment_distance(px, py, x1, y1, x2, y2) -> float:
-    dx, dy = x2 - x1, y2 - y1
-    t = ((px - x1) * dx + (py - y1) * dy) / max(dx * dx + dy * dy, 1e-300)
-    t = min(max(t, 0.0), 1.0)
-    ex, ey = px - x1 - t * dx, py - y1 - t * dy
-    return np.sqrt(ex * ex + ey * ey)
-
-
-@njit(cache=True)
-def _segment_distance(a, b) -> float:
-    """Distance between segments a and b (4,), zero where they cross."""
-
-    def side(px, py, s):
-        return (s[2] - s[0]) * (py - s[1]) - (s[3] - s[1]) * (px - s[0])
-
-    if side(a[0], a[1], b) * side(a[2], a[3], b) <= 0.0 and (
-        side(b[0], b[1], a) * side(b[2], b[3], a) <= 0.0
-    ):
-        return 0.0
-    return min(
-        min(
-            _point_segment_distance(a[0], a[1], b[0], b[1], b[2], b[3]),
-            _point_segment_distance(a[2], a[3], b[0], b[1], b[2], b[3]),
-        ),
-        min(
-            _point_segment_distance(b[0], b[1], a[0], a[1], a[2], a[3]),
-            _point_segment_distance(b[2], b[3], a[0], a[1], a[2], a[3]),
-        ),
-    )
-
-
-@njit(cache=True)
-def _angular_interval(x1, y1, x2, y2):
-    """Centre and half-width (radians) of the angle a segment subtends at the origin."""
-    a = np.arctan2(y1, x1)
-    span = _wrap(np.arctan2(y2, x2) - a)
-    return _wrap(a + 0.5 * span), 0.5 * abs(span)
-
-
-@njit(cache=True)
 def _pairs_kernel(g, g_robot, loc, local_world, spread_m, spread_rad, band_m, sin_min):
     n_local = loc.shape[0]
     if n_local == 0 or g.shape[0] == 0:
@@ -216,7 +174,7 @@ def _pairs_kernel(g, g_robot, loc, local_world, spread_m, spread_rad, band_m, si
         r2 = np.sqrt(loc[n, 2] ** 2 + loc[n, 3] ** 2)
         reach[n] = spread_m + max(r1, r2) * spread_rad
         radius = max(radius, max(r1, r2))
-        l_mid[n], l_half[n] = _angular_interval(loc[n, 0], loc[n, 1], loc[n, 2], loc[n, 3])
+        l_mid[n], l_half[n] = angular_interval(loc[n, 0], loc[n, 1], loc[n, 2], loc[n, 3])
     # A pairing piece lies within band / sin(min incidence) of G.
     near = band_m / sin_min
     reach_max = reach.max()
@@ -226,7 +184,7 @@ def _pairs_kernel(g, g_robot, loc, local_world, spread_m, spread_rad, band_m, si
     count = 0
     for m in range(g.shape[0]):
         gr = g_robot[m]
-        dist0 = _point_segment_distance(0.0, 0.0, gr[0], gr[1], gr[2], gr[3])
+        dist0 = point_segment_distance(0.0, 0.0, gr[0], gr[1], gr[2], gr[3])
         # Range: every local point is within `radius` of the scanner.
         if dist0 > radius + near + reach_max + 1e-9:
             continue
@@ -241,7 +199,7 @@ def _pairs_kernel(g, g_robot, loc, local_world, spread_m, spread_rad, band_m, si
             widen = np.arcsin(min(spread_m / max(r_ends, 1e-12), 1.0))
         else:
             widen = np.pi
-        g_mid, g_half = _angular_interval(gr[0], gr[1], gr[2], gr[3])
+        g_mid, g_half = angular_interval(gr[0], gr[1], gr[2], gr[3])
         for n in range(n_local):
             lw = local_world[n]
             limit = band_m + reach[n]
@@ -249,9 +207,9 @@ def _pairs_kernel(g, g_robot, loc, local_world, spread_m, spread_rad, band_m, si
             d2 = nx * lw[2] + ny * lw[3] - off
             if (d1 > limit and d2 > limit) or (d1 < -limit and d2 < -limit):
                 continue  # stays outside the band
-            if abs(_wrap(g_mid - l_mid[n])) > g_half + widen + spread_rad + l_half[n] + 1e-9:
+            if abs(wrap(g_mid - l_mid[n])) > g_half + widen + spread_rad + l_half[n] + 1e-9:
                 continue  # stays outside the sector
-            if _segment_distance(g[m], lw) > near + reach[n] + 1e-9:
+            if segment_distance(g[m], lw) > near + reach[n] + 1e-9:
                 continue  # too far from G for a piece seen at a steep enough incidence
             out_g[count] = m
             out_l[count] = n
@@ -297,7 +255,7 @@ def _candidates(x, y, theta, eta, dtheta):
             for h in (-1.0, 0.0, 1.0):
                 out[k, 0] = x + i * eta
                 out[k, 1] = y + j * eta
-                out[k, 2] = _wrap(theta + h * dtheta)
+                out[k, 2] = wrap(theta + h * dtheta)
                 k += 1
     return out
 
@@ -325,36 +283,10 @@ class OverlapResult:
 
 
 @njit(cache=True)
-def _into_frame(segments, x, y, theta):
-    """Segments (M, 4) expressed in the frame of pose (x, y, theta)."""
-    c, s = np.cos(theta), np.sin(theta)
-    out = np.empty_like(segments)
-    for i in range(segments.shape[0]):
-        for e in (0, 2):
-            dx, dy = segments[i, e] - x, segments[i, e + 1] - y
-            out[i, e] = c * dx + s * dy
-            out[i, e + 1] = c * dy - s * dx
-    return out
-
-
-@njit(cache=True)
-def _out_of_frame(segments, x, y, theta):
-    """Segments (N, 4) in the frame of pose (x, y, theta), expressed in the outer frame."""
-    c, s = np.cos(theta), np.sin(theta)
-    out = np.empty_like(segments)
-    for i in range(segments.shape[0]):
-        for e in (0, 2):
-            px, py = segments[i, e], segments[i, e + 1]
-            out[i, e] = x + c * px - s * py
-            out[i, e + 1] = y + s * px + c * py
-    return out
-
-
-@njit(cache=True)
 def _pairs_at(g, loc, x, y, theta, spread_m, spread_rad, band_m, sin_min):
     """``candidate_pairs`` around the pose (x, y, theta)."""
-    g_robot = _into_frame(g, x, y, theta)
-    local_world = _out_of_frame(loc, x, y, theta)
+    g_robot = into_frame(g, x, y, theta)
+    local_world = out_of_frame(loc, x, y, theta)
     return _pairs_kernel(g, g_robot, loc, local_world, spread_m, spread_rad, band_m, sin_min)
 
 
@@ -366,7 +298,7 @@ def _search_kernel(g, loc, x, y, theta, eta, dtheta, iterations, ratio, recentre
     track[0] = x, y, theta
     steps, halvings, repeats_left = 0, 0, recentres
     while halvings < iterations:
-        band = np.sqrt(2.0) * eta / 2.0
+        band = band_halfwidth(eta)
         candidates = _candidates(x, y, theta, eta, dtheta)
         pair_g, pair_l = _pairs_at(g, loc, x, y, theta, np.sqrt(2.0) * eta, dtheta, band, sin_min)
         overlaps = _overlaps_kernel(g, loc, candidates, pair_g, pair_l, band, sin_min * sin_min)
@@ -382,11 +314,11 @@ def _search_kernel(g, loc, x, y, theta, eta, dtheta, iterations, ratio, recentre
                     sy += w * candidates[k, 1]
                     ss += w * np.sin(candidates[k, 2])
                     sc += w * np.cos(candidates[k, 2])
-            x, y, theta = sx / sw, sy / sw, _wrap(np.arctan2(ss, sc))
+            x, y, theta = sx / sw, sy / sw, wrap(np.arctan2(ss, sc))
         steps += 1
         track[steps] = x, y, theta
         moved_m = np.hypot(x - track[steps - 1, 0], y - track[steps - 1, 1])
-        turned = abs(_wrap(theta - track[steps - 1, 2]))
+        turned = abs(wrap(theta - track[steps - 1, 2]))
         if repeats_left > 0 and best > 0.0 and (moved_m > eta / 2.0 or turned > dtheta / 2.0):
             # The estimate left the central cell: search again at this scale
             # before refining, or the halved grid may no longer reach the pose.
@@ -407,14 +339,20 @@ def coarse_to_fine(
     segments_world: np.ndarray,
     segments_robot: np.ndarray,
     start: Pose2,
-    grid_m: float = 1.5,
-    dtheta_deg: float = 4.0,
-    iterations: int = 6,
-    ratio: float = 0.9,
-    recentres: int = 0,
+    *,
+    grid_m: float,
+    dtheta_deg: float,
+    iterations: int,
+    ratio: float,
+    recentres: int,
     index: SegmentGrid | None = None,
 ) -> OverlapResult:
-    """Refine ``start`` by the paper's coarse-to-fine overlap search.
+    """Refine ``start`` (world frame) by the paper's coarse-to-fine overlap search.
+
+    ``segments_world`` (M, 4) is the global map, ``segments_robot`` (N, 4) the
+    local map. The tuning (first grid spacing ``grid_m`` in metres, first
+    heading step ``dtheta_deg``, ``iterations``, ``ratio``, ``recentres``) has
+    no defaults here: they live in ``LocalizeParams``.
 
     Each iteration scores 27 candidates around the current estimate, moves to
     the overlap-weighted mean of those scoring at least ``ratio`` × the best

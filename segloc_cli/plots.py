@@ -31,6 +31,7 @@ from matplotlib.collections import LineCollection
 from matplotlib.figure import Figure
 
 from segloc_cli.align import VOTE_SCHEMES, RTable, accumulate, align, candidate_headings
+from segloc_cli.config import TIME_TOLERANCE_MS
 from segloc_cli.extract import ExtractParams, extract_segments
 from segloc_cli.geometry import Pose2, transform_points, transform_segments, wrap_angle
 from segloc_cli.io.files import atomic_path
@@ -106,7 +107,7 @@ def surveyed_scans(
     estimates: pd.DataFrame,
     survey: PoseTable,
     scans: Sequence[Scan],
-    tolerance_s: float = 0.05,
+    tolerance_s: float = TIME_TOLERANCE_MS / 1e3,
     extract_params: ExtractParams | None = None,
     *,
     paths: tuple[object, object, object] = ("survey", "estimates", "log"),

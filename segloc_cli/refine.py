@@ -18,6 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
+from segloc_cli.config import RefineParams
 from segloc_cli.geometry import (
     Pose2,
     point_segment_distances,
@@ -25,27 +26,7 @@ from segloc_cli.geometry import (
     transform_points,
     wrap_angle,
 )
-from segloc_cli.overlap import _point_segment_distance
-
-
-@dataclass(frozen=True)
-class RefineParams:
-    """Settings of the fit (metres, counts)."""
-
-    gate_m: float = 0.4
-    """First round's largest point-to-segment distance for a point to take part."""
-    final_gate_m: float = 0.05
-    """Last round's gate; also the band within which a point counts as an inlier."""
-    steps_per_round: int = 4
-    """Gauss-Newton steps per gate; the gate halves between rounds down to ``final_gate_m``."""
-    min_points: int = 8
-    """Fewer inliers than this and the fit is not attempted (the pose is returned as is)."""
-    point_sigma_m: float = 0.02
-    """Typical distance of a good point from its wall: weighs the prior against the points."""
-    prior_sigma_m: float | None = None
-    """Spread of the guess's position (per axis); None fits the points alone."""
-    prior_sigma_deg: float | None = None
-    """Spread of the guess's heading; None leaves the heading to the points."""
+from segloc_cli.kernels import point_segment_distance
 
 
 @dataclass(frozen=True)
@@ -74,7 +55,7 @@ def _nearest_segments(points, segments):
         px, py = points[i, 0], points[i, 1]
         best, best_j = np.inf, -1
         for j in range(segments.shape[0]):
-            d = _point_segment_distance(
+            d = point_segment_distance(
                 px, py, segments[j, 0], segments[j, 1], segments[j, 2], segments[j, 3]
             )
             if d < best:
@@ -94,7 +75,7 @@ def _candidate_lists(points, segments, radius):
         px, py = points[i, 0], points[i, 1]
         for j in range(segments.shape[0]):
             if (
-                _point_segment_distance(
+                point_segment_distance(
                     px, py, segments[j, 0], segments[j, 1], segments[j, 2], segments[j, 3]
                 )
                 <= radius
@@ -114,7 +95,7 @@ def _nearest_among(points, segments, offsets, indices):
         px, py = points[i, 0], points[i, 1]
         for k in range(offsets[i], offsets[i + 1]):
             j = indices[k]
-            d = _point_segment_distance(
+            d = point_segment_distance(
                 px, py, segments[j, 0], segments[j, 1], segments[j, 2], segments[j, 3]
             )
             if d < dist[i]:

@@ -18,40 +18,12 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
+from segloc_cli.config import SearchParams
 from segloc_cli.field import INDEX_LIMIT, cell_indices, coarse_bound, score_raster
 from segloc_cli.geometry import Pose2, rotation, wrap_angle
 
 MAX_BOUND_CELLS = 2**24
 """Most coarse-block bounds held at once (float64, 128 MiB); more headings are done in batches."""
-
-
-@dataclass(frozen=True)
-class SearchParams:
-    """Settings of the hypothesis search (metres, degrees, counts)."""
-
-    cell_m: float = 0.05
-    """Fine raster cell and fine position step."""
-    score_radius_m: float = 0.1
-    """A point scores 1 on a segment, falling to 0 at this distance from it."""
-    coarse_factor: int = 4
-    """Fine cells per coarse block (per axis) when the region is a window around a guess."""
-    global_coarse_factor: int = 8
-    """The same when the region is the whole map."""
-    half_width_m: float = 2.0
-    """Half side of the square of positions searched around an initial guess."""
-    heading_step_deg: float = 1.0
-    """Spacing of the headings tried: across the prior window, or the whole circle without one."""
-    keep_fraction: float = 0.8
-    """Blocks are searched finely while their bound reaches this share of the best score."""
-    max_expansions: int = 400
-    """Most blocks searched finely per scan around a guess."""
-    global_max_expansions: int = 4000
-    """The same over the whole map, where many more blocks look alike from afar."""
-    hypotheses: int = 4
-    """Distinct grid poses handed on for refinement."""
-    distinct_m: float = 0.3
-    """Two poses farther apart than this (or ``distinct_deg``) are different answers."""
-    distinct_deg: float = 3.0
 
 
 @dataclass(frozen=True)

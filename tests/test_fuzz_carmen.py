@@ -1,6 +1,6 @@
 """CARMEN logs of arbitrary and mangled bytes: a usable log or one line naming the file.
 
-Every outcome of ``read_carmen`` must be either a ``CarmenLog`` whose scans have
+Every outcome of ``read_carmen`` must be either a ``Log`` whose scans have
 finite, strictly increasing times and finite beam angles, or an ``InputError``
 of one line that names the file; nothing else may escape.
 """
@@ -15,7 +15,8 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from segloc_cli.errors import InputError
-from segloc_cli.io.carmen import CarmenLog, read_carmen
+from segloc_cli.io.carmen import read_carmen
+from segloc_cli.io.log import Log
 
 RECORD_KINDS = ["FLASER", "RLASER", "ROBOTLASER1", "ODOM", "PARAM", "SYNC", "# comment"]
 
@@ -24,7 +25,7 @@ def check(result, path) -> None:
     """The outcome of one read is a sound log or a one-line error (checked by ``outcome``)."""
     if isinstance(result, InputError):
         return
-    assert isinstance(result, CarmenLog)
+    assert isinstance(result, Log)
     times = np.array([scan.time_s for scan in result.scans], dtype=float)
     assert times.size > 0
     assert np.all(np.isfinite(times))
@@ -151,7 +152,7 @@ def test_mangled_records_in_damaged_gzip(tmp_path, data, at, value):
     first = bytearray(good)
     first[-8] ^= 0x01
     result = read(tmp_path, bytes(first) + good, "two.log.gz")
-    if isinstance(result, CarmenLog):
+    if isinstance(result, Log):
         notes = " ".join(result.warnings)
         assert "the checksum at the end of the compressed data does not match" in notes
 
@@ -161,7 +162,7 @@ def test_mangled_records_in_damaged_gzip(tmp_path, data, at, value):
 def test_colliding_times(tmp_path, times):
     lines = [f"FLASER 3 1 2 2 {k} 0 0 {k} 0 0 {t} h {t}" for k, t in enumerate(times)]
     result = read(tmp_path, ("\n".join(lines) + "\n").encode())
-    if isinstance(result, CarmenLog):
+    if isinstance(result, Log):
         np.testing.assert_array_equal(result.original_times_s, [float(t) for t in times])
         np.testing.assert_array_equal(result.laser_poses[:, 0], np.arange(len(times)))
     else:

@@ -19,7 +19,8 @@ from mcap.writer import CompressionType, Writer
 
 from segloc_cli.errors import InputError
 from segloc_cli.geometry import Pose2
-from segloc_cli.io.mcap_log import LogContents, read_log, write_log
+from segloc_cli.io.log import Log
+from segloc_cli.io.mcap_log import read_log, write_log
 from segloc_cli.scan import FAN_TOLERANCE_RAD, MAX_RANGE_M, MAX_READINGS, Scan
 
 # --- hostile content -------------------------------------------------------------------
@@ -158,11 +159,11 @@ def _hand_log(
 # --- what a reader may hand on ---------------------------------------------------------
 
 
-def assert_trustworthy(contents: LogContents) -> None:
+def assert_trustworthy(contents: Log) -> None:
     """Every scan a finite, evenly spaced, non-degenerate fan of at most a turn, with finite
     readings whose valid ones lie in (0, MAX_RANGE_M); odometry and times finite."""
-    assert len(contents.scan_original_times_s) == len(contents.scans)
-    assert np.all(np.isfinite(contents.scan_original_times_s))
+    assert len(contents.original_times_s) == len(contents.scans)
+    assert np.all(np.isfinite(contents.original_times_s))
     for scan in contents.scans:
         angles = np.asarray(scan.angles_rad, dtype=float)
         ranges = np.asarray(scan.ranges_m, dtype=float)
@@ -189,9 +190,9 @@ def assert_trustworthy(contents: LogContents) -> None:
         assert "\n" not in warning and len(warning) < 600
 
 
-def check(path: Path) -> LogContents | InputError:
+def check(path: Path) -> Log | InputError:
     result = outcome(read_log, path)
-    if isinstance(result, LogContents):
+    if isinstance(result, Log):
         assert_trustworthy(result)
     return result
 
@@ -221,7 +222,7 @@ def test_hostile_messages(tmp_path, scans, odom, sensor, layout, good_at):
     _hand_log(path, sensor, scans, odom, layout)
     result = check(path)
     if good_at is not None and sensor in (None, "inf", "30", "Infinity"):
-        assert isinstance(result, LogContents)
+        assert isinstance(result, Log)
         assert any(scan.ranges_m.tolist() == [2.0, 3.0] for scan in result.scans)
 
 
@@ -237,7 +238,7 @@ def test_hostile_payload_bytes_keep_the_good_scans(tmp_path, payloads, good_firs
     result = check(path)
     if good_first:
         # One good message keeps the file readable, whatever the others hold.
-        assert isinstance(result, LogContents)
+        assert isinstance(result, Log)
         assert result.scans[0].ranges_m.tolist() == [2.0, 3.0]
 
 

@@ -690,7 +690,7 @@ def test_original_times_round_trip(tmp_path):
     write_log(path, scans, sensor=SENSOR, original_times_s=originals)
     contents = read_log(path)
     assert contents.scan_times_s.tolist() == [s.time_s for s in scans]
-    assert contents.scan_original_times_s.tolist() == originals
+    assert contents.original_times_s.tolist() == originals
     with open(path, "rb") as stream:
         publish = [m.publish_time for _, _, m in make_reader(stream).iter_messages()]
     assert publish == [12_345_678_901, 12_345_678_901, 11_000_000_000, 1_000_000_000_000]
@@ -698,7 +698,7 @@ def test_original_times_round_trip(tmp_path):
 
 def test_original_times_default_to_scan_times(log_path):
     contents = read_log(log_path)
-    np.testing.assert_array_equal(contents.scan_original_times_s, contents.scan_times_s)
+    np.testing.assert_array_equal(contents.original_times_s, contents.scan_times_s)
 
 
 @pytest.mark.parametrize(

@@ -39,13 +39,14 @@ CORPUS = textwrap.dedent(
     from segloc_cli.extract import extract_segments
     from segloc_cli.field import score_raster
     from segloc_cli.geometry import Pose2
-    from segloc_cli.localize import LocalizeParams, Localizer, track_scans
+    from segloc_cli.localize import Localizer
     from segloc_cli.overlap import candidate_pairs, coarse_to_fine, overlap_at_poses
     from segloc_cli.refine import nearest_segments, refine_pose
     from segloc_cli.scan import Scan
     from segloc_cli.search import HypothesisSearch
     from segloc_cli.sim import NOISE_FREE, random_free_poses, random_world, simulate_scan
     from segloc_cli.spatial import SegmentGrid
+    from segloc_cli.tracking import track_scans
 
     np.seterr(all="ignore")
     rng = np.random.default_rng(11)
@@ -135,7 +136,10 @@ CORPUS = textwrap.dedent(
                 est = localizer.localize(local, guesses["near"], good.points())
                 emit(map=map_name, scan=local_name, how="robust", status=est.status)
                 rows += 1
-                result = coarse_to_fine(segments, local, guesses["near"])
+                p = localizer.params
+                result = coarse_to_fine(segments, local, guesses["near"], grid_m=p.grid_m,
+                                        dtheta_deg=p.dtheta_deg, iterations=p.iterations,
+                                        ratio=p.ratio, recentres=p.recentres)
                 overlap_at_poses(segments, local, np.array([[0.0, 0.0, 0.0]]), 0.1)
                 candidate_pairs(segments, local, guesses["near"], 1.0, 0.1, 0.1)
                 assert result.track.shape[1] == 3

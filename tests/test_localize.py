@@ -15,11 +15,11 @@ from segloc_cli.localize import (
     Localizer,
     localize_scans,
     point_spread_m,
-    track_scans,
     usable_points,
 )
 from segloc_cli.scan import Scan
 from segloc_cli.sim import NOISE_FREE, random_free_poses, random_world, simulate_scan
+from segloc_cli.tracking import track_scans
 
 
 def _pieces(x1, y1, x2, y2, n):

@@ -206,6 +206,26 @@ def test_candidate_pairs_filter_is_exact(grid):
 
 # --- coarse-to-fine search --------------------------------------------------------------------
 
+# The paper's schedule (K = 6 halvings, no re-centring) from a 1.5 m grid and 4° heading step.
+PAPER_SCHEDULE = {"grid_m": 1.5, "dtheta_deg": 4.0, "iterations": 6, "ratio": 0.9, "recentres": 0}
+
+
+def tuning(**changes) -> dict:
+    """The keywords of ``coarse_to_fine``: the paper's schedule with ``changes``."""
+    return PAPER_SCHEDULE | changes
+
+
+def test_coarse_to_fine_has_no_default_tuning():
+    # Its defaults live in LocalizeParams only: a call that leaves one out is an error.
+    start = Pose2(0.0, 0.0, 0.0)
+    for name in PAPER_SCHEDULE:
+        partial = {k: v for k, v in PAPER_SCHEDULE.items() if k != name}
+        with pytest.raises(TypeError, match=name):
+            coarse_to_fine(WALL, WALL, start, **partial)
+    with pytest.raises(TypeError):
+        coarse_to_fine(WALL, WALL, start, 1.5, 4.0, 6, 0.9, 0)  # keyword-only
+
+
 # An L-shaped room (10 × 4 plus 4 × 4) with two boxes.
 L_ROOM = np.array(
     [
@@ -241,7 +261,7 @@ def test_coarse_to_fine_converges_on_noise_free_geometry(true):
                 true.y + 0.5 * np.sin(d),
                 float(wrap_angle(true.theta + np.deg2rad(dtheta_deg))),
             )
-            result = coarse_to_fine(L_ROOM, local, start, iterations=10, recentres=40)
+            result = coarse_to_fine(L_ROOM, local, start, **tuning(iterations=10, recentres=40))
             err_m = np.hypot(result.pose.x - true.x, result.pose.y - true.y)
             err_deg = abs(np.rad2deg(wrap_angle(result.pose.theta - true.theta)))
             assert err_m < 0.01, f"start {start}: {err_m:.4f} m off"
@@ -254,7 +274,7 @@ def test_coarse_to_fine_paper_schedule_track():
     start = Pose2.from_deg(3.3, 2.4, 23.0)
     k, grid, dtheta_deg = 6, 1.5, 4.0
     result = coarse_to_fine(
-        L_ROOM, local, start, grid_m=grid, dtheta_deg=dtheta_deg, iterations=k, recentres=0
+        L_ROOM, local, start, **tuning(grid_m=grid, dtheta_deg=dtheta_deg, iterations=k)
     )
     # The estimate before the first and after each of the K iterations, one overlap each.
     assert result.track.shape == (k + 1, 3)
@@ -282,7 +302,7 @@ def test_coarse_to_fine_recentres_add_iterations_only_while_moving():
     true = Pose2.from_deg(3.0, 2.0, 20.0)
     local = transform_segments(L_ROOM, true.inverse())
     start = Pose2.from_deg(3.3, 2.4, 23.0)
-    result = coarse_to_fine(L_ROOM, local, start, iterations=6, recentres=5)
+    result = coarse_to_fine(L_ROOM, local, start, **tuning(iterations=6, recentres=5))
     # At most 5 extra iterations on top of the 6 halvings.
     assert 7 <= result.track.shape[0] <= 12
     assert result.best_overlaps_m.shape == (result.track.shape[0] - 1,)
@@ -298,7 +318,7 @@ def test_coarse_to_fine_weighted_mean_step_by_hand():
     # and L is clipped to [0.5, 0.9]: 0.4 + 0.4 = 0.8.
     local = np.array([[2.0, 0.5, 2.0, 1.0]])
     start = Pose2(0.0, 0.0, 0.0)
-    args = dict(grid_m=0.1, dtheta_deg=0.0, iterations=1)
+    args = dict(grid_m=0.1, dtheta_deg=0.0, iterations=1, recentres=0)
     # Ratio 0.9 keeps 1.0 and 1.0 (0.8 < 0.9): mean y = (−0.1 + 0)/2 = −0.05.
     r = coarse_to_fine(WALL, local, start, ratio=0.9, **args)
     assert r.best_overlaps_m[0] == pytest.approx(1.0, abs=1e-12)
@@ -319,7 +339,7 @@ def test_coarse_to_fine_averages_headings_on_the_circle():
     g = np.array([[-2.0, 1.0, -2.0, -1.0]])
     local = np.array([[2.0, -0.8, 2.0, 0.8]])
     start = Pose2.from_deg(0.0, 0.0, 180.0)
-    r = coarse_to_fine(g, local, start, grid_m=0.1, dtheta_deg=4.0, iterations=1, ratio=0.0)
+    r = coarse_to_fine(g, local, start, **tuning(grid_m=0.1, iterations=1, ratio=0.0))
     cands = candidate_poses(start, 0.1, np.deg2rad(4.0))
     turned = np.abs(wrap_angle(cands[:, 2] - np.pi)) > 0.01
     # The turned candidates do overlap, so they take part in the mean.
@@ -332,7 +352,7 @@ def test_coarse_to_fine_no_overlap_stays_put():
     # A local map that pairs with nothing at any candidate: the estimate does not move.
     local = np.array([[-5.0, -1.0, -5.0, 1.0]])
     start = Pose2(0.2, -0.1, 0.3)
-    r = coarse_to_fine(WALL, local, start, grid_m=0.5, iterations=3)
+    r = coarse_to_fine(WALL, local, start, **tuning(grid_m=0.5, iterations=3))
     np.testing.assert_array_equal(r.track, np.tile(start.as_array(), (4, 1)))
     np.testing.assert_array_equal(r.best_overlaps_m, [0.0, 0.0, 0.0])
     assert r.overlap_m == 0.0
@@ -341,7 +361,7 @@ def test_coarse_to_fine_no_overlap_stays_put():
 def test_an_empty_local_map_overlaps_nothing_and_leaves_the_start():
     world = np.array([[0.0, 0.0, 4.0, 0.0], [0.0, 0.0, 0.0, 3.0]])
     start = Pose2(1.0, 1.0, 0.2)
-    result = coarse_to_fine(world, np.zeros((0, 4)), start)
+    result = coarse_to_fine(world, np.zeros((0, 4)), start, **PAPER_SCHEDULE)
     assert result.overlap_m == 0.0
     assert (result.pose.x, result.pose.y, result.pose.theta) == (1.0, 1.0, 0.2)
     pairs = candidate_pairs(world, np.zeros((0, 4)), start, 1.0, 0.1, 0.1)

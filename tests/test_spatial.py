@@ -57,14 +57,23 @@ def test_stage2_with_the_index_equals_stage2_without():
         [room.segments + [25.0 * (k % 3), 20.0 * (k // 3)] * 2 for k, room in enumerate(rooms)]
     )
     block = World(segments, np.full(segments.shape[0], "wall"), "rooms")
-    grid = Localizer(segments).index
+    localizer = Localizer(segments)
+    grid = localizer.index
+    p = localizer.params
+    tuning = dict(
+        grid_m=p.grid_m,
+        dtheta_deg=p.dtheta_deg,
+        iterations=p.iterations,
+        ratio=p.ratio,
+        recentres=p.recentres,
+    )
     rng = np.random.default_rng(9)
     for x, y, theta in random_free_poses(rooms[4], 6, rng):
         truth = Pose2(x + 25.0, y + 20.0, theta)  # in the middle room
         local = extract_segments(simulate_scan(block, truth, SensorModel(), rng, 0.0))
         guess = Pose2(truth.x + 0.8, truth.y - 0.6, truth.theta + 0.1)
-        plain = coarse_to_fine(segments, local, guess, iterations=8, recentres=8)
-        indexed = coarse_to_fine(segments, local, guess, iterations=8, recentres=8, index=grid)
+        plain = coarse_to_fine(segments, local, guess, **tuning)
+        indexed = coarse_to_fine(segments, local, guess, **tuning, index=grid)
         assert indexed.pose == plain.pose
         assert indexed.overlap_m == plain.overlap_m
         np.testing.assert_array_equal(indexed.track, plain.track)

@@ -40,7 +40,7 @@ Times are the records' ``ipc_timestamp`` in seconds (relative or absolute);
 the logger timestamp is only checked to be a number. Laser records that share
 their time with another record or go back in time are given distinct times in
 file order by the rule of ``segloc_cli.io.times`` (one warning says how many);
-``CarmenLog.original_times_s`` keeps the times as written.
+``Log.original_times_s`` keeps the times as written.
 
 Maximum range: a reading at or above it means no return. It is, in order of
 precedence: the ``range_max_m`` argument; a ROBOTLASER1 record's own
@@ -72,7 +72,7 @@ Bad records (wrong field count, a reading count below 1 or above
 ``segloc_cli.scan.MAX_READINGS``, non-numeric or non-finite values, a time that
 is negative, non-finite or above ``segloc_cli.io.times.MAX_TIME_S``, a
 ROBOTLASER1 fan that ``segloc_cli.scan.fan_defect`` refuses) are skipped; each kind
-is summarised in ``CarmenLog.warnings`` with line numbers. So are lines holding
+is summarised in ``Log.warnings`` with line numbers. So are lines holding
 NUL bytes; a file where more than half of the lines hold one, or where no laser
 record can be read and any line holds one, is refused as not text.
 
@@ -88,7 +88,7 @@ import math
 import re
 import zlib
 from collections import Counter
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -96,6 +96,7 @@ import numpy as np
 from segloc_cli.errors import InputError
 from segloc_cli.geometry import wrap_angle
 from segloc_cli.io.files import reading
+from segloc_cli.io.log import Log
 from segloc_cli.io.times import MAX_TIME_S, importer_times
 from segloc_cli.scan import MAX_READINGS, Scan, evenly_spaced_angles, fan_defect
 
@@ -142,30 +143,6 @@ REASONS = {
     "time": f"a negative, non-finite or too large timestamp (at most {MAX_TIME_S:.0f} s)",
     "geometry": "a beam fan that is degenerate, wider than a full turn or beyond ±4π rad",
 }
-
-
-@dataclass(frozen=True)
-class CarmenLog:
-    """What ``read_carmen`` found.
-
-    ``scans`` (S) in file order, each in the scanner frame with ``time_s`` the
-    record's ipc timestamp made distinct (see the module docstring);
-    ``original_times_s`` (S,) the ipc timestamps as written; ``odom_times_s``
-    (S,) the scans' (distinct) times;
-    ``odom_poses`` (S, 3) the odometry pose of each laser record, moved to
-    the scanner by the laser offset, and ``laser_poses`` (S, 3) its pose fields,
-    both ``x_m, y_m, theta_rad``; ``sensor`` str → str settings for the MCAP
-    metadata record (``range_max_m``, ``readings``, ``fov_deg``, ``source``,
-    ``laser``, …); ``warnings`` one line per kind of skipped record or damage.
-    """
-
-    scans: list[Scan]
-    odom_times_s: np.ndarray
-    odom_poses: np.ndarray
-    laser_poses: np.ndarray
-    sensor: dict[str, str]
-    warnings: list[str]
-    original_times_s: np.ndarray
 
 
 class _Skip(Exception):
@@ -547,9 +524,21 @@ def _shift(poses: np.ndarray, offset_m: float) -> np.ndarray:
     return moved
 
 
-def read_carmen(
-    path: str | Path, laser: str = "front", range_max_m: float | None = None
-) -> CarmenLog:
+@dataclass
+class _Parsed:
+    """What the lines of a log hold: the chosen laser's records, how many records of each
+    type there are, the first value and line of each PARAM, the line numbers of skipped
+    records per (type, reason), the lines holding NUL bytes and the count of non-empty lines."""
+
+    records: list[_LaserRecord] = field(default_factory=list)
+    counts: Counter = field(default_factory=Counter)
+    params: dict[str, tuple[bytes, int]] = field(default_factory=dict)
+    skipped: dict[tuple[str, str], list[int]] = field(default_factory=dict)
+    with_nul: list[int] = field(default_factory=list)
+    n_lines: int = 0
+
+
+def read_carmen(path: str | Path, laser: str = "front", range_max_m: float | None = None) -> Log:
     """Read the scans of one laser and their poses from a CARMEN log.
 
     ``path``: a CARMEN text log, plain or gzip-compressed (found by its magic
@@ -561,7 +550,8 @@ def read_carmen(
     Raises ``InputError`` naming the file when it is missing, a directory, not
     text, or holds no usable record of the chosen laser. Everything else odd
     (bad records, NUL bytes, damaged gzip, colliding times, no maximum range
-    found) is a line of ``CarmenLog.warnings``.
+    found) is a line of ``Log.warnings``. The log's ``odom_times_s`` are the
+    scans' times and its ``laser_poses`` the records' pose fields.
     """
     if laser not in LASER_RECORDS:
         raise ValueError(f"laser must be one of {sorted(LASER_RECORDS)}, got {laser!r}")
@@ -569,78 +559,113 @@ def read_carmen(
         raise ValueError(f"range_max_m must be positive, got {range_max_m}")
     path = Path(path)
     warnings: list[str] = []
-    lines = _read_lines(path, warnings)
-    wanted = LASER_RECORDS[laser]
+    parsed = _parse_lines(_read_lines(path, warnings), LASER_RECORDS[laser])
+    _check_records(path, parsed, laser, warnings)
+    records = parsed.records
+    per_record, rule = _range_maxes(path, parsed, laser, range_max_m, warnings)
+    original_times_s = np.array([r.time_s for r in records], dtype=float)
+    times_s, collided = importer_times(
+        original_times_s, path, "laser records", "file order", str(path)
+    )
+    warnings += [collided] if collided else []
+    scans = _scans(records, per_record, times_s)
+    offset_m = _laser_offset(path, parsed.params, laser, warnings)
+    laser_poses, odom_poses = _poses(records, laser, offset_m)
+    return Log(
+        scans=scans,
+        original_times_s=original_times_s,
+        odom_times_s=times_s,
+        odom_poses=odom_poses,
+        sensor=_sensor(path, records, scans, laser, per_record, rule, offset_m),
+        laser_poses=laser_poses,
+        warnings=warnings,
+    )
 
-    records: list[_LaserRecord] = []
-    counts: Counter = Counter()
-    params: dict[str, tuple[bytes, int]] = {}
-    skipped: dict[tuple[str, str], list[int]] = {}
-    with_nul: list[int] = []
-    n_lines = 0
+
+def _parse_lines(lines: list[bytes], wanted: tuple[str, ...]) -> _Parsed:
+    """The records of the laser record types ``wanted``, the PARAMs and what was skipped."""
+    parsed = _Parsed()
     for number, line in enumerate(lines, start=1):
         if b"\x00" in line:
-            with_nul.append(number)
-            n_lines += 1
+            parsed.with_nul.append(number)
+            parsed.n_lines += 1
             continue
         fields = line.split()
         if not fields:
             continue
-        n_lines += 1
+        parsed.n_lines += 1
         if fields[0].startswith(b"#"):
             continue
         kind = _shown(fields[0][:SHOWN_CHARS])
-        counts[kind] += 1
+        parsed.counts[kind] += 1
         try:
             if kind in wanted:
-                records.append(PARSERS[kind](kind, fields))
+                parsed.records.append(PARSERS[kind](kind, fields))
             elif kind == "ODOM":
                 _check_odom(fields)
             elif kind == "PARAM" and len(fields) >= 3:
-                params.setdefault(_shown(fields[1][:SHOWN_CHARS]), (fields[2], number))
+                parsed.params.setdefault(_shown(fields[1][:SHOWN_CHARS]), (fields[2], number))
         except _Skip as skip:
-            skipped.setdefault((kind, skip.reason), []).append(number)
-    if with_nul and (len(with_nul) > BINARY_LINE_FRACTION * n_lines or not records):
+            parsed.skipped.setdefault((kind, skip.reason), []).append(number)
+    return parsed
+
+
+def _check_records(path: Path, parsed: _Parsed, laser: str, warnings: list[str]) -> None:
+    """Refuse a file that is not text or holds no usable laser record; put the warnings on
+    skipped records and NUL lines ahead of ``warnings``."""
+    with_nul = parsed.with_nul
+    if with_nul and (len(with_nul) > BINARY_LINE_FRACTION * parsed.n_lines or not parsed.records):
         raise InputError(f"not a text file; expected {EXPECTED}", path=path)
     # The damage note, if any, reads best after the per-record summaries.
-    warnings[:0] = _skip_warnings(path, skipped)
+    warnings[:0] = _skip_warnings(path, parsed.skipped)
     if with_nul:
         n = len(with_nul)
         note = f"{path}: skipped {n} line{'s' if n > 1 else ''} holding NUL bytes"
-        warnings.insert(len(skipped), f"{note} ({_line_list(with_nul)})")
+        warnings.insert(len(parsed.skipped), f"{note} ({_line_list(with_nul)})")
+    if not parsed.records:
+        raise InputError(_no_records_message(path, laser, parsed.counts, warnings), path=path)
 
-    if not records:
-        raise InputError(_no_records_message(path, laser, counts, warnings), path=path)
 
+def _range_maxes(
+    path: Path, parsed: _Parsed, laser: str, range_max_m: float | None, warnings: list[str]
+) -> tuple[list[float], str]:
+    """The maximum range (m) of each record and the rule that gave it (module docstring)."""
+    records = parsed.records
     if range_max_m is not None:
         fallback, rule = float(range_max_m), "given"
     else:
-        from_param = _range_max_param(path, params, laser, warnings)
-        if from_param is None:
-            needing = [r.ranges_m for r in records if r.range_max_m is None]
-            fallback, rule, unsure = _infer_range_max(needing)
-            if unsure:
-                warnings.append(
-                    f"{path}: no maximum range found, {rule.removeprefix('none: ')}; every "
-                    "positive reading counts as a return (pass --range-max-m if the scanner "
-                    "has a maximum range)"
-                )
-        else:
-            fallback, rule = from_param
+        fallback, rule = _fallback_range_max(path, parsed, laser, warnings)
     per_record = [
         r.range_max_m if range_max_m is None and r.range_max_m is not None else fallback
         for r in records
     ]
     if range_max_m is None and any(r.range_max_m is not None for r in records):
         rule = "ROBOTLASER1 maximum_range" + ("" if len(set(per_record)) == 1 else f"; {rule}")
+    return per_record, rule
 
-    original_times_s = np.array([r.time_s for r in records], dtype=float)
-    times_s, collided = importer_times(
-        original_times_s, path, "laser records", "file order", str(path)
-    )
-    warnings += [collided] if collided else []
 
-    scans = [
+def _fallback_range_max(
+    path: Path, parsed: _Parsed, laser: str, warnings: list[str]
+) -> tuple[float, str]:
+    """The maximum range (m) of records without their own, from a PARAM or inferred from
+    their readings, and how it was found; a warning when none is found."""
+    from_param = _range_max_param(path, parsed.params, laser, warnings)
+    if from_param is not None:
+        return from_param
+    needing = [r.ranges_m for r in parsed.records if r.range_max_m is None]
+    fallback, rule, unsure = _infer_range_max(needing)
+    if unsure:
+        warnings.append(
+            f"{path}: no maximum range found, {rule.removeprefix('none: ')}; every "
+            "positive reading counts as a return (pass --range-max-m if the scanner "
+            "has a maximum range)"
+        )
+    return fallback, rule
+
+
+def _scans(records: list[_LaserRecord], per_record: list[float], times_s: np.ndarray) -> list[Scan]:
+    """The records' scans at ``times_s`` (S,) seconds with their maximum ranges (m)."""
+    return [
         Scan(
             time_s=float(time_s),
             angles_rad=evenly_spaced_angles(len(r.ranges_m), r.start_rad, r.start_rad + r.fov_rad),
@@ -651,6 +676,12 @@ def read_carmen(
         for r, limit, time_s in zip(records, per_record, times_s, strict=True)
     ]
 
+
+def _laser_offset(
+    path: Path, params: dict[str, tuple[bytes, int]], laser: str, warnings: list[str]
+) -> float:
+    """The laser's offset PARAM (m, along the robot's heading for the front laser), 0 when
+    absent, unusable or too large (with a warning)."""
     offset_m = _param_value(path, params, OFFSET_PARAMS[laser], warnings) or 0.0
     if abs(offset_m) > MAX_LASER_OFFSET_M:
         warnings.append(
@@ -658,6 +689,14 @@ def read_carmen(
             f"{MAX_LASER_OFFSET_M:g} m; ignored"
         )
         offset_m = 0.0
+    return offset_m
+
+
+def _poses(
+    records: list[_LaserRecord], laser: str, offset_m: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """The records' pose fields and odometry (S, 3) ``x_m, y_m, theta_rad``, headings
+    wrapped; the odometry moved from the robot centre to the scanner by ``offset_m``."""
     # The rear scanner faces backward: its offset runs along the robot's heading + π.
     along_m = offset_m if laser == "front" else -offset_m
     laser_poses = np.array([r.laser_pose for r in records], dtype=float)
@@ -667,10 +706,23 @@ def read_carmen(
         odom_poses[at_centre] = _shift(odom_poses[at_centre], along_m)
     laser_poses[:, 2] = _wrapped(laser_poses[:, 2])
     odom_poses[:, 2] = _wrapped(odom_poses[:, 2])
+    return laser_poses, odom_poses
 
+
+def _sensor(
+    path: Path,
+    records: list[_LaserRecord],
+    scans: list[Scan],
+    laser: str,
+    per_record: list[float],
+    rule: str,
+    offset_m: float,
+) -> dict[str, str]:
+    """Settings for the MCAP log's metadata record (str → str)."""
     beams = sorted({len(s) for s in scans})
     fovs = sorted({_fmt(math.degrees(r.fov_rad)) for r in records}, key=float)
-    sensor = {
+    wanted = LASER_RECORDS[laser]
+    return {
         "range_max_m": _fmt(max(per_record)),
         "range_max_from": rule,
         "readings": ",".join(str(n) for n in beams),
@@ -681,12 +733,3 @@ def read_carmen(
         "source": path.name,
         "format": "CARMEN log",
     }
-    return CarmenLog(
-        scans=scans,
-        odom_times_s=times_s,
-        odom_poses=odom_poses,
-        laser_poses=laser_poses,
-        sensor=sensor,
-        warnings=warnings,
-        original_times_s=original_times_s,
-    )

@@ -67,6 +67,7 @@ from mcap.writer import CompressionType, Writer
 from segloc_cli.errors import InputError
 from segloc_cli.geometry import Pose2, heading_to_quaternion, quaternion_to_heading, wrap_angle
 from segloc_cli.io.files import reading, writing_error
+from segloc_cli.io.log import Log
 from segloc_cli.io.maps import MAX_COORDINATE_M
 from segloc_cli.scan import MAX_READINGS, Scan, evenly_spaced_angles, fan_defect
 
@@ -311,7 +312,7 @@ class LogWriter:
 
         ``original_time_s`` (seconds), when given, is the time the scan had in its source
         before an importer made colliding times distinct; it becomes the record's publish
-        time, and ``read_log`` returns it in ``LogContents.scan_original_times_s``.
+        time, and ``read_log`` returns it in ``Log.original_times_s``.
         """
         start, end, time_ns, publish_ns = _check_scan(scan, original_time_s)
         ranges = np.asarray(scan.ranges_m, dtype=float).reshape(-1)
@@ -408,41 +409,6 @@ def write_log(
 
 
 # --- reading ---------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class LogContents:
-    """Everything ``read_log`` found in a log.
-
-    ``scans`` in log order (each with the log's ``range_max_m``);
-    ``odom_times_s`` (K,) seconds; ``odom_poses`` (K, 3) ``x_m, y_m, theta_rad``
-    in the world frame; ``sensor`` the settings record (empty if absent);
-    ``finished`` whether the file ends with its summary and footer;
-    ``message_counts`` messages read per channel topic, including topics
-    segloc does not use and skipped messages; ``warnings`` human-readable notes
-    (a truncated file, skipped messages, repeated times), one line each;
-    ``scan_original_times_s`` (S,) seconds, the scans' times in their source:
-    the record's publish time where the writer kept an original time, else
-    (and when not given) equal to ``scan_times_s``.
-    """
-
-    scans: list[Scan]
-    odom_times_s: np.ndarray
-    odom_poses: np.ndarray
-    sensor: dict[str, str] = field(default_factory=dict)
-    finished: bool = False
-    warnings: list[str] = field(default_factory=list)
-    message_counts: dict[str, int] = field(default_factory=dict)
-    scan_original_times_s: np.ndarray | None = None
-
-    def __post_init__(self) -> None:
-        if self.scan_original_times_s is None:
-            object.__setattr__(self, "scan_original_times_s", self.scan_times_s)
-
-    @property
-    def scan_times_s(self) -> np.ndarray:
-        """Acquisition times (S,) of the scans, seconds."""
-        return np.array([scan.time_s for scan in self.scans], dtype=float)
 
 
 class _Skip(Exception):
@@ -747,7 +713,31 @@ def _records(reader: StreamReader):
         yield from inner
 
 
-def read_log(path: str | Path) -> LogContents:
+@dataclass
+class _Found:
+    """What reading a log's records has found so far.
+
+    ``scan_records`` and ``odom`` (``time_ns, [x_m, y_m, theta_rad]`` in the world
+    frame) the usable messages in file order; the faults those skipped and the
+    intensities dropped; ``n_messages`` every message record read and ``counts``
+    the messages per topic; ``finished`` whether the footer was read; ``broken``
+    how the file is damaged where reading stopped (None when it read to the end).
+    """
+
+    channels: dict[int, Channel] = field(default_factory=dict)
+    sensor: dict[str, str] = field(default_factory=dict)
+    scan_records: list[_ScanRecord] = field(default_factory=list)
+    odom: list[tuple[int, list[float]]] = field(default_factory=list)
+    scan_faults: _Faults = field(default_factory=_Faults)
+    odom_faults: _Faults = field(default_factory=_Faults)
+    dropped: _Faults = field(default_factory=_Faults)
+    n_messages: int = 0
+    counts: dict[str, int] = field(default_factory=dict)
+    finished: bool = False
+    broken: str | None = None
+
+
+def read_log(path: str | Path) -> Log:
     """Read a segloc MCAP log, including one that was cut short or that another tool wrote.
 
     Records are read in file order (chunked and compressed files too); at the
@@ -762,84 +752,123 @@ def read_log(path: str | Path) -> LogContents:
     with reading(path, "an MCAP log file"):
         stream = open(path, "rb")
         size = os.fstat(stream.fileno()).st_size
-
-    channels: dict[int, Channel] = {}
-    sensor: dict[str, str] = {}
-    scan_records: list[_ScanRecord] = []
-    odom: list[tuple[int, list[float]]] = []
-    scan_faults, odom_faults, dropped = _Faults(), _Faults(), _Faults()
-    n_messages = 0
-    counts: dict[str, int] = {}
-    finished = False
-    broken: str | None = None
     with stream:
-        if stream.read(len(MCAP_MAGIC)) != MCAP_MAGIC:
-            raise InputError(
-                "not an MCAP file (it does not start with the MCAP magic bytes); expected a "
-                "segloc log such as `segloc simulate` writes",
-                path=path,
-            )
-        stream.seek(0)
-        bounded = _Bounded(stream, size)
-        # A record longer than the file can only be a corrupt length field.
-        reader = StreamReader(bounded, emit_chunks=True, record_size_limit=max(size, 1))
-        records = _records(reader)
-        end_of_last_record = len(MCAP_MAGIC)
-        while True:
-            try:
-                record = next(records)
-            except StopIteration:
-                break
-            except _CorruptChunk:
-                broken = "has a corrupt chunk"
-                break
-            except (EndOfFile, struct.error):
-                # Ending exactly after a whole record is a recording stopped between messages.
-                if bounded.position != end_of_last_record:
-                    broken = "ends mid-record"
-                break
-            except Exception:  # the mcap parser's many ways to fail on corrupt bytes
-                broken = "has a corrupt record"
-                break
-            end_of_last_record = bounded.position
-            if isinstance(record, Message):
-                n_messages += 1
-                channel = channels.get(record.channel_id)
-                if channel is None:
-                    continue
-                number = counts[channel.topic] = counts.get(channel.topic, 0) + 1
-                if channel.message_encoding != "json":
-                    continue  # refused below, once the whole file is read
-                try:
-                    if channel.topic == SCAN_TOPIC:
-                        scan_records.append(_parse_scan(number, record, dropped))
-                    elif channel.topic == ODOM_TOPIC:
-                        odom.append(_parse_odom(record.data))
-                except _Skip as skip:
-                    faults = scan_faults if channel.topic == SCAN_TOPIC else odom_faults
-                    faults.add(skip.kind, number, skip.detail)
-            elif isinstance(record, Channel):
-                channels[record.id] = record
-            elif isinstance(record, Metadata) and record.name == SENSOR_METADATA_NAME:
-                sensor = dict(record.metadata)
-            elif isinstance(record, Footer):
-                finished = True
-    if broken is not None:
-        finished = False
+        _check_magic(path, stream)
+        found = _read_records(stream, size)
+    _check_channels(path, found)
+    range_max_m = _sensor_range_max(path, found.sensor)
+    scans = [_scan(record, range_max_m) for record in found.scan_records]
+    return Log(
+        scans=scans,
+        original_times_s=np.array(
+            [r.original_ns / 1_000_000_000 for r in found.scan_records], dtype=float
+        ),
+        odom_times_s=np.array([t / 1_000_000_000 for t, _ in found.odom], dtype=float),
+        odom_poses=np.array([p for _, p in found.odom], dtype=float).reshape(-1, 3),
+        sensor=found.sensor,
+        finished=found.finished,
+        message_counts={c.topic: found.counts.get(c.topic, 0) for c in found.channels.values()},
+        warnings=_read_warnings(path.name, found, len(scans)),
+    )
 
-    # A ROS 2 bag stored as MCAP is an MCAP file too, but of ROS messages.
-    ros = any(c.message_encoding in ROS_ENCODINGS for c in channels.values())
-    to_import = f"; it is a ROS bag: convert it with `segloc import rosbag {path}`" if ros else ""
-    scan_channels = [c for c in channels.values() if c.topic == SCAN_TOPIC]
-    if not scan_channels:
-        found = ", ".join(sorted({_clip(c.topic) for c in channels.values()})) or "none"
-        cut = "" if broken is None else f"; the file {broken} after {n_messages} messages"
+
+def _check_magic(path: Path, stream) -> None:
+    """Refuse a file that does not start as MCAP; leaves ``stream`` at its start."""
+    if stream.read(len(MCAP_MAGIC)) != MCAP_MAGIC:
         raise InputError(
-            f"no {SCAN_TOPIC} channel; record or import a log with laser scans on "
-            f"{SCAN_TOPIC} (channels found: {found}){cut}{to_import}",
+            "not an MCAP file (it does not start with the MCAP magic bytes); expected a "
+            "segloc log such as `segloc simulate` writes",
             path=path,
         )
-    for channel in [*scan_channels, *(c for c in channels.values() if c.topic == ODOM_TOPIC)]:
+    stream.seek(0)
+
+
+def _read_records(stream, size: int) -> _Found:
+    """Every record of the MCAP file ``stream`` of ``size`` bytes up to its end or to the
+    first record that is incomplete or corrupt (``_Found.broken`` then says which, and the
+    file does not count as finished)."""
+    found = _Found()
+    bounded = _Bounded(stream, size)
+    # A record longer than the file can only be a corrupt length field.
+    reader = StreamReader(bounded, emit_chunks=True, record_size_limit=max(size, 1))
+    records = _records(reader)
+    end_of_last_record = len(MCAP_MAGIC)
+    while True:
+        try:
+            record = next(records)
+        except StopIteration:
+            break
+        except _CorruptChunk:
+            found.broken = "has a corrupt chunk"
+            break
+        except (EndOfFile, struct.error):
+            # Ending exactly after a whole record is a recording stopped between messages.
+            if bounded.position != end_of_last_record:
+                found.broken = "ends mid-record"
+            break
+        except Exception:  # the mcap parser's many ways to fail on corrupt bytes
+            found.broken = "has a corrupt record"
+            break
+        end_of_last_record = bounded.position
+        _take_record(found, record)
+    if found.broken is not None:
+        found.finished = False  # a footer before the damage does not make the file whole
+    return found
+
+
+def _take_record(found: _Found, record: object) -> None:
+    """Note one record of the file in ``found``."""
+    if isinstance(record, Message):
+        found.n_messages += 1
+        _take_message(found, record)
+    elif isinstance(record, Channel):
+        found.channels[record.id] = record
+    elif isinstance(record, Metadata) and record.name == SENSOR_METADATA_NAME:
+        found.sensor = dict(record.metadata)
+    elif isinstance(record, Footer):
+        found.finished = True
+
+
+def _take_message(found: _Found, record: Message) -> None:
+    """Count a message on its topic and keep it if it is a usable ``/scan`` or ``/odom``
+    one; an unusable one is counted as a fault."""
+    channel = found.channels.get(record.channel_id)
+    if channel is None:
+        return
+    number = found.counts[channel.topic] = found.counts.get(channel.topic, 0) + 1
+    if channel.message_encoding != "json":
+        return  # refused by _check_channels, once the whole file is read
+    try:
+        if channel.topic == SCAN_TOPIC:
+            found.scan_records.append(_parse_scan(number, record, found.dropped))
+        elif channel.topic == ODOM_TOPIC:
+            found.odom.append(_parse_odom(record.data))
+    except _Skip as skip:
+        faults = found.scan_faults if channel.topic == SCAN_TOPIC else found.odom_faults
+        faults.add(skip.kind, number, skip.detail)
+
+
+def _check_channels(path: Path, found: _Found) -> None:
+    """Refuse a log without a ``/scan`` channel, with a ``/scan`` or ``/odom`` channel
+    that is not JSON, or whose ``/scan`` messages are all unusable."""
+    channels = found.channels.values()
+    # A ROS 2 bag stored as MCAP is an MCAP file too, but of ROS messages.
+    ros = any(c.message_encoding in ROS_ENCODINGS for c in channels)
+    to_import = f"; it is a ROS bag: convert it with `segloc import rosbag {path}`" if ros else ""
+    scan_channels = [c for c in channels if c.topic == SCAN_TOPIC]
+    if not scan_channels:
+        found_topics = ", ".join(sorted({_clip(c.topic) for c in channels})) or "none"
+        cut = (
+            ""
+            if found.broken is None
+            else f"; the file {found.broken} after {found.n_messages} messages"
+        )
+        raise InputError(
+            f"no {SCAN_TOPIC} channel; record or import a log with laser scans on "
+            f"{SCAN_TOPIC} (channels found: {found_topics}){cut}{to_import}",
+            path=path,
+        )
+    for channel in [*scan_channels, *(c for c in channels if c.topic == ODOM_TOPIC)]:
         if channel.message_encoding != "json":
             raise InputError(
                 f"channel {channel.topic} uses message encoding "
@@ -847,49 +876,37 @@ def read_log(path: str | Path) -> LogContents:
                 f"{to_import}",
                 path=path,
             )
-    if not scan_records and scan_faults.total():
+    faults = found.scan_faults
+    if not found.scan_records and faults.total():
         raise InputError(
-            f"every {SCAN_TOPIC} message is unusable ({scan_faults.total()} skipped; first, "
-            f"{scan_faults.first_of_all})",
+            f"every {SCAN_TOPIC} message is unusable ({faults.total()} skipped; first, "
+            f"{faults.first_of_all})",
             path=path,
         )
 
-    range_max_m = _sensor_range_max(path, sensor)
-    scans = [_scan(record, range_max_m) for record in scan_records]
-    odom_times_s = np.array([t / 1_000_000_000 for t, _ in odom], dtype=float)
-    odom_poses = np.array([p for _, p in odom], dtype=float).reshape(-1, 3)
 
-    name = path.name
+def _read_warnings(name: str, found: _Found, n_scans: int) -> list[str]:
+    """The warnings on the log file ``name``: damage, skipped messages, dropped intensities
+    and scan times out of order, one line each."""
     warnings = []
-    if broken is not None:
+    if found.broken is not None:
         warnings.append(
-            f"{name}: file {broken} after {n_messages} messages; kept {len(scans)} scans"
+            f"{name}: file {found.broken} after {found.n_messages} messages; kept {n_scans} scans"
         )
-    elif not finished:
+    elif not found.finished:
         warnings.append(
-            f"{name}: file has no footer (recording was not finished); kept {len(scans)} scans"
+            f"{name}: file has no footer (recording was not finished); kept {n_scans} scans"
         )
-    warnings += scan_faults.lines(name, "skipped", SCAN_TOPIC, _SCAN_FAULTS)
-    warnings += odom_faults.lines(name, "skipped", ODOM_TOPIC, _ODOM_FAULTS)
-    warnings += dropped.lines(
+    warnings += found.scan_faults.lines(name, "skipped", SCAN_TOPIC, _SCAN_FAULTS)
+    warnings += found.odom_faults.lines(name, "skipped", ODOM_TOPIC, _ODOM_FAULTS)
+    warnings += found.dropped.lines(
         name,
         "dropped the intensities of",
         SCAN_TOPIC,
         {"intensities": "not one number per reading; the scans are kept"},
     )
-    warnings += _time_order_warnings(name, scan_records)
-    return LogContents(
-        scans=scans,
-        odom_times_s=odom_times_s,
-        odom_poses=odom_poses,
-        sensor=sensor,
-        finished=finished,
-        warnings=warnings,
-        message_counts={c.topic: counts.get(c.topic, 0) for c in channels.values()},
-        scan_original_times_s=np.array(
-            [r.original_ns / 1_000_000_000 for r in scan_records], dtype=float
-        ),
-    )
+    warnings += _time_order_warnings(name, found.scan_records)
+    return warnings
 
 
 def _scan(record: _ScanRecord, range_max_m: float) -> Scan:

@@ -22,7 +22,7 @@ What comes out, in segloc's units and frames:
   Scans whose stamps collide (a driver that stamps every scan 0, or stamps
   coarser than the scan rate) are given distinct times by the rule of
   ``segloc_cli.io.times``, in stamp order and among equal stamps in bag order;
-  one warning says how many. ``BagLog.original_times_s`` keeps the stamps. The
+  one warning says how many. ``Log.original_times_s`` keeps the stamps. The
   odometry is looked up at the stamps, the real times of the scans, and filed
   under the scans' distinct times, so that each scan and its odometry share
   one time in the log.
@@ -34,7 +34,6 @@ import contextlib
 import math
 import struct
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -47,6 +46,7 @@ from rosbags.typesys import Stores, get_typestore
 
 from segloc_cli.errors import InputError
 from segloc_cli.geometry import quaternion_to_heading, wrap_angle
+from segloc_cli.io.log import Log
 from segloc_cli.io.ros1_salvage import salvage_ros1
 from segloc_cli.io.times import importer_times
 from segloc_cli.scan import MAX_RANGE_M, MAX_READINGS, Scan, fan_defect
@@ -55,28 +55,6 @@ SCAN_TYPE = "sensor_msgs/msg/LaserScan"
 ODOM_TYPE = "nav_msgs/msg/Odometry"
 EXPECTED_BAG = "a ROS 1 .bag file, a ROS 2 bag folder with metadata.yaml, or a ROS 2 .mcap file"
 NS_PER_S = 1_000_000_000
-
-
-@dataclass(frozen=True)
-class BagLog:
-    """Everything ``read_rosbag`` takes from a bag.
-
-    ``scans`` in time order, scanner frame, with distinct times (see the module
-    docstring); ``original_times_s`` (S,) the scans' ``header.stamp`` in
-    seconds; ``odom_times_s`` (K,) seconds, the (distinct) times of the scans
-    inside the odometry's time span; ``odom_poses`` (K, 3) ``x_m, y_m,
-    theta_rad`` in the odometry frame at those scans' stamps; ``sensor`` the
-    settings for the MCAP log's metadata record (str → str); ``warnings``
-    human-readable notes (undecodable messages skipped, scans without odometry,
-    colliding stamps).
-    """
-
-    scans: list[Scan]
-    odom_times_s: np.ndarray
-    odom_poses: np.ndarray
-    sensor: dict[str, str]
-    original_times_s: np.ndarray
-    warnings: list[str] = field(default_factory=list)
 
 
 class _RawScan(NamedTuple):
@@ -249,55 +227,23 @@ def _salvaged(
 
 def read_rosbag(
     path: str | Path, scan_topic: str = "/scan", odom_topic: str | None = "/odom"
-) -> BagLog:
+) -> Log:
     """Read laser scans and odometry from a ROS bag (see the module docstring).
 
     ``odom_topic=None`` reads no odometry. Raises ``InputError`` naming the bag
     when it is missing or not a bag, when a topic is absent or of the wrong type,
     when it is damaged, or when it holds no scan that can be decoded. A message
-    that cannot be decoded is skipped and counted in ``warnings``.
+    that cannot be decoded is skipped and counted in ``warnings``. The log's
+    ``odom_times_s`` are the times of the scans inside the odometry's time span.
     """
     path = Path(path)
-    salvage_note = []
-    try:
-        reader, refusal = _open(path), None
-    except InputError as refused:
-        reader, refusal = None, refused
-    if reader is not None:
-        try:
-            raw_scans, raw_odom, failures = _read_messages(path, reader, scan_topic, odom_topic)
-        except InputError:
-            raise
-        except Exception as exc:  # the bag library meets damaged bytes in many ways
-            refusal = InputError(f"the bag is damaged ({_why(exc)})", path=path)
-        finally:
-            with contextlib.suppress(Exception):
-                reader.close()
-    if refusal is not None:
-        # A ROS 1 bag cut short has no index (it is written last) but whole chunks.
-        if path.suffix != ".bag" or not path.is_file():
-            raise refusal
-        *decoded, note = _salvaged(path, scan_topic, odom_topic, refusal)
-        (raw_scans, raw_odom, failures), salvage_note = decoded, [note]
-
-    warnings = salvage_note + [
+    raw_scans, raw_odom, failures, warnings = _bag_messages(path, scan_topic, odom_topic)
+    warnings += [
         f"{path.name}: skipped {len(errors)} message(s) on {topic} that could not be decoded "
         f"(first: {errors[0]})"
         for topic, errors in failures.items()
     ]
-    if not raw_scans:
-        skipped = len(failures.get(scan_topic, []))
-        why = f"; {skipped} could not be decoded" if skipped else ""
-        raise InputError(f"topic {scan_topic} holds no laser scans{why}", path=path)
-
-    raw_scans, dropped = _usable(raw_scans)
-    notes = [f"skipped {len(first)} scan(s) on {scan_topic} {why}" for why, first in dropped]
-    warnings += [f"{path.name}: {note}" for note in notes]
-    if not raw_scans:
-        raise InputError(
-            f"topic {scan_topic} holds no usable laser scans; {'; '.join(notes)}", path=path
-        )
-    raw_scans.sort(key=lambda s: s.stamp_ns)  # stable: equal stamps stay in bag order
+    raw_scans = _scans_to_import(path, raw_scans, failures, scan_topic, warnings)
     # Integer true division rounds once: the same float read_log gives back.
     original_times_s = np.array([raw.stamp_ns / NS_PER_S for raw in raw_scans], dtype=float)
     times_s, collided = importer_times(
@@ -307,30 +253,89 @@ def read_rosbag(
     warnings += [f"{path.name}: {text}" for text in scan_warnings]
     warnings += [collided] if collided else []
     scan_ns = np.array([s.stamp_ns for s in raw_scans], dtype=np.int64)
-
-    odom_times_s = np.zeros(0)
-    odom_poses = np.zeros((0, 3))
-    if odom_topic is not None:
-        if raw_odom:
-            # Looked up at the real stamps, filed under the scans' distinct times.
-            inside, odom_poses = _interpolate_odometry(raw_odom, scan_ns)
-            odom_times_s = times_s[inside]
-            if not np.all(inside):
-                warnings.append(
-                    f"{path.name}: {np.count_nonzero(~inside)} of {len(scans)} scans lie outside "
-                    f"the time span of {odom_topic} and have no odometry"
-                )
-        else:
-            warnings.append(f"{path.name}: topic {odom_topic} holds no odometry; none imported")
-
-    return BagLog(
+    odom_times_s, odom_poses = _odometry(path, raw_odom, scan_ns, times_s, odom_topic, warnings)
+    return Log(
         scans=scans,
+        original_times_s=original_times_s,
         odom_times_s=odom_times_s,
         odom_poses=odom_poses,
         sensor=_sensor(path, raw_scans, scan_topic, odom_topic),
-        original_times_s=original_times_s,
         warnings=warnings,
     )
+
+
+def _bag_messages(
+    path: Path, scan_topic: str, odom_topic: str | None
+) -> tuple[list[_RawScan], list[_RawOdom], dict[str, list[str]], list[str]]:
+    """Decoded scans and odometry in bag order, per topic the decoding errors, and the
+    warning that the bag was salvaged (a ROS 1 bag the reader refused) or none."""
+    try:
+        reader, refusal = _open(path), None
+    except InputError as refused:
+        reader, refusal = None, refused
+    if reader is not None:
+        try:
+            return (*_read_messages(path, reader, scan_topic, odom_topic), [])
+        except InputError:
+            raise
+        except Exception as exc:  # the bag library meets damaged bytes in many ways
+            refusal = InputError(f"the bag is damaged ({_why(exc)})", path=path)
+        finally:
+            with contextlib.suppress(Exception):
+                reader.close()
+    # A ROS 1 bag cut short has no index (it is written last) but whole chunks.
+    if path.suffix != ".bag" or not path.is_file():
+        raise refusal
+    *decoded, note = _salvaged(path, scan_topic, odom_topic, refusal)
+    return (*decoded, [note])
+
+
+def _scans_to_import(
+    path: Path,
+    raw_scans: list[_RawScan],
+    failures: dict[str, list[str]],
+    scan_topic: str,
+    warnings: list[str],
+) -> list[_RawScan]:
+    """The decoded scans that can be imported, sorted by stamp (among equal stamps in bag
+    order); a warning per reason others are skipped, ``InputError`` when none is left."""
+    if not raw_scans:
+        skipped = len(failures.get(scan_topic, []))
+        why = f"; {skipped} could not be decoded" if skipped else ""
+        raise InputError(f"topic {scan_topic} holds no laser scans{why}", path=path)
+    raw_scans, dropped = _usable(raw_scans)
+    notes = [f"skipped {len(first)} scan(s) on {scan_topic} {why}" for why, first in dropped]
+    warnings += [f"{path.name}: {note}" for note in notes]
+    if not raw_scans:
+        raise InputError(
+            f"topic {scan_topic} holds no usable laser scans; {'; '.join(notes)}", path=path
+        )
+    raw_scans.sort(key=lambda s: s.stamp_ns)  # stable: equal stamps stay in bag order
+    return raw_scans
+
+
+def _odometry(
+    path: Path,
+    raw_odom: list[_RawOdom],
+    scan_ns: np.ndarray,
+    times_s: np.ndarray,
+    odom_topic: str | None,
+    warnings: list[str],
+) -> tuple[np.ndarray, np.ndarray]:
+    """Odometry (K, 3) looked up at the scans' stamps ``scan_ns`` (S,) and filed under their
+    distinct times ``times_s`` (S,) seconds, for the K scans inside its time span."""
+    if odom_topic is None:
+        return np.zeros(0), np.zeros((0, 3))
+    if not raw_odom:
+        warnings.append(f"{path.name}: topic {odom_topic} holds no odometry; none imported")
+        return np.zeros(0), np.zeros((0, 3))
+    inside, odom_poses = _interpolate_odometry(raw_odom, scan_ns)
+    if not np.all(inside):
+        warnings.append(
+            f"{path.name}: {np.count_nonzero(~inside)} of {len(scan_ns)} scans lie outside "
+            f"the time span of {odom_topic} and have no odometry"
+        )
+    return times_s[inside], odom_poses
 
 
 def _usable(raw_scans: list[_RawScan]) -> tuple[list[_RawScan], list[tuple[str, list[str]]]]:
@@ -377,31 +382,50 @@ def _scans(raw_scans: list[_RawScan], times_s: np.ndarray) -> tuple[list[Scan], 
         raw = _with_usable_limits(given)
         if (raw.range_min, raw.range_max) != (given.range_min, given.range_max):
             bad_limits.append(f"range_min {given.range_min!r}, range_max {given.range_max!r}")
-        n = len(raw.ranges)
-        if raw.angle_increment != 0.0:
-            n_spanned = round((raw.angle_max - raw.angle_min) / raw.angle_increment) + 1
-        else:
-            n_spanned = 1
-        n_count_mismatch += n_spanned != n
-        with np.errstate(invalid="ignore"):
-            valid = (
-                np.isfinite(raw.ranges)
-                & (raw.ranges >= raw.range_min)
-                & (raw.ranges < raw.range_max)
-            )
-        intensities = raw.intensities
-        if len(intensities) not in (0, n):
+        n_count_mismatch += _spanned_count(raw) != len(raw.ranges)
+        if len(raw.intensities) not in (0, len(raw.ranges)):
             n_intensity_mismatch += 1
-            intensities = np.zeros(0)
-        scans.append(
-            Scan(
-                time_s=float(time_s),
-                angles_rad=raw.angle_min + np.arange(n) * raw.angle_increment,
-                ranges_m=np.where(valid, raw.ranges, 0.0),
-                range_max_m=raw.range_max,
-                intensities=intensities,
-            )
+            raw = raw._replace(intensities=np.zeros(0))
+        scans.append(_scan(raw, float(time_s)))
+    notes = _scan_notes(bad_limits, n_count_mismatch, n_intensity_mismatch)
+    range_maxes = sorted({s.range_max_m for s in scans})
+    if len(range_maxes) > 1:
+        notes.append(
+            f"range_max varies between scans ({range_maxes[0]!r} to {range_maxes[-1]!r} m); "
+            "each scan keeps its own"
         )
+    return scans, notes
+
+
+def _spanned_count(raw: _RawScan) -> int:
+    """How many beams ``angle_min`` to ``angle_max`` at ``angle_increment`` span."""
+    if raw.angle_increment == 0.0:
+        return 1
+    return round((raw.angle_max - raw.angle_min) / raw.angle_increment) + 1
+
+
+def _scan(raw: _RawScan, time_s: float) -> Scan:
+    """The scan of a message with usable range limits, at ``time_s`` seconds; readings
+    outside the limits or not finite become 0.0."""
+    n = len(raw.ranges)
+    with np.errstate(invalid="ignore"):
+        valid = (
+            np.isfinite(raw.ranges) & (raw.ranges >= raw.range_min) & (raw.ranges < raw.range_max)
+        )
+    return Scan(
+        time_s=time_s,
+        angles_rad=raw.angle_min + np.arange(n) * raw.angle_increment,
+        ranges_m=np.where(valid, raw.ranges, 0.0),
+        range_max_m=raw.range_max,
+        intensities=raw.intensities,
+    )
+
+
+def _scan_notes(
+    bad_limits: list[str], n_count_mismatch: int, n_intensity_mismatch: int
+) -> list[str]:
+    """Notes on the scans whose range limits, angle span or intensities were not usable as
+    given (``bad_limits``: the limits each such scan gave)."""
     notes = []
     if bad_limits:
         notes.append(
@@ -418,13 +442,7 @@ def _scans(raw_scans: list[_RawScan], times_s: np.ndarray) -> tuple[list[Scan], 
             f"{n_intensity_mismatch} scan(s) hold a number of intensities other than the "
             "number of ranges; their intensities were dropped"
         )
-    range_maxes = sorted({s.range_max_m for s in scans})
-    if len(range_maxes) > 1:
-        notes.append(
-            f"range_max varies between scans ({range_maxes[0]!r} to {range_maxes[-1]!r} m); "
-            "each scan keeps its own"
-        )
-    return scans, notes
+    return notes
 
 
 def _interpolate_odometry(

@@ -23,7 +23,7 @@ import time
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import IO, Self
+from typing import IO, Self, TypedDict, get_type_hints
 
 import numpy as np
 import pandas as pd
@@ -41,31 +41,47 @@ STREAM_FSYNC_INTERVAL_S = 1.0
 
 SURVEY_COLUMNS = ["pose_id", "time_s", "x_m", "y_m", "theta_deg"]
 
-ESTIMATE_COLUMNS = [
-    "pose_id",
-    "time_s",
-    "init_x_m",
-    "init_y_m",
-    "init_theta_deg",
-    "align_theta_deg",
-    "stage2_x_m",
-    "stage2_y_m",
-    "stage2_theta_deg",
-    "x_m",
-    "y_m",
-    "theta_deg",
-    "overlap",
-    "inlier_ratio",
-    "runner_up_x_m",
-    "runner_up_y_m",
-    "runner_up_theta_deg",
-    "runner_up_ratio",
-    "n_local_segments",
-    "runtime_ms",
-    "status",
-]
-ESTIMATE_INT_COLUMNS = ["pose_id", "n_local_segments"]
-ESTIMATE_TEXT_COLUMNS = ["status"]
+
+class EstimateRow(TypedDict):
+    """One row of the estimates CSV: the outcome for one scan, world frame.
+
+    Positions in metres, headings in degrees, NaN where a value was not made:
+    the initial guess (``init_*``, NaN for a global search), stage 1's heading
+    (``align_theta_deg``), where stage 2 ended (``stage2_*``), the answer
+    (``x_m``, ``y_m``, ``theta_deg``), the stage-2 overlap (m of segment), the
+    share of the scan's points on the map at the answer, the best distinct
+    alternative found and its share (``runner_up_*``), the count of local
+    segments, the time spent on the scan (ms) and the verdict (``status``).
+    The fields, in order, are the file's columns.
+    """
+
+    pose_id: int
+    time_s: float
+    init_x_m: float
+    init_y_m: float
+    init_theta_deg: float
+    align_theta_deg: float
+    stage2_x_m: float
+    stage2_y_m: float
+    stage2_theta_deg: float
+    x_m: float
+    y_m: float
+    theta_deg: float
+    overlap: float
+    inlier_ratio: float
+    runner_up_x_m: float
+    runner_up_y_m: float
+    runner_up_theta_deg: float
+    runner_up_ratio: float
+    n_local_segments: int
+    runtime_ms: float
+    status: str
+
+
+ESTIMATE_COLUMNS = list(EstimateRow.__annotations__)
+"""Columns of the estimates CSV, in order: the fields of ``EstimateRow``."""
+ESTIMATE_INT_COLUMNS = [c for c, kind in get_type_hints(EstimateRow).items() if kind is int]
+ESTIMATE_TEXT_COLUMNS = [c for c, kind in get_type_hints(EstimateRow).items() if kind is str]
 # Float columns that must hold a number in every row; the others may be empty (NaN).
 ESTIMATE_REQUIRED_FLOAT_COLUMNS = ["time_s"]
 

@@ -6,9 +6,10 @@ matches the scan against virtual scans of the map with the Karto scan
 matcher, the correlative search that slam_toolbox and OpenKarto use. Both
 packages are optional: ``pip install 'segloc[peers]'``.
 
-Each peer has the ``localize(segments_robot, initial, points_robot)`` method
-of ``Localizer`` and returns the same ``Estimate``; it uses the scan's points
-only (``uses_segments`` is False), so no segments are extracted for it.
+Each peer is a ``ScanMatcher`` like ``Localizer`` and returns the same
+``Estimate``; it uses the scan's points only (``uses_segments`` is False, so
+no segments are extracted for it) and needs an initial guess for every scan
+(``supports_global`` is False).
 """
 
 from __future__ import annotations
@@ -18,13 +19,13 @@ import importlib
 import numpy as np
 
 from segloc_cli.confidence import ConfidenceParams, judge
+from segloc_cli.config import METHODS
 from segloc_cli.errors import SeglocError
 from segloc_cli.geometry import Pose2
 from segloc_cli.localize import NAN_POSE, STATUS_NO_OVERLAP, Estimate
 from segloc_cli.refine import RefineParams, support
 
-METHODS = ("two-stage", "icp", "correlative")
-"""Values of ``segloc localize --method``."""
+__all__ = ["METHODS", "GuidedMatcher", "judged_estimate", "peer_localizer", "require"]
 
 _PACKAGES = {
     "icp": ("small_gicp", "small-gicp"),
@@ -59,6 +60,17 @@ def peer_localizer(method: str, segments_world: np.ndarray, **options):
     raise ValueError(f"unknown peer method {method!r}; expected icp or correlative")
 
 
+class GuidedMatcher:
+    """What the peers share as ``ScanMatcher``s: points only, from an initial guess."""
+
+    uses_segments = False
+    supports_global = False
+
+    def localize_global(self, segments_robot: np.ndarray, points_robot: np.ndarray) -> Estimate:
+        """Refused: a peer searches around an initial guess, never the whole map."""
+        raise ValueError(f"{type(self).__name__} needs an initial guess for every scan")
+
+
 def judged_estimate(
     pose: Pose2 | None, points_robot: np.ndarray, segments_world: np.ndarray
 ) -> Estimate:
@@ -70,7 +82,7 @@ def judged_estimate(
     ``ok``.
     """
     if pose is None or not np.isfinite([pose.x, pose.y, pose.theta]).all():
-        return Estimate(NAN_POSE, float("nan"), 0.0, 0, STATUS_NO_OVERLAP)
+        return Estimate(pose=NAN_POSE, status=STATUS_NO_OVERLAP, n_local_segments=0)
     ratio, hold = support(points_robot, segments_world, pose, RefineParams().final_gate_m)
     status = judge(ratio, 0.0, ConfidenceParams(), hold)
-    return Estimate(pose, float("nan"), 0.0, 0, status, None, ratio)
+    return Estimate(pose=pose, status=status, n_local_segments=0, inlier_ratio=ratio)

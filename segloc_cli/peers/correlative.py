@@ -18,7 +18,7 @@ import numpy as np
 
 from segloc_cli.geometry import Pose2, point_segment_distances
 from segloc_cli.localize import Estimate
-from segloc_cli.peers import judged_estimate, require
+from segloc_cli.peers import GuidedMatcher, judged_estimate, require
 from segloc_cli.sim import cast_rays
 
 NO_RETURN_M = 1000.0
@@ -58,10 +58,8 @@ class CorrelativeParams:
             )
 
 
-class CorrelativeLocalizer:
+class CorrelativeLocalizer(GuidedMatcher):
     """Correlative search for scans on one map (M, 4), world frame, around an initial guess."""
-
-    uses_segments = False
 
     def __init__(self, segments_world: np.ndarray, params: CorrelativeParams | None = None):
         self._karto = require("correlative")

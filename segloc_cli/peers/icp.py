@@ -14,12 +14,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from segloc_cli.config import ICP_VARIANTS
 from segloc_cli.geometry import Pose2, sample_segments
 from segloc_cli.localize import Estimate
-from segloc_cli.peers import judged_estimate, require
+from segloc_cli.peers import GuidedMatcher, judged_estimate, require
 
-VARIANTS = {"gicp": "GICP", "plane": "PLANE_ICP"}
-"""``IcpParams.variant`` → small_gicp's registration type."""
+VARIANTS = dict(zip(ICP_VARIANTS, ("GICP", "PLANE_ICP"), strict=True))
+"""``IcpParams.variant`` (``config.ICP_VARIANTS``) → small_gicp's registration type."""
 
 
 @dataclass(frozen=True)
@@ -42,10 +43,8 @@ class IcpParams:
             raise ValueError(f"variant must be one of {sorted(VARIANTS)}, got {self.variant!r}")
 
 
-class IcpLocalizer:
+class IcpLocalizer(GuidedMatcher):
     """Registers scans to one map (M, 4), world frame, from an initial guess."""
-
-    uses_segments = False
 
     def __init__(self, segments_world: np.ndarray, params: IcpParams | None = None):
         self._gicp = require("icp")

@@ -1,0 +1,227 @@
+"""``segloc localize``: every scan of some logs against a map, rows written as they come."""
+
+from __future__ import annotations
+
+import io
+import sys
+import time
+from collections import Counter
+from contextlib import ExitStack
+from pathlib import Path
+
+import click
+
+from segloc_cli.commands.options import (
+    GUESSES_KEYWORD,
+    GuessSource,
+    Invocation,
+    config_option,
+    force_option,
+    info,
+    load_log,
+    run_file_of,
+    setting_option,
+    tuning_options,
+    warn,
+    with_options,
+)
+from segloc_cli.config import LOCALIZE_TUNING, MATCHER, STAGES
+
+PROGRESS_MIN_SCANS = 20
+"""Show a progress bar when a run works through at least this many scans."""
+EXIT_INTERRUPTED = 130
+
+LOCALIZE_OPTIONS = (
+    click.option(
+        "--map",
+        "map_path",
+        required=True,
+        type=click.Path(path_type=Path),
+        help="Global map (MAP.json; a world file also works).",
+    ),
+    click.option(
+        "--out",
+        "out_path",
+        required=True,
+        type=click.Path(path_type=Path),
+        help="Estimates CSV to write.",
+    ),
+    click.option(
+        "--tum",
+        "tum_path",
+        type=click.Path(path_type=Path),
+        default=None,
+        help="Also write the estimates as a TUM trajectory (for evo).",
+    ),
+    click.option(
+        "--initial",
+        type=GuessSource(),
+        default=GUESSES_KEYWORD,
+        show_default=True,
+        help="Initial guesses: 'odom' (the log's /odom nearest in time) or a CSV/TUM file; "
+        "scans without a guess are skipped.",
+    ),
+    *(setting_option(s.key) for s in STAGES),
+    click.option(
+        "--global",
+        "global_search",
+        is_flag=True,
+        help="No initial pose: search the whole map at every heading and report the best fit "
+        "and its runner-up. Every scan is localized, or only those listed by --initial FILE "
+        "(whose poses are then not used).",
+    ),
+    click.option(
+        "--track",
+        is_flag=True,
+        help="Track along the log: --initial seeds only the first scan; each next guess is the "
+        "previous estimate moved by the /odom increment, and the scan's points are fitted from "
+        "it with the odometry as a prior (with --no-refine: the two stages from it). Failed "
+        "matches are retried wider and flagged (status recovered or lost).",
+    ),
+    *(setting_option(s.key) for s in MATCHER),
+    setting_option("tolerance-ms", pairing="pairing scans with initial guesses or odometry"),
+    config_option,
+    force_option,
+    tuning_options(LOCALIZE_TUNING),
+)
+
+
+@click.command()
+@click.argument(
+    "log_paths", metavar="LOG.mcap...", nargs=-1, required=True, type=click.Path(path_type=Path)
+)
+@with_options(*LOCALIZE_OPTIONS)
+def localize(log_paths, map_path, out_path, tum_path, initial, global_search, track, **_):
+    """Localize every scan of one or more logs against a map.
+
+    For each scan: extract its segments, find the heading by the stage-1 vote
+    around the initial heading, then the position (and a refined heading) by
+    the stage-2 coarse-to-fine overlap search from the initial position, and
+    last a robust least-squares fit of the scan's points to the map segments
+    (the stage-2 pose is kept in its own columns). Stage 2 descends from one
+    guess, so the best poses of a search of ±2 m around the guess, scored by
+    how many of the scan's points fall on the map, are refined too, and the
+    fit that explains the scan best wins.
+
+    Each row's status says how far to trust it: ok; ambiguous (a distinct
+    pose, given in the runner_up columns, fits nearly as well, e.g. along a
+    featureless corridor); lost (under half the scan lies on the map). A
+    scan that yields too few segments gets a status instead of a pose, and
+    the batch goes on. --no-refine runs the paper's two stages alone.
+
+    --method icp and --method correlative run two widely used matchers on
+    the same scans and guesses, for comparison (see make bench-peers).
+
+    Rows are written to OUT as they are made: Ctrl-C, SIGTERM or even a
+    killed process leaves every finished row in the file. Beside OUT goes
+    its run file (OUT.run.toml): --config OUT.run.toml repeats the run.
+    """
+    from segloc_cli import pipeline
+    from segloc_cli.io.files import check_outputs
+    from segloc_cli.io.maps import read_map
+
+    run = Invocation.current()
+    config = run.config
+    _check_modes(config, global_search, track)
+    mode = "global" if global_search else "track" if track else "guided"
+    guess_file = None if initial == GUESSES_KEYWORD else Path(initial)
+    outputs = {"--out": out_path, "--tum": tum_path, "--out (run file)": run_file_of(out_path)}
+    check_outputs(outputs, [*log_paths, map_path, guess_file], run.force)
+    segments_world = read_map(map_path)
+    if mode == "global":
+        pipeline.check_global_extent(segments_world, map_path)
+    localizer = pipeline.localizer_for(segments_world, config)
+    stops: list[str] = []  # signals asking the run to stop, noted while it runs
+
+    def stop() -> bool:
+        return bool(stops)
+
+    runs = [
+        pipeline.localize_log(load_log(p), p, localizer, mode, guess_file, config, stop)
+        for p in log_paths
+    ]
+    for message in pipeline.overlapping_logs(runs):
+        warn(message)
+    summary = _write_rows(runs, out_path, tum_path, stops)
+    run.write_run_file(out_path)
+    _report(summary, out_path, stops, skipped=sum(r.skipped for r in runs))
+
+
+def _check_modes(config, global_search: bool, track: bool) -> None:
+    """Refuse settings that cannot go together, before any file is read."""
+    import numpy as np
+
+    bin_deg = config.localize.bin_deg
+    if not np.isclose(180.0 / bin_deg, round(180.0 / bin_deg)):
+        raise click.BadParameter(f"{bin_deg:g} does not divide 180", param_hint="--bin-deg")
+    if config.method != "two-stage" and (global_search or track):
+        other = "--global" if global_search else "--track"
+        raise click.UsageError(
+            f"--method {config.method} cannot be combined with {other}: it matches each scan "
+            "from its own initial guess"
+        )
+    if track and config.jobs > 1:
+        raise click.UsageError(
+            "--jobs cannot be combined with --track: each tracked scan starts from the "
+            "previous one's estimate"
+        )
+    if global_search and (track or config.localize.refine is None):
+        other = "--track" if track else "--no-refine"
+        raise click.UsageError(
+            f"--global cannot be combined with {other}: it searches every scan afresh and "
+            "ranks its candidates by refining them"
+        )
+
+
+def _write_rows(runs, out_path: Path, tum_path: Path | None, stops: list[str]):
+    """Write each run's rows to ``out_path`` (and ``tum_path``) as they come, with a progress
+    bar on long runs. Ctrl-C, SIGTERM and SIGHUP, noted in ``stops``, stop it between scans
+    with every finished row kept. Returns (n scans planned, statuses, runtimes (ms), s)."""
+    from segloc_cli.io.tables import EstimatesWriter, TumWriter
+    from segloc_cli.stopping import stop_requests
+
+    n_scans = sum(run.times_s.size for run in runs)
+    rows = (row for run in runs for row in run.rows)
+    t0 = time.perf_counter()
+    statuses: list[str] = []
+    runtimes_ms: list[float] = []
+    stream = sys.stderr if n_scans >= PROGRESS_MIN_SCANS else io.StringIO()
+    with ExitStack() as stack:
+        stack.enter_context(stop_requests(stops))
+        writers = [stack.enter_context(EstimatesWriter(out_path))]
+        if tum_path is not None:
+            writers.append(stack.enter_context(TumWriter(tum_path)))
+        bar = stack.enter_context(
+            click.progressbar(rows, length=n_scans, label="localizing", file=stream)
+        )
+        try:
+            for row in bar:
+                for writer in writers:
+                    writer.write_row(row)
+                statuses.append(row["status"])
+                runtimes_ms.append(row["runtime_ms"])
+                if stops:
+                    break
+        except KeyboardInterrupt:  # Ctrl-C that arrived outside the stop handler
+            stops.append("Ctrl-C")
+    return n_scans, statuses, runtimes_ms, time.perf_counter() - t0
+
+
+def _report(summary, out_path: Path, stops: list[str], skipped: int) -> None:
+    """Print how the run went; exit 130 if it was interrupted."""
+    import numpy as np
+
+    n_scans, statuses, runtimes_ms, elapsed = summary
+    done = len(statuses)
+    if stops:
+        kept = f"their estimates are in {out_path}" if done else f"{out_path} holds the header only"
+        click.echo(
+            f"segloc: interrupted ({stops[0]}) after {done} of {n_scans} scans; {kept}", err=True
+        )
+        sys.exit(EXIT_INTERRUPTED)
+    counts = ", ".join(f"{n} {status}" for status, n in Counter(statuses).most_common())
+    info(
+        f"{out_path}: {done} scans localized ({counts}) in {elapsed:.2f} s, "
+        f"median {np.median(runtimes_ms):.1f} ms per scan"
+        + (f"; {skipped} scans skipped (no initial guess or odometry)" if skipped else "")
+    )

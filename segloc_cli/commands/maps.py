@@ -1,0 +1,85 @@
+"""``segloc map build``: a segment map from the scans of a log at surveyed poses."""
+
+from __future__ import annotations
+
+from dataclasses import asdict
+from pathlib import Path
+
+import click
+
+from segloc_cli.commands.options import (
+    Invocation,
+    config_option,
+    force_option,
+    info,
+    load_log,
+    run_file_of,
+    setting_option,
+    tuning_options,
+    with_options,
+)
+from segloc_cli.config import EXTRACT, FUSE
+from segloc_cli.errors import InputError
+
+
+@click.group("map")
+def map_group() -> None:
+    """Build segment maps."""
+
+
+BUILD_OPTIONS = (
+    click.option(
+        "--survey",
+        "survey_path",
+        required=True,
+        type=click.Path(path_type=Path),
+        help="Poses of the scans (survey CSV or TUM); scans without a row are ignored.",
+    ),
+    click.option(
+        "--out",
+        "out_path",
+        required=True,
+        type=click.Path(path_type=Path),
+        help="MAP.json to write.",
+    ),
+    setting_option("tolerance-ms", pairing="pairing scans with survey rows"),
+    config_option,
+    force_option,
+    tuning_options((*EXTRACT, *FUSE)),
+)
+
+
+@map_group.command("build")
+@click.argument("log_path", metavar="LOG.mcap", type=click.Path(path_type=Path))
+@with_options(*BUILD_OPTIONS)
+def map_build(log_path, survey_path, out_path, force, **_):
+    """Build a global segment map from the scans of a log at surveyed poses.
+
+    Each scan with a survey row becomes a local map, is placed at its pose and
+    fused with the others: nearly collinear segments that overlap or nearly
+    touch become one. Beside OUT goes its run file (OUT.run.toml).
+    """
+    from segloc_cli.io.files import check_outputs
+    from segloc_cli.io.maps import bounds_problem, write_map
+    from segloc_cli.io.tables import read_pose_table
+    from segloc_cli.pipeline import build_map
+
+    run = Invocation.current()
+    outputs = {"--out": out_path, "--out (run file)": run_file_of(out_path)}
+    check_outputs(outputs, [log_path, survey_path], force)
+    log = load_log(log_path)
+    survey = read_pose_table(survey_path)
+    built = build_map(log, log_path, survey, survey_path, run.config)
+    problem = bounds_problem(built.segments)
+    if problem is not None:
+        raise InputError(f"the map built would be refused when read: {problem}", path=out_path)
+    source = {"log": str(log_path), "survey": str(survey_path)}
+    source |= {"scans_used": built.scans_used, "local_segments": built.local_segments}
+    source |= {"extract": asdict(run.config.extract), "fuse": asdict(run.config.fuse)}
+    write_map(out_path, built.segments, source=source)
+    run.write_run_file(out_path)
+    info(
+        f"{out_path}: {built.segments.shape[0]} segments fused from {built.local_segments} "
+        f"local segments of {built.scans_used} scans ({len(log.scans) - built.scans_used} "
+        "scans had no survey row)"
+    )

@@ -1,0 +1,282 @@
+"""Options shared by the commands: settings made into options, ``--config``, run files.
+
+Every setting of ``config.SETTINGS`` becomes an option here, its default and
+bounds read from the configuration; the options a command lists in ``--help``
+are those with a help text. ``--config FILE.toml`` sets any option of the
+command from the file's table for it (flags given on the command line win),
+and ``Invocation`` hands a command what it was asked: the resolved options by
+key, the ``Config`` they make, and the run file to write beside the output.
+"""
+
+from __future__ import annotations
+
+import difflib
+import importlib
+import math
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import click
+
+from segloc_cli.config import SETTINGS, Config, Setting
+from segloc_cli.errors import InputError
+
+OUTPUT_KEYS = frozenset({"out", "tum", "survey-out", "plots", "config", "force"})
+"""Options that name what a run writes (or how), not what it computes: no run file holds
+them, and they are no inputs."""
+
+GUESSES_KEYWORD = "odom"
+"""``--initial`` value that takes the guesses from the log itself rather than a file."""
+
+
+def warn(message: str) -> None:
+    """Print a warning line on standard error."""
+    click.echo(f"segloc: warning: {message}", err=True)
+
+
+def info(message: str) -> None:
+    """Print a progress or summary line on standard error."""
+    click.echo(message, err=True)
+
+
+def load_log(path: Path):
+    """Read a segloc MCAP log, printing its reader's warnings."""
+    from segloc_cli.io.mcap_log import read_log
+
+    log = read_log(path)
+    for warning in log.warnings:
+        warn(warning)
+    return log
+
+
+class FiniteRange(click.FloatRange):
+    """``click.FloatRange`` that also refuses NaN and the infinities (which pass its bounds)."""
+
+    def convert(self, value, param, ctx):
+        number = super().convert(value, param, ctx)
+        if not math.isfinite(number):
+            self.fail(f"{value!r} is not a finite number.", param, ctx)
+        return number
+
+
+class ModuleChoice(click.Choice):
+    """A ``click.Choice`` of the values of a module's constant, imported only when needed
+    (help, parsing), so that naming it costs the command line no start-up time."""
+
+    def __init__(self, module: str, name: str):
+        self._source = (module, name)
+        super().__init__(())
+
+    @property
+    def choices(self) -> tuple[str, ...]:
+        module, name = self._source
+        return tuple(str(value) for value in getattr(importlib.import_module(module), name))
+
+    @choices.setter
+    def choices(self, value) -> None:
+        pass  # the constant is the only source
+
+
+class GuessSource(click.ParamType):
+    """``--initial``: the keyword ``odom`` or a file of poses (a path in a ``--config``)."""
+
+    name = "text"
+    holds_path = True
+
+
+def holds_path(option: click.Parameter) -> bool:
+    """Whether the option's value is a file or folder (relative ones are taken relative to a
+    ``--config`` file's folder)."""
+    return isinstance(option.type, click.Path) or getattr(option.type, "holds_path", False)
+
+
+def setting_option(key: str, **help_fields: str) -> Callable:
+    """The option of setting ``key``: bounds, choices and default from ``config.SETTINGS``;
+    ``help_fields`` fill the placeholders of its help text."""
+    setting = SETTINGS[key]
+    listed = setting.help is not None
+    text = setting.help.format(**help_fields) if listed else setting.doc
+    if setting.switch:
+        return click.option(f"--{key}", is_flag=True, default=False, help=text, hidden=not listed)
+    return click.option(
+        f"--{key}",
+        type=_setting_type(setting),
+        default=setting.default,
+        show_default=listed,
+        help=text,
+        hidden=not listed,
+    )
+
+
+def _setting_type(setting: Setting) -> click.ParamType:
+    if setting.choices is not None:
+        return click.Choice(setting.choices)
+    if setting.kind is int:
+        high = None if setting.high is None else int(setting.high)
+        return click.IntRange(min=int(setting.low), max=high)
+    return FiniteRange(min=setting.low, max=setting.high, min_open=setting.low_open)
+
+
+def tuning_options(settings: tuple[Setting, ...]) -> Callable:
+    """The unlisted options of tuning ``settings`` (set in ``--config``, or as flags)."""
+    return with_options(*(setting_option(s.key) for s in settings))
+
+
+def with_options(*decorators: Callable) -> Callable:
+    """Apply option decorators in the order listed (the order ``--help`` shows them)."""
+
+    def apply(function: Callable) -> Callable:
+        for decorate in reversed(decorators):
+            function = decorate(function)
+        return function
+
+    return apply
+
+
+force_option = click.option(
+    "--force", is_flag=True, help="Overwrite the output file(s) if they exist."
+)
+"""``--force``: every command that writes a file refuses an existing one without it."""
+
+config_option = click.option(
+    "--config",
+    type=click.Path(path_type=Path, dir_okay=False),
+    is_eager=True,
+    expose_value=False,
+    callback=lambda ctx, param, value: _apply_config(ctx, value),
+    help="Read options from this TOML file's table for the command (e.g. [localize]; keys "
+    "are the long option names); options given here win. A run file (*.run.toml) repeats "
+    "its run.",
+)
+"""``--config FILE.toml`` on every command that does work."""
+
+
+def option_key(option: click.Parameter) -> str:
+    """An option's key in a configuration table: its long name without the dashes."""
+    longest = max(option.opts, key=len)
+    return longest.lstrip("-")
+
+
+def _options_by_key(command: click.Command) -> dict[str, click.Option]:
+    return {
+        option_key(p): p
+        for p in command.params
+        if isinstance(p, click.Option) and option_key(p) not in ("config", "help")
+    }
+
+
+def _command_paths(group: click.Group, prefix: tuple[str, ...] = ()) -> Iterator[tuple[str, ...]]:
+    for name, command in group.commands.items():
+        if isinstance(command, click.Group):
+            yield from _command_paths(command, (*prefix, name))
+        else:
+            yield (*prefix, name)
+
+
+def command_path(ctx: click.Context) -> tuple[str, ...]:
+    """The command's names below ``segloc``: ("map", "build")."""
+    return tuple(ctx.command_path.split()[1:])
+
+
+def _apply_config(ctx: click.Context, value: Path | None) -> None:
+    """Read ``--config``: every key of the command's table becomes that option's default
+    (so the command line still overrides it); an unknown key or bad value is refused."""
+    from segloc_cli import runfile
+
+    if value is None or ctx.resilient_parsing:
+        return
+    command = command_path(ctx)
+    table = runfile.read_table(value, command, set(_command_paths(ctx.find_root().command)))
+    note = runfile.version_note(value)
+    if note is not None:
+        warn(note)
+    options = _options_by_key(ctx.command)
+    defaults = {}
+    for key, raw in table.items():
+        option = options.get(key)
+        if option is None:
+            raise InputError(_unknown_key(key, command, options), path=value)
+        defaults[option.name] = _config_value(ctx, option, key, raw, value)
+    ctx.default_map = {**(ctx.default_map or {}), **defaults}
+
+
+def _unknown_key(key: str, command: tuple[str, ...], options: dict) -> str:
+    name = ".".join(command)
+    close = difflib.get_close_matches(key, list(options), n=1)
+    hint = f"did you mean {close[0]!r}?" if close else f"see segloc {' '.join(command)} --help"
+    return f"unknown key {key!r} in [{name}]; keys are long option names; {hint}"
+
+
+def _config_value(ctx: click.Context, option: click.Option, key: str, raw: Any, path: Path):
+    """A value of a configuration table, checked as the option checks its own."""
+    if option.is_flag and not isinstance(raw, bool):
+        raise InputError(f"key {key!r} is a flag: give true or false, not {raw!r}", path=path)
+    if isinstance(raw, (dict, list)):
+        raise InputError(f"key {key!r} takes one value, not {type(raw).__name__}", path=path)
+    if holds_path(option) and isinstance(raw, str) and raw != GUESSES_KEYWORD:
+        raw = str(path.parent / raw)  # an absolute raw stays itself
+    if isinstance(option.type, click.Choice) and not isinstance(raw, bool):
+        raw = str(raw)
+    try:
+        return option.type_cast_value(ctx, raw)
+    except click.BadParameter as exc:
+        raise InputError(f"key {key!r}: {exc.format_message()}", path=path) from None
+
+
+@dataclass(frozen=True)
+class Invocation:
+    """What a command was asked: its names, its options by key (as resolved from the
+    command line, ``--config`` and the defaults), its file arguments, and the force flag."""
+
+    command: tuple[str, ...]
+    options: dict[str, Any]
+    arguments: list[tuple[str, Path]]
+    force: bool
+
+    @classmethod
+    def current(cls) -> Invocation:
+        """The invocation of the command running now."""
+        ctx = click.get_current_context()
+        options, arguments = {}, []
+        for param in ctx.command.params:
+            value = ctx.params.get(param.name)
+            if isinstance(param, click.Argument):
+                values = value if isinstance(value, tuple) else (value,)
+                arguments += [(param.human_readable_name, v) for v in values if isinstance(v, Path)]
+            elif option_key(param) not in OUTPUT_KEYS:
+                options[option_key(param)] = _as_path(param, value)
+        return cls(command_path(ctx), options, arguments, bool(ctx.params.get("force")))
+
+    @property
+    def config(self) -> Config:
+        """The settings the options make, every other at its default."""
+        return Config.from_values(self.options)
+
+    def inputs(self) -> list[tuple[str, Path]]:
+        """Every file the run read: its arguments and its options that name a file."""
+        named = [(k, v) for k, v in self.options.items() if isinstance(v, Path) and v.is_file()]
+        return [*self.arguments, *named]
+
+    def write_run_file(self, output: Path) -> Path:
+        """Write the run file beside ``output``; return its path."""
+        from segloc_cli.runfile import run_file_path, write_run_file
+
+        path = run_file_path(output)
+        write_run_file(path, self.command, self.options, self.inputs())
+        return path
+
+
+def _as_path(option: click.Parameter, value: Any) -> Any:
+    """The value of a file-naming option as a ``Path`` (``--initial odom`` stays a word)."""
+    if holds_path(option) and isinstance(value, str) and value != GUESSES_KEYWORD:
+        return Path(value)
+    return value
+
+
+def run_file_of(output: Path) -> Path:
+    """The run file a command writes beside ``output`` (checked with the outputs)."""
+    from segloc_cli.runfile import run_file_path
+
+    return run_file_path(output)

@@ -1,0 +1,560 @@
+"""Every setting of a run, with its default: the one place defaults are written.
+
+A run's settings are frozen dataclasses, one per stage, composed in ``Config``:
+extraction, map fusion, both stages of the method, the hypothesis search,
+refinement, the verdict, tracking, and the matcher, worker count and pairing
+tolerance around them. The stage modules import their parameter class from
+here.
+
+``SETTINGS`` names each of them for the outside world: the key is the long
+option of the command line (``--grid-m``) and the key in a ``--config`` table
+(``grid-m = 1.5``); ``path`` says which field of ``Config`` it sets; ``help``
+is the option's help text, or None for a tuning setting, which the command
+line accepts but does not list (``docs/configuration.md`` lists them all).
+
+This module imports nothing heavier than numpy: the command line reads it at start-up.
+"""
+
+from __future__ import annotations
+
+import ast
+import functools
+import inspect
+import itertools
+from dataclasses import dataclass, field, fields, replace
+from typing import Any
+
+import numpy as np
+
+TIME_TOLERANCE_MS = 50.0
+"""Default largest time difference when pairing records of two files by time."""
+
+MIN_HOLD_POINTS = 3.0
+"""Fewest points' worth that must pin the position along its weakest direction: fewer, and
+the position along a corridor or a lone wall rests on one or two readings, or on none."""
+
+MIN_POINT_SPREAD_M = 0.1
+"""Smallest spread (m) of a scan's points across their main direction for a trusted pose.
+Every scan of the Intel Research Lab log spreads at least 0.2 m; one wall seen alone, or a
+fan whose beams all lie on one ray, spreads about the range noise (a centimetre)."""
+
+VOTE_SCHEMES = ("product", "count", "local", "sum")
+"""Vote weights of the paper: eq. (1) λL·λG, eq. (2) 1, eq. (3) λL, eq. (4) λL + λG."""
+
+METHODS = ("two-stage", "icp", "correlative")
+"""Matchers ``segloc localize --method`` runs: the paper's method and two peers."""
+
+ICP_VARIANTS = ("gicp", "plane")
+"""ICP flavours of ``--method icp``: generalized ICP or point-to-plane ICP."""
+
+
+@dataclass(frozen=True)
+class ExtractParams:
+    """Extraction settings (metres, degrees at the edge)."""
+
+    range_sigma_m: float = 0.012
+    """Range noise σ of the scanner; sets the breakpoint slack and the fit tolerance."""
+    breakpoint_lambda_deg: float = 10.0
+    """Shallowest incidence angle on a surface that is still one surface (Borges & Aldon's λ)."""
+    split_m: float = 0.05
+    """Largest distance of a point from its segment's line."""
+    min_points: int = 4
+    """Fewest readings on a segment; four leave two degrees of freedom to judge the fit."""
+    min_length_m: float = 0.25
+    """Shortest segment kept."""
+    max_direction_sigma_deg: float = 3.0
+    """Largest standard error of a segment's direction (see ``direction_sigma_rad``).
+
+    Equal to the map fusion's orientation tolerance: a piece whose direction is
+    less certain than that could not be told to lie on its wall.
+    """
+
+
+@dataclass(frozen=True)
+class FuseParams:
+    """When two world-frame segments are one wall (metres, degrees)."""
+
+    angle_deg: float = 3.0
+    """Largest difference of undirected orientation."""
+    offset_m: float = 0.06
+    """Largest distance of either segment's endpoints from the other's line."""
+    gap_m: float = 0.15
+    """Largest gap between their extents along the common line (negative = overlap)."""
+
+
+@dataclass(frozen=True)
+class RefineParams:
+    """Settings of the fit (metres, counts)."""
+
+    gate_m: float = 0.4
+    """First round's largest point-to-segment distance for a point to take part."""
+    final_gate_m: float = 0.05
+    """Last round's gate; also the band within which a point counts as an inlier."""
+    steps_per_round: int = 4
+    """Gauss-Newton steps per gate; the gate halves between rounds down to ``final_gate_m``."""
+    min_points: int = 8
+    """Fewer inliers than this and the fit is not attempted (the pose is returned as is)."""
+    point_sigma_m: float = 0.02
+    """Typical distance of a good point from its wall: weighs the prior against the points."""
+    prior_sigma_m: float | None = None
+    """Spread of the guess's position (per axis); None fits the points alone. Tracking sets
+    it per scan from ``TrackParams``; it is not a setting of a run."""
+    prior_sigma_deg: float | None = None
+    """Spread of the guess's heading; None leaves the heading to the points (as above)."""
+
+
+@dataclass(frozen=True)
+class SearchParams:
+    """Settings of the hypothesis search (metres, degrees, counts)."""
+
+    cell_m: float = 0.05
+    """Fine raster cell and fine position step."""
+    score_radius_m: float = 0.1
+    """A point scores 1 on a segment, falling to 0 at this distance from it."""
+    coarse_factor: int = 4
+    """Fine cells per coarse block (per axis) when the region is a window around a guess."""
+    global_coarse_factor: int = 8
+    """The same when the region is the whole map."""
+    half_width_m: float = 2.0
+    """Half side of the square of positions searched around an initial guess."""
+    heading_step_deg: float = 1.0
+    """Spacing of the headings tried: across the prior window, or the whole circle without one."""
+    keep_fraction: float = 0.8
+    """Blocks are searched finely while their bound reaches this share of the best score."""
+    max_expansions: int = 400
+    """Most blocks searched finely per scan around a guess."""
+    global_max_expansions: int = 4000
+    """The same over the whole map, where many more blocks look alike from afar."""
+    hypotheses: int = 4
+    """Distinct grid poses handed on for refinement."""
+    distinct_m: float = 0.3
+    """Two poses farther apart than this (or ``distinct_deg``) are different answers."""
+    distinct_deg: float = 3.0
+    """Two poses whose headings differ by more than this are different answers."""
+
+
+@dataclass(frozen=True)
+class ConfidenceParams:
+    """Thresholds on inlier ratios (shares of the scan's points, 0–1)."""
+
+    min_inlier_ratio: float = 0.5
+    """Below this share of points on the map the answer is ``lost``."""
+    min_margin: float = 0.1
+    """The answer's share must beat the best distinct alternative's by this, else ``ambiguous``."""
+    min_hold_points: float = MIN_HOLD_POINTS
+    """The points on the map must fix the position in every direction by this many points'
+    worth (``refine.support``), else ``ambiguous``."""
+
+
+@dataclass(frozen=True)
+class LocalizeParams:
+    """Settings of both stages (paper defaults: Table 1 used η0 = 1.5 m and Δα0 = 4°)."""
+
+    window_deg: float | None = 20.0
+    """Stage-1 half window around the prior heading; None scores the whole circle."""
+    bin_deg: float = 1.0
+    """Stage-1 orientation bin width; divides 180."""
+    vote: str = "product"
+    """Stage-1 vote weights, one of ``VOTE_SCHEMES``."""
+    max_peaks: int = 8
+    """Most stage-1 headings handed to stage 2, best first."""
+    grid_m: float = 1.5
+    """Stage-2 initial grid spacing η0, halved every iteration."""
+    dtheta_deg: float = 4.0
+    """Stage-2 initial heading step Δα0, halved every iteration."""
+    iterations: int = 8
+    """Halvings K; the paper leaves K to the accuracy wanted (last grid η0 / 2^(K−1))."""
+    ratio: float = 0.9
+    """Stage-2 candidates within this ratio of the best overlap are averaged."""
+    recentres: int = 8
+    """Extra same-scale iterations while the estimate still moves (0 = the paper's schedule)."""
+    min_segments: int = 3
+    """Fewer local segments and the status is ``too_few_segments`` (stage 2 does not run)."""
+    min_points: int = 20
+    """Fewer valid readings and the status is ``too_few_segments``. The verdict compares
+    inlier shares with a margin of 0.1: below 20 points two stray readings would decide it, and
+    three segments of extraction's 4 readings each leave little to check a fit against."""
+    min_spread_m: float = MIN_POINT_SPREAD_M
+    """Points spread less than this across their main direction: ``too_few_segments``."""
+    refine: RefineParams | None = field(default_factory=RefineParams)
+    """Least-squares fit of the scan's points after stage 2; None stops at stage 2 (the paper)."""
+    search: SearchParams | None = field(default_factory=SearchParams)
+    """With refinement: also refine the best poses of a search of the prior window by the
+    scan's points, and keep the fit that puts them closest to the map."""
+    confidence: ConfidenceParams = field(default_factory=ConfidenceParams)
+    """Thresholds of the verdict (``ok``, ``ambiguous``, ``lost``)."""
+
+
+@dataclass(frozen=True)
+class TrackParams:
+    """How each tracked scan is fitted and when the fit is accepted (metres, degrees)."""
+
+    min_inlier_ratio: float = 0.5
+    """Share of the scan's points that must lie on the map (within refinement's final gate)."""
+    max_jump_m: float = 0.5
+    """Largest correction of the dead-reckoning guess accepted (position)."""
+    max_jump_deg: float = 15.0
+    """Largest correction of the dead-reckoning guess accepted (heading)."""
+    widen: float = 2.0
+    """The recovery search multiplies the grid, the heading window and the jump limits by this..."""
+    max_widenings: int = 3
+    """...once more for every scan lost in a row, up to this many times in all."""
+    odom_sigma_m: float = 0.02
+    """Spread of the guess per scan when standing still (position, per axis)..."""
+    odom_sigma_per_m: float = 0.1
+    """...plus this much per metre the odometry moved since the previous scan."""
+    odom_sigma_deg: float = 1.0
+    """Spread of the guess's heading per scan when not turning..."""
+    odom_sigma_per_deg: float = 0.2
+    """...plus this much per degree the odometry turned since the previous scan."""
+
+    def prior(self, increment: Any) -> tuple[float, float]:
+        """Spread (m, °) of a guess made by moving the previous estimate by ``increment``
+        (a ``Pose2``: x, y in metres, heading in radians)."""
+        return (
+            self.odom_sigma_m + self.odom_sigma_per_m * float(np.hypot(increment.x, increment.y)),
+            self.odom_sigma_deg + self.odom_sigma_per_deg * abs(increment.theta_deg),
+        )
+
+
+@dataclass(frozen=True)
+class Config:
+    """Every setting of a run: the stages' parameters and the choices around them."""
+
+    extract: ExtractParams = field(default_factory=ExtractParams)
+    fuse: FuseParams = field(default_factory=FuseParams)
+    localize: LocalizeParams = field(default_factory=LocalizeParams)
+    """Both stages, with refinement, the hypothesis search and the verdict inside."""
+    track: TrackParams = field(default_factory=TrackParams)
+    method: str = "two-stage"
+    """One of ``METHODS``."""
+    icp_variant: str = "gicp"
+    """With ``method`` icp: one of ``ICP_VARIANTS``."""
+    jobs: int = 1
+    """Processes localizing independent scans."""
+    tolerance_ms: float = TIME_TOLERANCE_MS
+    """Largest time difference when pairing records of two files by time."""
+
+    @classmethod
+    def from_values(cls, values: dict[str, Any]) -> Config:
+        """The configuration with the settings named in ``values`` (keys of ``SETTINGS``,
+        as option names) set, and every other at its default. Keys that are no setting
+        (a command's inputs and outputs) are ignored."""
+        config = cls()
+        named = [(SETTINGS[key], value) for key, value in values.items() if key in SETTINGS]
+        # Switches last: --no-prior-heading empties the window that --window-deg sets.
+        for setting, value in sorted(named, key=lambda item: item[0].switch):
+            if value is not None:
+                config = setting.applied(config, value)
+        return config
+
+
+@dataclass(frozen=True)
+class Setting:
+    """One setting as the outside world names it.
+
+    ``key`` is the long option and ``--config`` key; ``path`` the field of
+    ``Config`` it sets (through nested parameter classes); ``low``/``high``
+    bound a number (``low_open`` excludes ``low``); ``choices`` list the
+    values of a text setting; ``help`` is the option's help text, None for a
+    tuning setting that the help does not list. A ``switch`` is a flag that
+    sets the field to None (``--no-refine``: no refinement); its ``path`` is
+    the field it empties.
+    """
+
+    key: str
+    path: tuple[str, ...]
+    low: float | None = None
+    high: float | None = None
+    low_open: bool = False
+    choices: tuple[str, ...] | None = None
+    help: str | None = None
+    switch: bool = False
+
+    @property
+    def default(self) -> Any:
+        """The default, read from the parameter classes (False for a switch)."""
+        if self.switch:
+            return False
+        value: Any = Config()
+        for name in self.path:
+            value = getattr(value, name)
+        return value
+
+    @property
+    def kind(self) -> type:
+        """The value's type: bool, int, float or str."""
+        if self.switch:
+            return bool
+        annotation = {f.name: f.type for f in fields(_owner_class(self.path))}[self.path[-1]]
+        return {"float": float, "int": int, "str": str}[str(annotation).split(" |")[0]]
+
+    def applied(self, config: Config, value: Any) -> Config:
+        """``config`` with this setting set to ``value`` (a switch: emptied when True)."""
+        if self.switch:
+            return _replaced(config, self.path, None) if value else config
+        return _replaced(config, self.path, self.kind(value))
+
+    @property
+    def doc(self) -> str:
+        """The help text, or for a tuning setting the docstring of its field."""
+        return self.help or field_doc(_owner_class(self.path), self.path[-1])
+
+
+def _owner_class(path: tuple[str, ...]) -> type:
+    """The parameter class that holds the last field of ``path``."""
+    holder: Any = Config()
+    for name in path[:-1]:
+        holder = getattr(holder, name)
+    return type(holder)
+
+
+def _replaced(holder: Any, path: tuple[str, ...], value: Any) -> Any:
+    """``holder`` with the field at ``path`` (through nested dataclasses) set to ``value``.
+    A nested class that is None (refinement off) is left None: there is nothing to set."""
+    head, rest = path[0], path[1:]
+    if not rest:
+        return replace(holder, **{head: value})
+    inner = getattr(holder, head)
+    if inner is None:
+        return holder
+    return replace(holder, **{head: _replaced(inner, rest, value)})
+
+
+@functools.cache
+def _field_docs(cls: type) -> dict[str, str]:
+    """Docstrings written under the fields of a dataclass, by field name."""
+    tree = ast.parse(inspect.getsource(cls))
+    docs: dict[str, str] = {}
+    body = tree.body[0].body
+    for node, after in itertools.pairwise(body):
+        documented = isinstance(after, ast.Expr) and isinstance(after.value, ast.Constant)
+        if isinstance(node, ast.AnnAssign) and documented:
+            docs[node.target.id] = inspect.cleandoc(after.value.value)
+    return docs
+
+
+def field_doc(cls: type, name: str) -> str:
+    """The docstring of field ``name`` of ``cls``, as one paragraph ("" if none)."""
+    return " ".join(_field_docs(cls).get(name, "").split("\n\n")[0].split())
+
+
+_TUNING_BOUNDS: dict[str, tuple[float, float, bool]] = {
+    "float": (0.0, 1e4, True),
+    "int": (1, 1_000_000, False),
+    "extract.min_points": (2, 1_000_000, False),
+    "extract.breakpoint_lambda_deg": (0.0, 90.0, True),
+    "extract.max_direction_sigma_deg": (0.0, 180.0, True),
+    "fuse.gap_m": (-1e4, 1e4, False),
+    "localize.min_spread_m": (0.0, 1e4, False),
+    "localize.search.keep_fraction": (0.0, 1.0, True),
+    "localize.search.heading_step_deg": (0.0, 360.0, True),
+    "localize.search.distinct_m": (0.0, 1e4, False),
+    "localize.search.distinct_deg": (0.0, 180.0, False),
+    "localize.confidence.min_inlier_ratio": (0.0, 1.0, False),
+    "localize.confidence.min_margin": (0.0, 1.0, False),
+    "localize.confidence.min_hold_points": (0.0, 1e6, False),
+    "track.min_inlier_ratio": (0.0, 1.0, False),
+    "track.widen": (1.0, 100.0, False),
+    "track.max_widenings": (0, 30, False),
+    "track.odom_sigma_per_m": (0.0, 1e4, False),
+    "track.odom_sigma_per_deg": (0.0, 1e4, False),
+}
+"""Bounds (low, high, low excluded) of tuning settings: by field path, else by type (a count
+of at least 1, a positive size). They keep a run clear of divisions by zero and of searches
+that would never end."""
+
+
+def _tuning_setting(key: str, path: tuple[str, ...]) -> Setting:
+    kind = str({f.name: f.type for f in fields(_owner_class(path))}[path[-1]]).split(" |")[0]
+    low, high, low_open = _TUNING_BOUNDS.get(".".join(path), _TUNING_BOUNDS[kind])
+    return Setting(key, path, low, high, low_open)
+
+
+def _tuning(prefix: str, owner: str, *skip: str) -> tuple[Setting, ...]:
+    """A tuning setting for every field of the parameter class at ``owner`` (a dotted path),
+    keyed ``prefix-field-name``."""
+    path = tuple(owner.split("."))
+    return tuple(
+        _tuning_setting(f"{prefix}{f.name.replace('_', '-')}", (*path, f.name))
+        for f in fields(_owner_class((*path, "")))
+        if f.name not in skip
+    )
+
+
+STAGES = (
+    Setting(
+        "window-deg",
+        ("localize", "window_deg"),
+        0,
+        180,
+        help="Stage 1 searches headings within ± this of the initial heading.",
+    ),
+    Setting(
+        "no-prior-heading",
+        ("localize", "window_deg"),
+        switch=True,
+        help="Ignore the initial heading: stage 1 votes over the whole circle and stage 2 "
+        "chooses among its peaks.",
+    ),
+    Setting(
+        "vote",
+        ("localize", "vote"),
+        choices=VOTE_SCHEMES,
+        help="Stage-1 vote: product λL·λG (paper eq. 1), count (eq. 2), local λL (eq. 3), "
+        "sum λL+λG (eq. 4).",
+    ),
+    Setting(
+        "bin-deg",
+        ("localize", "bin_deg"),
+        0.05,
+        45,
+        help="Stage-1 orientation bin width (must divide 180).",
+    ),
+    Setting(
+        "grid-m",
+        ("localize", "grid_m"),
+        0,
+        50,
+        low_open=True,
+        help="Stage-2 initial grid spacing η0 (halved every iteration).",
+    ),
+    Setting(
+        "dtheta-deg",
+        ("localize", "dtheta_deg"),
+        0,
+        90,
+        help="Stage-2 initial heading step Δα0 (halved every iteration).",
+    ),
+    Setting(
+        "iterations",
+        ("localize", "iterations"),
+        1,
+        30,
+        help="Stage-2 iterations K; the last grid is η0/2^(K-1).",
+    ),
+    Setting(
+        "ratio",
+        ("localize", "ratio"),
+        0,
+        1,
+        low_open=True,
+        help="Candidates within this ratio of the best overlap are averaged.",
+    ),
+    Setting(
+        "recentre",
+        ("localize", "recentres"),
+        0,
+        100,
+        help="Up to this many extra stage-2 iterations, spent re-searching at the same scale "
+        "while the estimate still moves by over half a step; 0 keeps the paper's fixed schedule.",
+    ),
+    Setting(
+        "no-refine",
+        ("localize", "refine"),
+        switch=True,
+        help="Stop at the stage-2 pose (the paper's method) instead of fitting the scan's points "
+        "to the map segments by robust least squares afterwards.",
+    ),
+)
+
+MATCHER = (
+    Setting(
+        "method",
+        ("method",),
+        choices=METHODS,
+        help="two-stage: this tool's method. For comparison: icp registers the scan's points to "
+        "points sampled along the map (small-gicp), correlative searches ±2.1 m and ±20° around "
+        "the guess against virtual scans of the map (Karto's matcher); both need "
+        "pip install 'segloc[peers]' and an initial guess per scan.",
+    ),
+    Setting(
+        "icp-variant",
+        ("icp_variant",),
+        choices=ICP_VARIANTS,
+        help="With --method icp: generalized ICP or point-to-plane ICP.",
+    ),
+    Setting(
+        "jobs",
+        ("jobs",),
+        1,
+        help="Localize scans on this many processes (not with --track, whose scans depend on "
+        "each other); the estimates are the same as with 1.",
+    ),
+)
+
+TOLERANCE = Setting(
+    "tolerance-ms",
+    ("tolerance_ms",),
+    0,
+    60_000,
+    help="Largest time difference when {pairing}.",
+)
+"""Pairing by time, in every command that pairs; its help names what is paired."""
+
+EXTRACT = _tuning("extract-", "extract")
+FUSE = _tuning("fuse-", "fuse")
+LOCALIZE_TUNING = (
+    *(
+        _tuning_setting(key, ("localize", name))
+        for key, name in (
+            ("max-peaks", "max_peaks"),
+            ("min-segments", "min_segments"),
+            ("min-points", "min_points"),
+            ("min-spread-m", "min_spread_m"),
+        )
+    ),
+    *_tuning("refine-", "localize.refine", "prior_sigma_m", "prior_sigma_deg"),
+    *_tuning("search-", "localize.search"),
+    *_tuning("confidence-", "localize.confidence"),
+    *_tuning("track-", "track"),
+)
+"""Localization's tuning settings: config-file keys (and unlisted options)."""
+
+SETTINGS: dict[str, Setting] = {
+    s.key: s for s in (*STAGES, *MATCHER, TOLERANCE, *EXTRACT, *FUSE, *LOCALIZE_TUNING)
+}
+"""Every setting by key."""
+
+
+def _shown(value: Any) -> str:
+    return "off" if value is False else str(value)
+
+
+def settings_table() -> str:
+    """Every setting as a Markdown table: key, default and meaning, by the stage it tunes."""
+    sections = [
+        ("Both stages (`localize`)", STAGES),
+        ("Matcher and pairing (`localize`; `tolerance-ms` also `map build`, `evaluate`)",
+         (*MATCHER, TOLERANCE)),
+        ("Extraction (`localize`, `map build`)", EXTRACT),
+        ("Fusion (`map build`)", FUSE),
+        ("Checks, search, refinement, verdict and tracking (`localize`)", LOCALIZE_TUNING),
+    ]  # fmt: skip
+    lines = ["| key | default | meaning |", "|---|---|---|"]
+    for title, settings in sections:
+        lines.append(f"| **{title}** | | |")
+        for s in settings:
+            meaning = s.doc.format(pairing="pairing records of two files by time")
+            lines.append(f"| `{s.key}` | `{_shown(s.default)}` | {meaning.replace('|', '/')} |")
+    return "\n".join(lines) + "\n"
+
+
+TABLE_BEGIN = "<!-- settings table: python -m segloc_cli.config README.md -->\n"
+TABLE_END = "<!-- end of settings table -->\n"
+
+
+def _rewrite_table(path: str) -> None:
+    """Replace the settings table of a Markdown file (between its markers) with the current one."""
+    with open(path, encoding="utf-8") as stream:
+        text = stream.read()
+    head, rest = text.split(TABLE_BEGIN)
+    _, tail = rest.split(TABLE_END)
+    with open(path, "w", encoding="utf-8") as stream:
+        stream.write(head + TABLE_BEGIN + settings_table() + TABLE_END + tail)
+
+
+if __name__ == "__main__":
+    import sys
+
+    _rewrite_table(sys.argv[1])

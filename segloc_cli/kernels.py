@@ -1,0 +1,119 @@
+"""Compiled planar geometry shared by the numba kernels of stage 2, refinement and the rasters.
+
+Compiled code can only call compiled functions, so these are the scalar twins
+of helpers in ``geometry.py`` (which work on numpy arrays), written once here
+and called from the kernels of ``overlap.py``, ``refine.py`` and ``field.py``.
+Units are metres and radians; a segment is ``x1 y1 x2 y2`` and every argument
+of one call is in the same frame unless a docstring says otherwise.
+
+Numba's on-disk cache of a compiled caller is keyed on the caller's own source
+file only: after editing this module, delete the ``*.nbi`` / ``*.nbc`` files in
+``segloc_cli/__pycache__`` (or touch the calling modules), or the callers keep
+running the old code.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True)
+def wrap(angle: float) -> float:
+    """``angle`` (radians) wrapped into [-π, π): the compiled twin of ``geometry.wrap_angle``.
+
+    Both map ±π to -π and multiples of 2π to 0. Computed as
+    ``angle − 2π·floor((angle + π) / 2π)`` rather than with a remainder, so the
+    two can differ in the last bit, by an amount that grows with ``|angle|``.
+    """
+    return angle - 2.0 * np.pi * np.floor((angle + np.pi) / (2.0 * np.pi))
+
+
+@njit(cache=True)
+def point_segment_distance(
+    px: float, py: float, x1: float, y1: float, x2: float, y2: float
+) -> float:
+    """Distance (metres) from the point (px, py) to the segment (x1, y1)–(x2, y2).
+
+    The nearest point is the foot of the perpendicular, clamped to the
+    segment's ends; a zero-length segment is its single point.
+    """
+    dx, dy = x2 - x1, y2 - y1
+    t = ((px - x1) * dx + (py - y1) * dy) / max(dx * dx + dy * dy, 1e-300)
+    t = min(max(t, 0.0), 1.0)
+    ex, ey = px - x1 - t * dx, py - y1 - t * dy
+    return np.sqrt(ex * ex + ey * ey)
+
+
+@njit(cache=True)
+def segment_distance(a: np.ndarray, b: np.ndarray) -> float:
+    """Distance (metres) between segments ``a`` and ``b`` (4,), zero where they cross."""
+
+    def side(px, py, s):
+        return (s[2] - s[0]) * (py - s[1]) - (s[3] - s[1]) * (px - s[0])
+
+    if side(a[0], a[1], b) * side(a[2], a[3], b) <= 0.0 and (
+        side(b[0], b[1], a) * side(b[2], b[3], a) <= 0.0
+    ):
+        return 0.0
+    return min(
+        min(
+            point_segment_distance(a[0], a[1], b[0], b[1], b[2], b[3]),
+            point_segment_distance(a[2], a[3], b[0], b[1], b[2], b[3]),
+        ),
+        min(
+            point_segment_distance(b[0], b[1], a[0], a[1], a[2], a[3]),
+            point_segment_distance(b[2], b[3], a[0], a[1], a[2], a[3]),
+        ),
+    )
+
+
+@njit(cache=True)
+def angular_interval(x1: float, y1: float, x2: float, y2: float) -> tuple[float, float]:
+    """Centre (in [-π, π)) and half-width (radians) of the angle the segment subtends at
+    the origin of its frame, taking the shorter way round between its ends."""
+    a = np.arctan2(y1, x1)
+    span = wrap(np.arctan2(y2, x2) - a)
+    return wrap(a + 0.5 * span), 0.5 * abs(span)
+
+
+@njit(cache=True)
+def point_into_frame(
+    px: float, py: float, x: float, y: float, cos_theta: float, sin_theta: float
+) -> tuple[float, float]:
+    """The point (px, py) expressed in the frame of pose (x, y, θ), given cos θ and sin θ.
+
+    The pose and the point are in the same outer frame (e.g. world → robot).
+    """
+    dx, dy = px - x, py - y
+    return cos_theta * dx + sin_theta * dy, cos_theta * dy - sin_theta * dx
+
+
+@njit(cache=True)
+def into_frame(segments: np.ndarray, x: float, y: float, theta: float) -> np.ndarray:
+    """Segments (M, 4) expressed in the frame of pose (x, y, theta) (e.g. world → robot).
+
+    The compiled twin of ``transform_segments(segments, pose.inverse())``.
+    """
+    c, s = np.cos(theta), np.sin(theta)
+    out = np.empty_like(segments)
+    for i in range(segments.shape[0]):
+        for e in (0, 2):
+            out[i, e], out[i, e + 1] = point_into_frame(
+                segments[i, e], segments[i, e + 1], x, y, c, s
+            )
+    return out
+
+
+@njit(cache=True)
+def out_of_frame(segments: np.ndarray, x: float, y: float, theta: float) -> np.ndarray:
+    """Segments (N, 4) in the frame of pose (x, y, theta), expressed in the frame the pose
+    is in (e.g. robot → world): the compiled twin of ``transform_segments``."""
+    c, s = np.cos(theta), np.sin(theta)
+    out = np.empty_like(segments)
+    for i in range(segments.shape[0]):
+        for e in (0, 2):
+            px, py = segments[i, e], segments[i, e + 1]
+            out[i, e] = x + c * px - s * py
+            out[i, e + 1] = y + s * px + c * py
+    return out

@@ -1,0 +1,294 @@
+"""A run from inputs to results, as plain functions the commands call.
+
+Each function takes what was read (logs, maps, pose tables) and a ``Config``,
+and returns results or an iterator of estimates rows; none prints or parses
+options. Bad input raises ``InputError`` naming the file.
+
+- ``paired_guesses``: which scans of a log have an initial guess, and which.
+- ``localizer_for``: the matcher a configuration asks for, on a map.
+- ``localize_log``: the rows of one log, batch, global or tracked.
+- ``build_map``: a segment map from surveyed scans.
+- ``simulate_log``: a simulated log of a world at given poses.
+"""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from segloc_cli.config import Config
+from segloc_cli.errors import InputError
+from segloc_cli.geometry import Pose2
+from segloc_cli.io.log import Log
+from segloc_cli.io.tables import EstimateRow, PoseTable, pair_by_time
+
+MODES = ("guided", "global", "track")
+"""How a log is localized: each scan from its own guess, each with none, or along a track."""
+
+
+def time_range(times_s) -> str:
+    """``first–last s`` of some times, or ``none``."""
+    times_s = np.asarray(times_s, dtype=float)
+    if times_s.size == 0:
+        return "none"
+    return f"{times_s.min():.3f}–{times_s.max():.3f} s"
+
+
+def odometry_rows(log: Log, log_path: Path, tolerance_s: float, missing: str) -> np.ndarray:
+    """Index of the /odom message nearest each scan in time (−1 where none is close enough).
+
+    Two /odom messages at the time nearest a scan, or two scans at one time, are refused;
+    a log without /odom is refused with "the log has no /odom messages" + ``missing``.
+    """
+    if log.odom_times_s.size == 0:
+        raise InputError(f"the log has no /odom messages{missing}", path=log_path)
+    return pair_by_time(
+        log.scan_times_s,
+        log.odom_times_s,
+        tolerance_s,
+        query_path=log_path,
+        ref_path=log_path,
+        query_label="scan",
+        ref_label="/odom message",
+    )
+
+
+@dataclass(frozen=True)
+class Guesses:
+    """The scans of a log that have an initial guess: their indices in the log, the guesses
+    (world frame) and the pose ids of their rows."""
+
+    index: np.ndarray
+    poses: list[Pose2]
+    pose_ids: np.ndarray
+
+
+def paired_guesses(log: Log, log_path: Path, initial: Path | None, tolerance_ms: float) -> Guesses:
+    """Initial guesses for the scans of ``log``: from its /odom (``initial`` None) or from a
+    pose table, nearest in time within ``tolerance_ms``.
+
+    Pose ids come from the table's rows, or are the scans' indices in the log (from 1) for
+    /odom guesses. A guess shared by two rows of equal time, or two scans at one time, is
+    refused rather than paired silently.
+    """
+    from segloc_cli.io.tables import read_pose_table
+
+    tolerance_s = tolerance_ms / 1e3
+    if initial is None:
+        missing = " to take initial guesses from; pass --initial FILE.csv"
+        rows = odometry_rows(log, log_path, tolerance_s, missing)
+        ref_poses, ref_ids = log.odom_poses, None
+    else:
+        table = read_pose_table(initial)
+        ref_poses, ref_ids = table.poses, table.pose_id
+        rows = pair_by_time(
+            log.scan_times_s,
+            table.time_s,
+            tolerance_s,
+            query_path=log_path,
+            ref_path=initial,
+            query_label="scan",
+        )
+    index = np.flatnonzero(rows >= 0)
+    poses = [Pose2(*ref_poses[r]) for r in rows[index]]
+    ids = index + 1 if ref_ids is None else ref_ids[rows[index]]
+    if index.size == 0:
+        raise InputError(
+            f"no scan has an initial guess within {tolerance_ms:g} ms "
+            f"(--initial {initial or 'odom'})",
+            path=log_path,
+        )
+    return Guesses(index, poses, ids)
+
+
+def localizer_for(segments_world: np.ndarray, config: Config):
+    """The ``ScanMatcher`` of ``config.method`` on a map (M, 4), world frame."""
+    if config.method == "two-stage":
+        from segloc_cli.localize import Localizer
+
+        return Localizer(segments_world, config.localize)
+    from segloc_cli.peers import peer_localizer
+
+    options = {"variant": config.icp_variant} if config.method == "icp" else {}
+    return peer_localizer(config.method, segments_world, **options)
+
+
+@dataclass(frozen=True)
+class LogRun:
+    """One log's part of a run: its estimates rows, made as they are read, and the scans
+    they cover."""
+
+    path: Path
+    rows: Iterator[EstimateRow]
+    times_s: np.ndarray
+    """Times (s) of the scans localized."""
+    skipped: int
+    """Scans of the log left out (no initial guess, or no odometry when tracking)."""
+
+
+def localize_log(
+    log: Log,
+    log_path: Path,
+    localizer,
+    mode: str,
+    initial: Path | None,
+    config: Config,
+    stop: Callable[[], bool] = lambda: False,
+) -> LogRun:
+    """Plan the localization of one log; its rows are made as ``LogRun.rows`` is read.
+
+    ``mode`` is one of ``MODES``. Guided runs localize the scans with a guess from
+    ``initial`` (None: the log's /odom); global runs every scan, or with ``initial`` only
+    the scans it lists; a track starts at the first scan with a guess and follows the
+    odometry. ``stop`` is asked between blocks of scans on worker processes.
+    """
+    if mode == "global" and initial is None:
+        index = np.arange(len(log.scans))
+        guesses = Guesses(index, [], index + 1)
+    else:
+        guesses = paired_guesses(log, log_path, initial, config.tolerance_ms)
+    if mode == "track":
+        index, rows = _track(log, log_path, localizer, guesses, config)
+    else:
+        from segloc_cli.parallel import localize_scans_parallel
+
+        index = guesses.index
+        poses = None if mode == "global" else guesses.poses
+        scans = [log.scans[i] for i in index]
+        rows = localize_scans_parallel(
+            scans, poses, guesses.pose_ids, localizer, config.jobs, config.extract, stop=stop
+        )
+    return LogRun(log_path, rows, log.scan_times_s[index], len(log.scans) - index.size)
+
+
+def _track(log: Log, log_path: Path, localizer, guesses: Guesses, config: Config):
+    """(scan indices, rows) of a track from the first guessed scan, carried by odometry."""
+    from segloc_cli.tracking import track_scans
+
+    tolerance_s = config.tolerance_ms / 1e3
+    missing = "; tracking needs odometry between scans"
+    odom_rows = odometry_rows(log, log_path, tolerance_s, missing)
+    first = guesses.index[0]
+    index = np.flatnonzero((odom_rows >= 0) & (np.arange(len(log.scans)) >= first))
+    if index.size == 0:
+        raise InputError(
+            f"no scan from the first guess on has odometry within {config.tolerance_ms:g} ms; "
+            "tracking needs /odom at the scans",
+            path=log_path,
+        )
+    odometry = [Pose2(*log.odom_poses[r]) for r in odom_rows[index]]
+    scans = [log.scans[i] for i in index]
+    rows = track_scans(
+        scans, odometry, guesses.poses[0], index + 1, localizer, config.extract, config.track
+    )
+    return index, rows
+
+
+def overlapping_logs(runs: list[LogRun]) -> list[str]:
+    """A warning for each two logs whose localized scans overlap in time: their rows share a
+    time span, and scoring them against one survey would pair rows it cannot tell apart."""
+    spans = sorted(
+        ((run.path, run.times_s.min(), run.times_s.max()) for run in runs if run.times_s.size),
+        key=lambda span: span[1],
+    )
+    return [
+        f"{first} and {second} overlap in time ({start:.3f}–{end:.3f} s); their rows in the "
+        "estimates cannot be told apart by time (evaluate will refuse them)"
+        for (first, _, end), (second, start, _) in itertools.pairwise(spans)
+        if start <= end
+    ]
+
+
+def check_global_extent(segments_world: np.ndarray, map_path: Path) -> None:
+    """Refuse a global search of a map too large to search whole in reasonable time."""
+    from segloc_cli.localize import MAX_GLOBAL_AREA_M2
+
+    width, height = np.ptp(segments_world[:, 0::2]), np.ptp(segments_world[:, 1::2])
+    if width * height > MAX_GLOBAL_AREA_M2:
+        raise InputError(
+            f"--global searches the whole map, and this one spans {width:.0f} m × "
+            f"{height:.0f} m, more than the {MAX_GLOBAL_AREA_M2:,.0f} m² it searches in about "
+            "a minute per scan; give initial guesses (--initial) or a map of the area the "
+            "robot is in",
+            path=map_path,
+        )
+
+
+@dataclass(frozen=True)
+class BuiltMap:
+    """A segment map (M, 4), world frame, and what it was made of."""
+
+    segments: np.ndarray
+    scans_used: int
+    local_segments: int
+
+
+def build_map(
+    log: Log, log_path: Path, survey: PoseTable, survey_path: Path, config: Config
+) -> BuiltMap:
+    """Fuse the local maps of the scans that have a survey row, each placed at its pose."""
+    from segloc_cli.extract import extract_segments
+    from segloc_cli.mapping import build_global_map
+
+    times = log.scan_times_s
+    rows = pair_by_time(
+        times,
+        survey.time_s,
+        config.tolerance_ms / 1e3,
+        query_path=log_path,
+        ref_path=survey_path,
+        query_label="scan",
+    )
+    used = np.flatnonzero(rows >= 0)
+    if used.size == 0:
+        raise InputError(
+            f"no scan is within {config.tolerance_ms:g} ms of a survey row (scans "
+            f"{time_range(times)}, survey {time_range(survey.time_s)}); check the time base "
+            "or --tolerance-ms",
+            path=survey_path,
+        )
+    local_maps = [extract_segments(log.scans[i], config.extract) for i in used]
+    poses = [Pose2(*survey.poses[rows[i]]) for i in used]
+    segments = build_global_map(local_maps, poses, config.fuse)
+    if segments.shape[0] == 0:
+        raise InputError("no segments could be extracted from the surveyed scans", path=log_path)
+    return BuiltMap(segments, int(used.size), sum(lm.shape[0] for lm in local_maps))
+
+
+def simulate_log(
+    log_path: Path,
+    world,
+    truth: PoseTable,
+    init_errors: tuple[str, float, float],
+    sensor,
+    seed: int,
+    settings: dict[str, str],
+) -> None:
+    """Write a simulated log of ``world``: a scan at each true pose of ``truth`` (its times
+    increasing) and, as /odom, an initial guess off by ``init_errors`` ("paper": the
+    paper's Table 1 errors; "uniform", XY_M, THETA_DEG: uniform within those)."""
+    from segloc_cli.io.files import atomic_path
+    from segloc_cli.io.mcap_log import LogWriter
+    from segloc_cli.sim import (
+        initial_guesses,
+        paper_initial_errors,
+        simulate_scan,
+        uniform_initial_errors,
+    )
+
+    rng = np.random.default_rng(seed)
+    mode, xy_m, theta_deg = init_errors
+    n = len(truth)
+    if mode == "paper":
+        errors = paper_initial_errors(n)
+    else:
+        errors = uniform_initial_errors(n, xy_m, theta_deg, rng)
+    guesses = initial_guesses(truth.poses, errors)
+    with atomic_path(log_path) as partial, LogWriter(partial, settings) as log:
+        for t, pose, guess in zip(truth.time_s, truth.poses, guesses, strict=True):
+            log.add_odom(float(t), Pose2(*guess))
+            log.add_scan(simulate_scan(world, Pose2(*pose), sensor, rng, float(t)))

@@ -1,0 +1,140 @@
+"""Configuration files in, run files out: the TOML that sets a command's options.
+
+A configuration file holds one table per command (``[localize]``,
+``[map.build]``, ``[import.carmen]``), its keys the command's long option
+names (``grid-m = 1.5``). A run file is such a file written beside a command's
+output (``est.csv`` → ``est.run.toml``): every option the run resolved, and in
+its ``[run]`` table the segloc version and each input's path and sha256. Given
+back as ``--config``, it makes the same output again. Paths in both are taken
+relative to the file's own folder.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import tomllib
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import tomli_w
+
+from segloc_cli import __version__
+from segloc_cli.errors import InputError
+from segloc_cli.io.files import reading, write_text_atomic
+
+RUN_TABLE = "run"
+"""The table of a run file that records how the file was made; ``--config`` skips it."""
+
+MAX_CONFIG_BYTES = 1 << 20
+"""Largest configuration file read (1 MiB): settings, not data."""
+
+
+def run_file_path(output: Path) -> Path:
+    """Where the run file of ``output`` goes: beside it, ``est.csv`` → ``est.run.toml``."""
+    return output.with_name(f"{output.stem if output.suffix else output.name}.run.toml")
+
+
+def read_table(path: Path, command: Sequence[str], commands: set[tuple[str, ...]]) -> dict:
+    """The table of ``command`` (e.g. ("map", "build")) in the TOML file ``path`` ({} if the
+    file has none).
+
+    Tables that name no command of ``commands`` (nor ``[run]``) and keys outside any
+    table are refused, naming them, so a misspelt table does not pass unnoticed.
+    """
+    with reading(path, "a TOML configuration"):
+        if path.stat().st_size > MAX_CONFIG_BYTES:
+            raise InputError(f"is over {MAX_CONFIG_BYTES:,} bytes; not a configuration", path=path)
+        text = path.read_bytes().decode("utf-8", errors="replace")
+    try:
+        document = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise InputError(f"is not valid TOML: {exc}", path=path) from None
+    for key, value in document.items():
+        if not isinstance(value, dict):
+            raise InputError(
+                f"key {key!r} is outside any table; put it under the table of its command, "
+                f"e.g. [{' '.join(command).replace(' ', '.')}]",
+                path=path,
+            )
+    _check_tables(path, document, commands)
+    table: Any = document
+    for name in command:
+        table = table.get(name, {})
+    return table
+
+
+def _check_tables(path: Path, document: dict, commands: set[tuple[str, ...]]) -> None:
+    """Refuse top-level tables that are neither a command, a command group nor ``[run]``."""
+    groups = {c[:1] for c in commands}
+    for name, table in document.items():
+        if name == RUN_TABLE or (name,) in commands:
+            continue
+        if (name,) not in groups:
+            known = sorted({" ".join(c).replace(" ", ".") for c in commands})
+            raise InputError(
+                f"table [{name}] names no segloc command; tables are {', '.join(known)}",
+                path=path,
+            )
+        for sub in table:
+            if (name, sub) not in commands:
+                raise InputError(f"table [{name}.{sub}] names no segloc command", path=path)
+
+
+def version_note(path: Path) -> str | None:
+    """A warning when the run file ``path`` was written by another segloc version."""
+    try:
+        made_by = tomllib.loads(path.read_text(encoding="utf-8"))[RUN_TABLE]["segloc"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    if made_by == __version__:
+        return None
+    return f"{path} was written by segloc {made_by}, this is {__version__}; results may differ"
+
+
+def sha256(path: Path) -> str:
+    """Hex SHA-256 of a file's bytes."""
+    digest = hashlib.sha256()
+    with reading(path, "a file to record in the run file"), path.open("rb") as stream:
+        for block in iter(lambda: stream.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def portable(value: Any, folder: Path) -> Any:
+    """``value`` as TOML writes it: paths relative to ``folder``, other values as they are."""
+    if isinstance(value, Path):
+        return os.path.relpath(value.absolute(), folder.absolute())
+    return value
+
+
+def write_run_file(
+    path: Path,
+    command: Sequence[str],
+    options: Mapping[str, Any],
+    inputs: Sequence[tuple[str, Path]],
+) -> None:
+    """Write the run file ``path``: ``options`` (key → value; None left out, paths made
+    relative to the file's folder) as the table of ``command``, and the ``[run]`` table
+    with the version and each input (role, path, sha256)."""
+    folder = path.parent
+    table = {k: portable(v, folder) for k, v in options.items() if v is not None}
+    document: dict[str, Any] = {}
+    holder = document
+    for name in command[:-1]:
+        holder = holder.setdefault(name, {})
+    holder[command[-1]] = table
+    document[RUN_TABLE] = {
+        "segloc": __version__,
+        "command": "segloc " + " ".join(command),
+        "inputs": [
+            {"role": role, "path": portable(p, folder), "sha256": sha256(p)} for role, p in inputs
+        ],
+    }
+    name = " ".join(command)
+    header = (
+        f"# segloc run file: the settings and inputs of a `segloc {name}` run.\n"
+        f"# Run it again with: segloc {name} ... --config {path.name}\n\n"
+    )
+    write_text_atomic(path, header + tomli_w.dumps(document))

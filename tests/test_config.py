@@ -1,0 +1,274 @@
+"""One configuration: options made from it, ``--config`` files, run files that repeat a run."""
+
+from __future__ import annotations
+
+import csv
+import hashlib
+import os
+import re
+import tomllib
+from dataclasses import fields
+from pathlib import Path
+
+import click
+import pytest
+from conftest import HALL
+from test_cli import assert_one_line_error, run_cli
+
+from segloc_cli import __version__
+from segloc_cli.cli import cli
+from segloc_cli.commands.options import option_key
+from segloc_cli.config import (
+    EXTRACT,
+    FUSE,
+    LOCALIZE_TUNING,
+    SETTINGS,
+    TABLE_BEGIN,
+    TABLE_END,
+    Config,
+    ExtractParams,
+    LocalizeParams,
+    RefineParams,
+    SearchParams,
+    TrackParams,
+    settings_table,
+)
+
+README = Path(__file__).resolve().parents[1] / "README.md"
+
+
+def _commands(group: click.Group = cli, prefix: tuple[str, ...] = ()):
+    for name, command in group.commands.items():
+        if isinstance(command, click.Group):
+            yield from _commands(command, (*prefix, name))
+        else:
+            yield (*prefix, name), command
+
+
+def _option(command: click.Command, key: str) -> click.Option:
+    return next(p for p in command.params if isinstance(p, click.Option) and option_key(p) == key)
+
+
+# --------------------------------------------------------------------------- one source
+
+
+@pytest.mark.parametrize(
+    "path,command", list(_commands()), ids=lambda v: "-".join(v) if isinstance(v, tuple) else ""
+)
+def test_every_setting_option_has_the_configurations_default(path, command):
+    for param in command.params:
+        key = option_key(param)
+        if isinstance(param, click.Option) and key in SETTINGS:
+            assert param.default == SETTINGS[key].default, f"segloc {' '.join(path)} --{key}"
+
+
+def test_localize_and_map_build_take_every_setting():
+    commands = dict(_commands())
+    localize_keys = {option_key(p) for p in commands[("localize",)].params}
+    build_keys = {option_key(p) for p in commands[("map", "build")].params}
+    assert {s.key for s in LOCALIZE_TUNING} <= localize_keys
+    assert {s.key for s in (*EXTRACT, *FUSE)} <= build_keys
+    assert set(SETTINGS) <= localize_keys | build_keys
+
+
+def test_every_field_of_every_stage_is_a_setting():
+    """Each field of the parameter classes can be set, except the per-scan prior spreads."""
+    paths = {s.path for s in SETTINGS.values()}
+    for owner, cls in [
+        (("extract",), ExtractParams),
+        (("localize",), LocalizeParams),
+        (("localize", "refine"), RefineParams),
+        (("localize", "search"), SearchParams),
+        (("track",), TrackParams),
+    ]:
+        for f in fields(cls):
+            nested = f.name in ("refine", "search", "confidence")
+            per_scan = f.name.startswith("prior_sigma")
+            if not (nested or per_scan):
+                assert (*owner, f.name) in paths, f"{cls.__name__}.{f.name} has no setting"
+
+
+def test_values_set_nested_fields_and_switches_win_over_their_field():
+    config = Config.from_values(
+        {"no-prior-heading": True, "window-deg": 30.0, "refine-gate-m": 0.3, "search-cell-m": 0.1}
+    )
+    assert config.localize.window_deg is None
+    assert config.localize.refine.gate_m == 0.3
+    assert config.localize.search.cell_m == 0.1
+    assert Config.from_values({"no-refine": True, "refine-gate-m": 0.3}).localize.refine is None
+    assert Config.from_values({"track-max-jump-m": 1, "jobs": 2}).track.max_jump_m == 1.0
+    assert Config.from_values({}) == Config()
+
+
+def test_readme_settings_table_is_the_configurations():
+    text = README.read_text(encoding="utf-8")
+    assert TABLE_BEGIN in text and TABLE_END in text
+    block = text.split(TABLE_BEGIN)[1].split(TABLE_END)[0]
+    assert block == settings_table(), "run: python -m segloc_cli.config README.md"
+
+
+def test_readme_option_tables_give_the_configurations_defaults():
+    """The hand-written option tables (with the paper's values beside) agree too."""
+    rows = re.findall(r"^\| `--([a-z0-9-]+)` \| ([^|]+) \|", README.read_text(), re.M)
+    checked = 0
+    for key, shown in rows:
+        if key not in SETTINGS:
+            continue
+        default, shown = SETTINGS[key].default, shown.strip().strip("`")
+        if isinstance(default, bool):
+            assert shown == "off", f"README gives --{key} the default {shown}"
+        elif isinstance(default, str):
+            assert shown == default, f"README gives --{key} the default {shown}"
+        else:
+            assert float(shown) == default, f"README gives --{key} the default {shown}"
+        checked += 1
+    assert checked >= 10
+
+
+# --------------------------------------------------------------------------- --config
+
+
+@pytest.fixture
+def hall(tmp_path, monkeypatch):
+    """A folder holding the hall's log, map and survey under short relative names."""
+    for name in ("log.mcap", "map.json", "survey.csv"):
+        (tmp_path / name).write_bytes((HALL / name).read_bytes())
+    monkeypatch.chdir(tmp_path)
+    return tmp_path
+
+
+def _rows(path: Path) -> list[dict[str, str]]:
+    with path.open(newline="", encoding="utf-8") as stream:
+        rows = list(csv.DictReader(stream))
+    for row in rows:
+        row.pop("runtime_ms")
+    return rows
+
+
+def test_config_sets_options_and_flags_win(hall, capsys):
+    (hall / "settings.toml").write_text(
+        '[localize]\nmap = "map.json"\niterations = 3\nno-refine = true\n', encoding="utf-8"
+    )
+    config = ["--config", "settings.toml"]
+    assert run_cli(capsys, "localize", "log.mcap", *config, "--out", "a.csv").code == 0
+    direct = ["--map", "map.json", "--no-refine"]
+    assert (
+        run_cli(capsys, "localize", "log.mcap", *direct, "--iterations", "3", "--out", "b.csv").code
+        == 0
+    )
+    assert _rows(hall / "a.csv") == _rows(hall / "b.csv")
+    flag = ["--iterations", "5", "--out", "c.csv"]
+    assert run_cli(capsys, "localize", "log.mcap", *config, *flag).code == 0
+    direct5 = [*direct, "--iterations", "5", "--out", "d.csv"]
+    assert run_cli(capsys, "localize", "log.mcap", *direct5).code == 0
+    assert _rows(hall / "c.csv") == _rows(hall / "d.csv") != _rows(hall / "a.csv")
+
+
+CONFIG_ERRORS = {
+    "unknown key": ("[localize]\ngrid_m = 1.0\n", "unknown key 'grid_m'", "'grid-m'"),
+    "bad value": ("[localize]\ngrid-m = -1.0\n", "key 'grid-m'", "-1.0"),
+    "nan": ("[localize]\nratio = nan\n", "key 'ratio'"),
+    "flag not bool": ("[localize]\nno-refine = 1\n", "key 'no-refine'", "true or false"),
+    "unknown table": ("[localise]\ngrid-m = 1.0\n", "[localise]", "names no segloc command"),
+    "outside table": ("grid-m = 1.0\n", "key 'grid-m' is outside any table"),
+    "not toml": ("[localize\n", "not valid TOML"),
+    "list value": ("[localize]\ngrid-m = [1.0]\n", "key 'grid-m'"),
+    "tuning out of bounds": ("[localize]\nsearch-cell-m = 0\n", "key 'search-cell-m'"),
+}
+
+
+@pytest.mark.parametrize("case", CONFIG_ERRORS, ids=str)
+def test_bad_config_is_one_line_naming_the_key(case, hall, capsys):
+    text, *fragments = CONFIG_ERRORS[case]
+    (hall / "bad.toml").write_text(text, encoding="utf-8")
+    args = ["localize", "log.mcap", "--map", "map.json", "--out", "e.csv", "--config", "bad.toml"]
+    assert_one_line_error(run_cli(capsys, *args), "bad.toml", *fragments)
+    assert not (hall / "e.csv").exists()
+
+
+def test_config_tables_of_other_commands_are_left_alone(hall, capsys):
+    (hall / "all.toml").write_text(
+        '[map.build]\nsurvey = "survey.csv"\n\n[localize]\nmap = "map.json"\n'
+        '[evaluate]\nsurvey = "survey.csv"\n',
+        encoding="utf-8",
+    )
+    result = run_cli(capsys, "map", "build", "log.mcap", "--config", "all.toml", "--out", "m.json")
+    assert result.code == 0, result.err
+    assert (
+        run_cli(capsys, "localize", "log.mcap", "--config", "all.toml", "--out", "e.csv").code == 0
+    )
+
+
+# --------------------------------------------------------------------------- run files
+
+
+def _sha256(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def test_run_file_records_settings_version_and_inputs(hall, capsys):
+    args = ["localize", "log.mcap", "--map", "map.json", "--out", "est.csv", "--vote", "sum"]
+    assert run_cli(capsys, *args).code == 0
+    run = tomllib.loads((hall / "est.run.toml").read_text(encoding="utf-8"))
+    table = run["localize"]
+    assert table["vote"] == "sum" and table["map"] == "map.json"
+    assert table["iterations"] == LocalizeParams().iterations
+    assert table["search-cell-m"] == SearchParams().cell_m
+    assert "out" not in table and "force" not in table
+    assert run["run"]["segloc"] == __version__
+    inputs = {i["path"]: i["sha256"] for i in run["run"]["inputs"]}
+    assert inputs == {
+        "log.mcap": _sha256(hall / "log.mcap"),
+        "map.json": _sha256(hall / "map.json"),
+    }
+
+
+def test_run_file_repeats_the_run_from_another_folder(hall, capsys):
+    (hall / "tuned.toml").write_text(
+        "[localize]\nsearch-half-width-m = 1.0\nconfidence-min-margin = 0.2\nrecentre = 2\n",
+        encoding="utf-8",
+    )
+    (hall / "runs").mkdir()
+    first = ["localize", "log.mcap", "--map", "map.json", "--out", "runs/est.csv"]
+    assert run_cli(capsys, *first, "--config", "tuned.toml", "--window-deg", "15").code == 0
+    elsewhere = hall / "elsewhere"
+    elsewhere.mkdir()
+    os.chdir(elsewhere)
+    again = ["localize", "../log.mcap", "--config", "../runs/est.run.toml", "--out", "other.csv"]
+    result = run_cli(capsys, *again)
+    assert result.code == 0, result.err
+    assert _rows(elsewhere / "other.csv") == _rows(hall / "runs" / "est.csv")
+    default = ["localize", "../log.mcap", "--map", "../map.json", "--out", "default.csv"]
+    assert run_cli(capsys, *default).code == 0
+    assert _rows(elsewhere / "default.csv") != _rows(elsewhere / "other.csv")
+
+
+def test_map_build_run_file_rebuilds_the_same_map(hall, capsys):
+    (hall / "fuse.toml").write_text("[map.build]\nfuse-gap-m = 0.3\n", encoding="utf-8")
+    build = ["map", "build", "log.mcap", "--survey", "survey.csv", "--config", "fuse.toml"]
+    assert run_cli(capsys, *build, "--out", "a.json").code == 0
+    again = ["map", "build", "log.mcap", "--config", "a.run.toml", "--out", "b.json"]
+    assert run_cli(capsys, *again).code == 0
+    assert (hall / "a.json").read_text() == (hall / "b.json").read_text().replace(
+        "b.json", "a.json"
+    )
+    assert '"gap_m": 0.3' in (hall / "a.json").read_text()
+
+
+def test_existing_run_file_needs_force(hall, capsys):
+    (hall / "est.run.toml").write_text("# an earlier run\n", encoding="utf-8")
+    args = ["localize", "log.mcap", "--map", "map.json", "--out", "est.csv"]
+    assert_one_line_error(run_cli(capsys, *args), "est.run.toml", "--force")
+    assert run_cli(capsys, *args, "--force").code == 0
+    assert "[localize]" in (hall / "est.run.toml").read_text()
+
+
+def test_run_file_of_another_version_warns(hall, capsys):
+    args = ["localize", "log.mcap", "--map", "map.json", "--out", "est.csv"]
+    assert run_cli(capsys, *args).code == 0
+    text = (hall / "est.run.toml").read_text().replace(f'"{__version__}"', '"0.0.1"')
+    (hall / "old.run.toml").write_text(text)
+    result = run_cli(capsys, "localize", "log.mcap", "--config", "old.run.toml", "--out", "o.csv")
+    assert result.code == 0
+    assert "written by segloc 0.0.1" in result.err
+    assert _rows(hall / "o.csv") == _rows(hall / "est.csv")
