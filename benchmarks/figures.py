@@ -15,11 +15,11 @@ from __future__ import annotations
 
 import argparse
 import subprocess
-import sys
 import tempfile
 from pathlib import Path
 
 import pandas as pd
+from protocol import segloc_argv
 
 from segloc_cli.plots import (
     SUCCESS_VS_INITIAL_ERROR,
@@ -29,12 +29,11 @@ from segloc_cli.plots import (
 )
 
 ROOT = Path(__file__).resolve().parents[1]
-SEGLOC = str(Path(sys.executable).parent / "segloc")
 
 
 def run(*args: object) -> None:
     """Run ``segloc ARGS``; its messages pass through, a failure ends the script."""
-    argv = [SEGLOC, *(str(a) for a in args)]
+    argv = segloc_argv(*args)
     print("$ " + " ".join(argv[1:]), flush=True)
     subprocess.run(argv, check=True, stdout=subprocess.DEVNULL)
 

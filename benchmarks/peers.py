@@ -28,16 +28,19 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-from real_logs import (
+from protocol import (
     DATASETS,
+    DATASETS_DIR,
     SUCCESS_DEG,
     SUCCESS_M,
-    _errors,
-    _subset,
     commands_section,
-    prepare,
-    run,
+    errors_against_truth,
+    is_right,
+    prepare_held_out,
+    run_segloc,
     stage2_answers,
+    subset_poses,
+    truth_rows,
 )
 
 from segloc_cli.io.tables import PoseTable, read_estimates, read_pose_table, write_pose_table
@@ -57,6 +60,7 @@ HALL = Path("datasets/hall")
 
 
 def bin_label(position_m: tuple[float, float], heading_deg: tuple[float, float]) -> str:
+    """The bin's name in the tables: its position (m) and heading (°) error ranges."""
     return f"{position_m[0]:g}–{position_m[1]:g} m, {heading_deg[0]:g}–{heading_deg[1]:g}°"
 
 
@@ -71,10 +75,10 @@ def draw_guesses(truth: PoseTable, position_m, heading_deg, rng) -> PoseTable:
 
 
 def _trial_rows(dataset, method, label, est, guesses: PoseTable, truth: PoseTable) -> pd.DataFrame:
-    pos, head = _errors(est, truth)
+    """One row per estimate: its initial and final errors (m, °), success, status and time."""
+    pos, head = errors_against_truth(est, truth)
     # The guesses were drawn row for row from the truth: one index serves both.
-    row_of = {int(pid): k for k, pid in enumerate(truth.pose_id)}
-    rows = [row_of[int(pid)] for pid in est["pose_id"]]
+    rows = truth_rows(est, truth)
     init = guesses.poses[rows] - truth.poses[rows]
     return pd.DataFrame(
         {
@@ -86,7 +90,7 @@ def _trial_rows(dataset, method, label, est, guesses: PoseTable, truth: PoseTabl
             "init_err_deg": np.abs(np.rad2deg(init[:, 2])),
             "err_m": pos,
             "err_deg": head,
-            "success": (pos <= SUCCESS_M) & (head <= SUCCESS_DEG),
+            "success": is_right(pos, head),
             "status": est["status"].to_numpy(),
             "runtime_ms": est["runtime_ms"].to_numpy(),
         }
@@ -98,7 +102,7 @@ def run_dataset(name, log_path, map_path, truth, work: Path, trials: int, jobs: 
     rng = np.random.default_rng(SEED)
     repeats = max(1, math.ceil(trials / len(truth)))
     if len(truth) > trials:  # evenly spread over the run
-        truth = _subset(
+        truth = subset_poses(
             truth, np.isin(np.arange(len(truth)), np.linspace(0, len(truth) - 1, trials).round())
         )
     commands.append(f"# guesses-*.csv: truth + errors drawn uniformly in each bin, seed {SEED}")
@@ -111,7 +115,7 @@ def run_dataset(name, log_path, map_path, truth, work: Path, trials: int, jobs: 
             write_pose_table(work / f"guesses-{tag}.csv", guesses)
             for method, extra in METHODS.items():
                 out = work / f"est-{tag}-{method.split()[0]}{len(extra)}.csv"
-                run(
+                run_segloc(
                     commands, "localize", log_path, "--map", map_path,
                     "--initial", work / f"guesses-{tag}.csv", "--out", out, "--jobs", jobs, *extra,
                 )  # fmt: skip
@@ -153,6 +157,7 @@ def dataset_table(trials: pd.DataFrame) -> str:
 
 
 def report(trials: pd.DataFrame, commands: dict, jobs: int) -> str:
+    """The markdown report: how trials were scored, a table per dataset, every command."""
     lines = [
         "# segloc against ICP and correlative matching",
         "",
@@ -177,7 +182,7 @@ def report(trials: pd.DataFrame, commands: dict, jobs: int) -> str:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--datasets", type=Path, default=Path("../shared/datasets"))
+    parser.add_argument("--datasets", type=Path, default=DATASETS_DIR)
     parser.add_argument("--only", default=",".join(["hall", *DATASETS]))
     parser.add_argument("--work", type=Path, default=Path("out/peers"))
     parser.add_argument("--trials", type=int, default=40, help="trials per bin and method")
@@ -195,12 +200,9 @@ def main() -> None:
             log_path, map_path = HALL / "log.mcap", HALL / "map.json"
             truth = read_pose_table(HALL / "survey.csv")
         elif name in DATASETS:
-            ref, held = prepare(name, DATASETS[name], args.datasets, work, log)
-            log_path, map_path, truth = (
-                work / "corrected.mcap",
-                work / "map.json",
-                _subset(ref, held),
-            )
+            split = prepare_held_out(name, args.datasets, work, log)
+            log_path, map_path = split.log_path, split.map_path
+            truth = split.held_out_reference()
         else:
             sys.exit(f"unknown dataset {name!r}; expected hall or one of {', '.join(DATASETS)}")
         print(f"{name}: {len(truth)} scans", flush=True)

@@ -23,100 +23,49 @@ from __future__ import annotations
 
 import argparse
 import json
-import subprocess
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
-
-from segloc_cli.geometry import Pose2, wrap_angle
-from segloc_cli.io.maps import read_map
-from segloc_cli.io.tables import (
-    PoseTable,
-    read_estimates,
-    read_pose_table,
-    write_pose_table,
+from protocol import (
+    DATASETS,
+    DATASETS_DIR,
+    HOLD_OUT_EVERY,
+    SUCCESS_DEG,
+    SUCCESS_M,
+    HeldOutSplit,
+    commands_section,
+    distances,
+    errors_against_truth,
+    is_right,
+    prepare_held_out,
+    rows_by_pose_id,
+    run_segloc,
+    stage2_answers,
 )
 
+from segloc_cli.geometry import Pose2
+from segloc_cli.io.maps import read_map
+from segloc_cli.io.tables import PoseTable, read_estimates, read_pose_table, write_pose_table
+
 SEED = 2009
-HOLD_OUT_EVERY = 10
 PERTURB_XY_M = 1.5
 PERTURB_THETA_DEG = 20.0
-SUCCESS_M = 0.10
-SUCCESS_DEG = 1.0
 TRACK_LIMIT_M = 1.0
 
-DATASETS = {
-    # name: (corrected log, raw log, relations)
-    "intel": ("intel-corrected.log.gz", "intel.orig.bag", "intel.relations"),
-    "aces": ("aces-corrected.log.gz", "aces.orig.bag", "aces.relations"),
-    "fr079": ("fr079-corrected.log.gz", "fr079.orig.bag", "fr079.relations"),
-    "mit-csail": ("mit-csail-corrected.log.gz", "mit-csail.clf", "mit-csail.relations"),
-}
 
-SEGLOC = str(Path(sys.executable).parent / "segloc")
+def localize_held_out(split: HeldOutSplit, log: list[str], *options: object, out: Path) -> None:
+    """Localize the corrected log's scans in the map of ``split`` with ``options``, into ``out``."""
+    run_segloc(log, "localize", split.log_path, "--map", split.map_path, *options, "--out", out)
 
 
-def run(commands: list[str], *args) -> subprocess.CompletedProcess:
-    """Run one segloc command (replacing its outputs from an earlier run), record it, fail
-    loudly."""
-    args = (*args, "--force")
-    argv = [SEGLOC, *map(str, args)]
-    commands.append(" ".join(["segloc", *map(str, args)]))
-    proc = subprocess.run(argv, capture_output=True, text=True, check=False)
-    if proc.returncode != 0:
-        raise SystemExit(f"command failed ({proc.returncode}): {' '.join(argv)}\n{proc.stderr}")
-    return proc
-
-
-def prepare(name: str, files: tuple[str, str, str], data: Path, work: Path, log: list):
-    """Import the corrected log and build the map from all but every 10th scan.
-
-    Returns the reference poses and the mask of the held-out scans.
-    """
-    corrected = data / name / files[0]
-    run(
-        log,
-        "import",
-        "carmen",
-        corrected,
-        "--out",
-        work / "corrected.mcap",
-        "--survey-out",
-        work / "reference.csv",
-    )
-    # The importer gives colliding records (mit-csail's six-digit times) distinct times,
-    # in the log and the reference alike.
-    ref = read_pose_table(work / "reference.csv")
-    held = np.zeros(len(ref), dtype=bool)
-    held[::HOLD_OUT_EVERY] = True
-    log.append(
-        f"# map_poses.csv, held_out.csv: written by {Path(sys.argv[0]).name} "
-        f"(every {HOLD_OUT_EVERY}th scan held out)"
-    )
-    write_pose_table(work / "map_poses.csv", _subset(ref, ~held))
-    write_pose_table(work / "held_out.csv", _subset(ref, held))
-    run(
-        log,
-        "map",
-        "build",
-        work / "corrected.mcap",
-        "--survey",
-        work / "map_poses.csv",
-        "--out",
-        work / "map.json",
-    )
-    return ref, held
-
-
-def perturbation(name: str, files: tuple[str, str, str], data: Path, work: Path, log: list):
-    ref, held = prepare(name, files, data, work, log)
+def perturbation(name: str, split: HeldOutSplit, work: Path, log: list[str]) -> dict:
+    """Protocol (a): the held-out scans localized from their reference poses plus uniform errors."""
     log.append(f"# guesses.csv: reference + uniform errors, seed {SEED}")
     rng = np.random.default_rng(SEED)
-    guesses = _subset(ref, held)
-    n = int(held.sum())
+    truth = split.held_out_reference()
+    n = len(truth)
     offsets = np.column_stack(
         [
             rng.uniform(-PERTURB_XY_M, PERTURB_XY_M, (n, 2)),
@@ -125,30 +74,19 @@ def perturbation(name: str, files: tuple[str, str, str], data: Path, work: Path,
     )
     write_pose_table(
         work / "guesses.csv",
-        PoseTable(guesses.pose_id, guesses.time_s, guesses.poses + offsets),
+        PoseTable(truth.pose_id, truth.time_s, truth.poses + offsets),
     )
     t0 = time.perf_counter()
-    run(
-        log,
-        "localize",
-        work / "corrected.mcap",
-        "--map",
-        work / "map.json",
-        "--initial",
-        work / "guesses.csv",
-        "--out",
-        work / "perturb.csv",
-    )
+    localize_held_out(split, log, "--initial", work / "guesses.csv", out=work / "perturb.csv")
     elapsed = time.perf_counter() - t0
     est = read_estimates(work / "perturb.csv")
-    truth = _subset(ref, held)
     scored = _scored(est, truth)
     stage2 = _scored(stage2_answers(est), truth)
-    segments = read_map(work / "map.json")
-    scans = _held_out_scans(work, truth)
+    segments = read_map(split.map_path)
+    scans = _held_out_scans(split.log_path, truth)
     failures_figure(name, segments, scans, est, truth, scored)
     return {
-        "scans": len(ref),
+        "scans": len(split.reference),
         "held_out": n,
         "localized": len(est),
         "map_segments": len(segments),
@@ -162,29 +100,14 @@ def perturbation(name: str, files: tuple[str, str, str], data: Path, work: Path,
     }
 
 
-def stage2_answers(est: pd.DataFrame) -> pd.DataFrame:
-    """Estimates with the stage-2 pose as the answer: the paper's, before search and refinement."""
-    return est.assign(
-        x_m=est["stage2_x_m"], y_m=est["stage2_y_m"], theta_deg=est["stage2_theta_deg"]
-    )
-
-
-def global_localization(work: Path, log: list) -> dict:
+def global_localization(split: HeldOutSplit, work: Path, log: list[str]) -> dict:
     """The left-out scans localized with no initial pose (``--global``)."""
-    run(
-        log,
-        "localize",
-        work / "corrected.mcap",
-        "--map",
-        work / "map.json",
-        "--global",
-        "--initial",
-        work / "held_out.csv",
-        "--out",
-        work / "global.csv",
+    localize_held_out(
+        split, log, "--global", "--initial", split.held_out_path, out=work / "global.csv"
     )
     est = read_estimates(work / "global.csv")
-    truth = read_pose_table(work / "held_out.csv")
+    # The poses as the command read them (the file holds headings in degrees).
+    truth = read_pose_table(split.held_out_path)
     return {**_scored(est, truth)["summary"], "median_ms": float(est["runtime_ms"].median())}
 
 
@@ -195,8 +118,8 @@ def _scored(est: pd.DataFrame, truth: PoseTable) -> dict:
     silent failure is a wrong answer with status ok. Gross: beyond 30 cm or
     3° (a wrong place, not an imprecise one).
     """
-    pos, head = _errors(est, truth)
-    right = (pos < SUCCESS_M) & (head < SUCCESS_DEG)
+    pos, head = errors_against_truth(est, truth)
+    right = is_right(pos, head)
     gross = ~((pos < 0.3) & (head < 3.0))
     ok = (est["status"] == "ok").to_numpy()
     finite = np.isfinite(pos)
@@ -229,12 +152,12 @@ def _scored(est: pd.DataFrame, truth: PoseTable) -> dict:
     }
 
 
-def _held_out_scans(work: Path, truth: PoseTable) -> list:
-    """The corrected log's scan at each reference time (None where there is none)."""
+def _held_out_scans(log_path: Path, truth: PoseTable) -> list:
+    """The scan of the log at ``log_path`` at each reference time (None where there is none)."""
     from segloc_cli.io.mcap_log import read_log
     from segloc_cli.io.tables import nearest_by_time
 
-    scans = read_log(work / "corrected.mcap").scans
+    scans = read_log(log_path).scans
     rows = nearest_by_time(truth.time_s, np.array([s.time_s for s in scans]), 1e-3)
     return [scans[r] if r >= 0 else None for r in rows]
 
@@ -258,8 +181,8 @@ def reference_fit(segments: np.ndarray, scans: list, truth: PoseTable) -> float:
             "theta_deg": [f.theta_deg for f in fits],
         }
     )
-    pos, head = _distances(fitted, truth.poses[have])
-    return float(np.mean((pos < SUCCESS_M) & (head < SUCCESS_DEG)))
+    pos, head = distances(fitted, truth.poses[have])
+    return float(np.mean(is_right(pos, head)))
 
 
 FIGURES = Path("benchmarks/figures")
@@ -289,7 +212,7 @@ def failures_figure(
     wrong = np.flatnonzero(~scored["right"])[:FIGURE_PANELS]
     if wrong.size == 0:
         return
-    row_of = {int(pid): k for k, pid in enumerate(truth.pose_id)}
+    row_of = rows_by_pose_id(truth.pose_id)
     cols = 3
     rows = -(-wrong.size // cols)
     fig, axes = plt.subplots(rows, cols, figsize=(5 * cols, 5 * rows), squeeze=False)
@@ -327,12 +250,12 @@ def failures_figure(
     plt.close(fig)
 
 
-def tracking(name: str, files: tuple[str, str, str], data: Path, work: Path, log: list):
-    raw = data / name / files[1]
-    if raw.suffix == ".bag":
-        run(log, "import", "rosbag", raw, "--out", work / "raw.mcap")
-    else:
-        run(log, "import", "carmen", raw, "--out", work / "raw.mcap")
+def tracking(name: str, split: HeldOutSplit, data: Path, work: Path, log: list[str]) -> dict:
+    """Protocol (b): the raw log tracked in the map of ``split`` from (0, 0, 0) at its start."""
+    _, raw_name, relations_name = DATASETS[name]
+    raw = data / name / raw_name
+    raw_format = "rosbag" if raw.suffix == ".bag" else "carmen"
+    run_segloc(log, "import", raw_format, raw, "--out", work / "raw.mcap")
     from segloc_cli.io.mcap_log import read_log
 
     raw_log = read_log(work / "raw.mcap")
@@ -342,12 +265,12 @@ def tracking(name: str, files: tuple[str, str, str], data: Path, work: Path, log
         PoseTable(np.array([1]), np.array([start]), np.zeros((1, 3))),
     )
     t0 = time.perf_counter()
-    run(
+    run_segloc(
         log,
         "localize",
         work / "raw.mcap",
         "--map",
-        work / "map.json",
+        split.map_path,
         "--track",
         "--initial",
         work / "first_pose.csv",
@@ -355,12 +278,12 @@ def tracking(name: str, files: tuple[str, str, str], data: Path, work: Path, log
         work / "track.csv",
     )
     elapsed = time.perf_counter() - t0
-    proc = run(
+    proc = run_segloc(
         log,
         "evaluate",
         work / "track.csv",
         "--relations",
-        data / name / files[2],
+        data / name / relations_name,
         "--published",
         name,
         "--format",
@@ -382,14 +305,12 @@ def tracking(name: str, files: tuple[str, str, str], data: Path, work: Path, log
     # corrected log's scans are found in the raw log by their readings. (On a
     # shifted clock the raw scan nearest in time is not always the same scan:
     # raw stamps come in bursts a millisecond apart.)
-    from segloc_cli.io.mcap_log import read_log as read
-
-    ref = read_pose_table(work / "reference.csv")
-    raw_index = same_scans(read(work / "corrected.mcap").scans, raw_log.scans)
+    ref = split.reference
+    raw_index = same_scans(read_log(split.log_path).scans, raw_log.scans)
     found = raw_index >= 0
-    row_of = {int(pid): k for k, pid in enumerate(est["pose_id"])}
+    row_of = rows_by_pose_id(est["pose_id"])
     rows = np.array([row_of.get(int(i) + 1, -1) for i in raw_index[found]])
-    pos, head = _distances(est.iloc[rows[rows >= 0]], ref.poses[found][rows >= 0])
+    pos, head = distances(est.iloc[rows[rows >= 0]], ref.poses[found][rows >= 0])
     result.update(
         paired=int(pos.size),
         unpaired=int(len(ref) - pos.size),
@@ -400,7 +321,7 @@ def tracking(name: str, files: tuple[str, str, str], data: Path, work: Path, log
         median_head_deg=float(np.median(head)),
         max_head_deg=float(head.max()),
         reference_check=reference_check(
-            data / name / files[2],
+            data / name / relations_name,
             np.array([raw_log.scans[i].time_s for i in raw_index[found]]),
             ref.poses[found],
             est,
@@ -459,31 +380,6 @@ def same_scans(wanted: list, scans: list, look_back: int = 50, look_ahead: int =
     return out
 
 
-def _distances(est: pd.DataFrame, poses: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Position (m) and heading (°) distance of estimate rows from poses (N, 3)."""
-    pos = np.hypot(est["x_m"].to_numpy() - poses[:, 0], est["y_m"].to_numpy() - poses[:, 1])
-    head = np.abs(np.rad2deg(wrap_angle(np.deg2rad(est["theta_deg"].to_numpy()) - poses[:, 2])))
-    return pos, head
-
-
-def _subset(table: PoseTable, mask: np.ndarray) -> PoseTable:
-    return PoseTable(table.pose_id[mask], table.time_s[mask], table.poses[mask])
-
-
-def _errors(est: pd.DataFrame, truth: PoseTable) -> tuple[np.ndarray, np.ndarray]:
-    """Position (m) and heading (°) error of each estimate row against its pose_id's truth.
-
-    A guess row can seed two scans a few ms apart (the corrected logs hold such
-    pairs); each is scored. Rows without a pose count as failures (inf).
-    """
-    row_of = {int(pid): k for k, pid in enumerate(truth.pose_id)}
-    pos, head = _distances(est, truth.poses[[row_of[int(pid)] for pid in est["pose_id"]]])
-    failed = ~np.isfinite(pos) | ~np.isfinite(head)
-    pos[failed] = np.inf
-    head[failed] = np.inf
-    return pos, head
-
-
 VERDICT_HEADER = (
     "right | right and ok | silent | silent, gross | wrong flagged | gross flagged | right flagged"
 )
@@ -499,6 +395,7 @@ VERDICT_KEYS = (
 
 
 def _pct(share: float) -> str:
+    """A share (0–1) as a percentage, or a dash where there is none."""
     return "—" if not np.isfinite(share) else f"{share * 100:.1f} %"
 
 
@@ -508,6 +405,7 @@ def _verdict_cells(summary: dict) -> str:
 
 
 def report(results: dict, commands: dict) -> str:
+    """The markdown report: a table per protocol, the reference check, every command."""
     lines = [
         "# segloc on real logs",
         "",
@@ -635,17 +533,9 @@ def report(results: dict, commands: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-def commands_section(commands: dict[str, list[str]]) -> list[str]:
-    """Markdown lines: every command run, per dataset."""
-    lines = ["## Commands", ""]
-    for name, cmds in commands.items():
-        lines += [f"### {name}", "", "```sh", *cmds, "```", ""]
-    return lines
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--datasets", type=Path, default=Path("../shared/datasets"))
+    parser.add_argument("--datasets", type=Path, default=DATASETS_DIR)
     parser.add_argument("--only", default=",".join(DATASETS))
     parser.add_argument("--work", type=Path, default=Path("out/real"))
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results-real.md"))
@@ -653,19 +543,19 @@ def main() -> None:
     args = parser.parse_args()
     results, commands = {}, {}
     for name in args.only.split(","):
-        files = DATASETS[name]
         work = args.work / name
         work.mkdir(parents=True, exist_ok=True)
         log: list[str] = []
         print(f"{name}: perturbation protocol", flush=True)
-        results[name] = {"perturbation": perturbation(name, files, args.datasets, work, log)}
+        split = prepare_held_out(name, args.datasets, work, log)
+        results[name] = {"perturbation": perturbation(name, split, work, log)}
         print(f"  {json.dumps(results[name]['perturbation'])}", flush=True)
         print(f"{name}: global localization", flush=True)
-        results[name]["global"] = global_localization(work, log)
+        results[name]["global"] = global_localization(split, work, log)
         print(f"  {json.dumps(results[name]['global'])}", flush=True)
         if not args.no_tracking:
             print(f"{name}: tracking protocol", flush=True)
-            results[name]["tracking"] = tracking(name, files, args.datasets, work, log)
+            results[name]["tracking"] = tracking(name, split, args.datasets, work, log)
             print(f"  {json.dumps(results[name]['tracking'], default=str)}", flush=True)
         commands[name] = log
     args.out.write_text(report(results, commands), encoding="utf-8")

@@ -37,9 +37,10 @@ from dataclasses import dataclass
 
 import numpy as np
 import pytest
+from protocol import pose_errors
 
 from segloc_cli.extract import extract_segments
-from segloc_cli.geometry import Pose2, wrap_angle
+from segloc_cli.geometry import Pose2
 from segloc_cli.localize import Localizer
 from segloc_cli.sim import (
     NOISE_FREE,
@@ -130,8 +131,10 @@ def _outcome(trial: Trial) -> Outcome:
     t0 = time.perf_counter()
     est = _localize(trial)
     runtime_s = time.perf_counter() - t0
-    position_m = float(np.hypot(est.pose.x - trial.truth.x, est.pose.y - trial.truth.y))
-    heading_deg = abs(float(np.rad2deg(wrap_angle(est.pose.theta - trial.truth.theta))))
+    truth = trial.truth
+    position_m, heading_deg = map(
+        float, pose_errors(est.pose.x - truth.x, est.pose.y - truth.y, est.pose.theta - truth.theta)
+    )
     return Outcome(
         trial,
         position_m if np.isfinite(position_m) else np.inf,

@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from protocol import pose_errors
 
 from segloc_cli.extract import extract_segments
 from segloc_cli.geometry import Pose2, wrap_angle
@@ -100,10 +101,7 @@ def _run(benchmark, localizer: Localizer, cases, label: str, refine: bool = Fals
     for local, points, guess, truth in cases:
         est = localizer.localize(local, guess, points if refine else None)
         errors.append(
-            (
-                np.hypot(est.pose.x - truth.x, est.pose.y - truth.y),
-                abs(np.rad2deg(wrap_angle(est.pose.theta - truth.theta))),
-            )
+            pose_errors(est.pose.x - truth.x, est.pose.y - truth.y, est.pose.theta - truth.theta)
         )
     e = np.nan_to_num(np.array(errors), nan=np.inf)
     hits = (e[:, 0] < 0.02) & (e[:, 1] < 0.3)

@@ -25,17 +25,10 @@ from segloc_cli.errors import InputError
 from segloc_cli.geometry import Pose2
 from segloc_cli.io.log import Log
 from segloc_cli.io.tables import EstimateRow, PoseTable, pair_by_time
+from segloc_cli.io.times import time_range
 
 MODES = ("guided", "global", "track")
 """How a log is localized: each scan from its own guess, each with none, or along a track."""
-
-
-def time_range(times_s) -> str:
-    """``first–last s`` of some times, or ``none``."""
-    times_s = np.asarray(times_s, dtype=float)
-    if times_s.size == 0:
-        return "none"
-    return f"{times_s.min():.3f}–{times_s.max():.3f} s"
 
 
 def odometry_rows(log: Log, log_path: Path, tolerance_s: float, missing: str) -> np.ndarray:

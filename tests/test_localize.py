@@ -11,6 +11,7 @@ from segloc_cli.geometry import Pose2, segment_orientations, wrap_angle
 from segloc_cli.localize import (
     STATUS_OK,
     STATUS_TOO_FEW_SEGMENTS,
+    Estimate,
     LocalizeParams,
     Localizer,
     localize_scans,
@@ -186,3 +187,47 @@ def test_tracking_carries_the_guess_through_a_scan_too_poor_to_match():
     assert (rows[1]["x_m"], rows[1]["y_m"]) == (rows[1]["init_x_m"], rows[1]["init_y_m"])
     assert rows[1]["x_m"] == pytest.approx(rows[0]["x_m"])
     assert np.hypot(rows[2]["x_m"] - truth.x, rows[2]["y_m"] - truth.y) < 1e-3
+
+
+class _PointsOnlyMatcher:
+    """A matcher that reads the scan's points only and needs a guess: it answers the guess
+    and notes the segments it was handed."""
+
+    uses_segments = False
+    supports_global = False
+
+    def __init__(self, segments_world):
+        self.segments_world = segments_world
+        self.handed: list[np.ndarray] = []
+
+    def localize(self, segments_robot, initial, points_robot):
+        self.handed.append(segments_robot)
+        return Estimate(pose=initial, status=STATUS_OK, n_local_segments=0)
+
+    def localize_global(self, segments_robot, points_robot):
+        raise AssertionError("never asked: it does not support a global search")
+
+
+def test_a_matcher_that_uses_no_segments_gets_none_extracted():
+    world, truth, scan = _room_and_scan()
+    matcher = _PointsOnlyMatcher(world.segments)
+    (row,) = localize_scans([scan], [_near(truth)], [7], matcher)
+    assert [h.shape for h in matcher.handed] == [(0, 4)]
+    assert (row["pose_id"], row["x_m"], row["status"]) == (7, _near(truth).x, STATUS_OK)
+    assert extract_segments(scan).shape[0] > 0  # the scan has segments to extract
+
+
+def test_a_global_run_needs_a_matcher_that_supports_it():
+    world, _, scan = _room_and_scan()
+    with pytest.raises(ValueError, match="needs an initial guess"):
+        next(localize_scans([scan], None, [1], _PointsOnlyMatcher(world.segments)))
+
+
+def test_with_params_shares_what_the_settings_leave_unchanged():
+    world, _, _ = _room_and_scan()
+    first = Localizer(world.segments)
+    same_bins = first.with_params(LocalizeParams(grid_m=1.0))
+    assert same_bins.rtable is first.rtable and same_bins.index is first.index
+    assert same_bins.hypothesis_search is first.hypothesis_search
+    finer = first.with_params(LocalizeParams(bin_deg=0.5))
+    assert finer.rtable is not first.rtable and finer.params.bin_deg == 0.5

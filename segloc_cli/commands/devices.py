@@ -16,7 +16,9 @@ from segloc_cli.commands.options import (
     config_option,
     force_option,
     info,
+    path_option,
     run_file_of,
+    sensor_options,
     with_options,
 )
 from segloc_cli.geometry import Pose2
@@ -55,20 +57,20 @@ EMULATE_OPTIONS = (
         help="Protocol to speak: explorer (the paper's 360° scanner, segloc's own framing; see "
         "docs/explorer-protocol.md) or scip2 (Hokuyo URG, emulating a URG-04LX).",
     ),
-    click.option(
+    path_option(
         "--world",
         "world_path",
         required=True,
-        type=click.Path(path_type=Path),
         help="World to scan (segloc world JSON, as `segloc simulate` takes).",
     ),
     click.option("--pose", help="Scanner pose X_M,Y_M,THETA_DEG, held still (world frame)."),
-    click.option(
+    path_option(
         "--path",
         "path_csv",
-        type=click.Path(path_type=Path),
-        help="Or a CSV of poses pose_id,time_s,x_m,y_m,theta_deg followed in time "
-        "(time from the first row; interpolated, held after the last).",
+        help=(
+            "Or a CSV of poses pose_id,time_s,x_m,y_m,theta_deg followed in time (time from the "
+            "first row; interpolated, held after the last)."
+        ),
     ),
     click.option(
         "--faults",
@@ -91,14 +93,7 @@ EMULATE_OPTIONS = (
         show_default=True,
         help="Scans served before a stall or hangup.",
     ),
-    click.option(
-        "--noise-cm",
-        type=FiniteRange(min=0, max=100),
-        default=1.2,
-        show_default=True,
-        help="Gaussian range noise σ of the simulated scanner.",
-    ),
-    click.option("--seed", type=int, default=0, show_default=True, help="Random seed."),
+    *sensor_options("Gaussian range noise σ of the simulated scanner."),
     config_option,
 )
 
@@ -163,13 +158,14 @@ RECORD_OPTIONS = (
         help="Scanner to record from: explorer:/dev/ttyUSB0 or scip2:/dev/ttyACM0 "
         "(or the path `segloc emulate` prints).",
     ),
-    click.option(
+    path_option(
         "--out",
         "out_path",
         required=True,
-        type=click.Path(path_type=Path),
-        help="MCAP log to write (/scan as foxglove.LaserScan; settings and device identity "
-        "in the segloc.sensor metadata record).",
+        help=(
+            "MCAP log to write (/scan as foxglove.LaserScan; settings and device identity in the "
+            "segloc.sensor metadata record)."
+        ),
     ),
     click.option("--scans", type=click.IntRange(min=1), help="Stop after this many scans."),
     click.option(

@@ -16,30 +16,31 @@ from segloc_cli.commands.options import (
     force_option,
     info,
     load_log,
+    path_option,
     run_file_of,
     setting_option,
     with_options,
 )
 from segloc_cli.errors import InputError
-from segloc_cli.pipeline import time_range
+from segloc_cli.io.times import time_range
 
 GATE_SHOWN = 5
 """Violations of an evaluate gate named on its one line; the table shows them all."""
 EXIT_GATE_FAILED = 1
 
 EVALUATE_OPTIONS = (
-    click.option(
+    path_option(
         "--survey",
         "survey_path",
-        type=click.Path(path_type=Path),
         help="Ground truth poses (survey CSV or TUM): prints the paper's Table 1.",
     ),
-    click.option(
+    path_option(
         "--relations",
         "relations_path",
-        type=click.Path(path_type=Path),
-        help="Reference relative motions (t1 t2 dx dy dz droll dpitch dyaw): prints the relation "
-        "metric of Kümmerle et al. (2009) instead.",
+        help=(
+            "Reference relative motions (t1 t2 dx dy dz droll dpitch dyaw): prints the relation "
+            "metric of Kümmerle et al. (2009) instead."
+        ),
     ),
     click.option(
         "--published",
@@ -55,11 +56,9 @@ EVALUATE_OPTIONS = (
         show_default=True,
         help="Table format.",
     ),
-    click.option(
+    path_option(
         "--out",
         "out_path",
-        type=click.Path(path_type=Path),
-        default=None,
         help="Write the table here instead of standard output (an existing file needs --force).",
     ),
     click.option(
@@ -89,18 +88,14 @@ EVALUATE_OPTIONS = (
         help="With --survey: also draw figures (PNG and PDF) into this folder, created if needed "
         "(existing figures need --force).",
     ),
-    click.option(
+    path_option(
         "--map",
         "map_path",
-        type=click.Path(path_type=Path),
-        default=None,
         help="With --plots: the map the estimates were made with, for the figures of both stages.",
     ),
-    click.option(
+    path_option(
         "--log",
         "log_path",
-        type=click.Path(path_type=Path),
-        default=None,
         help="With --plots: the log the estimates were made from, for the figures of both stages.",
     ),
     setting_option("tolerance-ms", pairing="pairing estimates with survey rows"),

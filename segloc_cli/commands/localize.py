@@ -19,6 +19,7 @@ from segloc_cli.commands.options import (
     force_option,
     info,
     load_log,
+    path_option,
     run_file_of,
     setting_option,
     tuning_options,
@@ -32,26 +33,12 @@ PROGRESS_MIN_SCANS = 20
 EXIT_INTERRUPTED = 130
 
 LOCALIZE_OPTIONS = (
-    click.option(
-        "--map",
-        "map_path",
-        required=True,
-        type=click.Path(path_type=Path),
-        help="Global map (MAP.json; a world file also works).",
+    path_option(
+        "--map", "map_path", required=True, help="Global map (MAP.json; a world file also works)."
     ),
-    click.option(
-        "--out",
-        "out_path",
-        required=True,
-        type=click.Path(path_type=Path),
-        help="Estimates CSV to write.",
-    ),
-    click.option(
-        "--tum",
-        "tum_path",
-        type=click.Path(path_type=Path),
-        default=None,
-        help="Also write the estimates as a TUM trajectory (for evo).",
+    path_option("--out", "out_path", required=True, help="Estimates CSV to write."),
+    path_option(
+        "--tum", "tum_path", help="Also write the estimates as a TUM trajectory (for evo)."
     ),
     click.option(
         "--initial",

@@ -14,12 +14,15 @@ from segloc_cli.commands.options import (
     force_option,
     info,
     load_log,
+    path_option,
     run_file_of,
+    sensor_options,
     warn,
     with_options,
 )
 from segloc_cli.errors import InputError
 from segloc_cli.scan import MAX_RANGE_M
+from segloc_cli.sim import SensorModel
 
 
 def check_increasing_times(times_s, path: Path, what: str) -> None:
@@ -66,31 +69,21 @@ def _parse_init_errors(value: str) -> tuple[str, float, float]:
 
 
 SIMULATE_OPTIONS = (
-    click.option(
+    path_option(
         "--poses",
         "poses_path",
         required=True,
-        type=click.Path(path_type=Path),
         help="CSV of true poses: pose_id,[time_s,]x_m,y_m,theta_deg.",
     ),
-    click.option(
-        "--out", "out_dir", required=True, type=click.Path(path_type=Path), help="Output folder."
-    ),
+    path_option("--out", "out_dir", required=True, help="Output folder."),
     click.option(
         "--readings",
         type=ModuleChoice("segloc_cli.sim", "EXPLORER_READINGS"),
-        default="1024",
+        default=str(SensorModel.readings),
         show_default=True,
         help="Readings per 360° revolution (the Explorer's settings).",
     ),
-    click.option(
-        "--noise-cm",
-        type=FiniteRange(min=0, max=100),
-        default=1.2,
-        show_default=True,
-        help="Gaussian range noise σ.",
-    ),
-    click.option("--seed", type=int, default=0, show_default=True, help="Random seed."),
+    *sensor_options("Gaussian range noise σ."),
     click.option(
         "--init-errors",
         default="paper",
@@ -122,7 +115,6 @@ def simulate(world_path, poses_path, out_dir, readings, noise_cm, seed, init_err
     from segloc_cli.io.files import check_outputs
     from segloc_cli.io.maps import read_world
     from segloc_cli.io.tables import PoseTable, read_pose_table, write_pose_table
-    from segloc_cli.sim import SensorModel
 
     errors = _parse_init_errors(init_errors)
     if out_dir.exists() and not out_dir.is_dir():
@@ -177,19 +169,13 @@ def _write_imported(log, out_path: Path) -> None:
 
 
 CARMEN_OPTIONS = (
-    click.option(
-        "--out",
-        "out_path",
-        required=True,
-        type=click.Path(path_type=Path),
-        help="MCAP log to write.",
-    ),
-    click.option(
+    path_option("--out", "out_path", required=True, help="MCAP log to write."),
+    path_option(
         "--survey-out",
-        type=click.Path(path_type=Path),
-        default=None,
-        help="Also write the laser records' poses as a reference trajectory (survey CSV); "
-        "in a SLAM-corrected log these are the corrected poses.",
+        help=(
+            "Also write the laser records' poses as a reference trajectory (survey CSV); in a "
+            "SLAM-corrected log these are the corrected poses."
+        ),
     ),
     click.option(
         "--laser",
@@ -245,13 +231,7 @@ def import_carmen(log_path, out_path, survey_out, laser, range_max_m, force):
 
 
 ROSBAG_OPTIONS = (
-    click.option(
-        "--out",
-        "out_path",
-        required=True,
-        type=click.Path(path_type=Path),
-        help="MCAP log to write.",
-    ),
+    path_option("--out", "out_path", required=True, help="MCAP log to write."),
     click.option(
         "--scan-topic", default="/scan", show_default=True, help="sensor_msgs/LaserScan topic."
     ),
@@ -284,7 +264,7 @@ def import_rosbag(bag_path, out_path, scan_topic, odom_topic, force):
 def info_command(log_path):
     """Summarise a log: channels and message counts, time span, sensor settings, whether
     the file was finished (a recording cut short still shows every complete scan)."""
-    from segloc_cli.pipeline import time_range
+    from segloc_cli.io.times import time_range
 
     log = load_log(log_path)
     beams = sorted({len(s) for s in log.scans})

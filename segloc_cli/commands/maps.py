@@ -13,6 +13,7 @@ from segloc_cli.commands.options import (
     force_option,
     info,
     load_log,
+    path_option,
     run_file_of,
     setting_option,
     tuning_options,
@@ -28,20 +29,13 @@ def map_group() -> None:
 
 
 BUILD_OPTIONS = (
-    click.option(
+    path_option(
         "--survey",
         "survey_path",
         required=True,
-        type=click.Path(path_type=Path),
         help="Poses of the scans (survey CSV or TUM); scans without a row are ignored.",
     ),
-    click.option(
-        "--out",
-        "out_path",
-        required=True,
-        type=click.Path(path_type=Path),
-        help="MAP.json to write.",
-    ),
+    path_option("--out", "out_path", required=True, help="MAP.json to write."),
     setting_option("tolerance-ms", pairing="pairing scans with survey rows"),
     config_option,
     force_option,

@@ -244,7 +244,8 @@ class Invocation:
             value = ctx.params.get(param.name)
             if isinstance(param, click.Argument):
                 values = value if isinstance(value, tuple) else (value,)
-                arguments += [(param.human_readable_name, v) for v in values if isinstance(v, Path)]
+                role = param.human_readable_name.rstrip(".")
+                arguments += [(role, v) for v in values if isinstance(v, Path)]
             elif option_key(param) not in OUTPUT_KEYS:
                 options[option_key(param)] = _as_path(param, value)
         return cls(command_path(ctx), options, arguments, bool(ctx.params.get("force")))
@@ -280,3 +281,27 @@ def run_file_of(output: Path) -> Path:
     from segloc_cli.runfile import run_file_path
 
     return run_file_path(output)
+
+
+def path_option(*names: str, required: bool = False, help: str) -> Callable:
+    """An option naming a file or folder (``--map``, ``--out``, ...): a ``Path``, or None
+    when not given."""
+    return click.option(
+        *names, required=required, type=click.Path(path_type=Path), default=None, help=help
+    )
+
+
+def sensor_options(noise_help: str) -> tuple[Callable, Callable]:
+    """``--noise-cm`` and ``--seed`` of the simulated scanner (``simulate``, ``emulate``),
+    the noise's default that of ``sim.SensorModel``."""
+    from segloc_cli.sim import SensorModel
+
+    noise = click.option(
+        "--noise-cm",
+        type=FiniteRange(min=0, max=100),
+        default=SensorModel.noise_cm,
+        show_default=True,
+        help=noise_help,
+    )
+    seed = click.option("--seed", type=int, default=0, show_default=True, help="Random seed.")
+    return noise, seed

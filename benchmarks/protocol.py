@@ -1,0 +1,189 @@
+"""What the benchmarks share: the real logs and how each is split, how segloc is run and its
+commands recorded, and how an answer is scored against the truth.
+
+`real_logs.py` and `peers.py` both hold out every 10th scan of a SLAM-corrected log, build the
+map from the others through the command line and score answers within the same bounds;
+`figures.py` runs the same segloc executable, and the pytest benchmarks measure pose errors
+the same way.
+
+Poses are in the world frame: metres, and radians in a ``PoseTable``; an estimates table
+(``segloc localize --out``) gives headings in degrees.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from segloc_cli.geometry import wrap_angle
+from segloc_cli.io.tables import PoseTable, read_pose_table, write_pose_table
+
+SEGLOC = str(Path(sys.executable).parent / "segloc")
+"""The segloc executable installed beside the running interpreter."""
+
+HOLD_OUT_EVERY = 10
+"""Every this many scans of a corrected log, one is left out of the map and localized."""
+SUCCESS_M, SUCCESS_DEG = 0.10, 1.0
+"""A right answer is within ``SUCCESS_M`` (metres) and ``SUCCESS_DEG`` (degrees) of the truth."""
+
+
+def is_right(pos_m, head_deg):
+    """Whether each error (position in metres, heading in degrees, arrays) is a right answer:
+    at most ``SUCCESS_M`` and ``SUCCESS_DEG``."""
+    return (pos_m <= SUCCESS_M) & (head_deg <= SUCCESS_DEG)
+
+
+DATASETS_DIR = Path("../shared/datasets")
+"""Where the real logs are unless ``--datasets`` says otherwise (they are not shipped)."""
+DATASETS = {
+    # name: (corrected log, raw log, relations), files in the folder <datasets>/<name>
+    "intel": ("intel-corrected.log.gz", "intel.orig.bag", "intel.relations"),
+    "aces": ("aces-corrected.log.gz", "aces.orig.bag", "aces.relations"),
+    "fr079": ("fr079-corrected.log.gz", "fr079.orig.bag", "fr079.relations"),
+    "mit-csail": ("mit-csail-corrected.log.gz", "mit-csail.clf", "mit-csail.relations"),
+}
+
+
+# --- running segloc -------------------------------------------------------------
+
+
+def segloc_argv(*args: object) -> list[str]:
+    """The argument vector that runs ``segloc ARGS`` (each argument as text)."""
+    return [SEGLOC, *map(str, args)]
+
+
+def run_segloc(commands: list[str], *args: object) -> subprocess.CompletedProcess:
+    """Run ``segloc ARGS --force`` (replacing the outputs of an earlier run) and return it.
+
+    The command is appended to ``commands`` as a user would type it; a failure
+    ends the script with the command and its error output.
+    """
+    argv = segloc_argv(*args, "--force")
+    commands.append(" ".join(["segloc", *argv[1:]]))
+    proc = subprocess.run(argv, capture_output=True, text=True, check=False)
+    if proc.returncode != 0:
+        raise SystemExit(f"command failed ({proc.returncode}): {' '.join(argv)}\n{proc.stderr}")
+    return proc
+
+
+def commands_section(commands: dict[str, list[str]]) -> list[str]:
+    """Markdown lines: every command run, per dataset."""
+    lines = ["## Commands", ""]
+    for name, cmds in commands.items():
+        lines += [f"### {name}", "", "```sh", *cmds, "```", ""]
+    return lines
+
+
+# --- the held-out split of a corrected log --------------------------------------
+
+
+@dataclass(frozen=True)
+class HeldOutSplit:
+    """A corrected log imported as ``log_path`` and its map built without the held-out scans.
+
+    ``reference`` holds every scan's reference pose; ``held_out`` (N,) bool
+    marks the scans left out of the map at ``map_path``, whose reference poses
+    ``held_out_path`` holds as a survey CSV.
+    """
+
+    log_path: Path
+    map_path: Path
+    held_out_path: Path
+    reference: PoseTable
+    held_out: np.ndarray
+
+    def held_out_reference(self) -> PoseTable:
+        """The reference poses of the held-out scans."""
+        return subset_poses(self.reference, self.held_out)
+
+
+def prepare_held_out(name: str, datasets: Path, work: Path, commands: list[str]) -> HeldOutSplit:
+    """Import dataset ``name``'s corrected log into ``work`` and build its map without the
+    held-out scans (every ``HOLD_OUT_EVERY``-th); the commands run are appended to ``commands``.
+
+    ``datasets`` is the folder holding a folder per dataset (see ``DATASETS``).
+    """
+    carmen_log = datasets / name / DATASETS[name][0]
+    log_path, reference_path = work / "corrected.mcap", work / "reference.csv"
+    run_segloc(
+        commands, "import", "carmen", carmen_log, "--out", log_path, "--survey-out", reference_path
+    )
+    # The importer gives colliding records (mit-csail's six-digit times) distinct times,
+    # in the log and the reference alike.
+    reference = read_pose_table(reference_path)
+    held_out = np.zeros(len(reference), dtype=bool)
+    held_out[::HOLD_OUT_EVERY] = True
+    commands.append(
+        f"# map_poses.csv, held_out.csv: written by {Path(sys.argv[0]).name} "
+        f"(every {HOLD_OUT_EVERY}th scan held out)"
+    )
+    map_poses_path, held_out_path = work / "map_poses.csv", work / "held_out.csv"
+    write_pose_table(map_poses_path, subset_poses(reference, ~held_out))
+    write_pose_table(held_out_path, subset_poses(reference, held_out))
+    map_path = work / "map.json"
+    run_segloc(commands, "map", "build", log_path, "--survey", map_poses_path, "--out", map_path)
+    return HeldOutSplit(log_path, map_path, held_out_path, reference, held_out)
+
+
+def subset_poses(table: PoseTable, mask: np.ndarray) -> PoseTable:
+    """The rows of ``table`` where ``mask`` ((N,) bool) holds."""
+    return PoseTable(table.pose_id[mask], table.time_s[mask], table.poses[mask])
+
+
+# --- scoring --------------------------------------------------------------------
+
+
+def pose_errors(
+    dx_m: float | np.ndarray, dy_m: float | np.ndarray, dtheta_rad: float | np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Position error (m) and absolute heading error (°, wrapped) of pose differences.
+
+    The differences are estimate minus truth, in metres and radians: scalars,
+    or arrays of one shape, and the two errors are the same.
+    """
+    return np.hypot(dx_m, dy_m), np.abs(np.rad2deg(wrap_angle(dtheta_rad)))
+
+
+def distances(est: pd.DataFrame, poses: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Position (m) and heading (°) distance of estimate rows from poses (N, 3), row for row."""
+    return pose_errors(
+        est["x_m"].to_numpy() - poses[:, 0],
+        est["y_m"].to_numpy() - poses[:, 1],
+        np.deg2rad(est["theta_deg"].to_numpy()) - poses[:, 2],
+    )
+
+
+def rows_by_pose_id(pose_ids: np.ndarray | pd.Series) -> dict[int, int]:
+    """Each pose id of ``pose_ids`` mapped to its row."""
+    return {int(pid): k for k, pid in enumerate(pose_ids)}
+
+
+def truth_rows(est: pd.DataFrame, truth: PoseTable) -> list[int]:
+    """The row of ``truth`` with each estimate row's pose_id."""
+    row_of = rows_by_pose_id(truth.pose_id)
+    return [row_of[int(pid)] for pid in est["pose_id"]]
+
+
+def errors_against_truth(est: pd.DataFrame, truth: PoseTable) -> tuple[np.ndarray, np.ndarray]:
+    """Position (m) and heading (°) error of each estimate row against its pose_id's truth.
+
+    A guess row can seed two scans a few ms apart (the corrected logs hold such
+    pairs); each is scored. Rows without a pose count as failures (inf).
+    """
+    pos, head = distances(est, truth.poses[truth_rows(est, truth)])
+    failed = ~np.isfinite(pos) | ~np.isfinite(head)
+    pos[failed] = np.inf
+    head[failed] = np.inf
+    return pos, head
+
+
+def stage2_answers(est: pd.DataFrame) -> pd.DataFrame:
+    """Estimates with the stage-2 pose as the answer: the paper's, before search and refinement."""
+    return est.assign(
+        x_m=est["stage2_x_m"], y_m=est["stage2_y_m"], theta_deg=est["stage2_theta_deg"]
+    )
