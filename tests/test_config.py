@@ -272,3 +272,28 @@ def test_run_file_of_another_version_warns(hall, capsys):
     assert result.code == 0
     assert "written by segloc 0.0.1" in result.err
     assert _rows(hall / "o.csv") == _rows(hall / "est.csv")
+
+
+def test_a_run_file_of_another_command_sets_nothing_and_says_so(hall, capsys):
+    build = ["map", "build", "log.mcap", "--survey", "survey.csv", "--out", "m.json"]
+    assert run_cli(capsys, *build).code == 0
+    args = ["localize", "log.mcap", "--map", "map.json", "--config", "m.run.toml"]
+    result = run_cli(capsys, *args, "--out", "e.csv")
+    assert result.code == 0
+    assert "m.run.toml has no [localize] table" in result.err
+
+
+def test_simulate_run_file_repeats_the_log(hall, capsys):
+    from segloc_cli.io.mcap_log import read_log
+
+    (hall / "poses.csv").write_bytes((HALL / "poses.csv").read_bytes())
+    first = ["simulate", HALL / "world.json", "--poses", "poses.csv", "--out", "a"]
+    assert run_cli(capsys, *first, "--seed", "5", "--init-errors", "uniform:1,10").code == 0
+    again = ["simulate", HALL / "world.json", "--config", "a/log.run.toml", "--out", "b"]
+    assert run_cli(capsys, *again).code == 0
+    assert (hall / "a" / "survey.csv").read_text() == (hall / "b" / "survey.csv").read_text()
+    logs = [read_log(hall / folder / "log.mcap") for folder in ("a", "b")]
+    assert logs[0].sensor == logs[1].sensor
+    for one, other in zip(logs[0].scans, logs[1].scans, strict=True):
+        assert one.ranges_m.tobytes() == other.ranges_m.tobytes()
+    assert logs[0].odom_poses.tobytes() == logs[1].odom_poses.tobytes()

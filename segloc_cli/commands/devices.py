@@ -17,11 +17,11 @@ from segloc_cli.commands.options import (
     force_option,
     info,
     path_option,
-    run_file_of,
     sensor_options,
     with_options,
 )
 from segloc_cli.geometry import Pose2
+from segloc_cli.runfile import run_file_path
 
 EXIT_INTERRUPTED = 130
 
@@ -238,7 +238,7 @@ def record(
         protocol, port = parse_device(device)
     except ValueError as exc:
         raise click.BadParameter(str(exc), param_hint="--device") from None
-    check_outputs({"--out": out_path, "--out (run file)": run_file_of(out_path)}, [port], force)
+    check_outputs({"--out": out_path, "--out (run file)": run_file_path(out_path)}, [port], force)
     settings = RecordSettings(scans, duration_s, readings, rev_per_s, stall_s)
     driver = driver_class(protocol)(port, baud, timeout_s)
     display = _RecordDisplay(port, out_path, sys.stderr.isatty())

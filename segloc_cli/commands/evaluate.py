@@ -17,12 +17,12 @@ from segloc_cli.commands.options import (
     info,
     load_log,
     path_option,
-    run_file_of,
     setting_option,
     with_options,
 )
 from segloc_cli.errors import InputError
 from segloc_cli.io.times import time_range
+from segloc_cli.runfile import run_file_path
 
 GATE_SHOWN = 5
 """Violations of an evaluate gate named on its one line; the table shows them all."""
@@ -141,7 +141,7 @@ def evaluate(estimates_path, **a):
     inputs = [estimates_path, a["survey_path"], a["relations_path"], a["map_path"], a["log_path"]]
     outputs = {"--out": a["out_path"]}
     if a["out_path"] is not None:
-        outputs["--out (run file)"] = run_file_of(a["out_path"])
+        outputs["--out (run file)"] = run_file_path(a["out_path"])
     check_outputs(outputs, inputs, a["force"])
     if a["plots_dir"] is not None:
         with_map = a["map_path"] is not None and a["log_path"] is not None

@@ -20,13 +20,13 @@ from segloc_cli.commands.options import (
     info,
     load_log,
     path_option,
-    run_file_of,
     setting_option,
     tuning_options,
     warn,
     with_options,
 )
 from segloc_cli.config import LOCALIZE_TUNING, MATCHER, STAGES
+from segloc_cli.runfile import run_file_path
 
 PROGRESS_MIN_SCANS = 20
 """Show a progress bar when a run works through at least this many scans."""
@@ -112,7 +112,7 @@ def localize(log_paths, map_path, out_path, tum_path, initial, global_search, tr
     _check_modes(config, global_search, track)
     mode = "global" if global_search else "track" if track else "guided"
     guess_file = None if initial == GUESSES_KEYWORD else Path(initial)
-    outputs = {"--out": out_path, "--tum": tum_path, "--out (run file)": run_file_of(out_path)}
+    outputs = {"--out": out_path, "--tum": tum_path, "--out (run file)": run_file_path(out_path)}
     check_outputs(outputs, [*log_paths, map_path, guess_file], run.force)
     segments_world = read_map(map_path)
     if mode == "global":

@@ -15,12 +15,12 @@ from segloc_cli.commands.options import (
     info,
     load_log,
     path_option,
-    run_file_of,
     sensor_options,
     warn,
     with_options,
 )
 from segloc_cli.errors import InputError
+from segloc_cli.runfile import run_file_path
 from segloc_cli.scan import MAX_RANGE_M
 from segloc_cli.sim import SensorModel
 
@@ -122,7 +122,7 @@ def simulate(world_path, poses_path, out_dir, readings, noise_cm, seed, init_err
     log_path, survey_path = out_dir / "log.mcap", out_dir / "survey.csv"
     if out_dir.is_dir():
         outputs = {"--out (log.mcap)": log_path, "--out (survey.csv)": survey_path}
-        outputs["--out (run file)"] = run_file_of(log_path)
+        outputs["--out (run file)"] = run_file_path(log_path)
         check_outputs(outputs, [world_path, poses_path], force)
     world = read_world(world_path)
     truth = read_pose_table(poses_path, require_time=False)
@@ -217,7 +217,7 @@ def import_carmen(log_path, out_path, survey_out, laser, range_max_m, force):
     from segloc_cli.io.tables import PoseTable, write_pose_table
 
     outputs = {"--out": out_path, "--survey-out": survey_out}
-    check_outputs({**outputs, "--out (run file)": run_file_of(out_path)}, [log_path], force)
+    check_outputs({**outputs, "--out (run file)": run_file_path(out_path)}, [log_path], force)
     log = read_carmen(log_path, laser=laser, range_max_m=range_max_m)
     _write_imported(log, out_path)
     if survey_out is not None:
@@ -254,7 +254,9 @@ def import_rosbag(bag_path, out_path, scan_topic, odom_topic, force):
     from segloc_cli.io.files import check_outputs
     from segloc_cli.io.rosbag import read_rosbag
 
-    check_outputs({"--out": out_path, "--out (run file)": run_file_of(out_path)}, [bag_path], force)
+    check_outputs(
+        {"--out": out_path, "--out (run file)": run_file_path(out_path)}, [bag_path], force
+    )
     log = read_rosbag(bag_path, scan_topic=scan_topic, odom_topic=odom_topic or None)
     _write_imported(log, out_path)
 

@@ -14,13 +14,13 @@ from segloc_cli.commands.options import (
     info,
     load_log,
     path_option,
-    run_file_of,
     setting_option,
     tuning_options,
     with_options,
 )
 from segloc_cli.config import EXTRACT, FUSE
 from segloc_cli.errors import InputError
+from segloc_cli.runfile import run_file_path
 
 
 @click.group("map")
@@ -59,7 +59,7 @@ def map_build(log_path, survey_path, out_path, force, **_):
     from segloc_cli.pipeline import build_map
 
     run = Invocation.current()
-    outputs = {"--out": out_path, "--out (run file)": run_file_of(out_path)}
+    outputs = {"--out": out_path, "--out (run file)": run_file_path(out_path)}
     check_outputs(outputs, [log_path, survey_path], force)
     log = load_log(log_path)
     survey = read_pose_table(survey_path)

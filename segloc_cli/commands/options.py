@@ -192,6 +192,8 @@ def _apply_config(ctx: click.Context, value: Path | None) -> None:
     note = runfile.version_note(value)
     if note is not None:
         warn(note)
+    if not table:
+        warn(f"{value} has no [{'.'.join(command)}] table; nothing was set from it")
     options = _options_by_key(ctx.command)
     defaults = {}
     for key, raw in table.items():
@@ -274,13 +276,6 @@ def _as_path(option: click.Parameter, value: Any) -> Any:
     if holds_path(option) and isinstance(value, str) and value != GUESSES_KEYWORD:
         return Path(value)
     return value
-
-
-def run_file_of(output: Path) -> Path:
-    """The run file a command writes beside ``output`` (checked with the outputs)."""
-    from segloc_cli.runfile import run_file_path
-
-    return run_file_path(output)
 
 
 def path_option(*names: str, required: bool = False, help: str) -> Callable:
