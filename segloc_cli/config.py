@@ -286,8 +286,7 @@ class Setting:
         """The value's type: bool, int, float or str."""
         if self.switch:
             return bool
-        annotation = {f.name: f.type for f in fields(_owner_class(self.path))}[self.path[-1]]
-        return {"float": float, "int": int, "str": str}[str(annotation).split(" |")[0]]
+        return {"float": float, "int": int, "str": str}[_field_kind(self.path)]
 
     def applied(self, config: Config, value: Any) -> Config:
         """``config`` with this setting set to ``value`` (a switch: emptied when True)."""
@@ -307,6 +306,13 @@ def _owner_class(path: tuple[str, ...]) -> type:
     for name in path[:-1]:
         holder = getattr(holder, name)
     return type(holder)
+
+
+def _field_kind(path: tuple[str, ...]) -> str:
+    """The type named by the annotation of the field at ``path``: "float", "int" or "str"
+    (an optional field's type without its None)."""
+    annotation = {f.name: f.type for f in fields(_owner_class(path))}[path[-1]]
+    return str(annotation).split(" |")[0]
 
 
 def _replaced(holder: Any, path: tuple[str, ...], value: Any) -> Any:
@@ -366,8 +372,7 @@ that would never end."""
 
 
 def _tuning_setting(key: str, path: tuple[str, ...]) -> Setting:
-    kind = str({f.name: f.type for f in fields(_owner_class(path))}[path[-1]]).split(" |")[0]
-    low, high, low_open = _TUNING_BOUNDS.get(".".join(path), _TUNING_BOUNDS[kind])
+    low, high, low_open = _TUNING_BOUNDS.get(".".join(path), _TUNING_BOUNDS[_field_kind(path)])
     return Setting(key, path, low, high, low_open)
 
 

@@ -155,8 +155,10 @@ class Localizer:
     ):
         self.params = params or LocalizeParams()
         self.segments_world = np.asarray(segments_world, dtype=float)
-        self.rtable = rtable or RTable.build(self.segments_world, self.params.bin_deg)
-        self.index = index or SegmentGrid(self.segments_world)
+        if rtable is None:
+            rtable = RTable.build(self.segments_world, self.params.bin_deg)
+        self.rtable = rtable
+        self.index = SegmentGrid(self.segments_world) if index is None else index
         self._search = search
 
     def with_params(self, params: LocalizeParams) -> Localizer:

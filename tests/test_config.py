@@ -174,6 +174,9 @@ CONFIG_ERRORS = {
     "not toml": ("[localize\n", "not valid TOML"),
     "list value": ("[localize]\ngrid-m = [1.0]\n", "key 'grid-m'"),
     "tuning out of bounds": ("[localize]\nsearch-cell-m = 0\n", "key 'search-cell-m'"),
+    "fraction for a count": ("[localize]\niterations = 6.5\n", "key 'iterations'", "whole"),
+    "bool for a number": ("[localize]\ngrid-m = true\n", "key 'grid-m'"),
+    "date for a number": ("[localize]\ngrid-m = 2026-12-01\n", "key 'grid-m'"),
 }
 
 

@@ -215,11 +215,19 @@ def _config_value(ctx: click.Context, option: click.Option, key: str, raw: Any, 
     """A value of a configuration table, checked as the option checks its own."""
     if option.is_flag and not isinstance(raw, bool):
         raise InputError(f"key {key!r} is a flag: give true or false, not {raw!r}", path=path)
-    if isinstance(raw, (dict, list)):
-        raise InputError(f"key {key!r} takes one value, not {type(raw).__name__}", path=path)
-    if holds_path(option) and isinstance(raw, str) and raw != GUESSES_KEYWORD:
-        raw = str(path.parent / raw)  # an absolute raw stays itself
-    if isinstance(option.type, click.Choice) and not isinstance(raw, bool):
+    if not isinstance(raw, (bool, int, float, str)):
+        raise InputError(f"key {key!r} takes one value, not a {type(raw).__name__}", path=path)
+    if not option.is_flag and isinstance(raw, bool):
+        raise InputError(f"key {key!r} takes a value, not {str(raw).lower()}", path=path)
+    if isinstance(option.type, click.types.IntParamType) and isinstance(raw, float):
+        if not raw.is_integer():
+            raise InputError(f"key {key!r} takes a whole number, not {raw!r}", path=path)
+    if holds_path(option):
+        if not isinstance(raw, str) or not raw:
+            raise InputError(f"key {key!r} takes a path in quotes, not {raw!r}", path=path)
+        if raw != GUESSES_KEYWORD:
+            raw = str(path.parent / raw)  # an absolute raw stays itself
+    if isinstance(option.type, click.Choice):
         raw = str(raw)
     try:
         return option.type_cast_value(ctx, raw)
