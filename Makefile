@@ -8,6 +8,8 @@ HALL := datasets/hall
 
 .PHONY: setup demo test fuzz bench bench-real bench-peers figures lint hall clean
 
+# The last step compiles numba's kernels into their cache, so that no first run waits for it
+# (a failure there only costs that wait; tests/test_warmup.py catches it).
 setup: $(STAMP)
 
 $(STAMP): pyproject.toml
@@ -15,6 +17,7 @@ $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	$(BIN)/python -m pip install --quiet -e '.[dev,peers]'
+	$(BIN)/python -m segloc_cli.warmup || echo "warning: warm-up failed" >&2
 	@touch $(STAMP)
 
 # Build the hall's map from its mapping run, localize the 10 test scans (none of them in the
@@ -35,8 +38,10 @@ fuzz: $(STAMP)
 	SEGLOC_FUZZ_EXAMPLES=$(FUZZ_EXAMPLES) $(BIN)/python -m pytest -q -p no:cacheprovider \
 		--hypothesis-show-statistics tests/test_fuzz_*.py
 
+# pytest-benchmark over benchmarks/: time per pose, accuracy, and the speed figures of
+# test_bench_speed.py (the real logs from DATASETS, defined below; missing ones are skipped).
 bench: $(STAMP)
-	$(BIN)/python -m pytest benchmarks -q --benchmark-only -s --benchmark-columns=median,min,max,rounds --benchmark-sort=name --benchmark-warmup=on
+	SEGLOC_DATASETS=$(DATASETS) $(BIN)/python -m pytest benchmarks -q --benchmark-only -s --benchmark-columns=median,min,max,rounds --benchmark-sort=name --benchmark-warmup=on
 
 # Real public logs (not shipped): both protocols on intel, aces, fr079, mit-csail.
 DATASETS ?= ../shared/datasets

@@ -4,7 +4,8 @@ commands recorded, and how an answer is scored against the truth.
 `real_logs.py` and `peers.py` both hold out every 10th scan of a SLAM-corrected log, build the
 map from the others through the command line and score answers within the same bounds;
 `figures.py` runs the same segloc executable, and the pytest benchmarks measure pose errors
-the same way.
+the same way; `test_bench_speed.py` times the same commands (``run_segloc_measured``) on the
+same splits, from the perturbation protocol's guesses (``perturbed_guesses``).
 
 Poses are in the world frame: metres, and radians in a ``PoseTable``; an estimates table
 (``segloc localize --out``) gives headings in degrees.
@@ -12,8 +13,11 @@ Poses are in the world frame: metres, and radians in a ``PoseTable``; an estimat
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
+import tempfile
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -32,10 +36,28 @@ SUCCESS_M, SUCCESS_DEG = 0.10, 1.0
 """A right answer is within ``SUCCESS_M`` (metres) and ``SUCCESS_DEG`` (degrees) of the truth."""
 
 
+PLACE_M, PLACE_DEG = 0.30, 3.0
+"""Within ``PLACE_M`` (metres) and ``PLACE_DEG`` (degrees) of the truth an answer has found the
+right place: beyond either it is a wrong place, not an imprecise fit."""
+
+PERTURB_SEED = 2009
+PERTURB_XY_M = 1.5
+PERTURB_THETA_DEG = 20.0
+"""The perturbation protocol: each held-out scan is localized from its reference pose plus
+errors uniform in ±``PERTURB_XY_M`` per axis (metres) and ±``PERTURB_THETA_DEG`` (degrees),
+drawn with seed ``PERTURB_SEED``."""
+
+
 def is_right(pos_m, head_deg):
     """Whether each error (position in metres, heading in degrees, arrays) is a right answer:
     at most ``SUCCESS_M`` and ``SUCCESS_DEG``."""
     return (pos_m <= SUCCESS_M) & (head_deg <= SUCCESS_DEG)
+
+
+def is_right_place(pos_m, head_deg):
+    """Whether each error (position in metres, heading in degrees, arrays) lies within
+    ``PLACE_M`` and ``PLACE_DEG``: the right place, whether or not precisely fitted."""
+    return (pos_m <= PLACE_M) & (head_deg <= PLACE_DEG)
 
 
 DATASETS_DIR = Path("../shared/datasets")
@@ -69,6 +91,45 @@ def run_segloc(commands: list[str], *args: object) -> subprocess.CompletedProces
     if proc.returncode != 0:
         raise SystemExit(f"command failed ({proc.returncode}): {' '.join(argv)}\n{proc.stderr}")
     return proc
+
+
+@dataclass(frozen=True)
+class MeasuredRun:
+    """A segloc command that succeeded: its output, its wall time (seconds, process start to
+    exit) and the peak resident memory (MiB) of its largest process."""
+
+    stdout: str
+    stderr: str
+    wall_s: float
+    peak_rss_mib: float
+
+
+def run_segloc_measured(commands: list[str], *args: object) -> MeasuredRun:
+    """Run ``segloc ARGS --force`` as ``run_segloc`` does, timing it and reading its peak RSS.
+
+    The peak comes from the kernel's account of the finished process (``wait4``): the
+    largest resident set of the process or of any worker it waited for.
+    """
+    argv = segloc_argv(*args, "--force")
+    commands.append(" ".join(["segloc", *argv[1:]]))
+    with tempfile.TemporaryFile("w+") as out, tempfile.TemporaryFile("w+") as err:
+        start = time.perf_counter()
+        child = subprocess.Popen(argv, stdout=out, stderr=err, text=True)
+        _, status, usage = os.wait4(child.pid, 0)
+        wall_s = time.perf_counter() - start
+        # Reaped here, so the Popen object must not wait for it again.
+        child.returncode = os.waitstatus_to_exitcode(status)
+        out.seek(0)
+        err.seek(0)
+        stdout, stderr = out.read(), err.read()
+    if child.returncode != 0:
+        raise SystemExit(f"command failed ({child.returncode}): {' '.join(argv)}\n{stderr}")
+    return MeasuredRun(stdout, stderr, wall_s, _max_rss_mib(usage.ru_maxrss))
+
+
+def _max_rss_mib(ru_maxrss: int) -> float:
+    """``ru_maxrss`` in MiB: the kernel counts it in KiB on Linux, in bytes on macOS."""
+    return ru_maxrss / (2**20 if sys.platform == "darwin" else 2**10)
 
 
 def commands_section(commands: dict[str, list[str]]) -> list[str]:
@@ -133,6 +194,63 @@ def prepare_held_out(name: str, datasets: Path, work: Path, commands: list[str])
 def subset_poses(table: PoseTable, mask: np.ndarray) -> PoseTable:
     """The rows of ``table`` where ``mask`` ((N,) bool) holds."""
     return PoseTable(table.pose_id[mask], table.time_s[mask], table.poses[mask])
+
+
+def evenly_spread(count: int, wanted: int) -> np.ndarray:
+    """Mask (count,) bool choosing ``wanted`` rows spread evenly from first to last (all of
+    them when there are no more than ``wanted``)."""
+    if count <= wanted:
+        return np.ones(count, dtype=bool)
+    return np.isin(np.arange(count), np.linspace(0, count - 1, wanted).round())
+
+
+def perturbed_guesses(truth: PoseTable) -> PoseTable:
+    """The perturbation protocol's initial guesses: each pose of ``truth`` plus uniform errors
+    (``PERTURB_XY_M``, ``PERTURB_THETA_DEG``), drawn with ``PERTURB_SEED`` row for row.
+
+    The same ``truth`` always gets the same guesses, so a subset of its rows keeps the
+    guesses those rows have in the full protocol.
+    """
+    rng = np.random.default_rng(PERTURB_SEED)
+    n = len(truth)
+    offsets = np.column_stack(
+        [
+            rng.uniform(-PERTURB_XY_M, PERTURB_XY_M, (n, 2)),
+            np.deg2rad(rng.uniform(-PERTURB_THETA_DEG, PERTURB_THETA_DEG, n)),
+        ]
+    )
+    return PoseTable(truth.pose_id, truth.time_s, truth.poses + offsets)
+
+
+# --- tracking a raw log -----------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class RawLog:
+    """A dataset's raw log imported as ``log_path``, with ``first_pose_path``: a survey CSV
+    seeding its first scan at (0, 0, 0), where the corrected log's map frame starts."""
+
+    log_path: Path
+    first_pose_path: Path
+    scans: int
+
+
+def prepare_raw_log(name: str, datasets: Path, work: Path, commands: list[str]) -> RawLog:
+    """Import dataset ``name``'s raw log (ROS bag or CARMEN) into ``work`` and write the pose
+    that seeds ``--track`` at its first scan; the commands run are appended to ``commands``."""
+    from segloc_cli.io.mcap_log import read_log
+
+    raw = datasets / name / DATASETS[name][1]
+    raw_format = "rosbag" if raw.suffix == ".bag" else "carmen"
+    log_path, first_pose_path = work / "raw.mcap", work / "first_pose.csv"
+    run_segloc(commands, "import", raw_format, raw, "--out", log_path)
+    scans = read_log(log_path).scans
+    commands.append(f"# first_pose.csv: (0, 0, 0) at the first scan of {log_path.name}")
+    write_pose_table(
+        first_pose_path,
+        PoseTable(np.array([1]), np.array([scans[0].time_s]), np.zeros((1, 3))),
+    )
+    return RawLog(log_path, first_pose_path, len(scans))
 
 
 # --- scoring --------------------------------------------------------------------

@@ -111,26 +111,24 @@ class SearchParams:
     """Fine raster cell and fine position step."""
     score_radius_m: float = 0.1
     """A point scores 1 on a segment, falling to 0 at this distance from it."""
-    coarse_factor: int = 4
-    """Fine cells per coarse block (per axis) when the region is a window around a guess."""
-    global_coarse_factor: int = 8
-    """The same when the region is the whole map."""
     half_width_m: float = 2.0
     """Half side of the square of positions searched around an initial guess."""
     heading_step_deg: float = 1.0
     """Spacing of the headings tried: across the prior window, or the whole circle without one."""
     keep_fraction: float = 0.8
-    """Blocks are searched finely while their bound reaches this share of the best score."""
-    max_expansions: int = 400
-    """Most blocks searched finely per scan around a guess."""
-    global_max_expansions: int = 4000
-    """The same over the whole map, where many more blocks look alike from afar."""
+    """Poses scoring under this share of the best are not kept: the search prunes below it."""
+    max_depth: int = 7
+    """Levels of the bound pyramid above the fine raster: the branch and bound starts from
+    squares of up to 2^max_depth cells (6.4 m at 5 cm), fewer for a smaller region."""
     hypotheses: int = 4
     """Distinct grid poses handed on for refinement."""
     distinct_m: float = 0.3
     """Two poses farther apart than this (or ``distinct_deg``) are different answers."""
     distinct_deg: float = 3.0
     """Two poses whose headings differ by more than this are different answers."""
+    region: tuple[float, float, float, float] | None = None
+    """Global search only: the rectangle (x0, y0, x1, y1; metres, world frame) the robot is
+    known to be in, set by ``--region``; None searches wherever the scan could reach the map."""
 
 
 @dataclass(frozen=True)
@@ -354,6 +352,7 @@ _TUNING_BOUNDS: dict[str, tuple[float, float, bool]] = {
     "fuse.gap_m": (-1e4, 1e4, False),
     "localize.min_spread_m": (0.0, 1e4, False),
     "localize.search.keep_fraction": (0.0, 1.0, True),
+    "localize.search.max_depth": (0, 12, False),
     "localize.search.heading_step_deg": (0.0, 360.0, True),
     "localize.search.distinct_m": (0.0, 1e4, False),
     "localize.search.distinct_deg": (0.0, 180.0, False),
@@ -510,7 +509,7 @@ LOCALIZE_TUNING = (
         )
     ),
     *_tuning("refine-", "localize.refine", "prior_sigma_m", "prior_sigma_deg"),
-    *_tuning("search-", "localize.search"),
+    *_tuning("search-", "localize.search", "region"),
     *_tuning("confidence-", "localize.confidence"),
     *_tuning("track-", "track"),
 )

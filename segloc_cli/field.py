@@ -165,20 +165,48 @@ def score_raster(
     return ScoreRaster(score, lo, float(cell))
 
 
-def coarse_bound(fine_score: np.ndarray, factor: int) -> np.ndarray:
-    """Block k of the result holds the best fine score over fine cells [k·f, k·f + 2f).
+BOUND_LEVELS = 255
+"""Bounds above the finest level are stored as whole 255ths (uint8), rounded up."""
 
-    A point whose fine cell is ``b + u`` for a shift ``u`` in [0, f) lies in
-    those cells for block ``b // f`` (per axis), so summing block scores
-    bounds from above the fine sum of every shift within one coarse step.
+MAX_PYRAMID_CELLS = 400_000_000
+"""Most cells of all levels of a bound pyramid together (uint8: 400 MB, as much as the
+largest score raster): a map that large gets fewer levels rather than more memory."""
+
+
+def pyramid_depth(raster_shape: tuple[int, int], max_depth: int) -> int:
+    """Levels of the bound pyramid of a raster: ``max_depth``, or fewer (at least 1) so that
+    all levels, each padded by 2^depth − 1 cells, stay within ``MAX_PYRAMID_CELLS``."""
+    depth = max_depth
+    while depth > 1:
+        pad = 2**depth - 1
+        if depth * (raster_shape[0] + pad) * (raster_shape[1] + pad) <= MAX_PYRAMID_CELLS:
+            break
+        depth -= 1
+    return depth
+
+
+def max_pyramid(fine_score: np.ndarray, depth: int) -> np.ndarray:
+    """Bounds of the fine scores over squares of 2^l cells, for l = 1..``depth``.
+
+    Level l (index l − 1 of the result) at (i + W, j + W), W = 2^depth − 1, holds the best
+    fine score over cells [i, i + 2^l) × [j, j + 2^l), in 255ths rounded up (uint8), for i
+    from −W: a point whose fine cell is ``b + u`` for a shift ``u`` in [0, 2^l) lies in
+    that square for ``i = b``, so summing level-l values at ``b`` bounds from above the fine
+    sum of every such shift (the precomputed grids of fast correlative scan matching).
+    Cells beyond the raster score 0. Shape (depth, NX + W, NY + W).
     """
     nx, ny = fine_score.shape
-    bx, by = -(-nx // factor) + 1, -(-ny // factor) + 1
-    padded = np.zeros((bx * factor, by * factor), dtype=np.float32)
-    padded[:nx, :ny] = fine_score
-    blocks = padded.reshape(bx, factor, by, factor).max(axis=(1, 3))
-    bound = blocks.copy()
-    bound[:-1, :] = np.maximum(bound[:-1, :], blocks[1:, :])
-    out = bound.copy()
-    out[:, :-1] = np.maximum(out[:, :-1], bound[:, 1:])
+    pad = 2**depth - 1
+    window = np.zeros((nx + pad, ny + pad), dtype=np.float32)
+    window[pad:, pad:] = fine_score
+    out = np.empty((depth, nx + pad, ny + pad), dtype=np.uint8)
+    for level in range(1, depth + 1):
+        half = 2 ** (level - 1)
+        # Widen the squares from 2^(l-1) to 2^l cells: the best of two neighbours, per axis.
+        window[:-half, :] = np.maximum(window[:-half, :], window[half:, :])
+        window[:, :-half] = np.maximum(window[:, :-half], window[:, half:])
+        rows = max(1, 2**22 // window.shape[1])  # bands keep float64 temporaries small
+        for r0 in range(0, window.shape[0], rows):
+            scaled = np.ceil(window[r0 : r0 + rows].astype(np.float64) * BOUND_LEVELS + 1e-6)
+            out[level - 1, r0 : r0 + rows] = np.minimum(scaled, BOUND_LEVELS)
     return out

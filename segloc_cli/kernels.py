@@ -117,3 +117,14 @@ def out_of_frame(segments: np.ndarray, x: float, y: float, theta: float) -> np.n
             out[i, e] = x + c * px - s * py
             out[i, e + 1] = y + s * px + c * py
     return out
+
+
+@njit(cache=True)
+def wrap_remainder(angle: float) -> float:
+    """``angle`` (radians) wrapped into [-π, π) exactly as ``geometry.wrap_angle`` does it,
+    with a floating-point remainder, to the last bit.
+
+    For compiled code that repeats a numpy computation step for step; ``wrap``
+    is the cheaper choice where the last bit does not matter.
+    """
+    return (angle + np.pi) % (2.0 * np.pi) - np.pi

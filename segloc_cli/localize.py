@@ -22,7 +22,7 @@ from segloc_cli.overlap import coarse_to_fine
 from segloc_cli.refine import Refinement, refine_pose, support
 from segloc_cli.scan import Scan
 from segloc_cli.search import HypothesisSearch, distinct
-from segloc_cli.spatial import SegmentGrid
+from segloc_cli.spatial import NEAR_CELL_M, SegmentGrid
 
 STATUS_TOO_FEW_SEGMENTS = "too_few_segments"
 """The scan cannot pin a pose: too few local segments, too few points, or points spread along
@@ -136,9 +136,10 @@ class ScanMatcher(Protocol):
 class Localizer:
     """Localizes local maps against one global map (M, 4), world frame.
 
-    ``index``, ``rtable`` and ``search`` let a localizer with other settings
-    share what another built on the same map (see ``with_params``); by default
-    they are built here (the search on first use).
+    ``index``, ``near_index``, ``rtable`` and ``search`` let a localizer with
+    other settings share what another built on the same map (see
+    ``with_params``); by default they are built here (``near_index`` and the
+    search on first use).
     """
 
     uses_segments = True
@@ -152,6 +153,7 @@ class Localizer:
         index: SegmentGrid | None = None,
         rtable: RTable | None = None,
         search: HypothesisSearch | None = None,
+        near_index: SegmentGrid | None = None,
     ):
         self.params = params or LocalizeParams()
         self.segments_world = np.asarray(segments_world, dtype=float)
@@ -159,6 +161,7 @@ class Localizer:
             rtable = RTable.build(self.segments_world, self.params.bin_deg)
         self.rtable = rtable
         self.index = SegmentGrid(self.segments_world) if index is None else index
+        self._near_index = near_index
         self._search = search
 
     def with_params(self, params: LocalizeParams) -> Localizer:
@@ -175,7 +178,16 @@ class Localizer:
             index=self.index,
             rtable=self.rtable if same_bins else None,
             search=self.hypothesis_search if same_search else None,
+            near_index=self.near_index,
         )
+
+    @property
+    def near_index(self) -> SegmentGrid:
+        """The map's segments in a grid of fine cells, for what lies near each point of a
+        scan (refinement and the points' verdicts); built on first use."""
+        if self._near_index is None:
+            self._near_index = SegmentGrid(self.segments_world, cell_m=NEAR_CELL_M)
+        return self._near_index
 
     @property
     def hypothesis_search(self) -> HypothesisSearch:
@@ -323,7 +335,9 @@ class Localizer:
         """The paper's answer with a verdict from the scan's points: overlap alone rates a
         pose that shares a few segments with the map as highly as the right one, so the
         answer is ``lost`` unless enough of the points lie on the map there."""
-        ratio, hold = support(points_robot, self.segments_world, est.pose, self._band_m)
+        ratio, hold = support(
+            points_robot, self.segments_world, est.pose, self._band_m, index=self.near_index
+        )
         status = judge(ratio, 0.0, self.params.confidence, hold)
         return replace(est, inlier_ratio=ratio, status=status)
 
@@ -334,7 +348,8 @@ class Localizer:
 
     def hold_points(self, points_robot: np.ndarray, pose: Pose2) -> float:
         """How firmly the points on the map fix the position at ``pose`` (``refine.support``)."""
-        return support(points_robot, self.segments_world, pose, self._band_m)[1]
+        band = self._band_m
+        return support(points_robot, self.segments_world, pose, band, index=self.near_index)[1]
 
     def _stage2(self, segments_robot: np.ndarray, initial: Pose2, peaks: np.ndarray):
         """Stage 2 from each stage-1 peak: (heading, result) of the largest overlap."""
@@ -376,7 +391,10 @@ class Localizer:
                 stage2_pose=stage2_pose,
             )
         fits: list[Refinement] = sorted(
-            (refine_pose(points_robot, self.segments_world, s, p.refine) for s in seeds),
+            (
+                refine_pose(points_robot, self.segments_world, s, p.refine, index=self.near_index)
+                for s in seeds
+            ),
             key=lambda fit: -fit.score,
         )
         best = fits[0]

@@ -9,6 +9,11 @@ residual is the point's signed distance to that segment's supporting line
 minimise the sum. Points farther than a gate from every segment (clutter,
 people, walls the map lacks) are left out; the gate shrinks from round to
 round so a guess tens of centimetres off can still be pulled in.
+
+The whole fit is one compiled call. Which map segments lie near a point comes
+from a ``SegmentGrid`` of the map: a caller that refines many scans against one
+map (``Localizer``) builds it once and passes it as ``index``; without one, a
+call tests every segment of the map (as through a grid of one cell).
 """
 
 from __future__ import annotations
@@ -19,14 +24,9 @@ import numpy as np
 from numba import njit
 
 from segloc_cli.config import RefineParams
-from segloc_cli.geometry import (
-    Pose2,
-    point_segment_distances,
-    rotation,
-    transform_points,
-    wrap_angle,
-)
-from segloc_cli.kernels import point_segment_distance
+from segloc_cli.geometry import Pose2, transform_points
+from segloc_cli.kernels import point_segment_distance, wrap_remainder
+from segloc_cli.spatial import SegmentGrid, filed_within
 
 
 @dataclass(frozen=True)
@@ -65,51 +65,38 @@ def _nearest_segments(points, segments):
     return index, dist
 
 
-@njit(cache=True)
-def _candidate_lists(points, segments, radius):
-    """Per point, the segments within ``radius`` of it, as CSR (offsets (P+1,), indices)."""
-    n = points.shape[0]
-    counts = np.zeros(n + 1, dtype=np.int64)
-    found = []
-    for i in range(n):
-        px, py = points[i, 0], points[i, 1]
-        for j in range(segments.shape[0]):
-            if (
-                point_segment_distance(
-                    px, py, segments[j, 0], segments[j, 1], segments[j, 2], segments[j, 3]
-                )
-                <= radius
-            ):
-                found.append(j)
-                counts[i + 1] += 1
-    return np.cumsum(counts), np.array(found, dtype=np.int64)
+def nearest_segments(
+    points_world: np.ndarray,
+    segments_world: np.ndarray,
+    *,
+    index: SegmentGrid | None = None,
+    within_m: float | None = None,
+):
+    """Index (P,) of the nearest segment to each point and the distance (P,) in metres.
 
-
-@njit(cache=True)
-def _nearest_among(points, segments, offsets, indices):
-    """Index (−1: none) and distance (inf: none) of each point's nearest listed segment."""
-    n = points.shape[0]
-    index = np.full(n, -1, dtype=np.int64)
-    dist = np.full(n, np.inf)
-    for i in range(n):
-        px, py = points[i, 0], points[i, 1]
-        for k in range(offsets[i], offsets[i + 1]):
-            j = indices[k]
-            d = point_segment_distance(
-                px, py, segments[j, 0], segments[j, 1], segments[j, 2], segments[j, 3]
-            )
-            if d < dist[i]:
-                dist[i], index[i] = d, j
-    return index, dist
-
-
-def nearest_segments(points_world: np.ndarray, segments_world: np.ndarray):
-    """Index (P,) of the nearest segment to each point and the distance (P,) in metres."""
+    With ``within_m``, points with no segment that near get index -1 and distance
+    inf; ``index``, a ``SegmentGrid`` of ``segments_world``, then spares testing
+    the segments that are farther. Among equally near segments the lowest index wins.
+    """
     points = np.ascontiguousarray(points_world, dtype=float).reshape(-1, 2)
     segments = np.ascontiguousarray(segments_world, dtype=float).reshape(-1, 4)
+    if within_m is not None and index is not None:
+        _check_index(index, segments)
+        return index.nearest(points, within_m)
     if segments.shape[0] == 0:
         return np.full(points.shape[0], -1, dtype=np.int64), np.full(points.shape[0], np.inf)
-    return _nearest_segments(points, segments)
+    found, dist = _nearest_segments(points, segments)
+    if within_m is not None:
+        beyond = ~(dist <= within_m)
+        found[beyond], dist[beyond] = -1, np.inf
+    return found, dist
+
+
+def _check_index(index: SegmentGrid, segments: np.ndarray) -> None:
+    if index.segments_world.shape != segments.shape:
+        raise ValueError(
+            f"index holds {index.segments_world.shape[0]} segments, the map {segments.shape[0]}"
+        )
 
 
 def _line_normals(segments: np.ndarray) -> np.ndarray:
@@ -117,12 +104,6 @@ def _line_normals(segments: np.ndarray) -> np.ndarray:
     d = segments[:, 2:4] - segments[:, 0:2]
     length = np.hypot(d[:, 0], d[:, 1])
     return np.column_stack([-d[:, 1], d[:, 0]]) / np.where(length > 0, length, 1.0)[:, None]
-
-
-def _travel(pose: np.ndarray, start: np.ndarray, reach_m: float) -> float:
-    """Largest distance any point within ``reach_m`` of the scanner moved between two poses."""
-    turn = abs(wrap_angle(pose[2] - start[2]))
-    return float(np.hypot(*(pose[:2] - start[:2])) + reach_m * turn)
 
 
 def _gates(params: RefineParams) -> list[float]:
@@ -135,7 +116,12 @@ def _gates(params: RefineParams) -> list[float]:
 
 
 def support(
-    points_robot: np.ndarray, segments_world: np.ndarray, pose: Pose2, band_m: float
+    points_robot: np.ndarray,
+    segments_world: np.ndarray,
+    pose: Pose2,
+    band_m: float,
+    *,
+    index: SegmentGrid | None = None,
 ) -> tuple[float, float]:
     """How well the map explains the scan at ``pose``: the share of the points (robot frame)
     within ``band_m`` of a map segment, and how firmly those points fix the position along
@@ -145,22 +131,32 @@ def support(
     the smaller eigenvalue of the sum of n·nᵀ over the points on the map (n the
     unit normal of the segment each lies on) counts how many points' worth pin
     the weakest direction. Along a corridor or a lone wall it is about 0,
-    however many of the points lie on the map.
+    however many of the points lie on the map. ``index`` is an optional
+    ``SegmentGrid`` of ``segments_world``.
     """
     if points_robot.shape[0] == 0 or not np.isfinite(pose.x):
         return 0.0, 0.0
     segments = np.asarray(segments_world, dtype=float).reshape(-1, 4)
-    index, dist = nearest_segments(transform_points(points_robot, pose), segments)
+    world = transform_points(points_robot, pose)
+    if index is None:
+        nearest, dist = nearest_segments(world, segments)
+    else:
+        nearest, dist = nearest_segments(world, segments, index=index, within_m=band_m)
     on_map = dist <= band_m
-    normals = _line_normals(segments[index[on_map]])
+    normals = _line_normals(segments[nearest[on_map]])
     return float(np.mean(on_map)), float(np.linalg.eigvalsh(normals.T @ normals)[0])
 
 
 def inlier_ratio(
-    points_robot: np.ndarray, segments_world: np.ndarray, pose: Pose2, band_m: float
+    points_robot: np.ndarray,
+    segments_world: np.ndarray,
+    pose: Pose2,
+    band_m: float,
+    *,
+    index: SegmentGrid | None = None,
 ) -> float:
     """Share of the points (robot frame) within ``band_m`` of a map segment at ``pose``."""
-    return support(points_robot, segments_world, pose, band_m)[0]
+    return support(points_robot, segments_world, pose, band_m, index=index)[0]
 
 
 def refine_pose(
@@ -168,12 +164,17 @@ def refine_pose(
     segments_world: np.ndarray,
     initial: Pose2,
     params: RefineParams | None = None,
+    *,
+    index: SegmentGrid | None = None,
 ) -> Refinement:
     """Fit scan points (P, 2), robot frame, to map segments (M, 4), world frame.
 
-    Returns the fitted pose (world frame) and the inlier share at it. When
-    fewer than ``min_points`` points are ever within the gate, ``initial`` is
-    returned unchanged with its own inlier share.
+    Returns the fitted pose (world frame) and the inlier share at it. A round
+    in which fewer than ``min_points`` points are within its gate stops there,
+    so when that is so from the start ``initial`` is returned unchanged, with
+    its own inlier share. ``index``, a ``SegmentGrid`` of ``segments_world``
+    built once per map, makes the fit cost what the scan's neighbourhood holds
+    rather than what the map holds; the result is the same without it.
     """
     p = params or RefineParams()
     points = np.asarray(points_robot, dtype=float).reshape(-1, 2)
@@ -181,61 +182,207 @@ def refine_pose(
     n = points.shape[0]
     if n == 0 or segments.shape[0] == 0:
         return Refinement(initial, 0.0, float("nan"), n, 0.0)
+    if index is None:
+        index = SegmentGrid(segments, cell_m=np.inf)  # one cell: every segment is tested
+    else:
+        _check_index(index, segments)
     # Only segments within reach of the scan from near the guess can pair. Points that are
     # not finite never pair (their distances are NaN) and must not widen the reach.
     radii = np.hypot(points[:, 0], points[:, 1])
     reach = float(radii[np.isfinite(radii)].max(initial=0.0)) + 2.0 * p.gate_m
-    near = point_segment_distances([initial.x, initial.y], segments)[0] <= reach
-    segments = segments[near]
-    normals = _line_normals(segments)
-    pose = initial.as_array()
-    # Each point is compared only with the segments near where it starts;
-    # the lists are rebuilt should the pose travel more than a gate.
-    lists_at, lists = None, None
-    # A prior on the guess holds the pose where the points say nothing, e.g.
-    # along a featureless corridor, in units of one well-placed point.
+    allowed = index.mask_near([initial.x, initial.y], reach)
+    pose = _gauss_newton(
+        np.ascontiguousarray(points),
+        index.segments_world,
+        allowed,
+        index.cells,
+        initial.as_array().astype(float),
+        np.array(_gates(p)),
+        p.steps_per_round,
+        p.min_points,
+        _prior_weights(p),
+        reach,
+    )
+    fitted = Pose2(float(pose[0]), float(pose[1]), float(pose[2]))
+    _, dist = index.nearest(transform_points(points, fitted), p.final_gate_m, allowed)
+    inliers = dist <= p.final_gate_m
+    rms = float(np.sqrt(np.mean(dist[inliers] ** 2))) if inliers.any() else float("nan")
+    score = float(np.mean(np.clip(1.0 - (dist / p.final_gate_m) ** 2, 0.0, 1.0)))
+    return Refinement(fitted, float(np.mean(inliers)), rms, n, score)
+
+
+def _prior_weights(p: RefineParams) -> np.ndarray:
+    """Weights (3,) of the prior on x, y, θ in units of one well-placed point (0: none).
+
+    The prior holds the pose where the points say nothing, e.g. along a
+    featureless corridor.
+    """
     prior = np.zeros(3)
     if p.prior_sigma_m is not None:
         prior[:2] = (p.point_sigma_m / p.prior_sigma_m) ** 2
     if p.prior_sigma_deg is not None:
         prior[2] = (p.point_sigma_m / np.deg2rad(p.prior_sigma_deg)) ** 2
-    for gate in _gates(p):
-        for _ in range(p.steps_per_round):
-            rotated = points @ rotation(pose[2]).T
-            world = rotated + pose[:2]
-            if lists_at is None or _travel(pose, lists_at, reach) > p.gate_m:
-                lists_at = pose.copy()
-                lists = _candidate_lists(world, segments, 2.0 * p.gate_m)
-            index, dist = _nearest_among(world, segments, *lists)
-            use = dist <= gate
-            if np.count_nonzero(use) < p.min_points:
-                break
-            normal = normals[index[use]]
-            anchor = segments[index[use], 0:2]
-            residual = np.sum(normal * (world[use] - anchor), axis=1)
-            jacobian = np.column_stack(
-                [normal, normal[:, 0] * -rotated[use, 1] + normal[:, 1] * rotated[use, 0]]
+    return prior
+
+
+@njit(cache=True)
+def _travel(pose, start, reach_m):
+    """Largest distance (m) any point within ``reach_m`` of the scanner moved between poses."""
+    turn = abs(wrap_remainder(pose[2] - start[2]))
+    return np.hypot(pose[0] - start[0], pose[1] - start[1]) + reach_m * turn
+
+
+@njit(cache=True)
+def _nearest_listed(px, py, segments, listed, first, stop):
+    """Index (−1: none) and distance (inf: none) of the point's nearest segment among
+    ``listed[first:stop]``; of equally near ones the lowest index."""
+    best, best_j = np.inf, -1
+    for k in range(first, stop):
+        j = listed[k]
+        d = point_segment_distance(
+            px, py, segments[j, 0], segments[j, 1], segments[j, 2], segments[j, 3]
+        )
+        if d < best or (d == best and j < best_j):
+            best, best_j = d, j
+    return best_j, best
+
+
+@njit(cache=True)
+def _narrowed(points_world, segments, listed_from, listed, radius_m):
+    """CSR lists (offsets, indices) of each point (P, 2) narrowed to the listed segments
+    within ``radius_m`` of it."""
+    n = points_world.shape[0]
+    kept_from = np.zeros(n + 1, dtype=np.int64)
+    kept = np.empty(listed.size, dtype=np.int64)
+    count = 0
+    for i in range(n):
+        px, py = points_world[i, 0], points_world[i, 1]
+        for k in range(listed_from[i], listed_from[i + 1]):
+            j = listed[k]
+            d = point_segment_distance(
+                px, py, segments[j, 0], segments[j, 1], segments[j, 2], segments[j, 3]
             )
-            # Cauchy weights with the scale at half the gate: points near the
-            # gate count for less, so a wrong pairing cannot drag the pose far.
-            weight = 1.0 / (1.0 + (residual / (0.5 * gate)) ** 2)
-            jw = jacobian * weight[:, None]
-            offset = pose - initial.as_array()
-            offset[2] = wrap_angle(offset[2])
-            hessian = jw.T @ jacobian + np.diag(prior + 1e-6)
-            try:
-                step = np.linalg.solve(hessian, -jw.T @ residual - prior * offset)
-            except np.linalg.LinAlgError:
+            if d <= radius_m:
+                kept[count] = j
+                count += 1
+        kept_from[i + 1] = count
+    return kept_from, kept[:count]
+
+
+@njit(cache=True)
+def _solve3(a, b):
+    """x with a·x = b for a (3, 3), by elimination with partial pivoting, and whether a
+    was regular (False on an exactly zero pivot, as LAPACK reports a singular matrix)."""
+    m, x = a.copy(), b.copy()
+    for col in range(3):
+        pivot = col
+        for r in range(col + 1, 3):
+            if abs(m[r, col]) > abs(m[pivot, col]):
+                pivot = r
+        if m[pivot, col] == 0.0:
+            return x, False
+        for c in range(3):
+            m[col, c], m[pivot, c] = m[pivot, c], m[col, c]
+        x[col], x[pivot] = x[pivot], x[col]
+        for r in range(col + 1, 3):
+            f = m[r, col] / m[col, col]
+            for c in range(col, 3):
+                m[r, c] -= f * m[col, c]
+            x[r] -= f * x[col]
+    for r in range(2, -1, -1):
+        for c in range(r + 1, 3):
+            x[r] -= m[r, c] * x[c]
+        x[r] /= m[r, r]
+    return x, True
+
+
+@njit(cache=True)
+def _gauss_newton(
+    points,
+    segments,
+    allowed,
+    cells,
+    initial,
+    gates,
+    steps_per_round,
+    min_points,
+    prior,
+    reach_m,
+):
+    """The fitted pose (3,): damped Gauss-Newton rounds, one per gate, of point-to-line
+    residuals with Cauchy weights and a prior on ``initial``.
+
+    Points (P, 2) are in the robot frame; segments (M, 4), of which only the
+    ``allowed`` (M,) take part, in the world frame, filed in ``cells``
+    (``SegmentGrid.cells``). ``reach_m`` bounds the points' distance from the
+    scanner.
+    """
+    n = points.shape[0]
+    pose = initial.copy()
+    world = np.empty((n, 2))
+    rotated = np.empty((n, 2))
+    # Each point is compared only with the segments listed near where it was when the
+    # lists were made, out to ``radius``: enough while the pose travels less than the
+    # radius less the gate. Lists are made for twice the gate, narrowed when the gate
+    # shrinks, and made anew from the grid when the pose has travelled too far for them.
+    lists_at = initial.copy()
+    listed_from, listed = filed_within(cells, segments, allowed, world[:0], 0.0)
+    radius = -np.inf
+    for gate in gates:
+        for _ in range(steps_per_round):
+            c, s = np.cos(pose[2]), np.sin(pose[2])
+            for i in range(n):
+                rotated[i, 0] = points[i, 0] * c - points[i, 1] * s
+                rotated[i, 1] = points[i, 0] * s + points[i, 1] * c
+                world[i, 0] = rotated[i, 0] + pose[0]
+                world[i, 1] = rotated[i, 1] + pose[1]
+            travel = _travel(pose, lists_at, reach_m)
+            renew = not travel <= radius - gate  # and on the first step, or at a NaN pose
+            narrow = not renew and radius > 2.0 * gate and radius - travel >= 2.0 * gate
+            if renew:
+                listed_from, listed = filed_within(cells, segments, allowed, world, 2.0 * gate)
+            elif narrow:
+                listed_from, listed = _narrowed(world, segments, listed_from, listed, 2.0 * gate)
+            if renew or narrow:
+                lists_at[:] = pose
+                radius = 2.0 * gate
+            hessian = np.zeros((3, 3))
+            gradient = np.zeros(3)
+            jacobian = np.empty(3)
+            used = 0
+            for i in range(n):
+                j, d = _nearest_listed(
+                    world[i, 0], world[i, 1], segments, listed, listed_from[i], listed_from[i + 1]
+                )
+                if not d <= gate:
+                    continue
+                used += 1
+                dx, dy = segments[j, 2] - segments[j, 0], segments[j, 3] - segments[j, 1]
+                length = np.hypot(dx, dy)
+                length = length if length > 0 else 1.0
+                nx, ny = -dy / length, dx / length
+                residual = nx * (world[i, 0] - segments[j, 0]) + ny * (world[i, 1] - segments[j, 1])
+                jacobian[0], jacobian[1] = nx, ny
+                jacobian[2] = nx * -rotated[i, 1] + ny * rotated[i, 0]
+                # Cauchy weights with the scale at half the gate: points near the
+                # gate count for less, so a wrong pairing cannot drag the pose far.
+                weight = 1.0 / (1.0 + (residual / (0.5 * gate)) ** 2)
+                for a in range(3):
+                    weighted = jacobian[a] * weight
+                    gradient[a] += weighted * residual
+                    for b in range(3):
+                        hessian[a, b] += weighted * jacobian[b]
+            if used < min_points:
                 break
-            if not np.all(np.isfinite(step)):
+            offset = pose - initial
+            offset[2] = wrap_remainder(offset[2])
+            for a in range(3):
+                hessian[a, a] += prior[a] + 1e-6
+            step, regular = _solve3(hessian, -gradient - prior * offset)
+            if not regular or not np.all(np.isfinite(step)):
                 break
-            pose = pose + step
-            pose[2] = wrap_angle(pose[2])
+            pose += step
+            pose[2] = wrap_remainder(pose[2])
             if np.hypot(step[0], step[1]) < 1e-5 and abs(step[2]) < 1e-6:
                 break
-    fitted = Pose2(float(pose[0]), float(pose[1]), float(pose[2]))
-    _, dist = nearest_segments(transform_points(points, fitted), segments)
-    inliers = dist <= p.final_gate_m
-    rms = float(np.sqrt(np.mean(dist[inliers] ** 2))) if inliers.any() else float("nan")
-    score = float(np.mean(np.clip(1.0 - (dist / p.final_gate_m) ** 2, 0.0, 1.0)))
-    return Refinement(fitted, float(np.mean(inliers)), rms, n, score)
+    return pose

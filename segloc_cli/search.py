@@ -19,11 +19,16 @@ import numpy as np
 from numba import njit
 
 from segloc_cli.config import SearchParams
-from segloc_cli.field import INDEX_LIMIT, cell_indices, coarse_bound, score_raster
-from segloc_cli.geometry import Pose2, rotation, wrap_angle
-
-MAX_BOUND_CELLS = 2**24
-"""Most coarse-block bounds held at once (float64, 128 MiB); more headings are done in batches."""
+from segloc_cli.field import (
+    BOUND_LEVELS,
+    INDEX_LIMIT,
+    cell_indices,
+    max_pyramid,
+    pyramid_depth,
+    score_raster,
+)
+from segloc_cli.geometry import Pose2, point_segment_distances, rotation, wrap_angle
+from segloc_cli.kernels import wrap
 
 
 @dataclass(frozen=True)
@@ -35,44 +40,161 @@ class Hypothesis:
 
 
 @njit(cache=True)
-def _shift_sums(raster, ix, iy, nu, nv):
-    """Sums (H, nu, nv) over points of raster[ix[h, p] + u, iy[h, p] + v]; 0 outside.
+def _exact_sum(fine, ix, iy, x, y):
+    """Sum over points of fine[ix[p] + x, iy[p] + y] (float64, in point order); 0 outside.
 
     Points whose base cell lies beyond ``INDEX_LIMIT`` are skipped, so no index
-    arithmetic can overflow and every read stays inside ``raster``.
+    arithmetic can overflow and every read stays inside ``fine``.
     """
-    n_h, n_p = ix.shape
-    nx, ny = raster.shape
-    out = np.zeros((n_h, nu, nv))
+    nx, ny = fine.shape
+    total = 0.0
+    for p in range(ix.shape[0]):
+        bx, by = ix[p], iy[p]
+        if bx < -INDEX_LIMIT or bx > INDEX_LIMIT or by < -INDEX_LIMIT or by > INDEX_LIMIT:
+            continue
+        i, j = bx + x, by + y
+        if 0 <= i < nx and 0 <= j < ny:
+            total += fine[i, j]
+    return total
+
+
+@njit(cache=True)
+def _bound_sum(level, pad, ix, iy, x, y):
+    """Sum over points of a ``max_pyramid`` level at fine cell (ix[p] + x, iy[p] + y), in
+    points' worth: a bound on ``_exact_sum`` for every shift within the level's square."""
+    nx, ny = level.shape
+    total = 0
+    for p in range(ix.shape[0]):
+        bx, by = ix[p], iy[p]
+        if bx < -INDEX_LIMIT or bx > INDEX_LIMIT or by < -INDEX_LIMIT or by > INDEX_LIMIT:
+            continue
+        i, j = bx + x + pad, by + y + pad
+        if 0 <= i < nx and 0 <= j < ny:
+            total += level[i, j]
+    return total / BOUND_LEVELS
+
+
+@njit(cache=True)
+def _keep_distinct(score, hh, xx, yy, n, headings, cell, apart_m, apart_rad):
+    """Compact the first ``n`` entries (sorted best first) to those distinct from every
+    better entry kept; returns how many are kept."""
+    kept = 0
+    for e in range(n):
+        alone = True
+        for o in range(kept):
+            near = np.hypot(xx[e] - xx[o], yy[e] - yy[o]) * cell <= apart_m
+            if near and abs(wrap(headings[hh[e]] - headings[hh[o]])) <= apart_rad:
+                alone = False
+                break
+        if alone:
+            score[kept], hh[kept], xx[kept], yy[kept] = score[e], hh[e], xx[e], yy[e]
+            kept += 1
+    return kept
+
+
+@njit(cache=True)
+def _branch_and_bound(
+    fine, pyramid, ix, iy, n_cells, depth, headings, cell, apart_m, apart_rad, k, keep, top_mask
+):
+    """The ``k`` best distinct (heading, x, y) of the fine sums over a square of
+    ``n_cells``² shifts, by depth-first branch and bound over the bound pyramid.
+
+    ``ix``, ``iy`` (H, P) are the points' fine cells at shift (0, 0) per heading. The
+    search starts from every square of 2^``depth`` shifts that ``top_mask`` allows, best
+    bound first, and splits a square in four while its bound beats the threshold: the
+    k-th best distinct sum kept so far (0 until k are kept), and at least ``keep`` times
+    the best. The best sum is exact; the
+    runner-ups are the best distinct sums the pruning leaves (a better pose that is not
+    distinct from one kept replaces it). Returns (sums, heading indices, x, y), best first.
+    """
+    n_h = ix.shape[0]
+    pad = 2 ** pyramid.shape[0] - 1
+    step = 2**depth
+    n_top = -(-n_cells // step)
+    top_bound = np.zeros(n_h * n_top * n_top)
     for h in range(n_h):
-        for p in range(n_p):
-            bx, by = ix[h, p], iy[h, p]
-            if bx < -INDEX_LIMIT or bx > INDEX_LIMIT or by < -INDEX_LIMIT or by > INDEX_LIMIT:
+        for a in range(n_top):
+            for b in range(n_top):
+                if not top_mask[a, b]:
+                    continue
+                flat = (h * n_top + a) * n_top + b
+                if depth == 0:
+                    top_bound[flat] = _exact_sum(fine, ix[h], iy[h], a, b)
+                else:
+                    level = pyramid[depth - 1]
+                    top_bound[flat] = _bound_sum(level, pad, ix[h], iy[h], a * step, b * step)
+    order = np.argsort(-top_bound)
+    # The kept poses, best first, and room for one more while a leaf is placed.
+    kept_sum = np.zeros(k + 1)
+    kept_h = np.zeros(k + 1, dtype=np.int64)
+    kept_x = np.zeros(k + 1, dtype=np.int64)
+    kept_y = np.zeros(k + 1, dtype=np.int64)
+    n_kept = 0
+    threshold = 0.0
+    size = 4 * depth + 4
+    stack_level = np.zeros(size, dtype=np.int64)
+    stack_x = np.zeros(size, dtype=np.int64)
+    stack_y = np.zeros(size, dtype=np.int64)
+    stack_bound = np.zeros(size)
+    child_bound = np.zeros(4)
+    child_x = np.zeros(4, dtype=np.int64)
+    child_y = np.zeros(4, dtype=np.int64)
+    for flat in order:
+        if top_bound[flat] <= threshold:
+            break
+        h = flat // (n_top * n_top)
+        stack_level[0] = depth
+        stack_x[0] = (flat // n_top) % n_top * step
+        stack_y[0] = flat % n_top * step
+        stack_bound[0] = top_bound[flat]
+        top = 1
+        while top > 0:
+            top -= 1
+            level, x, y, bound = stack_level[top], stack_x[top], stack_y[top], stack_bound[top]
+            if bound <= threshold:
                 continue
-            u_lo, u_hi = max(0, -bx), min(nu, nx - bx)
-            v_lo, v_hi = max(0, -by), min(nv, ny - by)
-            for u in range(u_lo, u_hi):
-                row = raster[bx + u]
-                for v in range(v_lo, v_hi):
-                    out[h, u, v] += row[by + v]
-    return out
-
-
-FULL_SORT_CELLS = 2**22
-"""Bounds of up to this many blocks are fully sorted; larger sets are first cut down to their
-best with a partition (the same blocks, in an order that may differ among equal bounds)."""
-
-
-def _best_first(values: np.ndarray, count: int) -> np.ndarray:
-    """Indices of the ``count`` largest of ``values`` (1-D), largest first; past
-    ``FULL_SORT_CELLS`` values, only positive ones (a bound of 0 is never searched)."""
-    if values.size <= FULL_SORT_CELLS or count >= values.size:
-        return np.argsort(values)[::-1][:count]
-    positive = np.flatnonzero(values > 0.0)
-    if positive.size > count:
-        kept = np.argpartition(values[positive], positive.size - count)[positive.size - count :]
-        positive = positive[kept]
-    return positive[np.argsort(values[positive])[::-1]]
+            if level == 0:  # a leaf, whose bound is its exact sum: place it among the kept
+                e = n_kept
+                while e > 0 and kept_sum[e - 1] < bound:
+                    kept_sum[e], kept_h[e] = kept_sum[e - 1], kept_h[e - 1]
+                    kept_x[e], kept_y[e] = kept_x[e - 1], kept_y[e - 1]
+                    e -= 1
+                kept_sum[e], kept_h[e], kept_x[e], kept_y[e] = bound, h, x, y
+                n_kept = _keep_distinct(
+                    kept_sum,
+                    kept_h,
+                    kept_x,
+                    kept_y,
+                    n_kept + 1,
+                    headings,
+                    cell,
+                    apart_m,
+                    apart_rad,
+                )
+                n_kept = min(n_kept, k)
+                threshold = max(kept_sum[k - 1] if n_kept == k else 0.0, keep * kept_sum[0])
+                continue
+            half = 2 ** (level - 1)
+            n_child = 0
+            for dx in range(2):
+                for dy in range(2):
+                    cx, cy = x + dx * half, y + dy * half
+                    if cx >= n_cells or cy >= n_cells:
+                        continue
+                    if level == 1:
+                        value = _exact_sum(fine, ix[h], iy[h], cx, cy)
+                    else:
+                        value = _bound_sum(pyramid[level - 2], pad, ix[h], iy[h], cx, cy)
+                    if value > threshold:
+                        child_bound[n_child], child_x[n_child], child_y[n_child] = value, cx, cy
+                        n_child += 1
+            # The weakest is pushed first, so the strongest is searched first.
+            for c in np.argsort(child_bound[:n_child]):
+                stack_level[top], stack_x[top], stack_y[top] = level - 1, child_x[c], child_y[c]
+                stack_bound[top] = child_bound[c]
+                top += 1
+    n_kept = np.searchsorted(-kept_sum[:n_kept], -keep * kept_sum[0], side="right")
+    return kept_sum[:n_kept], kept_h[:n_kept], kept_x[:n_kept], kept_y[:n_kept]
 
 
 def distinct(poses: list[Pose2], pose: Pose2, distinct_m: float, distinct_deg: float) -> bool:
@@ -95,46 +217,10 @@ class HypothesisSearch:
         self.fine = score_raster(
             self.segments_world, p.cell_m, p.score_radius_m, margin_m=p.score_radius_m
         )
-        self._coarse: dict[int, np.ndarray] = {}
-
-    def coarse(self, factor: int) -> np.ndarray:
-        if factor not in self._coarse:
-            self._coarse[factor] = coarse_bound(self.fine.score, factor)
-        return self._coarse[factor]
-
-    def _ranked_blocks(
-        self, cx: np.ndarray, cy: np.ndarray, n_coarse: int, count: int, f: int, n_points: float
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """The ``count`` (heading, block) pairs of highest bound, best first.
-
-        Returns flat indices into (H, n_coarse, n_coarse) and their bounds (share
-        of the points). The bounds of all headings at once would take
-        H·n_coarse² floats (gigabytes for a global search of a large map), so
-        headings are bounded in batches of at most ``MAX_BOUND_CELLS`` blocks and
-        only each batch's best ``count`` are kept.
-        """
-        n_h = cx.shape[0]
-        per_heading = n_coarse * n_coarse
-        batch = max(1, MAX_BOUND_CELLS // per_heading)
-        coarse = self.coarse(f)
-        flats, values = [], []
-        for h0 in range(0, n_h, batch):
-            part = slice(h0, h0 + batch)
-            bounds = _shift_sums(coarse, cx[part], cy[part], n_coarse, n_coarse) / n_points
-            order = _best_first(bounds.reshape(-1), count)
-            flats.append(order + h0 * per_heading)
-            values.append(bounds.reshape(-1)[order])
-        if len(flats) == 1:
-            return flats[0], values[0]
-        flat, value = np.concatenate(flats), np.concatenate(values)
-        keep = np.argsort(-value, kind="stable")[:count]
-        return flat[keep], value[keep]
-
-    def extent(self) -> tuple[np.ndarray, float]:
-        """Centre (2,) and half side (m) of a square holding the whole map."""
-        ends = self.segments_world.reshape(-1, 2)
-        lo, hi = ends.min(axis=0), ends.max(axis=0)
-        return (lo + hi) / 2.0, float((hi - lo).max() / 2.0)
+        self.pyramid = max_pyramid(
+            self.fine.score, pyramid_depth(self.fine.score.shape, p.max_depth)
+        )
+        """The fine raster's bounds over squares of 2 to 2^max_depth cells."""
 
     def search(
         self,
@@ -142,15 +228,17 @@ class HypothesisSearch:
         headings_rad: np.ndarray,
         centre_xy: np.ndarray,
         half_width_m: float,
-        coarse_factor: int,
-        max_expansions: int,
+        reach_m: float | None = None,
     ) -> list[Hypothesis]:
-        """Distinct grid poses, best first, within a square around ``centre_xy``.
+        """The ``hypotheses`` best distinct grid poses, best first, in a square around
+        ``centre_xy``.
 
         Every heading is combined with every position on the fine grid of the
-        square (spacing ``cell_m``); only positions in coarse blocks whose
-        bound reaches ``keep_fraction`` of the best fine score are scored
-        exactly, at most ``max_expansions`` blocks, best bound first.
+        square (spacing ``cell_m``), and the score of a pose is the mean raster
+        score of the points there. Branch and bound finds the best exactly; poses
+        under ``keep_fraction`` of its score are not kept. With
+        ``reach_m``, positions farther than that from every map segment are not
+        searched (a scan seen from there could not reach the map).
         """
         p = self.params
         points = np.asarray(points_robot, dtype=float).reshape(-1, 2)
@@ -159,41 +247,62 @@ class HypothesisSearch:
             return []
         if not (np.all(np.isfinite(centre_xy)) and np.isfinite(half_width_m)):
             return []
-        cell, f = self.fine.cell_m, int(coarse_factor)
+        cell = self.fine.cell_m
         half_cells = int(np.ceil(half_width_m / cell))
         start = np.asarray(centre_xy, dtype=float) - half_cells * cell
-        n_fine = 2 * half_cells + 1
-        n_coarse = -(-n_fine // f)
+        n_cells = 2 * half_cells + 1
+        depth = min(self.pyramid.shape[0], int(np.ceil(np.log2(n_cells))))
         # Fine cell of every point at every heading, the shift being ``start``.
         rotated = np.einsum("pk,hjk->hpj", points, np.stack([rotation(h) for h in headings]))
         base = cell_indices((rotated + start - self.fine.origin) / cell)
         ix, iy = np.ascontiguousarray(base[..., 0]), np.ascontiguousarray(base[..., 1])
-        n_points = float(points.shape[0])
-        ranked, ranked_bounds = self._ranked_blocks(
-            ix // f, iy // f, n_coarse, max_expansions, f, n_points
+        mask = self._reachable(start, n_cells, depth, reach_m)
+        sums, h, x, y = _branch_and_bound(
+            self.fine.score,
+            self.pyramid,
+            ix,
+            iy,
+            n_cells,
+            depth,
+            headings,
+            cell,
+            p.distinct_m,
+            np.deg2rad(p.distinct_deg),
+            p.hypotheses,
+            p.keep_fraction,
+            mask,
         )
-        found: list[Hypothesis] = []
-        best = 0.0
-        for flat, bound in zip(ranked, ranked_bounds, strict=True):
-            h, cu, cv = np.unravel_index(flat, (headings.size, n_coarse, n_coarse))
-            if bound < p.keep_fraction * best or bound <= 0.0:
-                break
-            sums = _shift_sums(
-                self.fine.score, ix[h : h + 1] + cu * f, iy[h : h + 1] + cv * f, f, f
-            )[0]
-            u, v = np.unravel_index(np.argmax(sums), sums.shape)
-            score = float(sums[u, v] / n_points)
-            xy = start + cell * np.array([cu * f + u, cv * f + v])
-            found.append(Hypothesis(Pose2(float(xy[0]), float(xy[1]), float(headings[h])), score))
-            best = max(best, score)
-        found.sort(key=lambda hyp: -hyp.score)
-        kept: list[Hypothesis] = []
-        for hyp in found:
-            if distinct([k.pose for k in kept], hyp.pose, p.distinct_m, p.distinct_deg):
-                kept.append(hyp)
-                if len(kept) == p.hypotheses:
-                    break
-        return kept
+        xy = start + cell * np.column_stack([x, y])
+        return [
+            Hypothesis(
+                Pose2(float(px), float(py), float(headings[k])), float(total / points.shape[0])
+            )
+            for (px, py), k, total in zip(xy, h, sums, strict=True)
+        ]
+
+    def _reachable(
+        self, start: np.ndarray, n_cells: int, depth: int, reach_m: float | None
+    ) -> np.ndarray:
+        """Which squares of 2^depth positions (from ``start``) come within ``reach_m`` of a
+        map segment and meet the settings' region, if any (all of them when ``reach_m`` is
+        None: a search around a guess)."""
+        step = 2**depth
+        n_top = -(-n_cells // step)
+        if reach_m is None:
+            return np.ones((n_top, n_top), dtype=np.bool_)
+        side = step * self.fine.cell_m
+        corners = start + side * np.stack(
+            np.meshgrid(np.arange(n_top), np.arange(n_top), indexing="ij"), axis=-1
+        ).reshape(-1, 2)
+        centres = corners + side / 2.0
+        nearest = point_segment_distances(centres, self.segments_world).min(axis=1)
+        mask = nearest <= reach_m + side / np.sqrt(2.0)
+        if self.params.region is not None:  # squares that meet the region's rectangle
+            x0, y0, x1, y1 = self.params.region
+            far = corners + side
+            meets = (corners[:, 0] <= x1) & (far[:, 0] >= x0)
+            mask &= meets & (corners[:, 1] <= y1) & (far[:, 1] >= y0)
+        return mask.reshape(n_top, n_top)
 
     def around(
         self, points_robot: np.ndarray, initial: Pose2, window_deg: float, extra_headings=()
@@ -203,23 +312,32 @@ class HypothesisSearch:
         steps = np.arange(-window_deg, window_deg + 1e-9, p.heading_step_deg)
         headings = np.concatenate([initial.theta + np.deg2rad(steps), np.asarray(extra_headings)])
         return self.search(
-            points_robot,
-            wrap_angle(headings),
-            np.array([initial.x, initial.y]),
-            p.half_width_m,
-            p.coarse_factor,
-            p.max_expansions,
+            points_robot, wrap_angle(headings), np.array([initial.x, initial.y]), p.half_width_m
         )
 
     def everywhere(self, points_robot: np.ndarray) -> list[Hypothesis]:
-        """Search the whole map at every heading (no initial guess).
+        """Search at every heading with no initial guess: within ``region`` if the settings
+        give one, else over the whole map wherever the scan's farthest reading could reach
+        a map segment from.
 
         Every heading, not only stage 1's peaks: over a whole map the vote's
         strongest peaks often miss the true heading of a 180° scan.
         """
         p = self.params
+        points = np.asarray(points_robot, dtype=float).reshape(-1, 2)
+        radii = np.hypot(points[:, 0], points[:, 1])
+        reach = float(radii[np.isfinite(radii)].max(initial=0.0))
         headings = np.deg2rad(np.arange(0.0, 360.0, p.heading_step_deg))
         centre, half = self.extent()
-        return self.search(
-            points_robot, headings, centre, half, p.global_coarse_factor, p.global_max_expansions
-        )
+        return self.search(points, headings, centre, half, reach)
+
+    def extent(self) -> tuple[np.ndarray, float]:
+        """Centre (2,) and half side (m) of the square a global search covers: the region's
+        if the settings give one, else the whole map's."""
+        if self.params.region is not None:
+            x0, y0, x1, y1 = self.params.region
+            lo, hi = np.array([x0, y0]), np.array([x1, y1])
+        else:
+            ends = self.segments_world.reshape(-1, 2)
+            lo, hi = ends.min(axis=0), ends.max(axis=0)
+        return (lo + hi) / 2.0, float((hi - lo).max() / 2.0)

@@ -5,16 +5,28 @@ Each segment is filed under every grid cell its bounding box touches; a
 query for the segments within ``radius`` of a point gathers the cells of the
 square around it, so it costs what the neighbourhood holds, not what the map
 holds.
+
+Refinement and the inlier measures ask the same question for every point of a
+scan at once, within a few decimetres; they go through the compiled kernels
+below, which walk the cells of the grid the same way (``SegmentGrid.nearest``,
+``within``, ``mask_near``), best on a grid of fine cells (``NEAR_CELL_M``).
+Their answers are exact: the cells only spare the segments that are too far.
 """
 
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 
 from segloc_cli.geometry import as_segments, point_segment_distances
+from segloc_cli.kernels import point_segment_distance
 
 DEFAULT_CELL_M = 4.0
 """Cell side: about a room's wall; small enough that a query's square holds little else."""
+
+NEAR_CELL_M = 0.5
+"""Cell side of a grid for what lies within a few decimetres of each point of a scan
+(refinement's gates, the inlier band): a query's square then spans a handful of cells."""
 
 QUERY_SLACK_M = 1e-6
 """Queries reach this much past their radius, against rounding at cell edges."""
@@ -30,8 +42,10 @@ class SegmentGrid:
     def __init__(self, segments_world: np.ndarray, cell_m: float = DEFAULT_CELL_M):
         if not cell_m > 0.0:
             raise ValueError(f"cell_m must be > 0, got {cell_m}")
-        self.segments_world = as_segments(segments_world)
+        self.segments_world = np.ascontiguousarray(as_segments(segments_world))
         self.cell_m = float(cell_m)
+        self._cells: FiledCells | None = None
+        self._everything: np.ndarray | None = None
         segments = self.segments_world
         if segments.shape[0] == 0:
             self._origin = np.zeros(2)
@@ -101,3 +115,157 @@ class SegmentGrid:
             return ids
         distance = point_segment_distances(np.asarray(point_xy, float), self.segments_world[ids])
         return ids[distance[0] <= radius_m]
+
+    @property
+    def cells(self) -> FiledCells:
+        """The grid as the compiled kernels take it: (origin (2,) m, cell side m, shape (2,),
+        offsets (cells + 1,), members), the members of cell (ix, iy) being
+        ``members[offsets[c]:offsets[c + 1]]`` with ``c = ix * shape[1] + iy``."""
+        if self._cells is None:
+            shape = np.array(self._shape, dtype=np.int64)
+            self._cells = (self._origin, self.cell_m, shape, self._offsets, self._members)
+        return self._cells
+
+    def mask_all(self) -> np.ndarray:
+        """Mask (M,) letting a query return every segment (one array, shared: do not edit)."""
+        if self._everything is None:
+            self._everything = np.ones(self.segments_world.shape[0], dtype=np.bool_)
+        return self._everything
+
+    def mask_near(self, point_xy, radius_m: float) -> np.ndarray:
+        """Mask (M,) of the segments within ``radius_m`` (metres) of the point: ``near`` as a
+        mask, compiled (its distances may differ from ``near``'s in the last bit)."""
+        x, y = (float(v) for v in np.asarray(point_xy, dtype=float).reshape(2))
+        return near_mask(self.cells, self.segments_world, x, y, float(radius_m))
+
+    def nearest(
+        self, points_world: np.ndarray, within_m: float, allowed: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Index (P,) of each point's nearest segment and its distance (P,) in metres, for
+        the points (P, 2), world frame, that have one within ``within_m``; index -1 and
+        distance inf for the others (and for points that are not finite).
+
+        ``allowed`` (M,) bool restricts the segments considered. Among segments
+        equally near, the lowest index wins, as in a scan of all segments in order.
+        """
+        points = np.ascontiguousarray(points_world, dtype=float).reshape(-1, 2)
+        mask = self.mask_all() if allowed is None else allowed
+        return nearest_filed(self.cells, self.segments_world, mask, points, float(within_m))
+
+    def within(
+        self, points_world: np.ndarray, radius_m: float, allowed: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Per point (P, 2), world frame, the segments within ``radius_m`` (metres) of it, as
+        CSR: offsets (P + 1,) into indices. A point's list is unordered, without repeats."""
+        points = np.ascontiguousarray(points_world, dtype=float).reshape(-1, 2)
+        mask = self.mask_all() if allowed is None else allowed
+        return filed_within(self.cells, self.segments_world, mask, points, float(radius_m))
+
+
+FiledCells = tuple[np.ndarray, float, np.ndarray, np.ndarray, np.ndarray]
+"""``SegmentGrid.cells``: what the compiled queries below read of a grid."""
+
+
+@njit(cache=True)
+def _cell_index(scaled: float) -> int:
+    """Cell number of a coordinate already divided by the cell side; clipped before the cast
+    as in ``SegmentGrid._cell_of``, so a far point cannot wrap around int64."""
+    return np.int64(np.floor(min(max(scaled, -1e15), 1e15)))
+
+
+@njit(cache=True)
+def cell_span(cells, px: float, py: float, radius_m: float) -> tuple[int, int, int, int]:
+    """Cells (ix0, ix1, iy0, iy1), bounds included, of the square ±``radius_m`` around the
+    point (px, py), clipped to the grid: the cells ``SegmentGrid.candidates`` gathers.
+
+    Empty (ix1 < ix0) for a point or radius that is not finite, but an infinite radius
+    spans the whole grid.
+    """
+    origin, cell_m, shape = cells[0], cells[1], cells[2]
+    reach = radius_m + QUERY_SLACK_M
+    if not (np.isfinite(px) and np.isfinite(py) and reach >= 0.0):
+        return 0, -1, 0, -1
+    if reach == np.inf:
+        return 0, shape[0] - 1, 0, shape[1] - 1
+    ix0 = max(_cell_index((px - reach - origin[0]) / cell_m), 0)
+    iy0 = max(_cell_index((py - reach - origin[1]) / cell_m), 0)
+    ix1 = min(_cell_index((px + reach - origin[0]) / cell_m), shape[0] - 1)
+    iy1 = min(_cell_index((py + reach - origin[1]) / cell_m), shape[1] - 1)
+    if ix1 < ix0 or iy1 < iy0:
+        return 0, -1, 0, -1
+    return ix0, ix1, iy0, iy1
+
+
+@njit(cache=True)
+def near_mask(cells, segments, px, py, radius_m):
+    """``SegmentGrid.mask_near`` compiled: mask (M,) of the segments within ``radius_m``."""
+    offsets, members, ny = cells[3], cells[4], cells[2][1]
+    mask = np.zeros(segments.shape[0], dtype=np.bool_)
+    ix0, ix1, iy0, iy1 = cell_span(cells, px, py, radius_m)
+    for ix in range(ix0, ix1 + 1):
+        for k in range(offsets[ix * ny + iy0], offsets[ix * ny + iy1 + 1]):
+            j = members[k]
+            if not mask[j]:
+                d = point_segment_distance(
+                    px, py, segments[j, 0], segments[j, 1], segments[j, 2], segments[j, 3]
+                )
+                mask[j] = d <= radius_m
+    return mask
+
+
+@njit(cache=True)
+def nearest_filed(cells, segments, allowed, points, within_m):
+    """``SegmentGrid.nearest`` compiled: (index (P,), distance (P,)) of each point's nearest
+    allowed segment within ``within_m``, -1 and inf where there is none."""
+    offsets, members, ny = cells[3], cells[4], cells[2][1]
+    n = points.shape[0]
+    index = np.full(n, -1, dtype=np.int64)
+    dist = np.full(n, np.inf)
+    for i in range(n):
+        px, py = points[i, 0], points[i, 1]
+        ix0, ix1, iy0, iy1 = cell_span(cells, px, py, within_m)
+        for ix in range(ix0, ix1 + 1):
+            # The cells of one column are contiguous in ``members``.
+            for k in range(offsets[ix * ny + iy0], offsets[ix * ny + iy1 + 1]):
+                j = members[k]
+                if not allowed[j]:
+                    continue
+                d = point_segment_distance(
+                    px, py, segments[j, 0], segments[j, 1], segments[j, 2], segments[j, 3]
+                )
+                if d <= within_m and (d < dist[i] or (d == dist[i] and j < index[i])):
+                    dist[i], index[i] = d, j
+    return index, dist
+
+
+@njit(cache=True)
+def filed_within(cells, segments, allowed, points, radius_m):
+    """``SegmentGrid.within`` compiled: CSR (offsets (P + 1,), indices) of the allowed
+    segments within ``radius_m`` of each point."""
+    offsets, members, ny = cells[3], cells[4], cells[2][1]
+    n = points.shape[0]
+    starts = np.zeros(n + 1, dtype=np.int64)
+    found = np.empty(max(64, 8 * n), dtype=np.int64)
+    count = 0
+    listed_for = np.full(segments.shape[0], -1, dtype=np.int64)  # a segment filed in two cells
+    for i in range(n):
+        px, py = points[i, 0], points[i, 1]
+        ix0, ix1, iy0, iy1 = cell_span(cells, px, py, radius_m)
+        for ix in range(ix0, ix1 + 1):
+            for k in range(offsets[ix * ny + iy0], offsets[ix * ny + iy1 + 1]):
+                j = members[k]
+                if not allowed[j] or listed_for[j] == i:
+                    continue
+                listed_for[j] = i
+                d = point_segment_distance(
+                    px, py, segments[j, 0], segments[j, 1], segments[j, 2], segments[j, 3]
+                )
+                if d <= radius_m:
+                    if count == found.size:
+                        grown = np.empty(2 * found.size, dtype=np.int64)
+                        grown[:count] = found
+                        found = grown
+                    found[count] = j
+                    count += 1
+        starts[i + 1] = count
+    return starts, found[:count]

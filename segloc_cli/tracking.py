@@ -128,9 +128,9 @@ def _track_match(
     increment: Pose2 | None,
     track: TrackParams,
 ) -> Estimate:
-    """The first match of a tracked scan, with its inlier share measured."""
+    """The first match of a tracked scan, with its inlier share measured; ``points`` are the
+    scan's usable points (``usable_points``), robot frame."""
     p = localizer.params
-    points = usable_points(points)
     if p.refine is None:
         return _measured(localizer, localizer.localize(local, guess), points)
     sigma_m, sigma_deg = (None, None) if increment is None else track.prior(increment)
@@ -139,6 +139,7 @@ def _track_match(
         localizer.segments_world,
         guess,
         replace(p.refine, prior_sigma_m=sigma_m, prior_sigma_deg=sigma_deg),
+        index=localizer.near_index,
     )
     return Estimate(
         pose=fit.pose,
@@ -175,10 +176,10 @@ def _heading_fits(
     if local.shape[0] >= localizer.params.min_segments:
         headings = np.concatenate([localizer.headings(local, guess), headings])
     params = replace(localizer.params.refine, prior_sigma_m=track.max_jump_m * factor / 4.0)
-    out, n_local = [], int(local.shape[0])
+    out, n_local, near = [], int(local.shape[0]), localizer.near_index
     for heading in headings:
         start = Pose2(guess.x, guess.y, float(wrap_angle(heading)))
-        fit = refine_pose(points, localizer.segments_world, start, params)
+        fit = refine_pose(points, localizer.segments_world, start, params, index=near)
         out.append(
             Estimate(
                 pose=fit.pose,
@@ -197,7 +198,9 @@ def _measured(localizer: Localizer, est: Estimate, points: np.ndarray) -> Estima
     if est.status != STATUS_OK or np.isfinite(est.inlier_ratio):
         return est
     band = (localizer.params.refine or RefineParams()).final_gate_m
-    return replace(est, inlier_ratio=inlier_ratio(points, localizer.segments_world, est.pose, band))
+    near = localizer.near_index
+    ratio = inlier_ratio(points, localizer.segments_world, est.pose, band, index=near)
+    return replace(est, inlier_ratio=ratio)
 
 
 def _accepted(est: Estimate, guess: Pose2, track: TrackParams, scale: float) -> bool:

@@ -174,9 +174,9 @@ CORPUS = textwrap.dedent(
                            [0.5, 0.5], [-1e300, 1e-300]])
     search = HypothesisSearch(world.segments)
     for heading in (0.0, np.nan, np.inf):
-        search.search(bad_points, np.array([heading]), np.array([truth.x, truth.y]), 2.0, 4, 50)
-    search.search(bad_points, np.array([0.0]), np.array([np.nan, 1e300]), 2.0, 4, 50)
-    search.search(bad_points, np.array([0.0]), np.array([1e18, -1e18]), 2.0, 4, 50)
+        search.search(bad_points, np.array([heading]), np.array([truth.x, truth.y]), 2.0)
+    search.search(bad_points, np.array([0.0]), np.array([np.nan, 1e300]), 2.0, 30.0)
+    search.search(bad_points, np.array([0.0]), np.array([1e18, -1e18]), 2.0)
     search.fine.lookup(bad_points)
     refine_pose(bad_points, world.segments, guesses["near"])
     refine_pose(bad_points, world.segments, guesses["nan"])

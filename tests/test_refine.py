@@ -5,9 +5,23 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from segloc_cli.geometry import Pose2, transform_points, wrap_angle
-from segloc_cli.refine import RefineParams, inlier_ratio, nearest_segments, refine_pose
-from segloc_cli.sim import NOISE_FREE, random_free_poses, random_world, simulate_scan
+from segloc_cli.geometry import (
+    Pose2,
+    point_segment_distances,
+    rotation,
+    transform_points,
+    wrap_angle,
+)
+from segloc_cli.refine import (
+    Refinement,
+    RefineParams,
+    inlier_ratio,
+    nearest_segments,
+    refine_pose,
+    support,
+)
+from segloc_cli.sim import NOISE_FREE, SensorModel, random_free_poses, random_world, simulate_scan
+from segloc_cli.spatial import SegmentGrid
 
 
 def test_nearest_segment_and_distance_by_hand():
@@ -109,3 +123,140 @@ def test_points_that_are_not_finite_take_no_part_in_the_fit():
     assert fit.pose.y == pytest.approx(truth.y, abs=1e-6)
     assert fit.pose == clean.pose
     assert fit.inlier_ratio == pytest.approx(60 / 63)
+
+
+def _numpy_fit(points: np.ndarray, segments: np.ndarray, initial: Pose2, p: RefineParams):
+    """The fit written step by step in numpy, brute force over the segments: the reference
+    the compiled fit must repeat (same gates, weights, prior, stopping rules and result)."""
+    radii = np.hypot(points[:, 0], points[:, 1])
+    reach = float(radii[np.isfinite(radii)].max(initial=0.0)) + 2.0 * p.gate_m
+    segments = segments[point_segment_distances([initial.x, initial.y], segments)[0] <= reach]
+    d = segments[:, 2:4] - segments[:, 0:2]
+    length = np.hypot(d[:, 0], d[:, 1])
+    normals = np.column_stack([-d[:, 1], d[:, 0]]) / np.where(length > 0, length, 1.0)[:, None]
+    gates = [p.gate_m]
+    while gates[-1] / 2.0 > p.final_gate_m:
+        gates.append(gates[-1] / 2.0)
+    if gates[-1] > p.final_gate_m:
+        gates.append(p.final_gate_m)
+    prior = np.zeros(3)
+    if p.prior_sigma_m is not None:
+        prior[:2] = (p.point_sigma_m / p.prior_sigma_m) ** 2
+    if p.prior_sigma_deg is not None:
+        prior[2] = (p.point_sigma_m / np.deg2rad(p.prior_sigma_deg)) ** 2
+    pose = initial.as_array()
+    for gate in gates:
+        for _ in range(p.steps_per_round):
+            rotated = points @ rotation(pose[2]).T
+            world = rotated + pose[:2]
+            # No candidate lists: every point against every segment near the guess.
+            dist = point_segment_distances(world, segments)
+            index = np.argmin(np.where(np.isnan(dist), np.inf, dist), axis=1)
+            nearest = dist[np.arange(len(points)), index]
+            use = nearest <= gate
+            if np.count_nonzero(use) < p.min_points:
+                break
+            normal = normals[index[use]]
+            residual = np.sum(normal * (world[use] - segments[index[use], 0:2]), axis=1)
+            jacobian = np.column_stack(
+                [normal, normal[:, 0] * -rotated[use, 1] + normal[:, 1] * rotated[use, 0]]
+            )
+            weight = 1.0 / (1.0 + (residual / (0.5 * gate)) ** 2)
+            jw = jacobian * weight[:, None]
+            offset = pose - initial.as_array()
+            offset[2] = wrap_angle(offset[2])
+            hessian = jw.T @ jacobian + np.diag(prior + 1e-6)
+            step = np.linalg.solve(hessian, -jw.T @ residual - prior * offset)
+            pose = pose + step
+            pose[2] = wrap_angle(pose[2])
+            if np.hypot(step[0], step[1]) < 1e-5 and abs(step[2]) < 1e-6:
+                break
+    fitted = Pose2(*(float(v) for v in pose))
+    dist = point_segment_distances(transform_points(points, fitted), segments).min(axis=1)
+    inliers = dist <= p.final_gate_m
+    rms = float(np.sqrt(np.mean(dist[inliers] ** 2))) if inliers.any() else float("nan")
+    score = float(np.mean(np.clip(1.0 - (dist / p.final_gate_m) ** 2, 0.0, 1.0)))
+    return Refinement(fitted, float(np.mean(inliers)), rms, len(points), score)
+
+
+def _apart(segments: np.ndarray, gap_m: float = 0.01) -> np.ndarray:
+    """The segments (M, 4) shortened by ``gap_m`` at each end, so that no two share an end.
+
+    A point beyond the shared end of two segments is equally far from both, and which of
+    the two a difference in the last bit picks moves the fit by up to its stopping
+    tolerance (steps of 1e-5 m); apart, every point has one nearest segment.
+    """
+    d = segments[:, 2:4] - segments[:, 0:2]
+    length = np.hypot(d[:, 0], d[:, 1])[:, None]
+    unit = d / length
+    return np.hstack([segments[:, 0:2] + gap_m * unit, segments[:, 2:4] - gap_m * unit])
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_the_compiled_fit_repeats_the_numpy_fit(seed):
+    rng = np.random.default_rng(1000 + seed)
+    world = random_world(rng)
+    segments = _apart(world.segments)
+    params = [RefineParams(), RefineParams(prior_sigma_m=0.1, prior_sigma_deg=2.0)][seed % 2]
+    for truth in random_free_poses(world, 4, rng):
+        true = Pose2(*truth)
+        points = simulate_scan(world, true, SensorModel(), rng, 0.0).points()
+        start = Pose2(
+            true.x + rng.uniform(-0.3, 0.3),
+            true.y + rng.uniform(-0.3, 0.3),
+            true.theta + np.deg2rad(rng.uniform(-5.0, 5.0)),
+        )
+        expected = _numpy_fit(points, segments, start, params)
+        fit = refine_pose(points, segments, start, params)
+        assert fit.pose.x == pytest.approx(expected.pose.x, abs=1e-9)
+        assert fit.pose.y == pytest.approx(expected.pose.y, abs=1e-9)
+        assert fit.pose.theta == pytest.approx(expected.pose.theta, abs=1e-9)
+        assert fit.inlier_ratio == expected.inlier_ratio
+        assert fit.rms_m == pytest.approx(expected.rms_m, abs=1e-9)
+        assert fit.score == pytest.approx(expected.score, abs=1e-9)
+        assert fit.n_points == expected.n_points
+
+
+def test_the_map_index_changes_nothing():
+    """Fits and verdicts through a grid of the map are bit for bit those without it."""
+    rooms = [random_world(np.random.default_rng(500 + k)) for k in range(4)]
+    segments = np.concatenate(
+        [room.segments + [22.0 * (k % 2), 16.0 * (k // 2)] * 2 for k, room in enumerate(rooms)]
+    )
+    rng = np.random.default_rng(5)
+    for cell_m in (0.5, 4.0):
+        grid = SegmentGrid(segments, cell_m=cell_m)
+        for truth in random_free_poses(rooms[3], 5, rng):
+            true = Pose2(truth[0] + 22.0, truth[1] + 16.0, truth[2])
+            points = simulate_scan(rooms[3], Pose2(*truth), SensorModel(), rng, 0.0).points()
+            start = Pose2(true.x + 0.25, true.y - 0.2, true.theta + 0.05)
+            for params in (RefineParams(), RefineParams(prior_sigma_m=0.2, prior_sigma_deg=3.0)):
+                plain = refine_pose(points, segments, start, params)
+                assert refine_pose(points, segments, start, params, index=grid) == plain
+            for band in (0.05, 0.3):
+                assert support(points, segments, true, band, index=grid) == support(
+                    points, segments, true, band
+                )
+            world_points = transform_points(points, true)
+            for bound in (0.05, 0.5):
+                found, dist = nearest_segments(world_points, segments, index=grid, within_m=bound)
+                brute, brute_dist = nearest_segments(world_points, segments, within_m=bound)
+                np.testing.assert_array_equal(found, brute)
+                np.testing.assert_array_equal(dist, brute_dist)
+
+
+def test_an_index_of_another_map_is_refused():
+    segments = np.array([[0.0, 0.0, 4.0, 0.0], [0.0, 0.0, 0.0, 3.0]])
+    grid = SegmentGrid(segments[:1])
+    with pytest.raises(ValueError, match="index"):
+        refine_pose(np.ones((10, 2)), segments, Pose2(0.0, 0.0, 0.0), index=grid)
+
+
+def test_nearest_within_a_bound_leaves_farther_points_unpaired():
+    segments = np.array([[0.0, 0.0, 4.0, 0.0], [5.0, -1.0, 5.0, 1.0]])
+    points = np.array([[1.0, 0.5], [4.8, 0.2], [-3.0, 4.0], [np.nan, 0.0]])
+    grid = SegmentGrid(segments, cell_m=1.0)
+    for index in (None, grid):
+        found, dist = nearest_segments(points, segments, index=index, within_m=0.6)
+        assert found.tolist() == [0, 1, -1, -1]
+        np.testing.assert_allclose(dist, [0.5, 0.2, np.inf, np.inf])

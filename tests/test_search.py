@@ -14,12 +14,13 @@ from segloc_cli.confidence import (
     ConfidenceParams,
     judge,
 )
+from segloc_cli.config import SearchParams
 from segloc_cli.extract import extract_segments
-from segloc_cli.field import coarse_bound, score_raster
+from segloc_cli.field import BOUND_LEVELS, cell_indices, max_pyramid, pyramid_depth, score_raster
 from segloc_cli.geometry import Pose2, point_segment_distances, wrap_angle
 from segloc_cli.io.maps import World
 from segloc_cli.localize import STATUS_TOO_FEW_SEGMENTS, LocalizeParams, Localizer
-from segloc_cli.search import HypothesisSearch, distinct
+from segloc_cli.search import HypothesisSearch, _exact_sum, distinct
 from segloc_cli.sim import NOISE_FREE, random_free_poses, random_world, simulate_scan
 
 
@@ -42,21 +43,66 @@ def test_score_raster_values_by_hand():
 
 @settings(max_examples=40, deadline=None)
 @given(
-    st.integers(min_value=2, max_value=6),
+    st.integers(min_value=1, max_value=4),
     st.integers(min_value=1, max_value=30),
     st.integers(min_value=1, max_value=30),
     st.integers(min_value=0, max_value=2**31),
 )
-def test_coarse_bound_bounds_every_shift_within_a_block(factor, nx, ny, seed):
+def test_pyramid_bounds_every_shift_within_its_square(depth, nx, ny, seed):
     fine = np.random.default_rng(seed).random((nx, ny)).astype(np.float32)
-    bound = coarse_bound(fine, factor)
-    for b in range(nx):
-        for c in range(ny):
-            for u in range(factor):
-                for v in range(factor):
-                    inside = b + u < nx and c + v < ny
-                    value = fine[b + u, c + v] if inside else 0.0
-                    assert bound[b // factor, c // factor] >= value
+    pyramid = max_pyramid(fine, depth)
+    pad = 2**depth - 1
+    assert pyramid.shape == (depth, nx + pad, ny + pad)
+    for level in range(1, depth + 1):
+        side = 2**level
+        for b in range(-pad, nx):
+            for c in range(-pad, ny):
+                square = fine[max(b, 0) : max(b + side, 0), max(c, 0) : max(c + side, 0)]
+                best = float(square.max()) if square.size else 0.0
+                bound = pyramid[level - 1, b + pad, c + pad] / BOUND_LEVELS
+                # An upper bound, and no looser than one 255th.
+                assert best <= bound <= best + 1.0 / BOUND_LEVELS + 1e-6
+
+
+def _exhaustive(search: HypothesisSearch, points, headings, centre, half_width_m):
+    """Every (sum, heading index, x, y) of the search's grid, by brute force."""
+    cell = search.fine.cell_m
+    half = int(np.ceil(half_width_m / cell))
+    start = np.asarray(centre) - half * cell
+    n = 2 * half + 1
+    rows = []
+    for h, theta in enumerate(headings):
+        world = points @ np.array([[np.cos(theta), np.sin(theta)], [-np.sin(theta), np.cos(theta)]])
+        base = cell_indices((world + start - search.fine.origin) / cell)
+        for x in range(n):
+            for y in range(n):
+                total = _exact_sum(search.fine.score, base[:, 0], base[:, 1], x, y)
+                rows.append((total, h, x, y))
+    return rows, start
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_branch_and_bound_finds_what_brute_force_finds(seed):
+    """On small maps and windows, the best pose is the exhaustive maximum (same sum), and the
+    runner-ups are exact sums, distinct, and no worse than keep_fraction of the best."""
+    rng = np.random.default_rng(8100 + seed)
+    world = random_world(rng)
+    true = Pose2(*random_free_poses(world, 1, rng)[0])
+    points = simulate_scan(world, true, NOISE_FREE, rng, 0.0).points()[::8]
+    search = HypothesisSearch(world.segments, SearchParams(max_depth=3))
+    guess = np.array([true.x + rng.uniform(-0.3, 0.3), true.y + rng.uniform(-0.3, 0.3)])
+    headings = true.theta + np.deg2rad(np.arange(-3.0, 3.5, 1.0))
+    found = search.search(points, headings, guess, 0.4)
+    rows, start = _exhaustive(search, points, headings, guess, 0.4)
+    best = max(row[0] for row in rows)
+    assert found[0].score * points.shape[0] == pytest.approx(best, rel=1e-12)
+    sums = {(h, x, y): total for total, h, x, y in rows}
+    for i, hyp in enumerate(found):
+        h = int(np.argmin(np.abs(wrap_angle(headings - hyp.pose.theta))))
+        x, y = np.rint((np.array([hyp.pose.x, hyp.pose.y]) - start) / search.fine.cell_m)
+        assert hyp.score * points.shape[0] == pytest.approx(sums[(h, int(x), int(y))], rel=1e-12)
+        assert hyp.score >= search.params.keep_fraction * found[0].score
+        assert distinct([f.pose for f in found[:i]], hyp.pose, 0.3, 3.0)
 
 
 def test_distinct_poses():
@@ -175,18 +221,23 @@ def test_lookup_of_points_that_are_not_finite_or_far_is_zero():
     np.testing.assert_array_equal(raster.lookup(points), [0.0, 0.0, 0.0, 0.0, 1.0])
 
 
-def test_bounds_in_batches_find_the_same_poses(monkeypatch):
-    """Bounding a few headings at a time (as a large map's global search does) and cutting
-    each batch to its best blocks finds the same hypotheses as bounding all at once."""
-    import segloc_cli.search as search_module
+def test_pyramid_of_a_huge_raster_gets_fewer_levels_not_more_memory():
+    # 4 levels of a 10,000² raster, each padded by 15 cells: 4 · 10,015² > 4·10⁸ cells.
+    assert pyramid_depth((10_000, 10_000), 7) == 3
+    assert pyramid_depth((6_000, 6_000), 7) == 7
+    assert pyramid_depth((100, 100), 0) == 0
 
-    rng = np.random.default_rng(7303)
+
+def test_search_with_no_pyramid_is_brute_force_and_finds_the_same_best():
+    rng = np.random.default_rng(8200)
     world = random_world(rng)
     true = Pose2(*random_free_poses(world, 1, rng)[0])
-    points = simulate_scan(world, true, NOISE_FREE, rng, 0.0).points()
-    whole = HypothesisSearch(world.segments).everywhere(points)
-    monkeypatch.setattr(search_module, "MAX_BOUND_CELLS", 5000)
-    monkeypatch.setattr(search_module, "FULL_SORT_CELLS", 100)
-    batched = HypothesisSearch(world.segments).everywhere(points)
-    assert [h.pose for h in batched] == [h.pose for h in whole]
-    assert [h.score for h in batched] == pytest.approx([h.score for h in whole])
+    points = simulate_scan(world, true, NOISE_FREE, rng, 0.0).points()[::6]
+    centre = np.array([true.x + 0.2, true.y - 0.1])
+    headings = true.theta + np.deg2rad([-2.0, -1.0, 0.0, 1.0])
+    flat = HypothesisSearch(world.segments, SearchParams(max_depth=0))
+    deep = HypothesisSearch(world.segments)
+    assert flat.pyramid.shape[0] == 0
+    best_flat = flat.search(points, headings, centre, 0.3)[0]
+    best_deep = deep.search(points, headings, centre, 0.3)[0]
+    assert best_flat == best_deep

@@ -11,6 +11,7 @@ from hypothesis import strategies as st
 from segloc_cli.extract import extract_segments
 from segloc_cli.geometry import Pose2, point_segment_distances
 from segloc_cli.io.maps import World
+from segloc_cli.kernels import point_segment_distance
 from segloc_cli.localize import Localizer
 from segloc_cli.overlap import coarse_to_fine
 from segloc_cli.sim import SensorModel, random_free_poses, random_world, simulate_scan
@@ -35,6 +36,52 @@ def test_near_matches_brute_force(ends, point, radius, cell):
         else np.zeros(0, dtype=np.int64)
     )
     np.testing.assert_array_equal(grid.near(point, radius), expected)
+
+
+@settings(deadline=None, max_examples=200)
+@given(
+    ends=st.lists(st.tuples(coordinate, coordinate, coordinate, coordinate), max_size=40),
+    points=st.lists(st.tuples(coordinate, coordinate), min_size=1, max_size=20),
+    radius=st.floats(0.0, 20.0),
+    cell=st.sampled_from([0.25, 1.0, 4.0, 30.0]),
+    keep=st.integers(0, 2**40),
+)
+def test_batch_queries_match_brute_force(ends, points, radius, cell, keep):
+    """``within``, ``nearest`` and ``mask_near`` pick exactly what testing every allowed
+    segment with the same compiled distance does."""
+    segments = np.array(ends, dtype=float).reshape(-1, 4)
+    xy = np.array(points, dtype=float)
+    grid = SegmentGrid(segments, cell_m=cell)
+    allowed = ((keep >> (np.arange(segments.shape[0]) % 40)) & 1) == 1  # a random subset
+    dist = np.array([[point_segment_distance(*p, *s) for s in segments] for p in xy])
+    dist = dist.reshape(len(xy), segments.shape[0])
+    within = (dist <= radius) & allowed
+    offsets, listed = grid.within(xy, radius, allowed)
+    index, nearest = grid.nearest(xy, radius, allowed)
+    for i in range(len(xy)):
+        found = listed[offsets[i] : offsets[i + 1]]
+        np.testing.assert_array_equal(np.sort(found), np.flatnonzero(within[i]))
+        np.testing.assert_array_equal(grid.mask_near(xy[i], radius), dist[i] <= radius)
+        if not within[i].any():
+            assert index[i] == -1 and nearest[i] == np.inf
+            continue
+        closest = np.where(within[i], dist[i], np.inf)
+        assert nearest[i] == closest.min()
+        assert index[i] == np.argmin(closest)  # the first of equally near ones
+
+
+def test_batch_queries_from_nowhere_find_nothing():
+    segments = np.array([[0.0, 0.0, 10.0, 0.0], [0.0, 5.0, 1.0, 5.0]])
+    grid = SegmentGrid(segments, cell_m=2.0)
+    points = np.array([[np.nan, 0.0], [np.inf, 1.0], [1e30, -1e30], [0.5, 4.9]])
+    index, dist = grid.nearest(points, 1.0)
+    assert index.tolist() == [-1, -1, -1, 1]
+    assert dist[:3].tolist() == [np.inf] * 3 and dist[3] == pytest.approx(0.1)
+    # An infinite radius reaches every segment from any finite point, however far.
+    offsets, listed = grid.within(points, np.inf)
+    assert offsets.tolist() == [0, 0, 0, 2, 4]
+    assert sorted(listed[2:].tolist()) == [0, 1]
+    assert grid.nearest(points, np.nan)[0].tolist() == [-1] * 4
 
 
 def test_long_wall_is_found_from_its_middle():

@@ -13,6 +13,7 @@ from segloc_cli.geometry import Pose2, wrap_angle
 from segloc_cli.io.maps import read_world
 from segloc_cli.localize import STATUS_RECOVERED, Localizer
 from segloc_cli.sim import SensorModel, free_space_mask, random_world, simulate_scan
+from segloc_cli.spatial import SegmentGrid
 from segloc_cli.tracking import track_scans
 
 STEP_M = 0.25
@@ -59,10 +60,9 @@ def hall():
     return world, truth, scans
 
 
-def _track(world, truth, scans, odom, first_guess):
-    rows = list(
-        track_scans(scans, odom, first_guess, range(1, len(scans) + 1), Localizer(world.segments))
-    )
+def _track(world, truth, scans, odom, first_guess, localizer=None):
+    localizer = localizer or Localizer(world.segments)
+    rows = list(track_scans(scans, odom, first_guess, range(1, len(scans) + 1), localizer))
     est = np.array([[r["x_m"], r["y_m"], np.deg2rad(r["theta_deg"])] for r in rows])
     true = np.array([p.as_array() for p in truth])
     pos_err = np.hypot(*(est[:, :2] - true[:, :2]).T)
@@ -138,3 +138,19 @@ def test_a_scan_that_matches_nothing_is_lost_and_the_track_goes_on(hall):
     assert all(s == STATUS_OK for k, s in enumerate(status) if k != 20)
     ok = np.arange(len(status)) != 20
     assert pos_err[ok].max() < 0.02 and head_err[ok].max() < 0.3
+
+
+def test_the_map_grid_changes_no_tracked_pose(hall):
+    """Tracking through the localizer's fine grid of the map repeats, bit for bit, tracking
+    that tests every segment (a grid of one cell), recovery searches included."""
+    world, truth, scans = hall
+    odom = _odometry(truth, np.random.default_rng(2), slip={12: Pose2(0.0, 0.8, 0.0)})
+    one_cell = SegmentGrid(world.segments, cell_m=np.inf)
+    localizer = Localizer(world.segments)
+    plain = Localizer(world.segments, near_index=one_cell)
+    assert localizer.with_params(localizer.params).near_index is localizer.near_index
+    *_, rows = _track(world, truth, scans, odom, truth[0], localizer)
+    *_, expected = _track(world, truth, scans, odom, truth[0], plain)
+    assert [r["status"] for r in rows].count(STATUS_RECOVERED) == 1
+    for row, reference in zip(rows, expected, strict=True):
+        np.testing.assert_equal({**row, "runtime_ms": 0.0}, {**reference, "runtime_ms": 0.0})

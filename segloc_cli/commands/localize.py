@@ -58,6 +58,13 @@ LOCALIZE_OPTIONS = (
         "(whose poses are then not used).",
     ),
     click.option(
+        "--region",
+        metavar="X0,Y0,X1,Y1",
+        default=None,
+        help="With --global: search only this rectangle (metres, world frame) instead of "
+        "wherever the scan could reach the map.",
+    ),
+    click.option(
         "--track",
         is_flag=True,
         help="Track along the log: --initial seeds only the first scan; each next guess is the "
@@ -78,7 +85,7 @@ LOCALIZE_OPTIONS = (
     "log_paths", metavar="LOG.mcap...", nargs=-1, required=True, type=click.Path(path_type=Path)
 )
 @with_options(*LOCALIZE_OPTIONS)
-def localize(log_paths, map_path, out_path, tum_path, initial, global_search, track, **_):
+def localize(log_paths, map_path, out_path, tum_path, initial, global_search, track, region, **_):
     """Localize every scan of one or more logs against a map.
 
     For each scan: extract its segments, find the heading by the stage-1 vote
@@ -108,7 +115,7 @@ def localize(log_paths, map_path, out_path, tum_path, initial, global_search, tr
     from segloc_cli.io.maps import read_map
 
     run = Invocation.current()
-    config = run.config
+    config = _with_region(run.config, _parse_region(region, global_search))
     _check_modes(config, global_search, track)
     mode = "global" if global_search else "track" if track else "guided"
     guess_file = None if initial == GUESSES_KEYWORD else Path(initial)
@@ -116,7 +123,7 @@ def localize(log_paths, map_path, out_path, tum_path, initial, global_search, tr
     check_outputs(outputs, [*log_paths, map_path, guess_file], run.force)
     segments_world = read_map(map_path)
     if mode == "global":
-        pipeline.check_global_extent(segments_world, map_path)
+        pipeline.check_global_extent(segments_world, map_path, config.localize.search.region)
     localizer = pipeline.localizer_for(segments_world, config)
     stops: list[str] = []  # signals asking the run to stop, noted while it runs
 
@@ -129,7 +136,7 @@ def localize(log_paths, map_path, out_path, tum_path, initial, global_search, tr
     ]
     for message in pipeline.overlapping_logs(runs):
         warn(message)
-    summary = _write_rows(runs, out_path, tum_path, stops)
+    summary = _write_rows(runs, out_path, tum_path, stops, timed=mode == "global")
     run.write_run_file(out_path)
     _report(summary, out_path, stops, skipped=sum(r.skipped for r in runs))
 
@@ -160,10 +167,11 @@ def _check_modes(config, global_search: bool, track: bool) -> None:
         )
 
 
-def _write_rows(runs, out_path: Path, tum_path: Path | None, stops: list[str]):
+def _write_rows(runs, out_path: Path, tum_path: Path | None, stops: list[str], timed: bool):
     """Write each run's rows to ``out_path`` (and ``tum_path``) as they come, with a progress
-    bar on long runs. Ctrl-C, SIGTERM and SIGHUP, noted in ``stops``, stop it between scans
-    with every finished row kept. Returns (n scans planned, statuses, runtimes (ms), s)."""
+    bar on long runs (and, when ``timed``, the first scan's time as the time to expect per
+    scan). Ctrl-C, SIGTERM and SIGHUP, noted in ``stops``, stop it between scans with every
+    finished row kept. Returns (n scans planned, statuses, runtimes (ms), s)."""
     from segloc_cli.io.tables import EstimatesWriter, TumWriter
     from segloc_cli.stopping import stop_requests
 
@@ -187,11 +195,56 @@ def _write_rows(runs, out_path: Path, tum_path: Path | None, stops: list[str]):
                     writer.write_row(row)
                 statuses.append(row["status"])
                 runtimes_ms.append(row["runtime_ms"])
+                if timed and len(runtimes_ms) == 1:
+                    _expect(row["runtime_ms"], n_scans)
                 if stops:
                     break
         except KeyboardInterrupt:  # Ctrl-C that arrived outside the stop handler
             stops.append("Ctrl-C")
     return n_scans, statuses, runtimes_ms, time.perf_counter() - t0
+
+
+def _expect(first_ms: float, n_scans: int) -> None:
+    """Say how long a global run will take, from its first scan."""
+    each = first_ms / 1e3
+    total_min = each * n_scans / 60.0
+    info(f"global search: about {each:.1f} s per scan, {n_scans} scans (about {total_min:.1f} min)")
+
+
+def _parse_region(value: str | None, global_search: bool) -> tuple[float, ...] | None:
+    """``--region X0,Y0,X1,Y1`` → (x0, y0, x1, y1) metres, checked."""
+    from segloc_cli.io.maps import MAX_COORDINATE_M
+
+    if value is None:
+        return None
+    if not global_search:
+        raise click.UsageError("--region goes with --global")
+    try:
+        corners = tuple(float(v) for v in value.split(","))
+    except ValueError:
+        corners = ()
+    if not (
+        len(corners) == 4
+        and all(abs(c) <= MAX_COORDINATE_M for c in corners)
+        and corners[0] < corners[2]
+        and corners[1] < corners[3]
+    ):
+        raise click.BadParameter(
+            f"{value!r}; use X0,Y0,X1,Y1 in metres with X0 < X1 and Y0 < Y1, finite and "
+            f"within ±{MAX_COORDINATE_M:g} m (e.g. 0,0,40,25)",
+            param_hint="--region",
+        )
+    return corners
+
+
+def _with_region(config, region: tuple[float, ...] | None):
+    """``config`` with the global search limited to ``region`` (if any)."""
+    from dataclasses import replace
+
+    if region is None:
+        return config
+    search = replace(config.localize.search, region=region)
+    return replace(config, localize=replace(config.localize, search=search))
 
 
 def _report(summary, out_path: Path, stops: list[str], skipped: int) -> None:

@@ -1,0 +1,150 @@
+"""Compile segloc's numba kernels ahead of the first run: ``python -m segloc_cli.warmup``.
+
+The kernels (``@njit(cache=True)``) are compiled on first use and kept in numba's
+on-disk cache beside their modules (``segloc_cli/__pycache__/*.nbi``, ``*.nbc``).
+Compiling them all takes 10–20 s, which a newcomer's first
+``segloc localize`` would otherwise spend. ``make setup`` runs this module as its
+last step: it simulates a small room, builds its map and localizes a few of its
+scans in every mode of the command line, through the functions the commands
+call, so each kernel on those paths is compiled with the argument types a real
+run gives it, whatever its name or module.
+
+Run here: extraction, ``map build`` (fusion), and ``localize`` guided (stage 1,
+stage 2, the hypothesis search, refinement, the verdict), ``--no-refine``,
+``--global``, ``--track`` (its failed matches retried by the wider search), and
+``--method icp|correlative`` where their packages are installed (their own
+libraries come compiled; their verdict is segloc's). Not run, as they compile
+nothing of their own: ``evaluate`` and ``--jobs`` (its workers are forked from
+a parent that has compiled already).
+
+Numba drops a kernel's cache when its module's source file changes (for a kernel
+that calls others, only its own file counts: see ``kernels.py``). ``make setup``
+runs this warm-up again only when pyproject.toml changes; otherwise an edited
+module's kernels are compiled on their first use and cached from then on.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+from numba.core.dispatcher import Dispatcher
+
+from segloc_cli import pipeline
+from segloc_cli.config import Config
+from segloc_cli.errors import SeglocError
+from segloc_cli.geometry import Pose2
+from segloc_cli.io.log import Log
+from segloc_cli.io.tables import PoseTable
+from segloc_cli.sim import (
+    SensorModel,
+    initial_guesses,
+    paper_initial_errors,
+    random_free_poses,
+    random_world,
+    simulate_scan,
+)
+
+ROOM_M = (8.0, 6.0)
+"""Size (m) of the simulated room: small, so that the global search is quick."""
+SCANS = 3
+"""Scans of the simulated log: the third follows two on the track."""
+SENSOR = SensorModel(readings=256)
+"""Fewer beams than the default scanner, as the kernels' types do not depend on how many."""
+SEED = 1
+SCAN_PERIOD_S = 1.0
+PLACEHOLDER_PATH = Path("warmup.mcap")
+"""The name the in-memory log and survey go by (only messages about bad input would show it)."""
+
+LOCALIZE_RUNS = {
+    "guided": ("guided", {}),
+    "--no-refine": ("guided", {"no-refine": True}),
+    "--global": ("global", {}),
+    "--track": ("track", {}),
+    "--method icp": ("guided", {"method": "icp"}),
+    "--method correlative": ("guided", {"method": "correlative"}),
+}
+"""The ``localize`` runs, by their options: (``pipeline.MODES`` entry, settings as
+``Config.from_values`` takes them)."""
+
+
+def simulated_run(seed: int = SEED) -> tuple[Log, PoseTable]:
+    """A log of ``SCANS`` scans of a random room, with /odom guesses off by the paper's
+    initial errors (world frame, metres and radians), and the true poses as its survey."""
+    rng = np.random.default_rng(seed)
+    world = random_world(rng, ROOM_M)
+    truth = random_free_poses(world, SCANS, rng)
+    times_s = SCAN_PERIOD_S * np.arange(SCANS, dtype=float)
+    scans = [
+        simulate_scan(world, Pose2(*pose), SENSOR, rng, float(t))
+        for t, pose in zip(times_s, truth, strict=True)
+    ]
+    guesses = initial_guesses(truth, paper_initial_errors(SCANS))
+    log = Log(
+        scans=scans,
+        original_times_s=times_s,
+        odom_times_s=times_s,
+        odom_poses=guesses,
+        sensor={},
+    )
+    survey = PoseTable(pose_id=np.arange(1, SCANS + 1), time_s=times_s, poses=truth)
+    return log, survey
+
+
+def warm_up() -> list[str]:
+    """Build the simulated room's map and localize its log in each of ``LOCALIZE_RUNS``,
+    at default settings otherwise; returns the runs left out (a peer not installed).
+
+    The map and estimates are thrown away: only the compiling counts.
+    """
+    log, survey = simulated_run()
+    built = pipeline.build_map(log, PLACEHOLDER_PATH, survey, PLACEHOLDER_PATH, Config())
+    left_out = []
+    for option, (mode, settings) in LOCALIZE_RUNS.items():
+        config = Config.from_values(settings)
+        try:
+            localizer = pipeline.localizer_for(built.segments, config)
+        except SeglocError:  # a peer's package is missing: the command would refuse it too
+            left_out.append(option)
+            continue
+        run = pipeline.localize_log(log, PLACEHOLDER_PATH, localizer, mode, None, config)
+        _drain(run.rows)
+    return left_out
+
+
+def _drain(rows: Iterator) -> None:
+    """Make every row of a lazily localized log."""
+    for _ in rows:
+        pass
+
+
+def loaded_kernels() -> list[Dispatcher]:
+    """Every numba kernel defined in the modules of segloc_cli imported so far."""
+    kernels = {}
+    for name, module in list(sys.modules.items()):
+        if name.startswith("segloc_cli.") and module is not None:
+            for value in vars(module).values():
+                if isinstance(value, Dispatcher) and value.py_func.__module__ == name:
+                    kernels[id(value)] = value
+    return list(kernels.values())
+
+
+def main() -> None:
+    """Warm the cache up and say in one line what was done."""
+    t0 = time.perf_counter()
+    left_out = warm_up()
+    ran = [option for option in LOCALIZE_RUNS if option not in left_out]
+    compiled = sum(bool(kernel.stats.cache_misses) for kernel in loaded_kernels())
+    done = f"{compiled} numba kernels compiled and cached" if compiled else "all were cached"
+    missing = f" (not installed: {', '.join(left_out)})" if left_out else ""
+    print(
+        f"segloc warm-up: map build and localize ({', '.join(ran)}) run on a simulated room "
+        f"in {time.perf_counter() - t0:.1f} s{missing}; {done}"
+    )
+
+
+if __name__ == "__main__":
+    main()
