@@ -22,12 +22,11 @@ from segloc_cli.config import SearchParams
 from segloc_cli.field import (
     BOUND_LEVELS,
     INDEX_LIMIT,
-    cell_indices,
     max_pyramid,
     pyramid_depth,
     score_raster,
 )
-from segloc_cli.geometry import Pose2, point_segment_distances, rotation, wrap_angle
+from segloc_cli.geometry import Pose2, point_segment_distances, wrap_angle
 from segloc_cli.kernels import wrap
 
 
@@ -37,6 +36,35 @@ class Hypothesis:
 
     pose: Pose2
     score: float
+
+
+@njit(cache=True)
+def _point_cells(points, cos_sin, start, origin, cell):
+    """Fine cells (H, P) of points (P, 2), robot frame, turned by each heading (cos, sin per
+    row of ``cos_sin``) and moved by ``start``, on the raster with cell (0, 0) at
+    ``origin``: what ``field.cell_indices`` gives, rounded half to even and clipped to
+    ±``INDEX_LIMIT`` (NaN to −``INDEX_LIMIT``)."""
+    n_h, n_p = cos_sin.shape[0], points.shape[0]
+    ix = np.empty((n_h, n_p), dtype=np.int64)
+    iy = np.empty((n_h, n_p), dtype=np.int64)
+    for h in range(n_h):
+        c, s = cos_sin[h, 0], cos_sin[h, 1]
+        for p in range(n_p):
+            px, py = points[p, 0], points[p, 1]
+            ix[h, p] = _clipped_cell(((px * c + py * -s) + start[0] - origin[0]) / cell)
+            iy[h, p] = _clipped_cell(((px * s + py * c) + start[1] - origin[1]) / cell)
+    return ix, iy
+
+
+@njit(cache=True)
+def _clipped_cell(value):
+    if value != value:
+        return -INDEX_LIMIT
+    if value > INDEX_LIMIT:
+        return INDEX_LIMIT
+    if value < -INDEX_LIMIT:
+        return -INDEX_LIMIT
+    return np.int64(np.rint(value))
 
 
 @njit(cache=True)
@@ -72,6 +100,60 @@ def _bound_sum(level, pad, ix, iy, x, y):
         if 0 <= i < nx and 0 <= j < ny:
             total += level[i, j]
     return total / BOUND_LEVELS
+
+
+@njit(cache=True)
+def _children_exact(fine, ix, iy, x, y, out):
+    """``_exact_sum`` at the four shifts (x, y), (x + 1, y), (x, y + 1), (x + 1, y + 1), into
+    ``out`` (4,) in that order, in one pass over the points (the same sums, point by point)."""
+    nx, ny = fine.shape
+    s0 = s1 = s2 = s3 = 0.0
+    for p in range(ix.shape[0]):
+        bx, by = ix[p], iy[p]
+        if bx < -INDEX_LIMIT or bx > INDEX_LIMIT or by < -INDEX_LIMIT or by > INDEX_LIMIT:
+            continue
+        i, j = bx + x, by + y
+        if -1 <= i < nx and -1 <= j < ny:
+            in_i, in_j = 0 <= i, 0 <= j
+            in_i1, in_j1 = i + 1 < nx, j + 1 < ny
+            if in_i and in_j:
+                s0 += fine[i, j]
+            if in_i1 and in_j:
+                s1 += fine[i + 1, j]
+            if in_i and in_j1:
+                s2 += fine[i, j + 1]
+            if in_i1 and in_j1:
+                s3 += fine[i + 1, j + 1]
+    out[0], out[1], out[2], out[3] = s0, s1, s2, s3
+
+
+@njit(cache=True)
+def _children_bound(level, pad, ix, iy, x, y, half, out):
+    """``_bound_sum`` at the four shifts (x, y), (x + half, y), (x, y + half),
+    (x + half, y + half), into ``out`` (4,) in that order, in one pass over the points."""
+    nx, ny = level.shape
+    s0 = s1 = s2 = s3 = 0
+    for p in range(ix.shape[0]):
+        bx, by = ix[p], iy[p]
+        if bx < -INDEX_LIMIT or bx > INDEX_LIMIT or by < -INDEX_LIMIT or by > INDEX_LIMIT:
+            continue
+        i, j = bx + x + pad, by + y + pad
+        in_i, in_j = 0 <= i < nx, 0 <= j < ny
+        in_i1, in_j1 = 0 <= i + half < nx, 0 <= j + half < ny
+        if in_i and in_j:
+            s0 += level[i, j]
+        if in_i1 and in_j:
+            s1 += level[i + half, j]
+        if in_i and in_j1:
+            s2 += level[i, j + half]
+        if in_i1 and in_j1:
+            s3 += level[i + half, j + half]
+    out[0], out[1], out[2], out[3] = (
+        s0 / BOUND_LEVELS,
+        s1 / BOUND_LEVELS,
+        s2 / BOUND_LEVELS,
+        s3 / BOUND_LEVELS,
+    )
 
 
 @njit(cache=True)
@@ -136,6 +218,7 @@ def _branch_and_bound(
     stack_x = np.zeros(size, dtype=np.int64)
     stack_y = np.zeros(size, dtype=np.int64)
     stack_bound = np.zeros(size)
+    values = np.zeros(4)
     child_bound = np.zeros(4)
     child_x = np.zeros(4, dtype=np.int64)
     child_y = np.zeros(4, dtype=np.int64)
@@ -175,19 +258,16 @@ def _branch_and_bound(
                 threshold = max(kept_sum[k - 1] if n_kept == k else 0.0, keep * kept_sum[0])
                 continue
             half = 2 ** (level - 1)
+            if level == 1:
+                _children_exact(fine, ix[h], iy[h], x, y, values)
+            else:
+                _children_bound(pyramid[level - 2], pad, ix[h], iy[h], x, y, half, values)
             n_child = 0
-            for dx in range(2):
-                for dy in range(2):
-                    cx, cy = x + dx * half, y + dy * half
-                    if cx >= n_cells or cy >= n_cells:
-                        continue
-                    if level == 1:
-                        value = _exact_sum(fine, ix[h], iy[h], cx, cy)
-                    else:
-                        value = _bound_sum(pyramid[level - 2], pad, ix[h], iy[h], cx, cy)
-                    if value > threshold:
-                        child_bound[n_child], child_x[n_child], child_y[n_child] = value, cx, cy
-                        n_child += 1
+            for c in range(4):
+                cx, cy = x + (c % 2) * half, y + (c // 2) * half
+                if cx < n_cells and cy < n_cells and values[c] > threshold:
+                    child_bound[n_child], child_x[n_child], child_y[n_child] = values[c], cx, cy
+                    n_child += 1
             # The weakest is pushed first, so the strongest is searched first.
             for c in np.argsort(child_bound[:n_child]):
                 stack_level[top], stack_x[top], stack_y[top] = level - 1, child_x[c], child_y[c]
@@ -253,9 +333,8 @@ class HypothesisSearch:
         n_cells = 2 * half_cells + 1
         depth = min(self.pyramid.shape[0], int(np.ceil(np.log2(n_cells))))
         # Fine cell of every point at every heading, the shift being ``start``.
-        rotated = np.einsum("pk,hjk->hpj", points, np.stack([rotation(h) for h in headings]))
-        base = cell_indices((rotated + start - self.fine.origin) / cell)
-        ix, iy = np.ascontiguousarray(base[..., 0]), np.ascontiguousarray(base[..., 1])
+        cos_sin = np.array([[np.cos(h), np.sin(h)] for h in headings]).reshape(-1, 2)
+        ix, iy = _point_cells(points, cos_sin, start, self.fine.origin, cell)
         mask = self._reachable(start, n_cells, depth, reach_m)
         sums, h, x, y = _branch_and_bound(
             self.fine.score,
@@ -295,7 +374,14 @@ class HypothesisSearch:
             np.meshgrid(np.arange(n_top), np.arange(n_top), indexing="ij"), axis=-1
         ).reshape(-1, 2)
         centres = corners + side / 2.0
-        nearest = point_segment_distances(centres, self.segments_world).min(axis=1)
+        # A few hundred centres at a time: centres × segments distances of a large map would
+        # otherwise take gigabytes at once.
+        nearest = np.concatenate(
+            [
+                point_segment_distances(centres[i : i + 256], self.segments_world).min(axis=1)
+                for i in range(0, centres.shape[0], 256)
+            ]
+        )
         mask = nearest <= reach_m + side / np.sqrt(2.0)
         if self.params.region is not None:  # squares that meet the region's rectangle
             x0, y0, x1, y1 = self.params.region

@@ -17,10 +17,10 @@ from segloc_cli.confidence import (
 from segloc_cli.config import SearchParams
 from segloc_cli.extract import extract_segments
 from segloc_cli.field import BOUND_LEVELS, cell_indices, max_pyramid, pyramid_depth, score_raster
-from segloc_cli.geometry import Pose2, point_segment_distances, wrap_angle
+from segloc_cli.geometry import Pose2, point_segment_distances, rotation, wrap_angle
 from segloc_cli.io.maps import World
 from segloc_cli.localize import STATUS_TOO_FEW_SEGMENTS, LocalizeParams, Localizer
-from segloc_cli.search import HypothesisSearch, _exact_sum, distinct
+from segloc_cli.search import HypothesisSearch, _exact_sum, _point_cells, distinct
 from segloc_cli.sim import NOISE_FREE, random_free_poses, random_world, simulate_scan
 
 
@@ -241,3 +241,30 @@ def test_search_with_no_pyramid_is_brute_force_and_finds_the_same_best():
     best_flat = flat.search(points, headings, centre, 0.3)[0]
     best_deep = deep.search(points, headings, centre, 0.3)[0]
     assert best_flat == best_deep
+
+
+@given(
+    points=st.lists(
+        st.tuples(
+            st.floats(allow_nan=True, allow_infinity=True, width=64),
+            st.floats(-40.0, 40.0),
+        ),
+        min_size=1,
+        max_size=20,
+    ),
+    headings=st.lists(st.floats(-7.0, 7.0), min_size=1, max_size=5),
+    start=st.tuples(st.floats(-1e3, 1e3), st.floats(-1e3, 1e3)),
+)
+@settings(max_examples=60, deadline=None)
+def test_compiled_point_cells_are_what_numpy_gives(points, headings, start):
+    """The search's compiled cell lookup equals rotating with ``geometry.rotation`` and
+    ``field.cell_indices``, cell for cell, for any points (NaN, infinite, far)."""
+    points = np.array(points, dtype=float)
+    origin, cell = np.array([-3.0, 2.5]), 0.05
+    cos_sin = np.array([[np.cos(h), np.sin(h)] for h in headings])
+    ix, iy = _point_cells(points, cos_sin, np.array(start), origin, cell)
+    for k, h in enumerate(headings):
+        with np.errstate(invalid="ignore", over="ignore"):
+            expected = cell_indices((points @ rotation(h).T + np.array(start) - origin) / cell)
+        np.testing.assert_array_equal(ix[k], expected[:, 0])
+        np.testing.assert_array_equal(iy[k], expected[:, 1])
