@@ -24,6 +24,7 @@ from segloc_cli.errors import SeglocError
 from segloc_cli.geometry import Pose2
 from segloc_cli.localize import NAN_POSE, STATUS_NO_OVERLAP, Estimate
 from segloc_cli.refine import RefineParams, support
+from segloc_cli.spatial import NEAR_CELL_M, SegmentGrid
 
 __all__ = ["METHODS", "GuidedMatcher", "judged_estimate", "peer_localizer", "require"]
 
@@ -70,19 +71,30 @@ class GuidedMatcher:
         """Refused: a peer searches around an initial guess, never the whole map."""
         raise ValueError(f"{type(self).__name__} needs an initial guess for every scan")
 
+    def judged(self, pose: Pose2 | None, points_robot: np.ndarray) -> Estimate:
+        """``judged_estimate`` on this matcher's map, through its grid of the map."""
+        if getattr(self, "_near_index", None) is None:
+            self._near_index = SegmentGrid(self.segments_world, cell_m=NEAR_CELL_M)
+        return judged_estimate(pose, points_robot, self.segments_world, self._near_index)
+
 
 def judged_estimate(
-    pose: Pose2 | None, points_robot: np.ndarray, segments_world: np.ndarray
+    pose: Pose2 | None,
+    points_robot: np.ndarray,
+    segments_world: np.ndarray,
+    index: SegmentGrid | None = None,
 ) -> Estimate:
     """A peer's answer as an ``Estimate``, with the inlier share and verdict the two stages get.
 
     ``pose`` None (the matcher gave up) yields a ``no_overlap`` row. Peers
     report no rival, so the verdict is ``lost`` by the inlier share, else
     ``ambiguous`` where the points cannot fix the position (a corridor), else
-    ``ok``.
+    ``ok``. ``index``, a fine grid of the map (``GuidedMatcher.near_index``),
+    finds the segments near each point without testing them all.
     """
     if pose is None or not np.isfinite([pose.x, pose.y, pose.theta]).all():
         return Estimate(pose=NAN_POSE, status=STATUS_NO_OVERLAP, n_local_segments=0)
-    ratio, hold = support(points_robot, segments_world, pose, RefineParams().final_gate_m)
+    band = RefineParams().final_gate_m
+    ratio, hold = support(points_robot, segments_world, pose, band, index=index)
     status = judge(ratio, 0.0, ConfidenceParams(), hold)
     return Estimate(pose=pose, status=status, n_local_segments=0, inlier_ratio=ratio)

@@ -18,7 +18,7 @@ import numpy as np
 
 from segloc_cli.geometry import Pose2, point_segment_distances
 from segloc_cli.localize import Estimate
-from segloc_cli.peers import GuidedMatcher, judged_estimate, require
+from segloc_cli.peers import GuidedMatcher, require
 from segloc_cli.sim import cast_rays
 
 NO_RETURN_M = 1000.0
@@ -118,14 +118,14 @@ class CorrelativeLocalizer(GuidedMatcher):
         ``segments_robot`` is not used.
         """
         if points_robot.shape[0] == 0:
-            return judged_estimate(None, points_robot, self.segments_world)
+            return self.judged(None, points_robot)
         matcher = self._karto.Wrapper(self._config)
         views = self._virtual_scans(initial)
         query = self._scan(self._binned(points_robot), initial, len(views))
         try:
             result = matcher.match_scan(query, views, False, True)
         except RuntimeError:
-            return judged_estimate(None, points_robot, self.segments_world)
+            return self.judged(None, points_robot)
         best = result.best_pose
         pose = Pose2(float(best.x), float(best.y), float(best.yaw))
-        return judged_estimate(pose, points_robot, self.segments_world)
+        return self.judged(pose, points_robot)

@@ -17,7 +17,7 @@ import numpy as np
 from segloc_cli.config import ICP_VARIANTS
 from segloc_cli.geometry import Pose2, sample_segments
 from segloc_cli.localize import Estimate
-from segloc_cli.peers import GuidedMatcher, judged_estimate, require
+from segloc_cli.peers import GuidedMatcher, require
 
 VARIANTS = dict(zip(ICP_VARIANTS, ("GICP", "PLANE_ICP"), strict=True))
 """``IcpParams.variant`` (``config.ICP_VARIANTS``) → small_gicp's registration type."""
@@ -72,7 +72,7 @@ class IcpLocalizer(GuidedMatcher):
         """
         p = self.params
         if points_robot.shape[0] < p.neighbours:
-            return judged_estimate(None, points_robot, self.segments_world)
+            return self.judged(None, points_robot)
         source, _ = self._preprocess(points_robot)
         start = np.eye(4)
         start[:2, :2] = [
@@ -91,4 +91,4 @@ class IcpLocalizer(GuidedMatcher):
         )
         t = result.T_target_source
         pose = Pose2(float(t[0, 3]), float(t[1, 3]), float(np.arctan2(t[1, 0], t[0, 0])))
-        return judged_estimate(pose, points_robot, self.segments_world)
+        return self.judged(pose, points_robot)
