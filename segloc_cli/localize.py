@@ -102,10 +102,6 @@ def scan_is_degenerate(
     return point_spread_m(points) < params.min_spread_m
 
 
-MAX_GLOBAL_AREA_M2 = 40_000.0
-"""Largest map (bounding box, m²) the command line searches whole with ``--global``: at
-about a minute per scan on 2 cores, more than that is no answer a user waits for."""
-
 INDEX_MIN_SEGMENTS = 400
 """Stage 2 looks segments up in the map's grid above this many; below, checking all is cheaper."""
 

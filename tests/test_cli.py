@@ -894,6 +894,48 @@ def test_global_localizes_every_scan_without_a_guess(small, tmp_path, capsys):
         assert float(row["runner_up_ratio"]) < float(row["inlier_ratio"]) - 0.1
 
 
+def test_global_in_a_region_finds_the_scans_inside_it_and_says_how_long(small, tmp_path, capsys):
+    """--region limits the search to a rectangle: the scans of the survey inside it are
+    found as well as by a search of the whole map, and the run tells the time per scan."""
+    _, survey = read_csv_rows(small.survey)
+    xs, ys = [float(t["x_m"]) for t in survey], [float(t["y_m"]) for t in survey]
+    region = f"{min(xs) - 1:g},{min(ys) - 1:g},{max(xs) + 1:g},{max(ys) + 1:g}"
+    out = tmp_path / "region.csv"
+    args = ["localize", small.log, "--map", HALL_WORLD, "--global", "--region", region]
+    result = run_cli(capsys, *args, "--out", out)
+    assert result.code == 0, result.err
+    assert re.search(r"global search: about [0-9.]+ s per scan, 3 scans", result.err)
+    _, rows = read_csv_rows(out)
+    for row, truth in zip(rows, survey, strict=True):
+        assert row["status"] == "ok"
+        miss = np.hypot(
+            float(row["x_m"]) - float(truth["x_m"]), float(row["y_m"]) - float(truth["y_m"])
+        )
+        assert miss < 0.005
+
+
+@pytest.mark.parametrize(
+    ("region", "fragments"),
+    [
+        ("0,0,1", ["--region", "X0,Y0,X1,Y1"]),
+        ("5,0,1,4", ["--region", "X0 < X1"]),
+        ("0,0,nan,4", ["--region"]),
+        ("500,500,510,510", ["does not meet the map"]),
+        ("0,0,600,600", ["--region", "600 m × 600 m", "250,000"]),
+    ],
+)
+def test_bad_region_is_one_line(region, fragments, small, tmp_path, capsys):
+    out = tmp_path / "region.csv"
+    args = ["localize", small.log, "--map", HALL_WORLD, "--global", "--region", region]
+    assert_one_line_error(run_cli(capsys, *args, "--out", out), *fragments)
+    assert not out.exists()
+
+
+def test_region_needs_global(small, tmp_path, capsys):
+    args = ["localize", small.log, "--map", HALL_WORLD, "--region", "0,0,5,5"]
+    assert_one_line_error(run_cli(capsys, *args, "--out", tmp_path / "e.csv"), "--global")
+
+
 @pytest.mark.parametrize("other", ["--track", "--no-refine"])
 def test_global_refuses_track_and_no_refine(small, tmp_path, capsys, other):
     out = tmp_path / "global.csv"
