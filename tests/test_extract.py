@@ -2,11 +2,16 @@
 
 from __future__ import annotations
 
+import dataclasses
+import math
+from itertools import pairwise
+
 import numpy as np
 import pytest
 
 from segloc_cli.extract import (
     ExtractParams,
+    _numpy_sum,
     breakpoints,
     direction_sigma_rad,
     extract_segments,
@@ -15,7 +20,15 @@ from segloc_cli.extract import (
 )
 from segloc_cli.geometry import Pose2, transform_segments
 from segloc_cli.scan import Scan
-from segloc_cli.sim import beam_angles, cast_rays
+from segloc_cli.sim import (
+    NOISE_FREE,
+    SensorModel,
+    beam_angles,
+    cast_rays,
+    random_free_poses,
+    random_world,
+    simulate_scan,
+)
 
 # An 8 m × 8 m room centred on the origin: walls x = ±4 and y = ±4.
 ROOM = np.array([[-4, -4, 4, -4], [4, -4, 4, 4], [4, 4, -4, 4], [-4, 4, -4, -4]], dtype=float)
@@ -402,3 +415,302 @@ def test_noisy_room_gives_one_segment_per_wall():
         "neighbouring wall's corner reading. The split point shared by two pieces should "
         "not take part in the merge test and the refit of the piece it does not fit"
     )
+
+
+# --- the compiled extraction against its numpy formulation ------------------------------------
+#
+# The extraction as it was written in numpy before it was compiled, kept as the reference
+# the kernels must reproduce. numpy may take arctan2 from a vectorised library that rounds
+# a few results the other way than the C library the kernels call, so the two agree to
+# round-off; given the same arctan2 they agree to the bit.
+
+_reference_arctan2 = np.arctan2
+
+
+def _numpy_breakpoints(ranges_m, angles_rad, params):
+    r = np.asarray(ranges_m, dtype=float)
+    dphi = np.abs(np.diff(np.asarray(angles_rad, dtype=float)))
+    lam = np.deg2rad(params.breakpoint_lambda_deg)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        d_max = (
+            r[:-1] * np.sin(dphi) / np.sin(np.maximum(lam - dphi, 1e-9)) + 3 * params.range_sigma_m
+        )
+    x = r * np.cos(angles_rad)
+    y = r * np.sin(angles_rad)
+    gap = np.hypot(np.diff(x), np.diff(y))
+    return (gap > d_max) | (dphi >= lam)
+
+
+def _numpy_fit_line(points):
+    centroid = points.mean(axis=0)
+    d = points - centroid
+    sxx, syy, sxy = (d[:, 0] ** 2).sum(), (d[:, 1] ** 2).sum(), (d[:, 0] * d[:, 1]).sum()
+    phi = 0.5 * _reference_arctan2(2.0 * sxy, sxx - syy)
+    return centroid, np.array([np.cos(phi), np.sin(phi)])
+
+
+def _numpy_line_residuals(points, centroid, direction):
+    d = points - centroid
+    return np.abs(d[:, 0] * direction[1] - d[:, 1] * direction[0])
+
+
+def _numpy_direction_sigma_rad(points, centroid, direction, range_sigma_m):
+    t = (points - centroid) @ direction
+    spread = float(np.sqrt(np.sum(t**2)))
+    if spread == 0.0:
+        return np.inf
+    residuals = _numpy_line_residuals(points, centroid, direction)
+    rms = float(np.sqrt(np.sum(residuals**2) / max(points.shape[0] - 2, 1)))
+    return max(range_sigma_m, rms) / spread
+
+
+def _numpy_split(points, start, stop, tol_m, out):
+    stack = [(start, stop)]
+    while stack:
+        i0, i1 = stack.pop()
+        if i1 - i0 <= 2:
+            out.append((i0, i1))
+            continue
+        a, b = points[i0], points[i1 - 1]
+        chord = b - a
+        norm = np.hypot(*chord)
+        seg = points[i0:i1] - a
+        if norm < 1e-12:
+            dist = np.hypot(seg[:, 0], seg[:, 1])
+        else:
+            dist = np.abs(seg[:, 0] * chord[1] - seg[:, 1] * chord[0]) / norm
+        k = int(np.argmax(dist))
+        if dist[k] > tol_m and 0 < k < i1 - i0 - 1:
+            stack.append((i0 + k, i1))
+            stack.append((i0, i0 + k + 1))
+        else:
+            out.append((i0, i1))
+
+
+def _numpy_merge(points, ranges, tol_m):
+    merged = []
+    for r in ranges:
+        if (
+            merged
+            and merged[-1][1] >= r[0]
+            and _numpy_fits_one_line(points, merged[-1][0], r[1], tol_m)
+        ):
+            merged[-1] = (merged[-1][0], r[1])
+            continue
+        merged.append(r)
+    return merged
+
+
+def _numpy_fits_one_line(points, start, stop, tol_m):
+    pts = points[start + 1 : stop - 1] if stop - start > 4 else points[start:stop]
+    return bool(_numpy_line_residuals(pts, *_numpy_fit_line(pts)).max() <= tol_m)
+
+
+def _numpy_fit_piece(pts):
+    if pts.shape[0] > 4:
+        interior = pts[1:-1]
+        centroid, direction = _numpy_fit_line(interior)
+        rms = np.sqrt(np.mean(_numpy_line_residuals(interior, centroid, direction) ** 2))
+        ends = _numpy_line_residuals(pts[[0, -1]], centroid, direction)
+        keep = np.ones(pts.shape[0], dtype=bool)
+        keep[[0, -1]] = ends <= max(3.0 * rms, 1e-6)
+        pts = pts[keep]
+    centroid, direction = _numpy_fit_line(pts)
+    return centroid, direction, pts
+
+
+def _numpy_chains(points_count, breaks, wraps):
+    cut = np.flatnonzero(breaks) + 1
+    bounds = np.concatenate([[0], cut, [points_count]])
+    runs = [(int(a), int(b)) for a, b in pairwise(bounds) if b > a]
+    if wraps and len(runs) > 1:
+        first, last = runs[0], runs[-1]
+        runs = [(last[0], first[1] + points_count), *runs[1:-1]]
+    return runs
+
+
+def _numpy_extract_segments(scan, params=None):
+    params = params or ExtractParams()
+    all_angles = np.asarray(scan.angles_rad, dtype=float)
+    valid = scan.valid & np.isfinite(all_angles)
+    ranges = np.asarray(scan.ranges_m, dtype=float)[valid]
+    angles = all_angles[valid]
+    if ranges.size < params.min_points:
+        return np.zeros((0, 4))
+    points = np.column_stack([ranges * np.cos(angles), ranges * np.sin(angles)])
+    breaks = _numpy_breakpoints(ranges, angles, params)
+    step = np.median(np.abs(np.diff(angles))) if angles.size > 1 else 0.0
+    span = (angles[-1] - angles[0]) % (2 * np.pi)
+    closing_gap = 2 * np.pi - span
+    wraps = bool(step > 0 and closing_gap <= 1.5 * step)
+    if wraps:
+        wrap_ranges = np.array([ranges[-1], ranges[0]])
+        wrap_angles = np.array([angles[-1], angles[-1] + closing_gap])
+        wraps = not bool(_numpy_breakpoints(wrap_ranges, wrap_angles, params)[0])
+    n = points.shape[0]
+    ring = np.concatenate([points, points]) if wraps else points
+    tol = max(params.split_m, 3.0 * params.range_sigma_m)
+    max_sigma_rad = np.deg2rad(params.max_direction_sigma_deg)
+    segments = []
+    for start, stop in _numpy_chains(n, breaks, wraps):
+        if stop - start < params.min_points:
+            continue
+        pieces = []
+        _numpy_split(ring, start, stop, tol, pieces)
+        pieces = _numpy_merge(ring, pieces, tol)
+        closed = wraps and stop - start == n
+        if (
+            closed
+            and len(pieces) > 1
+            and _numpy_fits_one_line(ring, pieces[-1][0], pieces[0][1] + n, tol)
+        ):
+            pieces = [(pieces[-1][0], pieces[0][1] + n), *pieces[1:-1]]
+        for i0, i1 in pieces:
+            if i1 - i0 < params.min_points:
+                continue
+            centroid, direction, pts = _numpy_fit_piece(ring[i0:i1])
+            t0 = (pts[0] - centroid) @ direction
+            t1 = (pts[-1] - centroid) @ direction
+            if (
+                pts.shape[0] < params.min_points
+                or abs(t1 - t0) < params.min_length_m
+                or _numpy_direction_sigma_rad(pts, centroid, direction, params.range_sigma_m)
+                > max_sigma_rad
+            ):
+                continue
+            segments.append(np.concatenate([centroid + t0 * direction, centroid + t1 * direction]))
+    return np.array(segments).reshape(-1, 4)
+
+
+COMPARED_PARAMS = {
+    "default": ExtractParams(),
+    "keep-everything": ExtractParams(min_points=2, min_length_m=0.0, max_direction_sigma_deg=180.0),
+    "coarse": ExtractParams(split_m=0.2, breakpoint_lambda_deg=30.0, min_points=6),
+}
+
+
+def simulated_scans(seed: int) -> list[Scan]:
+    """Noisy (the default scanner's 1.2 cm, dropouts, glass, clutter) and noise-free 360°
+    scans of a random world at each scanner resolution, and a fan cut from each."""
+    rng = np.random.default_rng(seed)
+    world = random_world(rng, (rng.uniform(6.0, 20.0), rng.uniform(5.0, 14.0)))
+    scans = []
+    for readings, pose in zip(
+        (128, 256, 1024, 2048), random_free_poses(world, 4, rng), strict=True
+    ):
+        for model in (SensorModel(), NOISE_FREE):
+            sensor = dataclasses.replace(model, readings=readings)
+            scan = simulate_scan(world, Pose2(*pose), sensor, rng, 0.0)
+            scans.append(scan)
+            first = int(rng.integers(0, readings // 2))
+            last = first + int(rng.integers(readings // 8, readings // 2))
+            fan = slice(first, last)
+            scans.append(Scan(0.0, scan.angles_rad[fan], scan.ranges_m[fan], scan.range_max_m))
+    return scans
+
+
+def holed(scan: Scan, first: int, last: int) -> Scan:
+    """``scan`` with no return from beams first … last − 1."""
+    ranges = scan.ranges_m.copy()
+    ranges[first:last] = np.inf
+    return Scan(0.0, scan.angles_rad, ranges, scan.range_max_m)
+
+
+def hand_made_scans() -> dict[str, Scan]:
+    """The scenes of the tests above, and rings with one breakpoint (a hole in a wall)."""
+    midwall = scan_of(ROOM, MIDWALL_POSE)
+    n = len(midwall)
+    wall_x2 = np.deg2rad([-6.0, -2.0, 2.0, 6.0])
+    far = np.deg2rad(np.arange(-2.0, 2.5, 1.0))
+    scans = {
+        f"room-corner-{readings}": scan_of(ROOM, CORNER_POSE, readings)
+        for readings in (256, 1024, 2048)
+    }
+    scans |= {
+        "room-midwall": midwall,
+        "room-and-box": scan_of(np.vstack([ROOM, BOX]), MIDWALL_POSE),
+        "two-depths": scan_of(
+            np.array([[0.5, 2.0, -1.0, 2.0], [-1.5, 4.0, -3.5, 4.0]]), Pose2(0.0, 0.0, 0.0)
+        ),
+        "doorway": scan_of(
+            np.array([[2.0, 2.0, 0.3, 2.0], [-0.3, 2.0, -2.0, 2.0]]), Pose2(0.0, 0.0, 0.0)
+        ),
+        "four-beams": Scan(0.0, wall_x2, 2.0 / np.cos(wall_x2)),
+        "sparse-far-wall": Scan(0.0, far, 5.0 / np.cos(far)),
+        "rough-short": rough_wall_scan(4.0, 0.02),
+        "rough-long": rough_wall_scan(40.0, 0.02),
+        "noisy-room": noisy_room_scan(0),
+        # A ring with one breakpoint (a hole in a wall) is one run, from the breakpoint
+        # round to it. With the hole just before beam 0, the run's first piece crosses
+        # beam 0 and the range that rejoins its last and first pieces runs past the end of
+        # the points' second copy.
+        "hole-before-seam": holed(midwall, n - 60, n - 20),
+        "hole-after-seam": holed(midwall, 20, 60),
+        "hole-in-side-wall": holed(midwall, 300, 350),
+    }
+    return scans
+
+
+def assert_same_segments(compiled: np.ndarray, reference: np.ndarray, what: str) -> None:
+    assert compiled.shape == reference.shape, f"{what}: {compiled.shape} vs {reference.shape}"
+    np.testing.assert_allclose(compiled, reference, rtol=0.0, atol=1e-9, err_msg=what)
+
+
+@pytest.mark.parametrize("seed", range(6))
+@pytest.mark.parametrize("params_name", COMPARED_PARAMS)
+def test_compiled_extraction_equals_numpy_on_simulated_scans(seed, params_name):
+    params = COMPARED_PARAMS[params_name]
+    for i, scan in enumerate(simulated_scans(seed)):
+        assert_same_segments(
+            extract_segments(scan, params), _numpy_extract_segments(scan, params), f"scan {i}"
+        )
+
+
+@pytest.mark.parametrize("params_name", COMPARED_PARAMS)
+def test_compiled_extraction_equals_numpy_on_hand_made_scenes(params_name):
+    params = COMPARED_PARAMS[params_name]
+    for name, scan in hand_made_scans().items():
+        assert_same_segments(
+            extract_segments(scan, params), _numpy_extract_segments(scan, params), name
+        )
+
+
+def test_with_the_same_arctan2_the_compiled_extraction_is_equal_to_the_bit(monkeypatch):
+    # The C library's arctan2, as the kernels call it: every sum, product and branch is
+    # then the same, so the segments are too, to the last bit.
+    monkeypatch.setitem(globals(), "_reference_arctan2", math.atan2)
+    scans = [*hand_made_scans().values(), *simulated_scans(0), *simulated_scans(1)]
+    for params in COMPARED_PARAMS.values():
+        for i, scan in enumerate(scans):
+            compiled = extract_segments(scan, params)
+            reference = _numpy_extract_segments(scan, params)
+            assert compiled.shape == reference.shape, f"scan {i}"
+            assert np.array_equal(compiled, reference), f"scan {i}"
+
+
+def test_public_helpers_equal_their_numpy_formulation():
+    params = ExtractParams()
+    for scan in [*hand_made_scans().values(), *simulated_scans(2)]:
+        r, a = scan.ranges_m[scan.valid], scan.angles_rad[scan.valid]
+        assert np.array_equal(breakpoints(r, a, params), _numpy_breakpoints(r, a, params))
+        points = scan.points()
+        if points.shape[0] < 2:
+            continue
+        centroid, direction = fit_line(points)
+        ref_centroid, ref_direction = _numpy_fit_line(points)
+        np.testing.assert_allclose(centroid, ref_centroid, rtol=0.0, atol=1e-12)
+        np.testing.assert_allclose(direction, ref_direction, rtol=0.0, atol=1e-12)
+        np.testing.assert_array_equal(
+            line_residuals(points, ref_centroid, ref_direction),
+            _numpy_line_residuals(points, ref_centroid, ref_direction),
+        )
+        assert direction_sigma_rad(points, ref_centroid, ref_direction, 0.012) == pytest.approx(
+            _numpy_direction_sigma_rad(points, ref_centroid, ref_direction, 0.012), rel=1e-12
+        )
+
+
+@pytest.mark.parametrize("size", [*range(20), 127, 128, 129, 136, 255, 256, 257, 1000, 4099])
+def test_sums_are_added_in_numpy_order(size):
+    # The fits equal numpy's to the bit only if their sums do: numpy adds pairwise.
+    values = np.random.default_rng(size).normal(0.0, 3.0, size)
+    assert _numpy_sum(values.copy(), size) == np.sum(values)
