@@ -46,29 +46,6 @@ def point_segment_distance(
 
 
 @njit(cache=True)
-def segment_distance(a: np.ndarray, b: np.ndarray) -> float:
-    """Distance (metres) between segments ``a`` and ``b`` (4,), zero where they cross."""
-
-    def side(px, py, s):
-        return (s[2] - s[0]) * (py - s[1]) - (s[3] - s[1]) * (px - s[0])
-
-    if side(a[0], a[1], b) * side(a[2], a[3], b) <= 0.0 and (
-        side(b[0], b[1], a) * side(b[2], b[3], a) <= 0.0
-    ):
-        return 0.0
-    return min(
-        min(
-            point_segment_distance(a[0], a[1], b[0], b[1], b[2], b[3]),
-            point_segment_distance(a[2], a[3], b[0], b[1], b[2], b[3]),
-        ),
-        min(
-            point_segment_distance(b[0], b[1], a[0], a[1], a[2], a[3]),
-            point_segment_distance(b[2], b[3], a[0], a[1], a[2], a[3]),
-        ),
-    )
-
-
-@njit(cache=True)
 def angular_interval(x1: float, y1: float, x2: float, y2: float) -> tuple[float, float]:
     """Centre (in [-π, π)) and half-width (radians) of the angle the segment subtends at
     the origin of its frame, taking the shorter way round between its ends."""
@@ -87,22 +64,6 @@ def point_into_frame(
     """
     dx, dy = px - x, py - y
     return cos_theta * dx + sin_theta * dy, cos_theta * dy - sin_theta * dx
-
-
-@njit(cache=True)
-def into_frame(segments: np.ndarray, x: float, y: float, theta: float) -> np.ndarray:
-    """Segments (M, 4) expressed in the frame of pose (x, y, theta) (e.g. world → robot).
-
-    The compiled twin of ``transform_segments(segments, pose.inverse())``.
-    """
-    c, s = np.cos(theta), np.sin(theta)
-    out = np.empty_like(segments)
-    for i in range(segments.shape[0]):
-        for e in (0, 2):
-            out[i, e], out[i, e + 1] = point_into_frame(
-                segments[i, e], segments[i, e + 1], x, y, c, s
-            )
-    return out
 
 
 @njit(cache=True)
@@ -128,3 +89,30 @@ def wrap_remainder(angle: float) -> float:
     is the cheaper choice where the last bit does not matter.
     """
     return (angle + np.pi) % (2.0 * np.pi) - np.pi
+
+
+@njit(cache=True)
+def segment_distance_ends(
+    ax1: float, ay1: float, ax2: float, ay2: float, bx1: float, by1: float, bx2: float, by2: float
+) -> float:
+    """``segment_distance`` of the segments (ax1, ay1)–(ax2, ay2) and (bx1, by1)–(bx2, by2),
+    given as scalars: the same arithmetic, to the last bit, for loops that would otherwise
+    slice a row out of an array for every pair (each slice costs a reference count)."""
+
+    def side(px, py, x1, y1, x2, y2):
+        return (x2 - x1) * (py - y1) - (y2 - y1) * (px - x1)
+
+    if side(ax1, ay1, bx1, by1, bx2, by2) * side(ax2, ay2, bx1, by1, bx2, by2) <= 0.0 and (
+        side(bx1, by1, ax1, ay1, ax2, ay2) * side(bx2, by2, ax1, ay1, ax2, ay2) <= 0.0
+    ):
+        return 0.0
+    return min(
+        min(
+            point_segment_distance(ax1, ay1, bx1, by1, bx2, by2),
+            point_segment_distance(ax2, ay2, bx1, by1, bx2, by2),
+        ),
+        min(
+            point_segment_distance(bx1, by1, ax1, ay1, ax2, ay2),
+            point_segment_distance(bx2, by2, ax1, ay1, ax2, ay2),
+        ),
+    )

@@ -23,6 +23,17 @@ the origin. L is parametrised as A + t·(B − A), t ∈ [0, 1]; the two sector
 rays and the two band edges are each a linear inequality in t, so Cls is an
 interval of t. A cheap, exact pre-filter first drops the pairs that cannot
 overlap for any candidate of an iteration, which is what keeps large maps fast.
+
+The search does each piece of work once where it can: what depends on a local
+segment alone once per search, G's frame at a candidate once for all the local
+segments paired with G, and G's line only for the pairs that cheap tests leave;
+the map segments still within reach of the search are kept in a list that
+shrinks as the grid does. The cheap tests tell a pair that adds nothing by
+comparing the very numbers its interval is built from, without dividing them.
+None of this changes a result: a pair told apart early is one the full
+computation gives 0, and every other is computed by the same operations on the
+same numbers, summed in the same order (only a NaN, from input that is not
+finite, may come out with its sign bit flipped).
 """
 
 from __future__ import annotations
@@ -35,14 +46,13 @@ from numba import njit
 from segloc_cli.geometry import Pose2
 from segloc_cli.kernels import (
     angular_interval,
-    into_frame,
     out_of_frame,
     point_into_frame,
     point_segment_distance,
-    segment_distance,
+    segment_distance_ends,
     wrap,
 )
-from segloc_cli.spatial import SegmentGrid
+from segloc_cli.spatial import SegmentGrid, cell_span
 
 
 @njit(cache=True)
@@ -54,46 +64,112 @@ def band_halfwidth(grid_m: float) -> float:
 MIN_INCIDENCE_DEG = 5.0
 """Shallowest angle between a scanner ray and a global segment at which they can pair."""
 
-# The two hot loops below run once per candidate × pair, tens of thousands of
+# The hot loops below run once per candidate × pair, tens of thousands of
 # times per pose, on a handful of scalars each; compiled, they cost less than
 # the array bookkeeping a vectorised version needs at these sizes.
 
+# Columns of the per-local-segment table built once per search (``_local_table``).
+_FAR, _MID, _HALF, _DX, _DY, _LEN = range(6)
+
 
 @njit(cache=True)
-def _pair_overlap(gax, gay, gbx, gby, lax, lay, lbx, lby, band_m, sin2_min) -> float:
-    """|Cls| + |Cgs| of one pair, both segments in the robot frame (scanner at the origin)."""
+def _ordered(gax, gay, gbx, gby):
+    """Whether G (robot frame) subtends a sector at the scanner, and its ends (4) ordered
+    counter-clockwise as seen from there."""
     turn = gax * gby - gay * gbx
     if abs(turn) <= 1e-12:
-        return 0.0  # G lies on a line through the scanner: no sector
-    if turn < 0.0:  # order G's ends counter-clockwise as seen from the scanner
-        gax, gay, gbx, gby = gbx, gby, gax, gay
+        return False, gax, gay, gbx, gby  # G lies on a line through the scanner: no sector
+    if turn < 0.0:
+        return True, gbx, gby, gax, gay
+    return True, gax, gay, gbx, gby
+
+
+@njit(cache=True)
+def _normal(gax, gay, gbx, gby):
+    """Unit normal (nx, ny) of G's line and its offset n·A, robot frame, for the ordered ends
+    of a G that subtends a sector (and so has a length, unless its square underflows)."""
     ex, ey = gbx - gax, gby - gay
     g_len = np.sqrt(ex * ex + ey * ey)
     nx, ny = -ey / g_len, ex / g_len
-    off = nx * gax + ny * gay
+    return nx, ny, nx * gax + ny * gay
 
+
+@njit(cache=True)
+def _zero_length(gax, gay, gbx, gby) -> bool:
+    """Whether G's squared length rounds to zero, so that ``_normal`` divides by zero: it is
+    then worked out even where no pair needs it, to raise the error it always raised
+    (a G that subtends a sector gets there only with coordinates beyond 1e150)."""
+    ex, ey = gbx - gax, gby - gay
+    return ex * ex + ey * ey == 0.0
+
+
+@njit(cache=True)
+def _sector_terms(gax, gay, gbx, gby, lax, lay, dx, dy):
+    """(a0, b0, a1, b1): L = A + t·(dx, dy) lies left of the ray through G's first end
+    where a0 + b0·t >= 0, right of the ray through its second where a1 + b1·t >= 0."""
+    return (
+        gax * lay - gay * lax,
+        gax * dy - gay * dx,
+        lax * gby - lay * gbx,
+        dx * gby - dy * gbx,
+    )
+
+
+@njit(cache=True)
+def _outside_sector(a0, b0, a1, b1) -> bool:
+    """Whether both ends of L break one of the sector's constraints, told without dividing.
+
+    Then the pair overlaps nothing: for a finite b, a + b rounds below 0 only if
+    it is below 0, which puts the root -a/b outside [0, 1] on the side that
+    empties the interval.
+    """
+    # & and |, not `and` and `or`: both sides are cheap, and a branch here is unpredictable
+    return ((a0 < 0.0) & (a0 + b0 < 0.0) & (abs(b0) < np.inf)) | (
+        (a1 < 0.0) & (a1 + b1 < 0.0) & (abs(b1) < np.inf)
+    )
+
+
+@njit(cache=True)
+def _both_outside_unit(p: float, q: float, d: float) -> bool:
+    """Whether p / d and q / d (d ≠ 0) both round to at most 0 or both to at least 1, told
+    without dividing: over a finite positive d a quotient keeps its numerator's sign, and
+    is at least 1 when the numerator is at least d (the other way round for a negative d)."""
+    if 0.0 < d < np.inf:
+        return (p < 0.0 and q < 0.0) or (p >= d and q >= d)
+    if -np.inf < d < 0.0:
+        return (p > 0.0 and q > 0.0) or (p <= d and q <= d)
+    return False  # an infinite or NaN d may make NaN quotients, which trim nothing
+
+
+@njit(cache=True)
+def _clipped_overlap(
+    gax, gay, gbx, gby, nx, ny, off, lax, lay, dx, dy, l_len, a0, b0, a1, b1, band_m, sin2_min
+) -> float:
+    """|Cls| + |Cgs| in metres of G (ordered ends, ``_normal``) and L = A + t·(dx, dy) of
+    length ``l_len`` with its ``_sector_terms``, all in the robot frame."""
+    # The band |n·(A + t·d) − off| <= δ around G's line: t between (∓δ − s0) / sd.
+    s0 = nx * lax + ny * lay - off
+    sd = nx * dx + ny * dy
+    below, above = -band_m - s0, band_m - s0
+    if sd == 0.0:
+        if abs(s0) > band_m:
+            return 0.0
+    elif _both_outside_unit(below, above, sd):
+        return 0.0
     # L is A + t·(B − A), t in [lo, hi]; each constraint a + b·t >= 0 trims it.
-    dx, dy = lbx - lax, lby - lay
     lo, hi = 0.0, 1.0
-    for k in range(2):
-        if k == 0:  # left of the ray through G's first end
-            a, b = gax * lay - gay * lax, gax * dy - gay * dx
-        else:  # right of the ray through G's second end
-            a, b = lax * gby - lay * gbx, dx * gby - dy * gbx
+    for a, b in ((a0, b0), (a1, b1)):
         if b > 0.0:
             lo = max(lo, -a / b)
         elif b < 0.0:
             hi = min(hi, -a / b)
         elif a < 0.0:
             return 0.0
-    # The band |n·(A + t·d) − off| <= δ around G's line.
-    s0 = nx * lax + ny * lay - off
-    sd = nx * dx + ny * dy
-    if sd == 0.0:
-        if abs(s0) > band_m:
-            return 0.0
-    else:
-        t1, t2 = (-band_m - s0) / sd, (band_m - s0) / sd
+    # An empty interval stays empty: the band's trim only raises lo and lowers hi.
+    if hi <= lo:
+        return 0.0
+    if sd != 0.0:
+        t1, t2 = below / sd, above / sd
         lo = max(lo, min(t1, t2))
         hi = min(hi, max(t1, t2))
     if hi <= lo:
@@ -111,7 +187,25 @@ def _pair_overlap(gax, gay, gbx, gby, lax, lay, lbx, lby, band_m, sin2_min) -> f
         return 0.0
     k0, k1 = off / n_q0, off / n_q1
     cx, cy = k1 * q1x - k0 * q0x, k1 * q1y - k0 * q0y
-    return (hi - lo) * np.sqrt(dx * dx + dy * dy) + np.sqrt(cx * cx + cy * cy)
+    return (hi - lo) * l_len + np.sqrt(cx * cx + cy * cy)
+
+
+@njit(cache=True)
+def _pair_overlap(gax, gay, gbx, gby, lax, lay, lbx, lby, band_m, sin2_min) -> float:
+    """|Cls| + |Cgs| of one pair, both segments in the robot frame (scanner at the origin)."""
+    facing, gax, gay, gbx, gby = _ordered(gax, gay, gbx, gby)
+    if not facing:
+        return 0.0
+    dx, dy = lbx - lax, lby - lay
+    a0, b0, a1, b1 = _sector_terms(gax, gay, gbx, gby, lax, lay, dx, dy)
+    if _outside_sector(a0, b0, a1, b1) and not _zero_length(gax, gay, gbx, gby):
+        return 0.0
+    nx, ny, off = _normal(gax, gay, gbx, gby)
+    l_len = np.sqrt(dx * dx + dy * dy)
+    return _clipped_overlap(
+        gax, gay, gbx, gby, nx, ny, off, lax, lay, dx, dy, l_len, a0, b0, a1, b1, band_m,
+        sin2_min,
+    )  # fmt: skip
 
 
 @njit(cache=True)
@@ -160,61 +254,201 @@ def overlap_at_poses(
     return _overlaps_kernel(g, loc, poses, pair_g, pair_l, float(band_m), sin_min * sin_min)
 
 
+# --- the search's bookkeeping -----------------------------------------------------------------
+
+
 @njit(cache=True)
-def _pairs_kernel(g, g_robot, loc, local_world, spread_m, spread_rad, band_m, sin_min):
-    n_local = loc.shape[0]
-    if n_local == 0 or g.shape[0] == 0:
-        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
-    reach = np.empty(n_local)  # how far a local segment's points can move over the candidates
-    l_mid = np.empty(n_local)
-    l_half = np.empty(n_local)
+def _local_table(loc):
+    """What the search needs of each local segment (N, 4), robot frame, whatever the pose:
+    (N, 6) columns _FAR (range of its farther end, m), _MID and _HALF (centre and
+    half-width of the angle it subtends, rad), _DX, _DY (B − A, m) and _LEN (length, m);
+    and the largest range of any end (0 for none)."""
+    table = np.empty((loc.shape[0], 6))
     radius = 0.0
-    for n in range(n_local):
+    for n in range(loc.shape[0]):
         r1 = np.sqrt(loc[n, 0] ** 2 + loc[n, 1] ** 2)
         r2 = np.sqrt(loc[n, 2] ** 2 + loc[n, 3] ** 2)
-        reach[n] = spread_m + max(r1, r2) * spread_rad
+        table[n, _FAR] = max(r1, r2)
         radius = max(radius, max(r1, r2))
-        l_mid[n], l_half[n] = angular_interval(loc[n, 0], loc[n, 1], loc[n, 2], loc[n, 3])
+        table[n, _MID], table[n, _HALF] = angular_interval(
+            loc[n, 0], loc[n, 1], loc[n, 2], loc[n, 3]
+        )
+        dx, dy = loc[n, 2] - loc[n, 0], loc[n, 3] - loc[n, 1]
+        table[n, _DX], table[n, _DY] = dx, dy
+        table[n, _LEN] = np.sqrt(dx * dx + dy * dy)
+    return table, radius
+
+
+@njit(cache=True)
+def _world_line(g, m):
+    """Unit normal and offset (nx, ny, off) of global segment m's line, world frame.
+
+    A segment of zero length divides by zero here, as ever once within range.
+    Recomputed at each use: that costs less than a lookup in a table kept across calls.
+    """
+    length = np.sqrt((g[m, 2] - g[m, 0]) ** 2 + (g[m, 3] - g[m, 1]) ** 2)
+    nx, ny = -(g[m, 3] - g[m, 1]) / length, (g[m, 2] - g[m, 0]) / length
+    return nx, ny, nx * g[m, 0] + ny * g[m, 1]
+
+
+# The pairs of an iteration, grouped by global segment (the pair table): ``group_g`` (M,)
+# lists the global segments that pair with anything, in map order; ``group_end`` (M,)
+# where each one's run of local indices ends in ``pair_l`` (M·N,), which holds them in
+# increasing order. Read in order, the runs are ``candidate_pairs``' pairs, in its order.
+
+
+@njit(cache=True)
+def _filter_pairs(
+    g, loc, table, radius, x, y, theta, spread_m, spread_rad, band_m, sin_min,
+    active, n_active, keep_m, group_g, group_end, pair_l,
+):  # fmt: skip
+    """The pairs that can overlap for some pose within ``spread_m`` and ``spread_rad`` of
+    (x, y, theta), among the global segments ``active[:n_active]``; see ``candidate_pairs``.
+
+    Fills ``group_g``, ``group_end`` and ``pair_l`` (the pair table) and returns the
+    number of groups and of active segments left: ``active`` is compacted in
+    place to those within ``keep_m`` metres (plus rounding slack) of this
+    iteration's range, all that a search moving at most ``keep_m`` from here
+    with no wider grid can still reach.
+    """
+    n_local = loc.shape[0]
+    if n_local == 0 or g.shape[0] == 0:
+        return 0, n_active
+    reach = np.empty(n_local)  # how far a local segment's points can move over the candidates
+    for n in range(n_local):
+        reach[n] = spread_m + table[n, _FAR] * spread_rad
     # A pairing piece lies within band / sin(min incidence) of G.
     near = band_m / sin_min
     reach_max = reach.max()
+    # Range: every local point is within `radius` of the scanner.
+    in_range = radius + near + reach_max + 1e-9
+    local_world = out_of_frame(loc, x, y, theta)
+    cs, sn = np.cos(theta), np.sin(theta)
 
-    out_g = np.empty(g.shape[0] * n_local, dtype=np.int64)
-    out_l = np.empty(g.shape[0] * n_local, dtype=np.int64)
-    count = 0
-    for m in range(g.shape[0]):
-        gr = g_robot[m]
-        dist0 = point_segment_distance(0.0, 0.0, gr[0], gr[1], gr[2], gr[3])
-        # Range: every local point is within `radius` of the scanner.
-        if dist0 > radius + near + reach_max + 1e-9:
+    n_groups, count, kept = 0, 0, 0
+    for k in range(n_active):
+        m = active[k]
+        gax, gay = point_into_frame(g[m, 0], g[m, 1], x, y, cs, sn)
+        gbx, gby = point_into_frame(g[m, 2], g[m, 3], x, y, cs, sn)
+        dist0 = point_segment_distance(0.0, 0.0, gax, gay, gbx, gby)
+        # Far past the rounding of dist0 and of the moves that add up to keep_m.
+        slack = 1e-6 + 1e-9 * (abs(x) + abs(y) + abs(gax) + abs(gay) + abs(gbx) + abs(gby))
+        if dist0 > in_range + keep_m + slack:
+            continue  # out of range here and at every later, nearer-sighted iteration
+        active[kept] = m
+        kept += 1
+        if dist0 > in_range:
             continue
-        length = np.sqrt((g[m, 2] - g[m, 0]) ** 2 + (g[m, 3] - g[m, 1]) ** 2)
-        nx, ny = -(g[m, 3] - g[m, 1]) / length, (g[m, 2] - g[m, 0]) / length
-        off = nx * g[m, 0] + ny * g[m, 1]
-        # Sector: G's angular interval widens by how far a shift of spread_m
-        # and a turn of spread_rad can move its ends; a scanner that can reach
-        # G itself may see it from the other side.
-        r_ends = min(np.sqrt(gr[0] ** 2 + gr[1] ** 2), np.sqrt(gr[2] ** 2 + gr[3] ** 2))
-        if dist0 > spread_m:
-            widen = np.arcsin(min(spread_m / max(r_ends, 1e-12), 1.0))
-        else:
-            widen = np.pi
-        g_mid, g_half = angular_interval(gr[0], gr[1], gr[2], gr[3])
+        nx, ny, off = _world_line(g, m)
+        first = count
+        seen = False  # G's sector, worked out once a local segment is in its band
+        g_mid = g_half = widen = 0.0
         for n in range(n_local):
-            lw = local_world[n]
+            lx1, ly1 = local_world[n, 0], local_world[n, 1]  # scalars: a row slice costs more
+            lx2, ly2 = local_world[n, 2], local_world[n, 3]
             limit = band_m + reach[n]
-            d1 = nx * lw[0] + ny * lw[1] - off
-            d2 = nx * lw[2] + ny * lw[3] - off
+            d1 = nx * lx1 + ny * ly1 - off
+            d2 = nx * lx2 + ny * ly2 - off
             if (d1 > limit and d2 > limit) or (d1 < -limit and d2 < -limit):
                 continue  # stays outside the band
-            if abs(wrap(g_mid - l_mid[n])) > g_half + widen + spread_rad + l_half[n] + 1e-9:
+            if not seen:
+                g_mid, g_half, widen = _widened_sector(gax, gay, gbx, gby, dist0, spread_m)
+                seen = True
+            if (
+                abs(wrap(g_mid - table[n, _MID]))
+                > g_half + widen + spread_rad + table[n, _HALF] + 1e-9
+            ):
                 continue  # stays outside the sector
-            if segment_distance(g[m], lw) > near + reach[n] + 1e-9:
+            gap = segment_distance_ends(g[m, 0], g[m, 1], g[m, 2], g[m, 3], lx1, ly1, lx2, ly2)
+            if gap > near + reach[n] + 1e-9:
                 continue  # too far from G for a piece seen at a steep enough incidence
-            out_g[count] = m
-            out_l[count] = n
+            pair_l[count] = n
             count += 1
-    return out_g[:count], out_l[:count]
+        if count > first:
+            group_g[n_groups] = m
+            group_end[n_groups] = count
+            n_groups += 1
+    return n_groups, kept
+
+
+@njit(cache=True)
+def _widened_sector(gax, gay, gbx, gby, dist0, spread_m):
+    """Centre and half-width (rad) of G's angular interval (robot frame), and how much a
+    shift of ``spread_m`` can widen it (π when the scanner can reach G itself, and may
+    see it from the other side)."""
+    r_ends = min(np.sqrt(gax**2 + gay**2), np.sqrt(gbx**2 + gby**2))
+    if dist0 > spread_m:
+        widen = np.arcsin(min(spread_m / max(r_ends, 1e-12), 1.0))
+    else:
+        widen = np.pi
+    g_mid, g_half = angular_interval(gax, gay, gbx, gby)
+    return g_mid, g_half, widen
+
+
+@njit(cache=True)
+def _grouped_overlaps(g, loc, table, poses, group_g, group_end, pair_l, n_groups, band_m, sin2_min):
+    """Overlap (C,) at each pose (C, 3) over the pairs of a pair table: the sum of
+    ``_overlaps_kernel`` over the same pairs, in the same order, with G's frame worked out
+    once per pose for all its local segments, and its line only once one needs it."""
+    out = np.zeros(poses.shape[0])
+    in_sector = np.empty(loc.shape[0], dtype=np.int64)  # one G's pairs past the sector test
+    for c in range(poses.shape[0]):
+        px, py = poses[c, 0], poses[c, 1]
+        cs, sn = np.cos(poses[c, 2]), np.sin(poses[c, 2])
+        total = 0.0
+        first = 0
+        for k in range(n_groups):
+            m, last = group_g[k], group_end[k]
+            gax, gay = point_into_frame(g[m, 0], g[m, 1], px, py, cs, sn)
+            gbx, gby = point_into_frame(g[m, 2], g[m, 3], px, py, cs, sn)
+            facing, gax, gay, gbx, gby = _ordered(gax, gay, gbx, gby)
+            # Most pairs are told to add nothing before G's line is needed; the pairs past
+            # that test are gathered first, so the line is worked out only for them.
+            passed = 0
+            if facing:  # else every pair of G adds 0
+                for j in range(first, last):
+                    n = pair_l[j]
+                    lax, lay, dx, dy = loc[n, 0], loc[n, 1], table[n, _DX], table[n, _DY]
+                    a0, b0, a1, b1 = _sector_terms(gax, gay, gbx, gby, lax, lay, dx, dy)
+                    in_sector[passed] = n  # kept only if it passes: written without a branch
+                    passed += not _outside_sector(a0, b0, a1, b1)
+            if passed > 0 or (facing and _zero_length(gax, gay, gbx, gby)):
+                nx, ny, off = _normal(gax, gay, gbx, gby)
+                for i in range(passed):
+                    n = in_sector[i]
+                    lax, lay, dx, dy = loc[n, 0], loc[n, 1], table[n, _DX], table[n, _DY]
+                    a0, b0, a1, b1 = _sector_terms(gax, gay, gbx, gby, lax, lay, dx, dy)
+                    total += _clipped_overlap(
+                        gax, gay, gbx, gby, nx, ny, off, lax, lay, dx, dy, table[n, _LEN],
+                        a0, b0, a1, b1, band_m, sin2_min,
+                    )  # fmt: skip
+            first = last
+        out[c] = total
+    return out
+
+
+@njit(cache=True)
+def _pairs_at(
+    g, loc, table, radius, x, y, theta, spread_m, spread_rad, band_m, sin_min, active, n_active
+):
+    """``candidate_pairs`` around the pose (x, y, theta) among the global segments
+    ``active[:n_active]``: (global indices, local indices), ``table`` and ``radius``
+    being ``_local_table(loc)``."""
+    n_map, n_local = g.shape[0], loc.shape[0]
+    group_g = np.empty(n_map, dtype=np.int64)
+    group_end = np.empty(n_map, dtype=np.int64)
+    pair_l = np.empty(n_map * n_local, dtype=np.int64)
+    n_groups, _ = _filter_pairs(
+        g, loc, table, radius, x, y, theta, spread_m, spread_rad, band_m, sin_min,
+        active, n_active, np.inf, group_g, group_end, pair_l,  # inf: leaves `active` as is
+    )  # fmt: skip
+    count = group_end[n_groups - 1] if n_groups > 0 else 0
+    pair_g = np.empty(count, dtype=np.int64)
+    first = 0
+    for k in range(n_groups):
+        pair_g[first : group_end[k]] = group_g[k]
+        first = group_end[k]
+    return pair_g, pair_l[:count].copy()
 
 
 def candidate_pairs(
@@ -241,9 +475,12 @@ def candidate_pairs(
     loc = np.ascontiguousarray(np.asarray(segments_robot, dtype=float).reshape(-1, 4))
     sin_min = float(np.sin(np.deg2rad(min_incidence_deg)))
     x, y, theta = (float(v) for v in centre.as_array())
+    table, radius = _local_table(loc)
+    everything = np.arange(g.shape[0])
     return _pairs_at(
-        g, loc, x, y, theta, float(spread_m), float(spread_rad), float(band_m), sin_min
-    )
+        g, loc, table, radius, x, y, theta, float(spread_m), float(spread_rad), float(band_m),
+        sin_min, everything, everything.size,
+    )  # fmt: skip
 
 
 @njit(cache=True)
@@ -283,11 +520,23 @@ class OverlapResult:
 
 
 @njit(cache=True)
-def _pairs_at(g, loc, x, y, theta, spread_m, spread_rad, band_m, sin_min):
-    """``candidate_pairs`` around the pose (x, y, theta)."""
-    g_robot = into_frame(g, x, y, theta)
-    local_world = out_of_frame(loc, x, y, theta)
-    return _pairs_kernel(g, g_robot, loc, local_world, spread_m, spread_rad, band_m, sin_min)
+def _travel_left(x, y, theta, eta, dtheta, repeats_left, active, n_active):
+    """How far (m) the estimate at (x, y, theta) can still move, and the number of map
+    segments in the search's ``active`` list.
+
+    The estimate moves at most √2·η per iteration, η halving after all but
+    ``repeats_left`` of them; without η > 0 and Δα ≥ 0 (so that the grid's
+    reach only shrinks) there is no bound (inf). An estimate that is not
+    finite is in range of every segment, as no distance rules one out: the
+    list is reset to all of them.
+    """
+    if not (np.isfinite(x) and np.isfinite(y) and np.isfinite(theta)):
+        for m in range(active.shape[0]):
+            active[m] = m
+        return np.inf, active.shape[0]
+    if not (eta > 0.0 and dtheta >= 0.0):
+        return np.inf, n_active
+    return np.sqrt(2.0) * eta * (max(repeats_left, 0) + 2.0), n_active
 
 
 @njit(cache=True)
@@ -296,12 +545,25 @@ def _search_kernel(g, loc, x, y, theta, eta, dtheta, iterations, ratio, recentre
     track = np.empty((iterations + recentres + 1, 3))
     best_overlaps = np.empty(iterations + recentres)
     track[0] = x, y, theta
+    n_map = g.shape[0]
+    table, radius = _local_table(loc)
+    active, n_active = np.arange(n_map), n_map
+    group_g = np.empty(n_map, dtype=np.int64)
+    group_end = np.empty(n_map, dtype=np.int64)
+    pair_l = np.empty(n_map * loc.shape[0], dtype=np.int64)
     steps, halvings, repeats_left = 0, 0, recentres
     while halvings < iterations:
         band = band_halfwidth(eta)
         candidates = _candidates(x, y, theta, eta, dtheta)
-        pair_g, pair_l = _pairs_at(g, loc, x, y, theta, np.sqrt(2.0) * eta, dtheta, band, sin_min)
-        overlaps = _overlaps_kernel(g, loc, candidates, pair_g, pair_l, band, sin_min * sin_min)
+        travel, n_active = _travel_left(x, y, theta, eta, dtheta, repeats_left, active, n_active)
+        n_groups, n_active = _filter_pairs(
+            g, loc, table, radius, x, y, theta, np.sqrt(2.0) * eta, dtheta,
+            band, sin_min, active, n_active, travel, group_g, group_end, pair_l,
+        )  # fmt: skip
+        overlaps = _grouped_overlaps(
+            g, loc, table, candidates, group_g, group_end, pair_l, n_groups, band,
+            sin_min * sin_min,
+        )  # fmt: skip
         best = overlaps.max()
         best_overlaps[steps] = best
         if best > 0.0:
@@ -328,11 +590,24 @@ def _search_kernel(g, loc, x, y, theta, eta, dtheta, iterations, ratio, recentre
         dtheta /= 2.0
         halvings += 1
     final_band = np.sqrt(2.0) * eta  # the last iteration's: band_halfwidth(2·η)
-    pair_g, pair_l = _pairs_at(g, loc, x, y, theta, 0.0, 0.0, final_band, sin_min)
-    final = _overlaps_kernel(
-        g, loc, track[steps : steps + 1], pair_g, pair_l, final_band, sin_min * sin_min
-    )[0]
-    return track[: steps + 1].copy(), best_overlaps[:steps].copy(), final
+    _, n_active = _travel_left(x, y, theta, eta, dtheta, repeats_left, active, n_active)
+    final_g, final_l = _pairs_at(
+        g, loc, table, radius, x, y, theta, 0.0, 0.0, final_band, sin_min, active, n_active
+    )
+    final_pose = track[steps : steps + 1]
+    final = _overlaps_kernel(g, loc, final_pose, final_g, final_l, final_band, sin_min * sin_min)
+    return track[: steps + 1].copy(), best_overlaps[:steps].copy(), final[0]
+
+
+def _within_reach(index: SegmentGrid, g: np.ndarray, x: float, y: float, reach_m: float):
+    """The rows of ``g`` (the map ``index`` files) in the cells within ``reach_m`` of (x, y),
+    in order: ``g`` itself when those cells are all of them."""
+    ix0, ix1, iy0, iy1 = cell_span(index.cells, x, y, reach_m)
+    shape = index.cells[2]
+    every_cell = (ix0, iy0, ix1, iy1) == (0, 0, shape[0] - 1, shape[1] - 1)
+    if every_cell and g.shape[0] == index.segments_world.shape[0]:
+        return g  # SegmentGrid.candidates would list every segment, at a cost
+    return np.ascontiguousarray(g[index.candidates([x, y], reach_m)])
 
 
 def coarse_to_fine(
@@ -381,7 +656,7 @@ def coarse_to_fine(
         travel = np.sqrt(2.0) * grid_m * (2.0 + recentres)
         turn = dtheta * (2.0 + recentres)
         reach = radius * (1.0 + turn) + travel + band_halfwidth(grid_m) / sin_min + 1e-6
-        g = np.ascontiguousarray(g[index.candidates([start.x, start.y], reach)])
+        g = _within_reach(index, g, float(start.x), float(start.y), float(reach))
     track, best_overlaps, final = _search_kernel(
         g, loc, float(start.x), float(start.y), float(start.theta), float(grid_m), dtheta,
         int(iterations), float(ratio), int(recentres), sin_min,

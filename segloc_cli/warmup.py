@@ -39,6 +39,7 @@ from segloc_cli.errors import SeglocError
 from segloc_cli.geometry import Pose2
 from segloc_cli.io.log import Log
 from segloc_cli.io.tables import PoseTable
+from segloc_cli.refine import nearest_segments
 from segloc_cli.sim import (
     SensorModel,
     initial_guesses,
@@ -112,6 +113,8 @@ def warm_up() -> list[str]:
             continue
         run = pipeline.localize_log(log, PLACEHOLDER_PATH, localizer, mode, None, config)
         _drain(run.rows)
+    # What a library call without a grid of the map runs (the commands always pass one).
+    nearest_segments(log.scans[0].points(), built.segments)
     return left_out
 
 

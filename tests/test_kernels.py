@@ -14,11 +14,10 @@ from segloc_cli.geometry import (
 )
 from segloc_cli.kernels import (
     angular_interval,
-    into_frame,
     out_of_frame,
     point_into_frame,
     point_segment_distance,
-    segment_distance,
+    segment_distance_ends,
     wrap,
 )
 
@@ -71,16 +70,16 @@ def test_point_segment_distance_agrees_with_the_numpy_version():
 def test_segment_distance():
     horizontal = np.array([0.0, 0.0, 4.0, 0.0])
     # Crossing, and touching at an end: 0.
-    assert segment_distance(horizontal, np.array([2.0, -1.0, 2.0, 1.0])) == 0.0
-    assert segment_distance(horizontal, np.array([4.0, 0.0, 5.0, 3.0])) == 0.0
+    assert segment_distance_ends(*horizontal, *[2.0, -1.0, 2.0, 1.0]) == 0.0
+    assert segment_distance_ends(*horizontal, *[4.0, 0.0, 5.0, 3.0]) == 0.0
     # Parallel, 3 apart and overlapping in x.
-    assert segment_distance(horizontal, np.array([1.0, 3.0, 6.0, 3.0])) == 3.0
+    assert segment_distance_ends(*horizontal, *[1.0, 3.0, 6.0, 3.0]) == 3.0
     # A T short of the bar: 2 from the stem's end to the bar's interior, either order.
     stem = np.array([2.0, 2.0, 2.0, 7.0])
-    assert segment_distance(horizontal, stem) == 2.0
-    assert segment_distance(stem, horizontal) == 2.0
+    assert segment_distance_ends(*horizontal, *stem) == 2.0
+    assert segment_distance_ends(*stem, *horizontal) == 2.0
     # End to end: (4, 0) to (7, 4).
-    assert segment_distance(horizontal, np.array([7.0, 4.0, 9.0, 4.0])) == 5.0
+    assert segment_distance_ends(*horizontal, *[7.0, 4.0, 9.0, 4.0]) == 5.0
 
 
 # --- angles ----------------------------------------------------------------------------------
@@ -143,11 +142,20 @@ def test_point_into_frame_by_hand():
     assert point_into_frame(0.0, 2.0, 1.0, 2.0, 0.0, 1.0) == (0.0, 1.0)
 
 
-def test_into_and_out_of_frame_match_transform_segments():
+def test_points_into_and_segments_out_of_frame_match_transform_segments():
     rng = np.random.default_rng(4)
     segments = rng.uniform(-5.0, 5.0, (30, 4))
     pose = Pose2(1.5, -0.5, 2.5)
-    robot = into_frame(segments, pose.x, pose.y, pose.theta)
+    c, s = np.cos(pose.theta), np.sin(pose.theta)
+    robot = np.array(
+        [
+            [
+                *point_into_frame(a, b, pose.x, pose.y, c, s),
+                *point_into_frame(d, e, pose.x, pose.y, c, s),
+            ]
+            for a, b, d, e in segments
+        ]
+    )
     np.testing.assert_allclose(
         robot, transform_segments(segments, pose.inverse()), rtol=0, atol=1e-12
     )

@@ -1,18 +1,27 @@
-"""Stage 2 (map overlap) on hand-made geometry: Cls/Cgs, candidates, pre-filter, search."""
+"""Stage 2 (map overlap) on hand-made geometry: Cls/Cgs, candidates, pre-filter, search; and
+the kernels' shortcuts against the plain computation they must reproduce to the last bit."""
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 import pytest
+from numba import njit
 
+from segloc_cli.extract import extract_segments
 from segloc_cli.geometry import Pose2, transform_segments, wrap_angle
 from segloc_cli.overlap import (
+    _pair_overlap,
+    _within_reach,
     band_halfwidth,
     candidate_pairs,
     candidate_poses,
     coarse_to_fine,
     overlap_at_poses,
 )
+from segloc_cli.sim import SensorModel, random_free_poses, random_world, simulate_scan
+from segloc_cli.spatial import SegmentGrid
 
 SQRT2 = np.sqrt(2.0)
 IDENTITY = np.array([[0.0, 0.0, 0.0]])
@@ -366,3 +375,175 @@ def test_an_empty_local_map_overlaps_nothing_and_leaves_the_start():
     assert (result.pose.x, result.pose.y, result.pose.theta) == (1.0, 1.0, 0.2)
     pairs = candidate_pairs(world, np.zeros((0, 4)), start, 1.0, 0.1, 0.1)
     assert pairs[0].size == 0 and pairs[1].size == 0
+
+
+# --- the kernels' shortcuts change no result --------------------------------------------------
+
+
+@njit
+def _plain_pair_overlap(gax, gay, gbx, gby, lax, lay, lbx, lby, band_m, sin2_min) -> float:
+    """|Cls| + |Cgs| of one pair (robot frame) computed plainly, every step in turn: what
+    the kernels' shortcuts (tests that tell a zero without dividing) must reproduce."""
+    turn = gax * gby - gay * gbx
+    if abs(turn) <= 1e-12:
+        return 0.0
+    if turn < 0.0:
+        gax, gay, gbx, gby = gbx, gby, gax, gay
+    ex, ey = gbx - gax, gby - gay
+    g_len = np.sqrt(ex * ex + ey * ey)
+    nx, ny = -ey / g_len, ex / g_len
+    off = nx * gax + ny * gay
+    dx, dy = lbx - lax, lby - lay
+    lo, hi = 0.0, 1.0
+    for k in range(2):
+        if k == 0:
+            a, b = gax * lay - gay * lax, gax * dy - gay * dx
+        else:
+            a, b = lax * gby - lay * gbx, dx * gby - dy * gbx
+        if b > 0.0:
+            lo = max(lo, -a / b)
+        elif b < 0.0:
+            hi = min(hi, -a / b)
+        elif a < 0.0:
+            return 0.0
+    s0 = nx * lax + ny * lay - off
+    sd = nx * dx + ny * dy
+    if sd == 0.0:
+        if abs(s0) > band_m:
+            return 0.0
+    else:
+        t1, t2 = (-band_m - s0) / sd, (band_m - s0) / sd
+        lo = max(lo, min(t1, t2))
+        hi = min(hi, max(t1, t2))
+    if hi <= lo:
+        return 0.0
+    q0x, q0y = lax + lo * dx, lay + lo * dy
+    q1x, q1y = lax + hi * dx, lay + hi * dy
+    n_q0 = nx * q0x + ny * q0y
+    n_q1 = nx * q1x + ny * q1y
+    if n_q0 * n_q0 < sin2_min * (q0x * q0x + q0y * q0y) or n_q0 == 0.0:
+        return 0.0
+    if n_q1 * n_q1 < sin2_min * (q1x * q1x + q1y * q1y) or n_q1 == 0.0:
+        return 0.0
+    k0, k1 = off / n_q0, off / n_q1
+    cx, cy = k1 * q1x - k0 * q0x, k1 * q1y - k0 * q0y
+    return (hi - lo) * np.sqrt(dx * dx + dy * dy) + np.sqrt(cx * cx + cy * cy)
+
+
+@njit
+def _both_ways(args):
+    """(kernel, plain) overlap (P,) of each row (10,) of ``args``."""
+    got, want = np.empty(args.shape[0]), np.empty(args.shape[0])
+    for i in range(args.shape[0]):
+        a = args[i]
+        got[i] = _pair_overlap(a[0], a[1], a[2], a[3], a[4], a[5], a[6], a[7], a[8], a[9])
+        want[i] = _plain_pair_overlap(a[0], a[1], a[2], a[3], a[4], a[5], a[6], a[7], a[8], a[9])
+    return got, want
+
+
+ODD_VALUES = np.array(
+    [0.0, -0.0, 1.0, -1.0, 2.0, 1e-300, -1e-300, 5e-324, 1e300, -1e300, np.inf, -np.inf, np.nan]
+)
+
+
+def _pair_cases(rng: np.random.Generator, count: int, odd_share: float) -> np.ndarray:
+    """Rows (count, 10) of G's ends, L's ends (robot frame), band and sin² of the incidence,
+    some coordinates on a 0.5 m lattice (so that ends meet and lines run through the
+    scanner exactly), some odd values."""
+    rows = rng.uniform(-4.0, 4.0, (count, 10))
+    lattice = rng.random(count) < 0.3
+    rows[lattice, :8] = np.round(rows[lattice, :8] * 2.0) / 2.0
+    odd = rng.random((count, 8)) < odd_share
+    rows[:, :8][odd] = rng.choice(ODD_VALUES, odd.sum())
+    rows[:, 8] = rng.choice([0.0, 0.05, 0.3, 2.0], count)
+    rows[:, 9] = rng.choice([0.0, np.sin(np.deg2rad(5.0)) ** 2, 0.5], count)
+    return rows
+
+
+@pytest.mark.parametrize("odd_share", [0.0, 0.03, 0.3])
+def test_pair_overlap_equals_the_plain_computation(odd_share):
+    rows = _pair_cases(np.random.default_rng(int(odd_share * 100)), 40_000, odd_share)
+    got, want = _both_ways(rows)
+    # The same value to the last bit; a NaN stays a NaN (its sign bit may differ).
+    np.testing.assert_array_equal(got, want)
+    finite = ~np.isnan(want)
+    assert got[finite].tobytes() == want[finite].tobytes()
+    assert (want > 0.0).sum() > 1000  # not vacuous
+
+
+def test_pair_overlap_raises_where_the_plain_computation_did():
+    # G subtends a sector (turn = 1e-5) while its length squared underflows to 0: the
+    # plain computation divides by zero before looking at L, even for an L outside.
+    args = (1e160, 0.0, 1e160, 1e-165, -5.0, -1.0, -5.0, 1.0, 0.1, 0.0)
+    for overlap_of in (_plain_pair_overlap, _pair_overlap):
+        with pytest.raises(ZeroDivisionError):
+            overlap_of(*args)
+
+
+@functools.cache
+def _schedule_cases():
+    """(map, local map, start) on a generated room: scans from free poses, starts off by up
+    to 1.5 m and 20°, and a random local map that matches nothing."""
+    rng = np.random.default_rng(17)
+    world = random_world(rng)
+    cases = []
+    for truth in random_free_poses(world, 6, rng):
+        truth = Pose2(*truth)
+        local = extract_segments(simulate_scan(world, truth, SensorModel(), rng, 0.0))
+        dx, dy, dtheta = rng.uniform(-1.0, 1.0, 3) * [1.5, 1.5, np.deg2rad(20.0)]
+        cases.append(
+            (world.segments, local, Pose2(truth.x + dx, truth.y + dy, truth.theta + dtheta))
+        )
+    cases.append((world.segments, rng.uniform(-5.0, 5.0, (8, 4)), cases[0][2]))
+    return cases
+
+
+@pytest.mark.parametrize("case", range(7))
+def test_each_iteration_scores_as_overlap_at_poses_over_candidate_pairs(case):
+    # The search's own loop (pairs grouped by global segment, the map segments out of
+    # reach dropped as the grid shrinks) against the public functions, pair by pair.
+    g, local, start = _schedule_cases()[case]
+    grid, dtheta, k = 1.5, np.deg2rad(4.0), 6
+    result = coarse_to_fine(g, local, start, **tuning(grid_m=grid, iterations=k))
+    for i in range(k):
+        centre = Pose2(*result.track[i])
+        eta, step = grid / 2.0**i, dtheta / 2.0**i
+        band = band_halfwidth(eta)
+        pairs = candidate_pairs(g, local, centre, SQRT2 * eta, step, band)
+        scores = overlap_at_poses(g, local, candidate_poses(centre, eta, step), band, pairs)
+        assert scores.max() == result.best_overlaps_m[i], f"iteration {i}"
+    final_band = SQRT2 * grid / 2.0**k
+    pairs = candidate_pairs(g, local, result.pose, 0.0, 0.0, final_band)
+    final = overlap_at_poses(g, local, result.pose.as_array(), final_band, pairs)[0]
+    assert final == result.overlap_m
+    if case < 6:  # not vacuous: the scans do overlap the map
+        assert result.overlap_m > 1.0
+
+
+@pytest.mark.parametrize("case", range(7))
+def test_recentred_search_ends_on_the_overlap_of_its_final_pose(case):
+    g, local, start = _schedule_cases()[case]
+    result = coarse_to_fine(g, local, start, **tuning(iterations=8, recentres=8))
+    final_band = SQRT2 * 1.5 / 2.0**8
+    pairs = candidate_pairs(g, local, result.pose, 0.0, 0.0, final_band)
+    assert overlap_at_poses(g, local, result.pose.as_array(), final_band, pairs)[0] == (
+        result.overlap_m
+    )
+    # The map's grid spares segments out of reach, and changes nothing either.
+    index = SegmentGrid(g, cell_m=2.0)
+    indexed = coarse_to_fine(g, local, start, **tuning(iterations=8, recentres=8), index=index)
+    np.testing.assert_array_equal(indexed.track, result.track)
+    np.testing.assert_array_equal(indexed.best_overlaps_m, result.best_overlaps_m)
+    assert indexed.overlap_m == result.overlap_m
+
+
+def test_within_reach_takes_the_segments_the_grid_lists():
+    rng = np.random.default_rng(8)
+    segments = random_world(rng).segments
+    for cell_m in (2.0, 40.0):  # many cells, and one cell that holds the whole map
+        grid = SegmentGrid(segments, cell_m=cell_m)
+        queries = [((x, y), r) for x, y, r in rng.uniform([-5, -5, 0], [25, 20, 30], (200, 3))]
+        queries += [((np.nan, 0.0), 1.0), ((0.0, 0.0), np.inf), ((1e30, 1e30), 5.0)]
+        for (x, y), radius in queries:
+            got = _within_reach(grid, segments, x, y, radius)
+            np.testing.assert_array_equal(got, segments[grid.candidates([x, y], radius)])
