@@ -295,7 +295,8 @@ class Localizer:
         seeds = [] if stage2 is None else [stage2.pose]
         if searching:
             window = 180.0 if p.window_deg is None else p.window_deg
-            hyps = self.hypothesis_search.around(points_robot, initial, window, peaks)
+            known = None if stage2 is None else stage2.pose
+            hyps = self.hypothesis_search.around(points_robot, initial, window, peaks, known)
             seeds += [h.pose for h in hyps]
         overlap = 0.0 if stage2 is None else stage2.overlap_m
         stage2_pose = None if stage2 is None else stage2.pose

@@ -176,7 +176,20 @@ def _keep_distinct(score, hh, xx, yy, n, headings, cell, apart_m, apart_rad):
 
 @njit(cache=True)
 def _branch_and_bound(
-    fine, pyramid, ix, iy, n_cells, depth, headings, cell, apart_m, apart_rad, k, keep, top_mask
+    fine,
+    pyramid,
+    ix,
+    iy,
+    n_cells,
+    depth,
+    headings,
+    cell,
+    apart_m,
+    apart_rad,
+    k,
+    keep,
+    top_mask,
+    known,
 ):
     """The ``k`` best distinct (heading, x, y) of the fine sums over a square of
     ``n_cells``² shifts, by depth-first branch and bound over the bound pyramid.
@@ -212,7 +225,7 @@ def _branch_and_bound(
     kept_x = np.zeros(k + 1, dtype=np.int64)
     kept_y = np.zeros(k + 1, dtype=np.int64)
     n_kept = 0
-    threshold = 0.0
+    threshold = keep * known  # a sum already found is at most the best
     size = 4 * depth + 4
     stack_level = np.zeros(size, dtype=np.int64)
     stack_x = np.zeros(size, dtype=np.int64)
@@ -309,6 +322,7 @@ class HypothesisSearch:
         centre_xy: np.ndarray,
         half_width_m: float,
         reach_m: float | None = None,
+        known: Pose2 | None = None,
     ) -> list[Hypothesis]:
         """The ``hypotheses`` best distinct grid poses, best first, in a square around
         ``centre_xy``.
@@ -350,6 +364,7 @@ class HypothesisSearch:
             p.hypotheses,
             p.keep_fraction,
             mask,
+            self._known_sum(points, headings, start, known),
         )
         xy = start + cell * np.column_stack([x, y])
         return [
@@ -358,6 +373,21 @@ class HypothesisSearch:
             )
             for (px, py), k, total in zip(xy, h, sums, strict=True)
         ]
+
+    def _known_sum(
+        self, points: np.ndarray, headings: np.ndarray, start: np.ndarray, known: Pose2 | None
+    ) -> float:
+        """The sum at the grid pose nearest ``known`` (0 without one, or off the grid): a
+        lower bound on the best, so the search can prune below it from the start."""
+        if known is None or not np.isfinite([known.x, known.y, known.theta]).all():
+            return 0.0
+        h = int(np.argmin(np.abs(wrap_angle(headings - known.theta))))
+        x, y = np.rint((np.array([known.x, known.y]) - start) / self.fine.cell_m)
+        cos_sin = np.array([[np.cos(headings[h]), np.sin(headings[h])]])
+        ix, iy = _point_cells(points, cos_sin, start, self.fine.origin, self.fine.cell_m)
+        if abs(x) > INDEX_LIMIT or abs(y) > INDEX_LIMIT:
+            return 0.0
+        return _exact_sum(self.fine.score, ix[0], iy[0], int(x), int(y))
 
     def _reachable(
         self, start: np.ndarray, n_cells: int, depth: int, reach_m: float | None
@@ -391,15 +421,20 @@ class HypothesisSearch:
         return mask.reshape(n_top, n_top)
 
     def around(
-        self, points_robot: np.ndarray, initial: Pose2, window_deg: float, extra_headings=()
+        self,
+        points_robot: np.ndarray,
+        initial: Pose2,
+        window_deg: float,
+        extra_headings=(),
+        known: Pose2 | None = None,
     ) -> list[Hypothesis]:
-        """Search the square of ``half_width_m`` around the guess, headings within ± window."""
+        """Search the square of ``half_width_m`` around the guess, headings within ± window;
+        ``known``, a pose found already (stage 2's), lets it prune from the start."""
         p = self.params
         steps = np.arange(-window_deg, window_deg + 1e-9, p.heading_step_deg)
         headings = np.concatenate([initial.theta + np.deg2rad(steps), np.asarray(extra_headings)])
-        return self.search(
-            points_robot, wrap_angle(headings), np.array([initial.x, initial.y]), p.half_width_m
-        )
+        centre = np.array([initial.x, initial.y])
+        return self.search(points_robot, wrap_angle(headings), centre, p.half_width_m, known=known)
 
     def everywhere(self, points_robot: np.ndarray) -> list[Hypothesis]:
         """Search at every heading with no initial guess: within ``region`` if the settings

@@ -268,3 +268,19 @@ def test_compiled_point_cells_are_what_numpy_gives(points, headings, start):
             expected = cell_indices((points @ rotation(h).T + np.array(start) - origin) / cell)
         np.testing.assert_array_equal(ix[k], expected[:, 0])
         np.testing.assert_array_equal(iy[k], expected[:, 1])
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_a_pose_known_beforehand_prunes_without_changing_the_best(seed):
+    """Starting the pruning at a pose found already (stage 2's, right or wrong) finds the
+    same best pose as a search that starts from nothing."""
+    rng = np.random.default_rng(8300 + seed)
+    world = random_world(rng)
+    true = Pose2(*random_free_poses(world, 1, rng)[0])
+    points = simulate_scan(world, true, NOISE_FREE, rng, 0.0).points()
+    search = HypothesisSearch(world.segments)
+    guess = Pose2(true.x + 0.8, true.y - 0.6, true.theta + 0.2)
+    wrong = Pose2(guess.x - 1.0, guess.y + 0.5, guess.theta - 0.1)
+    plain = search.around(points, guess, 20.0)
+    for known in (true, wrong, Pose2(np.nan, 0.0, 0.0), Pose2(1e9, -1e9, 0.0)):
+        assert search.around(points, guess, 20.0, known=known)[0] == plain[0]
