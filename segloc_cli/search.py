@@ -68,6 +68,13 @@ def _clipped_cell(value):
 
 
 @njit(cache=True)
+def _beyond_limit(bx, by):
+    """Whether a point's base cell lies beyond ``INDEX_LIMIT``: such points are skipped, so
+    no index arithmetic can overflow and every read stays inside its raster."""
+    return bx < -INDEX_LIMIT or bx > INDEX_LIMIT or by < -INDEX_LIMIT or by > INDEX_LIMIT
+
+
+@njit(cache=True)
 def _exact_sum(fine, ix, iy, x, y):
     """Sum over points of fine[ix[p] + x, iy[p] + y] (float64, in point order); 0 outside.
 
@@ -78,7 +85,7 @@ def _exact_sum(fine, ix, iy, x, y):
     total = 0.0
     for p in range(ix.shape[0]):
         bx, by = ix[p], iy[p]
-        if bx < -INDEX_LIMIT or bx > INDEX_LIMIT or by < -INDEX_LIMIT or by > INDEX_LIMIT:
+        if _beyond_limit(bx, by):
             continue
         i, j = bx + x, by + y
         if 0 <= i < nx and 0 <= j < ny:
@@ -94,7 +101,7 @@ def _bound_sum(level, pad, ix, iy, x, y):
     total = 0
     for p in range(ix.shape[0]):
         bx, by = ix[p], iy[p]
-        if bx < -INDEX_LIMIT or bx > INDEX_LIMIT or by < -INDEX_LIMIT or by > INDEX_LIMIT:
+        if _beyond_limit(bx, by):
             continue
         i, j = bx + x + pad, by + y + pad
         if 0 <= i < nx and 0 <= j < ny:
@@ -110,7 +117,7 @@ def _children_exact(fine, ix, iy, x, y, out):
     s0 = s1 = s2 = s3 = 0.0
     for p in range(ix.shape[0]):
         bx, by = ix[p], iy[p]
-        if bx < -INDEX_LIMIT or bx > INDEX_LIMIT or by < -INDEX_LIMIT or by > INDEX_LIMIT:
+        if _beyond_limit(bx, by):
             continue
         i, j = bx + x, by + y
         if -1 <= i < nx and -1 <= j < ny:
@@ -135,7 +142,7 @@ def _children_bound(level, pad, ix, iy, x, y, half, out):
     s0 = s1 = s2 = s3 = 0
     for p in range(ix.shape[0]):
         bx, by = ix[p], iy[p]
-        if bx < -INDEX_LIMIT or bx > INDEX_LIMIT or by < -INDEX_LIMIT or by > INDEX_LIMIT:
+        if _beyond_limit(bx, by):
             continue
         i, j = bx + x + pad, by + y + pad
         in_i, in_j = 0 <= i < nx, 0 <= j < ny
