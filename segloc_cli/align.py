@@ -37,17 +37,23 @@ class RTable:
     """Global segment lengths indexed by quantised undirected orientation.
 
     ``bin_width_rad`` divides [0, π) into ``n_bins`` bins; bin b covers the
-    orientations that round to b·bin_width. ``lengths_m[b]`` is the (sorted)
-    array of the lengths (metres, rounded to 1 mm as in the paper) of the
-    global segments in bin b.
+    orientations that round to b·bin_width. ``sorted_m`` holds the lengths
+    (metres, rounded to 1 mm as in the paper) of the global segments, bin by
+    bin and sorted within each; ``sizes`` (n_bins,) how many each bin holds.
     """
 
     bin_width_rad: float
-    lengths_m: tuple[np.ndarray, ...]
+    sorted_m: np.ndarray
+    sizes: np.ndarray
 
     @property
     def n_bins(self) -> int:
-        return len(self.lengths_m)
+        return int(self.sizes.size)
+
+    @property
+    def lengths_m(self) -> tuple[np.ndarray, ...]:
+        """The sorted lengths of each bin, one array per bin."""
+        return tuple(np.split(self.sorted_m, np.cumsum(self.sizes)[:-1]))
 
     @classmethod
     def build(cls, segments_world: np.ndarray, bin_width_deg: float = 1.0) -> RTable:
@@ -58,8 +64,8 @@ class RTable:
         bins = orientation_bins(segment_orientations(segments_world), bin_width_rad, n_bins)
         lengths = np.round(segment_lengths(segments_world), 3)
         order = np.lexsort((lengths, bins))  # by bin, then by length
-        ends = np.cumsum(np.bincount(bins, minlength=n_bins))[:-1]
-        return cls(bin_width_rad=bin_width_rad, lengths_m=tuple(np.split(lengths[order], ends)))
+        sizes = np.bincount(bins, minlength=n_bins)
+        return cls(bin_width_rad=bin_width_rad, sorted_m=lengths[order], sizes=sizes)
 
     def closest_lengths(self, local_len_m: np.ndarray) -> np.ndarray:
         """(n_bins, N): per bin, the global length closest to each local one (NaN: empty bin).
@@ -70,11 +76,11 @@ class RTable:
         local_m = np.nan_to_num(np.asarray(local_len_m, dtype=float), nan=_MAX_LENGTH_M)
         local_mm = np.rint(np.clip(local_m, 0.0, _MAX_LENGTH_M) * 1000.0).astype(np.int64)
         best = np.full((self.n_bins, local_mm.size), np.nan)
-        sizes = np.array([lengths.size for lengths in self.lengths_m])
+        sizes = self.sizes
         filled = np.flatnonzero(sizes)
         if filled.size == 0 or local_mm.size == 0:
             return best
-        global_m = np.clip(np.concatenate(self.lengths_m), 0.0, _MAX_LENGTH_M)
+        global_m = np.clip(self.sorted_m, 0.0, _MAX_LENGTH_M)
         global_mm = np.rint(global_m * 1000.0).astype(np.int64)
         # Lengths are whole millimetres, so (difference, length) packs into one
         # integer whose minimum per bin is the closest length, shorter on ties.
