@@ -79,6 +79,14 @@ def segloc_argv(*args: object) -> list[str]:
     return [SEGLOC, *map(str, args)]
 
 
+def as_typed(argv: list[str]) -> str:
+    """``argv`` as a user would type it in the repository: ``segloc ...``, with absolute
+    paths (a ``--datasets`` given as one) written relative to the current folder, so that
+    a report names no one machine's folders."""
+    words = [os.path.relpath(a) if os.path.isabs(a) else a for a in argv[1:]]
+    return " ".join(["segloc", *words])
+
+
 def run_segloc(commands: list[str], *args: object) -> subprocess.CompletedProcess:
     """Run ``segloc ARGS --force`` (replacing the outputs of an earlier run) and return it.
 
@@ -86,7 +94,7 @@ def run_segloc(commands: list[str], *args: object) -> subprocess.CompletedProces
     ends the script with the command and its error output.
     """
     argv = segloc_argv(*args, "--force")
-    commands.append(" ".join(["segloc", *argv[1:]]))
+    commands.append(as_typed(argv))
     proc = subprocess.run(argv, capture_output=True, text=True, check=False)
     if proc.returncode != 0:
         raise SystemExit(f"command failed ({proc.returncode}): {' '.join(argv)}\n{proc.stderr}")
@@ -111,7 +119,7 @@ def run_segloc_measured(commands: list[str], *args: object) -> MeasuredRun:
     largest resident set of the process or of any worker it waited for.
     """
     argv = segloc_argv(*args, "--force")
-    commands.append(" ".join(["segloc", *argv[1:]]))
+    commands.append(as_typed(argv))
     with tempfile.TemporaryFile("w+") as out, tempfile.TemporaryFile("w+") as err:
         start = time.perf_counter()
         child = subprocess.Popen(argv, stdout=out, stderr=err, text=True)
