@@ -139,6 +139,8 @@ def localize_log(
     the scans it lists; a track starts at the first scan with a guess and follows the
     odometry. ``stop`` is asked between blocks of scans on worker processes.
     """
+    if mode not in MODES:
+        raise ValueError(f"mode {mode!r} is not one of {', '.join(MODES)}")
     if mode == "global":
         localizer.hypothesis_search  # noqa: B018 (built now, so no scan's time includes it)
     if mode == "global" and initial is None:
