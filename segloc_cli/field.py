@@ -4,11 +4,12 @@ The hypothesis search (``search.py``) scores thousands of candidate poses per
 scan. Looking each rotated, shifted point up in a raster is far cheaper than
 measuring its distance to the segments, so the map is turned once into a
 raster of per-cell scores: 1 on a segment, falling as 1 − (d/r)² to 0 at the
-score radius r. A coarse raster keeps, per block of cells, the best score
-within two blocks' reach; its sums are then upper bounds of the fine sums of
-every shift inside one coarse step, which is what lets the search skip
-regions that cannot beat what it has already found (the multi-resolution
-idea of correlative scan matching).
+score radius r. A pyramid of coarser grids keeps the best score over squares
+of 2, 4, … 2^depth cells; summed over a scan's points they bound the fine sums
+of every shift inside a square, which is what lets the search skip regions
+that cannot beat what it has already found (the multi-resolution idea of
+correlative scan matching). The coarse levels keep one bound per few cells,
+so that they stay small enough to be read from the processor's caches.
 """
 
 from __future__ import annotations
@@ -172,41 +173,124 @@ MAX_PYRAMID_CELLS = 400_000_000
 """Most cells of all levels of a bound pyramid together (uint8: 400 MB, as much as the
 largest score raster): a map that large gets fewer levels rather than more memory."""
 
+STRIDE_LAG = 2
+"""Level l of a bound pyramid keeps one bound per 2^(l − STRIDE_LAG) cells (every cell up to
+level STRIDE_LAG), each over a square that much wider than 2^l. The coarse levels, which a
+global search reads for every heading all over the map, then fit in the processor's caches
+instead of costing a memory fetch per point; the bounds loosen by a quarter of a square."""
+
+
+def level_shift(level: int) -> int:
+    """log2 of the stride (cells) of pyramid level ``level`` (squares of 2^level cells)."""
+    return max(0, level - STRIDE_LAG)
+
+
+def _level_shape(shape: tuple[int, int], pad: int, level: int) -> tuple[int, int]:
+    stride = 2 ** level_shift(level)
+    return (-(-(shape[0] + pad) // stride), -(-(shape[1] + pad) // stride))
+
+
+def pyramid_cells(raster_shape: tuple[int, int], depth: int) -> int:
+    """Cells of all ``depth`` levels of the bound pyramid of a raster of ``raster_shape``."""
+    pad = 2**depth - 1
+    return sum(
+        int(np.prod(_level_shape(raster_shape, pad, level))) for level in range(1, depth + 1)
+    )
+
 
 def pyramid_depth(raster_shape: tuple[int, int], max_depth: int) -> int:
     """Levels of the bound pyramid of a raster: ``max_depth``, or fewer (at least 1) so that
-    all levels, each padded by 2^depth − 1 cells, stay within ``MAX_PYRAMID_CELLS``."""
+    all levels together stay within ``MAX_PYRAMID_CELLS``."""
     depth = max_depth
-    while depth > 1:
-        pad = 2**depth - 1
-        if depth * (raster_shape[0] + pad) * (raster_shape[1] + pad) <= MAX_PYRAMID_CELLS:
-            break
+    while depth > 1 and pyramid_cells(raster_shape, depth) > MAX_PYRAMID_CELLS:
         depth -= 1
     return depth
 
 
-def max_pyramid(fine_score: np.ndarray, depth: int) -> np.ndarray:
-    """Bounds of the fine scores over squares of 2^l cells, for l = 1..``depth``.
+@dataclass(frozen=True)
+class BoundPyramid:
+    """Upper bounds of a fine score raster over squares of 2^l cells, l = 1..depth (the
+    precomputed grids of fast correlative scan matching), in 255ths rounded up.
 
-    Level l (index l − 1 of the result) at (i + W, j + W), W = 2^depth − 1, holds the best
-    fine score over cells [i, i + 2^l) × [j, j + 2^l), in 255ths rounded up (uint8), for i
-    from −W: a point whose fine cell is ``b + u`` for a shift ``u`` in [0, 2^l) lies in
-    that square for ``i = b``, so summing level-l values at ``b`` bounds from above the fine
-    sum of every such shift (the precomputed grids of fast correlative scan matching).
-    Cells beyond the raster score 0. Shape (depth, NX + W, NY + W).
+    Level l keeps a bound per 2^s cells, s = ``level_shift(l)``: its cell (q, r) holds the
+    best fine score over cells [q·2^s − W, q·2^s − W + 2^l + 2^s − 1) in x (likewise in y
+    with r), W = ``pad`` = 2^depth − 1. A point whose fine cell is ``b + u`` for a shift
+    ``u`` in [0, 2^l) lies in the square of the level cell q = (b + W) >> s, so summing the
+    level's values there bounds from above the fine sum of every such shift. Cells beyond
+    the raster score 0. All levels are stored one after another in ``values`` so that the
+    compiled search takes them as plain arrays.
     """
+
+    values: np.ndarray
+    """All levels' cells, uint8, level 1 first, each row-major."""
+    offsets: np.ndarray
+    """(depth,) int64: where each level starts in ``values``."""
+    shapes: np.ndarray
+    """(depth, 2) int64: each level's cells in x and y."""
+    shifts: np.ndarray
+    """(depth,) int64: each level's stride as a power of two."""
+    pad: int
+
+    @property
+    def depth(self) -> int:
+        return int(self.offsets.shape[0])
+
+    def level(self, level: int) -> np.ndarray:
+        """Level ``level``'s cells (a view), shape ``shapes[level − 1]``."""
+        nx, ny = self.shapes[level - 1]
+        start = self.offsets[level - 1]
+        return self.values[start : start + nx * ny].reshape(nx, ny)
+
+    def bound(self, level: int, bx: int, by: int) -> float:
+        """The bound, in [0, 1], of level ``level`` for a square starting at fine cell
+        (bx, by), bx, by ≥ −``pad``."""
+        shift = self.shifts[level - 1]
+        return self.level(level)[(bx + self.pad) >> shift, (by + self.pad) >> shift] / BOUND_LEVELS
+
+
+def _strided_max(window: np.ndarray, stride: int, axis: int) -> np.ndarray:
+    """Every ``stride``-th cell along ``axis`` of a max-over-squares ``window``, widened by
+    stride − 1 cells: the best of cells q·stride and q·stride + stride − 1 (clipped at the
+    edge, which can only raise a bound)."""
+    if stride == 1:
+        return window
+    n = window.shape[axis]
+    first = np.arange(0, n, stride)
+    last = np.minimum(first + stride - 1, n - 1)
+    return np.maximum(np.take(window, first, axis=axis), np.take(window, last, axis=axis))
+
+
+def _store_255ths(src: np.ndarray, dst: np.ndarray) -> None:
+    """``dst`` (uint8) = ``src`` (float32 in [0, 1]) in 255ths rounded up, a band of rows at
+    a time so that float64 temporaries stay small."""
+    rows = max(1, 2**22 // max(1, src.shape[1]))
+    for r0 in range(0, src.shape[0], rows):
+        scaled = np.ceil(src[r0 : r0 + rows].astype(np.float64) * BOUND_LEVELS + 1e-6)
+        dst[r0 : r0 + rows] = np.minimum(scaled, BOUND_LEVELS)
+
+
+def max_pyramid(fine_score: np.ndarray, depth: int) -> BoundPyramid:
+    """The ``BoundPyramid`` of ``depth`` levels over a fine score raster (NX, NY)."""
     nx, ny = fine_score.shape
     pad = 2**depth - 1
+    shapes = np.array([_level_shape((nx, ny), pad, lv) for lv in range(1, depth + 1)], np.int64)
+    sizes = shapes.prod(axis=1) if depth else np.zeros(0, dtype=np.int64)
+    offsets = (np.cumsum(sizes) - sizes).astype(np.int64)
+    pyramid = BoundPyramid(
+        np.empty(int(sizes.sum()), dtype=np.uint8),
+        offsets,
+        shapes.reshape(depth, 2),
+        np.array([level_shift(lv) for lv in range(1, depth + 1)], dtype=np.int64),
+        pad,
+    )
     window = np.zeros((nx + pad, ny + pad), dtype=np.float32)
     window[pad:, pad:] = fine_score
-    out = np.empty((depth, nx + pad, ny + pad), dtype=np.uint8)
     for level in range(1, depth + 1):
         half = 2 ** (level - 1)
         # Widen the squares from 2^(l-1) to 2^l cells: the best of two neighbours, per axis.
         window[:-half, :] = np.maximum(window[:-half, :], window[half:, :])
         window[:, :-half] = np.maximum(window[:, :-half], window[:, half:])
-        rows = max(1, 2**22 // window.shape[1])  # bands keep float64 temporaries small
-        for r0 in range(0, window.shape[0], rows):
-            scaled = np.ceil(window[r0 : r0 + rows].astype(np.float64) * BOUND_LEVELS + 1e-6)
-            out[level - 1, r0 : r0 + rows] = np.minimum(scaled, BOUND_LEVELS)
-    return out
+        stride = 2 ** level_shift(level)
+        strided = _strided_max(_strided_max(window, stride, 0), stride, 1)
+        _store_255ths(strided, pyramid.level(level))
+    return pyramid

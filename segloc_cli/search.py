@@ -26,7 +26,7 @@ from segloc_cli.field import (
     pyramid_depth,
     score_raster,
 )
-from segloc_cli.geometry import Pose2, point_segment_distances, wrap_angle
+from segloc_cli.geometry import Pose2, wrap_angle
 from segloc_cli.kernels import wrap
 
 
@@ -94,18 +94,66 @@ def _exact_sum(fine, ix, iy, x, y):
 
 
 @njit(cache=True)
-def _bound_sum(level, pad, ix, iy, x, y):
-    """Sum over points of a ``max_pyramid`` level at fine cell (ix[p] + x, iy[p] + y), in
-    points' worth: a bound on ``_exact_sum`` for every shift within the level's square."""
-    nx, ny = level.shape
+def _level_cells(ix, iy, shapes, shifts, pad, n_cells, sort):
+    """The points' cells on each ``BoundPyramid`` level, merged: per level L (depth) and
+    heading h, the level cells (Q, 2) of the points' squares at shift (0, 0) and how many
+    points each stands for (Q,), with Q in ``counts[L, h]``. With ``sort`` every cell is
+    listed once; without, only consecutive points are merged (a scan's points come in beam
+    order, so most points sharing a cell are neighbours), which costs no sorting: the
+    choice for a search that evaluates few nodes.
+
+    A node of level L has a corner x that is a multiple of the level's stride 2^s, so a
+    point of fine cell b reads the level at (b + W + x) >> s = ((b + W) >> s) + (x >> s):
+    points in the same level cell read the same bound at every node, and the level's
+    sums cost one read per merged cell, not per point. Points whose cells no shift
+    within ``n_cells`` brings onto the level are left out, as are points beyond
+    ``INDEX_LIMIT``.
+    """
+    depth, (n_h, n_p) = shifts.shape[0], ix.shape
+    cells = np.zeros((depth, n_h, n_p, 2), dtype=np.int32)
+    weights = np.zeros((depth, n_h, n_p), dtype=np.int32)
+    counts = np.zeros((depth, n_h), dtype=np.int64)
+    qi = np.empty(n_p, dtype=np.int64)
+    qj = np.empty(n_p, dtype=np.int64)
+    for lv in range(depth):
+        shift, nx, ny = shifts[lv], shapes[lv, 0], shapes[lv, 1]
+        reach = (n_cells >> shift) + 1
+        for h in range(n_h):
+            m = 0
+            for p in range(n_p):
+                bx, by = ix[h, p], iy[h, p]
+                if _beyond_limit(bx, by):
+                    continue
+                ci, cj = (bx + pad) >> shift, (by + pad) >> shift
+                if -reach <= ci < nx and -reach <= cj < ny:
+                    qi[m], qj[m] = ci, cj
+                    m += 1
+            order = np.arange(m)
+            if sort:
+                order = np.argsort(qj[:m], kind="mergesort")
+                order = order[np.argsort(qi[:m][order], kind="mergesort")]
+            q = -1
+            for o in order:
+                if q < 0 or qi[o] != cells[lv, h, q, 0] or qj[o] != cells[lv, h, q, 1]:
+                    q += 1
+                    cells[lv, h, q, 0], cells[lv, h, q, 1] = qi[o], qj[o]
+                weights[lv, h, q] += 1
+            counts[lv, h] = q + 1
+    return cells, weights, counts
+
+
+@njit(cache=True)
+def _bound_sum(values, offset, shape, cells, weights, count, xs, ys):
+    """Sum over the merged points (``_level_cells`` of one level and heading) of the level
+    (its cells from ``offset`` in ``values``, ``shape`` (2,)) at their cell moved by (xs,
+    ys) level cells, in points' worth: a bound on ``_exact_sum`` for every shift within the
+    level's square."""
+    nx, ny = shape[0], shape[1]
     total = 0
-    for p in range(ix.shape[0]):
-        bx, by = ix[p], iy[p]
-        if _beyond_limit(bx, by):
-            continue
-        i, j = bx + x + pad, by + y + pad
+    for q in range(count):
+        i, j = cells[q, 0] + xs, cells[q, 1] + ys
         if 0 <= i < nx and 0 <= j < ny:
-            total += level[i, j]
+            total += weights[q] * values[offset + i * ny + j]
     return total / BOUND_LEVELS
 
 
@@ -135,26 +183,25 @@ def _children_exact(fine, ix, iy, x, y, out):
 
 
 @njit(cache=True)
-def _children_bound(level, pad, ix, iy, x, y, half, out):
-    """``_bound_sum`` at the four shifts (x, y), (x + half, y), (x, y + half),
-    (x + half, y + half), into ``out`` (4,) in that order, in one pass over the points."""
-    nx, ny = level.shape
+def _children_bound(values, offset, shape, cells, weights, count, xs, ys, half, out):
+    """``_bound_sum`` at the four moves (xs, ys), (xs + half, ys), (xs, ys + half),
+    (xs + half, ys + half) level cells, into ``out`` (4,) in that order, in one pass."""
+    nx, ny = shape[0], shape[1]
     s0 = s1 = s2 = s3 = 0
-    for p in range(ix.shape[0]):
-        bx, by = ix[p], iy[p]
-        if _beyond_limit(bx, by):
-            continue
-        i, j = bx + x + pad, by + y + pad
-        in_i, in_j = 0 <= i < nx, 0 <= j < ny
-        in_i1, in_j1 = 0 <= i + half < nx, 0 <= j + half < ny
-        if in_i and in_j:
-            s0 += level[i, j]
-        if in_i1 and in_j:
-            s1 += level[i + half, j]
-        if in_i and in_j1:
-            s2 += level[i, j + half]
+    for q in range(count):
+        i0, j0 = cells[q, 0] + xs, cells[q, 1] + ys
+        i1, j1 = i0 + half, j0 + half
+        in_i0, in_j0 = 0 <= i0 < nx, 0 <= j0 < ny
+        in_i1, in_j1 = 0 <= i1 < nx, 0 <= j1 < ny
+        w = weights[q]
+        if in_i0 and in_j0:
+            s0 += w * values[offset + i0 * ny + j0]
+        if in_i1 and in_j0:
+            s1 += w * values[offset + i1 * ny + j0]
+        if in_i0 and in_j1:
+            s2 += w * values[offset + i0 * ny + j1]
         if in_i1 and in_j1:
-            s3 += level[i + half, j + half]
+            s3 += w * values[offset + i1 * ny + j1]
     out[0], out[1], out[2], out[3] = (
         s0 / BOUND_LEVELS,
         s1 / BOUND_LEVELS,
@@ -184,7 +231,11 @@ def _keep_distinct(score, hh, xx, yy, n, headings, cell, apart_m, apart_rad):
 @njit(cache=True)
 def _branch_and_bound(
     fine,
-    pyramid,
+    values,
+    offsets,
+    shapes,
+    shifts,
+    pad,
     ix,
     iy,
     n_cells,
@@ -210,9 +261,12 @@ def _branch_and_bound(
     distinct from one kept replaces it). Returns (sums, heading indices, x, y), best first.
     """
     n_h = ix.shape[0]
-    pad = 2 ** pyramid.shape[0] - 1
     step = 2**depth
     n_top = -(-n_cells // step)
+    # Sorting pays once the search spans many top squares (a global search).
+    cells, weights, counts = _level_cells(
+        ix, iy, shapes[:depth], shifts[:depth], pad, n_cells, n_top > 2
+    )
     top_bound = np.zeros(n_h * n_top * n_top)
     for h in range(n_h):
         for a in range(n_top):
@@ -223,8 +277,11 @@ def _branch_and_bound(
                 if depth == 0:
                     top_bound[flat] = _exact_sum(fine, ix[h], iy[h], a, b)
                 else:
-                    level = pyramid[depth - 1]
-                    top_bound[flat] = _bound_sum(level, pad, ix[h], iy[h], a * step, b * step)
+                    lv, shift = depth - 1, shifts[depth - 1]
+                    top_bound[flat] = _bound_sum(
+                        values, offsets[lv], shapes[lv], cells[lv, h], weights[lv, h],
+                        counts[lv, h], (a * step) >> shift, (b * step) >> shift,
+                    )  # fmt: skip
     order = np.argsort(-top_bound)
     # The kept poses, best first, and room for one more while a leaf is placed.
     kept_sum = np.zeros(k + 1)
@@ -238,7 +295,7 @@ def _branch_and_bound(
     stack_x = np.zeros(size, dtype=np.int64)
     stack_y = np.zeros(size, dtype=np.int64)
     stack_bound = np.zeros(size)
-    values = np.zeros(4)
+    sums = np.zeros(4)
     child_bound = np.zeros(4)
     child_x = np.zeros(4, dtype=np.int64)
     child_y = np.zeros(4, dtype=np.int64)
@@ -279,14 +336,18 @@ def _branch_and_bound(
                 continue
             half = 2 ** (level - 1)
             if level == 1:
-                _children_exact(fine, ix[h], iy[h], x, y, values)
+                _children_exact(fine, ix[h], iy[h], x, y, sums)
             else:
-                _children_bound(pyramid[level - 2], pad, ix[h], iy[h], x, y, half, values)
+                lv, shift = level - 2, shifts[level - 2]
+                _children_bound(
+                    values, offsets[lv], shapes[lv], cells[lv, h], weights[lv, h],
+                    counts[lv, h], x >> shift, y >> shift, half >> shift, sums,
+                )  # fmt: skip
             n_child = 0
             for c in range(4):
                 cx, cy = x + (c % 2) * half, y + (c // 2) * half
-                if cx < n_cells and cy < n_cells and values[c] > threshold:
-                    child_bound[n_child], child_x[n_child], child_y[n_child] = values[c], cx, cy
+                if cx < n_cells and cy < n_cells and sums[c] > threshold:
+                    child_bound[n_child], child_x[n_child], child_y[n_child] = sums[c], cx, cy
                     n_child += 1
             # The weakest is pushed first, so the strongest is searched first.
             for c in np.argsort(child_bound[:n_child]):
@@ -295,6 +356,19 @@ def _branch_and_bound(
                 top += 1
     n_kept = np.searchsorted(-kept_sum[:n_kept], -keep * kept_sum[0], side="right")
     return kept_sum[:n_kept], kept_h[:n_kept], kept_x[:n_kept], kept_y[:n_kept]
+
+
+def _segment_samples(segments: np.ndarray, spacing_m: float) -> np.ndarray:
+    """Points (N, 2) along segments (M, 4) no farther than ``spacing_m`` apart, ends included;
+    non-finite segments give none."""
+    segments = segments[np.isfinite(segments).all(axis=1)]
+    lengths = np.hypot(segments[:, 2] - segments[:, 0], segments[:, 3] - segments[:, 1])
+    pieces = np.ceil(lengths / spacing_m).astype(np.int64) + 1
+    owner = np.repeat(np.arange(segments.shape[0]), pieces)
+    first = np.cumsum(pieces) - pieces
+    t = (np.arange(owner.size) - first[owner]) / np.maximum(pieces[owner] - 1, 1)
+    a, b = segments[owner, :2], segments[owner, 2:]
+    return a + (b - a) * t[:, None]
 
 
 def distinct(poses: list[Pose2], pose: Pose2, distinct_m: float, distinct_deg: float) -> bool:
@@ -352,14 +426,18 @@ class HypothesisSearch:
         half_cells = int(np.ceil(half_width_m / cell))
         start = np.asarray(centre_xy, dtype=float) - half_cells * cell
         n_cells = 2 * half_cells + 1
-        depth = min(self.pyramid.shape[0], int(np.ceil(np.log2(n_cells))))
+        depth = min(self.pyramid.depth, int(np.ceil(np.log2(n_cells))))
         # Fine cell of every point at every heading, the shift being ``start``.
         cos_sin = np.array([[np.cos(h), np.sin(h)] for h in headings]).reshape(-1, 2)
         ix, iy = _point_cells(points, cos_sin, start, self.fine.origin, cell)
         mask = self._reachable(start, n_cells, depth, reach_m)
         sums, h, x, y = _branch_and_bound(
             self.fine.score,
-            self.pyramid,
+            self.pyramid.values,
+            self.pyramid.offsets,
+            self.pyramid.shapes,
+            self.pyramid.shifts,
+            self.pyramid.pad,
             ix,
             iy,
             n_cells,
@@ -410,16 +488,19 @@ class HypothesisSearch:
         corners = start + side * np.stack(
             np.meshgrid(np.arange(n_top), np.arange(n_top), indexing="ij"), axis=-1
         ).reshape(-1, 2)
+        # The squares holding points every side/2 along the segments: the nearest point of a
+        # segment to a square's centre lies within side/4 of such a sample, and a sample
+        # within side/√2 of its square's centre, so comparing centres with the reach grown
+        # by side·(√2 + 1/4) keeps every square within reach (and a few more).
+        samples = _segment_samples(self.segments_world, side / 2.0)
+        occupied = np.unique(np.floor((samples - start) / side).astype(np.int64), axis=0)
         centres = corners + side / 2.0
-        # A few hundred centres at a time: centres × segments distances of a large map would
-        # otherwise take gigabytes at once.
-        nearest = np.concatenate(
-            [
-                point_segment_distances(centres[i : i + 256], self.segments_world).min(axis=1)
-                for i in range(0, centres.shape[0], 256)
-            ]
-        )
-        mask = nearest <= reach_m + side / np.sqrt(2.0)
+        occupied_centres = start + side * (occupied + 0.5)
+        limit = reach_m + side * (np.sqrt(2.0) + 0.25)
+        mask = np.zeros(centres.shape[0], dtype=bool)
+        for i in range(0, occupied_centres.shape[0], 256):  # bounded temporaries
+            gap = centres[:, None, :] - occupied_centres[None, i : i + 256, :]
+            mask |= (np.hypot(gap[..., 0], gap[..., 1]) <= limit).any(axis=1)
         if self.params.region is not None:  # squares that meet the region's rectangle
             x0, y0, x1, y1 = self.params.region
             far = corners + side

@@ -16,11 +16,25 @@ from segloc_cli.confidence import (
 )
 from segloc_cli.config import SearchParams
 from segloc_cli.extract import extract_segments
-from segloc_cli.field import BOUND_LEVELS, cell_indices, max_pyramid, pyramid_depth, score_raster
+from segloc_cli.field import (
+    BOUND_LEVELS,
+    cell_indices,
+    level_shift,
+    max_pyramid,
+    pyramid_cells,
+    pyramid_depth,
+    score_raster,
+)
 from segloc_cli.geometry import Pose2, point_segment_distances, rotation, wrap_angle
 from segloc_cli.io.maps import World
 from segloc_cli.localize import STATUS_TOO_FEW_SEGMENTS, LocalizeParams, Localizer
-from segloc_cli.search import HypothesisSearch, _exact_sum, _point_cells, distinct
+from segloc_cli.search import (
+    HypothesisSearch,
+    _exact_sum,
+    _point_cells,
+    _segment_samples,
+    distinct,
+)
 from segloc_cli.sim import NOISE_FREE, random_free_poses, random_world, simulate_scan
 
 
@@ -52,16 +66,30 @@ def test_pyramid_bounds_every_shift_within_its_square(depth, nx, ny, seed):
     fine = np.random.default_rng(seed).random((nx, ny)).astype(np.float32)
     pyramid = max_pyramid(fine, depth)
     pad = 2**depth - 1
-    assert pyramid.shape == (depth, nx + pad, ny + pad)
+    assert pyramid.pad == pad and pyramid.depth == depth
+    assert pyramid.values.size == pyramid_cells((nx, ny), depth)
+
+    def best_over(b, c, side_x, side_y):
+        square = fine[max(b, 0) : max(b + side_x, 0), max(c, 0) : max(c + side_y, 0)]
+        return float(square.max()) if square.size else 0.0
+
     for level in range(1, depth + 1):
-        side = 2**level
+        side, stride = 2**level, 2 ** level_shift(level)
         for b in range(-pad, nx):
             for c in range(-pad, ny):
-                square = fine[max(b, 0) : max(b + side, 0), max(c, 0) : max(c + side, 0)]
-                best = float(square.max()) if square.size else 0.0
-                bound = pyramid[level - 1, b + pad, c + pad] / BOUND_LEVELS
-                # An upper bound, and no looser than one 255th.
-                assert best <= bound <= best + 1.0 / BOUND_LEVELS + 1e-6
+                bound = pyramid.bound(level, b, c)
+                # An upper bound on the square from (b, c), and no looser than one 255th over
+                # the widened square of the level cell holding it.
+                q, r = (b + pad) // stride * stride - pad, (c + pad) // stride * stride - pad
+                widened = best_over(q, r, side + stride - 1, side + stride - 1)
+                assert best_over(b, c, side, side) <= bound <= widened + 1.0 / BOUND_LEVELS + 1e-6
+
+
+def test_pyramid_levels_above_the_lag_keep_one_bound_per_stride():
+    assert [level_shift(level) for level in range(1, 8)] == [0, 0, 1, 2, 3, 4, 5]
+    pyramid = max_pyramid(np.zeros((100, 60), dtype=np.float32), 4)
+    # Padded by 15 cells: 115 × 75 at strides 1, 1, 2 and 4.
+    assert pyramid.shapes.tolist() == [[115, 75], [115, 75], [58, 38], [29, 19]]
 
 
 def _exhaustive(search: HypothesisSearch, points, headings, centre, half_width_m):
@@ -82,14 +110,17 @@ def _exhaustive(search: HypothesisSearch, points, headings, centre, half_width_m
 
 
 @pytest.mark.parametrize("seed", range(6))
-def test_branch_and_bound_finds_what_brute_force_finds(seed):
+@pytest.mark.parametrize("max_depth", [3, 5])
+def test_branch_and_bound_finds_what_brute_force_finds(seed, max_depth):
     """On small maps and windows, the best pose is the exhaustive maximum (same sum), and the
-    runner-ups are exact sums, distinct, and no worse than keep_fraction of the best."""
+    runner-ups are exact sums, distinct, and no worse than keep_fraction of the best. With
+    3 levels the window spans 3 × 3 top squares (points merged per level cell after
+    sorting), with 5 a single one (only consecutive points merged)."""
     rng = np.random.default_rng(8100 + seed)
     world = random_world(rng)
     true = Pose2(*random_free_poses(world, 1, rng)[0])
     points = simulate_scan(world, true, NOISE_FREE, rng, 0.0).points()[::8]
-    search = HypothesisSearch(world.segments, SearchParams(max_depth=3))
+    search = HypothesisSearch(world.segments, SearchParams(max_depth=max_depth))
     guess = np.array([true.x + rng.uniform(-0.3, 0.3), true.y + rng.uniform(-0.3, 0.3)])
     headings = true.theta + np.deg2rad(np.arange(-3.0, 3.5, 1.0))
     found = search.search(points, headings, guess, 0.4)
@@ -103,6 +134,42 @@ def test_branch_and_bound_finds_what_brute_force_finds(seed):
         assert hyp.score * points.shape[0] == pytest.approx(sums[(h, int(x), int(y))], rel=1e-12)
         assert hyp.score >= search.params.keep_fraction * found[0].score
         assert distinct([f.pose for f in found[:i]], hyp.pose, 0.3, 3.0)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_global_search_keeps_every_square_within_reach_of_the_map(seed):
+    rng = np.random.default_rng(8300 + seed)
+    world = random_world(rng)
+    search = HypothesisSearch(world.segments)
+    centre, half = search.extent()
+    reach = float(rng.uniform(0.5, 6.0))
+    depth = int(rng.integers(2, 6))
+    cell = search.fine.cell_m
+    n_cells = 2 * int(np.ceil((half + 8.0) / cell)) + 1  # beyond the map on every side
+    start = centre - (half + 8.0)
+    mask = search._reachable(start, n_cells, depth, reach)
+    side = 2**depth * cell
+    n_top = mask.shape[0]
+    corners = start + side * np.stack(
+        np.meshgrid(np.arange(n_top), np.arange(n_top), indexing="ij"), axis=-1
+    ).reshape(-1, 2)
+    nearest = point_segment_distances(corners + side / 2.0, world.segments).min(axis=1)
+    # Every square with a point within reach of a segment is searched; squares far beyond
+    # the reach (by more than the margin the coarse check allows) are not.
+    within = nearest <= reach + side / np.sqrt(2.0)
+    assert np.all(mask.ravel()[within])
+    assert not np.any(mask.ravel()[nearest > reach + side * (2.0 * np.sqrt(2.0) + 0.5)])
+    assert within.sum() < mask.size  # the map's surroundings are partly out of reach
+
+
+def test_segment_samples_are_no_farther_apart_than_asked():
+    segments = np.array([[0.0, 0.0, 1.0, 0.0], [2.0, 2.0, 2.0, 2.0], [np.nan, 0.0, 1.0, 1.0]])
+    samples = _segment_samples(segments, 0.3)
+    # 1 m in four pieces of 0.25 m (five points), and the zero-length segment's one point;
+    # the segment that is not finite gives none.
+    np.testing.assert_allclose(
+        samples, [[0.0, 0.0], [0.25, 0.0], [0.5, 0.0], [0.75, 0.0], [1.0, 0.0], [2.0, 2.0]]
+    )
 
 
 def test_distinct_poses():
@@ -222,9 +289,11 @@ def test_lookup_of_points_that_are_not_finite_or_far_is_zero():
 
 
 def test_pyramid_of_a_huge_raster_gets_fewer_levels_not_more_memory():
-    # 4 levels of a 10,000² raster, each padded by 15 cells: 4 · 10,015² > 4·10⁸ cells.
-    assert pyramid_depth((10_000, 10_000), 7) == 3
-    assert pyramid_depth((6_000, 6_000), 7) == 7
+    # Levels 1 and 2 of a 14,000² raster hold a cell per raster cell, level 3 one per four:
+    # with padding of 2^depth − 1 cells, 2 · 14,003² < 4·10⁸ cells < 2.25 · 14,007².
+    assert pyramid_depth((14_000, 14_000), 7) == 2
+    assert pyramid_cells((14_000, 14_000), 2) == 2 * 14_003**2
+    assert pyramid_depth((10_000, 10_000), 7) == 7
     assert pyramid_depth((100, 100), 0) == 0
 
 
@@ -237,7 +306,7 @@ def test_search_with_no_pyramid_is_brute_force_and_finds_the_same_best():
     headings = true.theta + np.deg2rad([-2.0, -1.0, 0.0, 1.0])
     flat = HypothesisSearch(world.segments, SearchParams(max_depth=0))
     deep = HypothesisSearch(world.segments)
-    assert flat.pyramid.shape[0] == 0
+    assert flat.pyramid.depth == 0
     best_flat = flat.search(points, headings, centre, 0.3)[0]
     best_deep = deep.search(points, headings, centre, 0.3)[0]
     assert best_flat == best_deep
