@@ -273,13 +273,15 @@ def max_pyramid(fine_score: np.ndarray, depth: int) -> BoundPyramid:
     """The ``BoundPyramid`` of ``depth`` levels over a fine score raster (NX, NY)."""
     nx, ny = fine_score.shape
     pad = 2**depth - 1
-    shapes = np.array([_level_shape((nx, ny), pad, lv) for lv in range(1, depth + 1)], np.int64)
-    sizes = shapes.prod(axis=1) if depth else np.zeros(0, dtype=np.int64)
-    offsets = (np.cumsum(sizes) - sizes).astype(np.int64)
+    shapes = np.array(
+        [_level_shape((nx, ny), pad, lv) for lv in range(1, depth + 1)], np.int64
+    ).reshape(depth, 2)
+    sizes = shapes.prod(axis=1)
+    offsets = np.cumsum(sizes) - sizes
     pyramid = BoundPyramid(
         np.empty(int(sizes.sum()), dtype=np.uint8),
         offsets,
-        shapes.reshape(depth, 2),
+        shapes,
         np.array([level_shift(lv) for lv in range(1, depth + 1)], dtype=np.int64),
         pad,
     )
