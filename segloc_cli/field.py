@@ -296,3 +296,15 @@ def max_pyramid(fine_score: np.ndarray, depth: int) -> BoundPyramid:
         strided = _strided_max(_strided_max(window, stride, 0), stride, 1)
         _store_255ths(strided, pyramid.level(level))
     return pyramid
+
+
+def phase_split(grid: np.ndarray, step: int) -> np.ndarray:
+    """``grid`` (NX, NY) split by phase: out[p, r, a, b] = grid[a·step + p, b·step + r], 0 past
+    the grid's edge; shape (step, step, ⌈NX/step⌉, ⌈NY/step⌉). Cells ``step`` apart in the
+    grid are neighbours in one phase, so reading a grid at every step-th cell from a start
+    reads consecutive cells."""
+    nx, ny = grid.shape
+    rows, columns = -(-nx // step), -(-ny // step)
+    padded = np.zeros((rows * step, columns * step), dtype=grid.dtype)
+    padded[:nx, :ny] = grid
+    return np.ascontiguousarray(padded.reshape(rows, step, columns, step).transpose(1, 3, 0, 2))

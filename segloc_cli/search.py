@@ -22,7 +22,9 @@ from segloc_cli.config import SearchParams
 from segloc_cli.field import (
     BOUND_LEVELS,
     INDEX_LIMIT,
+    level_shift,
     max_pyramid,
+    phase_split,
     pyramid_depth,
     score_raster,
 )
@@ -96,11 +98,12 @@ def _exact_sum(fine, ix, iy, x, y):
 @njit(cache=True)
 def _level_cells(ix, iy, shapes, shifts, pad, n_cells, sort):
     """The points' cells on each ``BoundPyramid`` level, merged: per level L (depth) and
-    heading h, the level cells (Q, 2) of the points' squares at shift (0, 0) and how many
-    points each stands for (Q,), with Q in ``counts[L, h]``. With ``sort`` every cell is
-    listed once; without, only consecutive points are merged (a scan's points come in beam
-    order, so most points sharing a cell are neighbours), which costs no sorting: the
-    choice for a search that evaluates few nodes.
+    heading h, the level cells (Q, 2) of the points' squares at shift (0, 0), how many
+    points each stands for (Q,), with Q in ``counts[L, h]``, each cell's index into its
+    level stored row-major (Q,), and the cells' bounding box (min x, max x, min y, max y).
+    With ``sort`` every cell is listed once; without, only consecutive points are merged (a
+    scan's points come in beam order, so most points sharing a cell are neighbours), which
+    costs no sorting: the choice for a search that evaluates few nodes.
 
     A node of level L has a corner x that is a multiple of the level's stride 2^s, so a
     point of fine cell b reads the level at (b + W + x) >> s = ((b + W) >> s) + (x >> s):
@@ -110,11 +113,14 @@ def _level_cells(ix, iy, shapes, shifts, pad, n_cells, sort):
     ``INDEX_LIMIT``.
     """
     depth, (n_h, n_p) = shifts.shape[0], ix.shape
-    cells = np.zeros((depth, n_h, n_p, 2), dtype=np.int32)
+    cells = np.zeros((depth, n_h, n_p, 2), dtype=np.int64)
+    linear = np.zeros((depth, n_h, n_p), dtype=np.int64)
     weights = np.zeros((depth, n_h, n_p), dtype=np.int32)
     counts = np.zeros((depth, n_h), dtype=np.int64)
+    boxes = np.zeros((depth, n_h, 4), dtype=np.int64)
     qi = np.empty(n_p, dtype=np.int64)
     qj = np.empty(n_p, dtype=np.int64)
+    keys = np.empty(n_p, dtype=np.int64)
     for lv in range(depth):
         shift, nx, ny = shifts[lv], shapes[lv, 0], shapes[lv, 1]
         reach = (n_cells >> shift) + 1
@@ -128,10 +134,13 @@ def _level_cells(ix, iy, shapes, shifts, pad, n_cells, sort):
                 if -reach <= ci < nx and -reach <= cj < ny:
                     qi[m], qj[m] = ci, cj
                     m += 1
-            order = np.arange(m)
-            if sort:
-                order = np.argsort(qj[:m], kind="mergesort")
-                order = order[np.argsort(qi[:m][order], kind="mergesort")]
+            if sort:  # by x, then y: one sort of a key that orders both (|y| < reach + ny)
+                span = 2 * (reach + ny)
+                for e in range(m):
+                    keys[e] = qi[e] * span + qj[e] + reach
+                order = np.argsort(keys[:m])
+            else:
+                order = np.arange(m)
             q = -1
             for o in order:
                 if q < 0 or qi[o] != cells[lv, h, q, 0] or qj[o] != cells[lv, h, q, 1]:
@@ -139,22 +148,16 @@ def _level_cells(ix, iy, shapes, shifts, pad, n_cells, sort):
                     cells[lv, h, q, 0], cells[lv, h, q, 1] = qi[o], qj[o]
                 weights[lv, h, q] += 1
             counts[lv, h] = q + 1
-    return cells, weights, counts
-
-
-@njit(cache=True)
-def _bound_sum(values, offset, shape, cells, weights, count, xs, ys):
-    """Sum over the merged points (``_level_cells`` of one level and heading) of the level
-    (its cells from ``offset`` in ``values``, ``shape`` (2,)) at their cell moved by (xs,
-    ys) level cells, in points' worth: a bound on ``_exact_sum`` for every shift within the
-    level's square."""
-    nx, ny = shape[0], shape[1]
-    total = 0
-    for q in range(count):
-        i, j = cells[q, 0] + xs, cells[q, 1] + ys
-        if 0 <= i < nx and 0 <= j < ny:
-            total += weights[q] * values[offset + i * ny + j]
-    return total / BOUND_LEVELS
+            if q >= 0:
+                box = boxes[lv, h]
+                box[0], box[1] = cells[lv, h, 0, 0], cells[lv, h, 0, 0]
+                box[2], box[3] = cells[lv, h, 0, 1], cells[lv, h, 0, 1]
+                for e in range(q + 1):
+                    ci, cj = cells[lv, h, e, 0], cells[lv, h, e, 1]
+                    linear[lv, h, e] = ci * ny + cj
+                    box[0], box[1] = min(box[0], ci), max(box[1], ci)
+                    box[2], box[3] = min(box[2], cj), max(box[3], cj)
+    return cells, linear, weights, counts, boxes
 
 
 @njit(cache=True)
@@ -183,31 +186,102 @@ def _children_exact(fine, ix, iy, x, y, out):
 
 
 @njit(cache=True)
-def _children_bound(values, offset, shape, cells, weights, count, xs, ys, half, out):
-    """``_bound_sum`` at the four moves (xs, ys), (xs + half, ys), (xs, ys + half),
-    (xs + half, ys + half) level cells, into ``out`` (4,) in that order, in one pass."""
+def _children_bound(values, offset, shape, cells, linear, weights, count, box, xs, ys, half, out):
+    """The bounds of one level at the four moves (xs, ys), (xs + half, ys), (xs, ys + half),
+    (xs + half, ys + half) level cells of the merged points (``_level_cells`` of one level
+    and heading), into ``out`` (4,) in that order, in points' worth: each bounds
+    ``_exact_sum`` for every shift within its square. Cells beyond the level score 0; when
+    the cells' box lies inside the level at all four moves, no cell is checked."""
     nx, ny = shape[0], shape[1]
     s0 = s1 = s2 = s3 = 0
-    for q in range(count):
-        i0, j0 = cells[q, 0] + xs, cells[q, 1] + ys
-        i1, j1 = i0 + half, j0 + half
-        in_i0, in_j0 = 0 <= i0 < nx, 0 <= j0 < ny
-        in_i1, in_j1 = 0 <= i1 < nx, 0 <= j1 < ny
-        w = weights[q]
-        if in_i0 and in_j0:
-            s0 += w * values[offset + i0 * ny + j0]
-        if in_i1 and in_j0:
-            s1 += w * values[offset + i1 * ny + j0]
-        if in_i0 and in_j1:
-            s2 += w * values[offset + i0 * ny + j1]
-        if in_i1 and in_j1:
-            s3 += w * values[offset + i1 * ny + j1]
+    inside_x = box[0] + xs >= 0 and box[1] + xs + half < nx
+    if inside_x and box[2] + ys >= 0 and box[3] + ys + half < ny:
+        base, across = offset + xs * ny + ys, half * ny
+        for q in range(count):
+            b, w = linear[q] + base, weights[q]
+            s0 += w * values[b]
+            s1 += w * values[b + across]
+            s2 += w * values[b + half]
+            s3 += w * values[b + across + half]
+    else:
+        for q in range(count):
+            i0, j0 = cells[q, 0] + xs, cells[q, 1] + ys
+            i1, j1 = i0 + half, j0 + half
+            in_i0, in_j0 = 0 <= i0 < nx, 0 <= j0 < ny
+            in_i1, in_j1 = 0 <= i1 < nx, 0 <= j1 < ny
+            w = weights[q]
+            if in_i0 and in_j0:
+                s0 += w * values[offset + i0 * ny + j0]
+            if in_i1 and in_j0:
+                s1 += w * values[offset + i1 * ny + j0]
+            if in_i0 and in_j1:
+                s2 += w * values[offset + i0 * ny + j1]
+            if in_i1 and in_j1:
+                s3 += w * values[offset + i1 * ny + j1]
     out[0], out[1], out[2], out[3] = (
         s0 / BOUND_LEVELS,
         s1 / BOUND_LEVELS,
         s2 / BOUND_LEVELS,
         s3 / BOUND_LEVELS,
     )
+
+
+@njit(cache=True)
+def _top_bounds(phased, cells, weights, count, out):
+    """The bounds of every top square (a, b) of one heading, into ``out`` (A, B) in whole
+    255ths: the sum over the merged points of the level at their cell moved by (a, b) top
+    squares, read from the level split by phase (``phased``, ``phase_split``) so that a
+    point's reads over all squares are rows of consecutive cells, added as vectors (the
+    caller picks ``out``'s integer type wide enough for 255 per point)."""
+    step, n_a, n_b = phased.shape[0], out.shape[0], out.shape[1]
+    rows, columns = phased.shape[2], phased.shape[3]
+    out[:, :] = 0
+    for q in range(count):
+        ci, cj, w = cells[q, 0], cells[q, 1], out.dtype.type(weights[q])
+        lane = phased[ci % step, cj % step]
+        qa, qb = ci // step, cj // step
+        b0, b1 = max(0, -qb), min(n_b, columns - qb)
+        if b0 >= b1:  # (and a negative slice end would count from the row's end)
+            continue
+        for a in range(max(0, -qa), min(n_a, rows - qa)):
+            # Slices first: indexing them by a plain range lets the loop be vectorized.
+            row, total = lane[qa + a, qb + b0 : qb + b1], out[a, b0:b1]
+            for b in range(row.shape[0]):
+                total[b] += w * out.dtype.type(row[b])
+
+
+@njit(cache=True)
+def _batch_bins(top, n_bins):
+    """Bins (as many as ``top``) of the top bounds, ``n_bins`` of equal width from the least
+    to the best, and each bin's count; bin −1 for the squares left out (a bound below 0)."""
+    lo, hi = np.inf, -np.inf
+    for f in range(top.size):
+        if top[f] >= 0:
+            lo, hi = min(lo, top[f]), max(hi, top[f])
+    bins = np.full(top.size, -1, dtype=np.int16)
+    tally = np.zeros(n_bins, dtype=np.int64)
+    width = (hi - lo) / n_bins if hi > lo else 1.0
+    for f in range(top.size):
+        v = top[f]
+        if v >= 0:
+            b = min(int((v - lo) / width), n_bins - 1)
+            bins[f] = b
+            tally[b] += 1
+    return bins, tally
+
+
+@njit(cache=True)
+def _batches(tally, first):
+    """Ranges of bins (best first, as [low, high] pairs) holding at least ``first``, then 4
+    times as many, … top squares each: the order the search takes them in."""
+    edges = []
+    size, held, high = first, 0, tally.size - 1
+    for b in range(tally.size - 1, -1, -1):
+        held += tally[b]
+        if held >= size or b == 0:
+            edges.append((b, high))
+            high, held, size = b - 1, 0, 4 * size
+    return edges
 
 
 @njit(cache=True)
@@ -228,6 +302,18 @@ def _keep_distinct(score, hh, xx, yy, n, headings, cell, apart_m, apart_rad):
     return kept
 
 
+MIN_TOP_LEVEL = 3
+MAX_TOP_SQUARES = 16_000_000
+"""A global search bounds every (heading, square) pair of one level in a first pass, as
+vectors, and starts its branch and bound from there: bounds over squares of several metres
+prune nothing in rooms, so it starts from the finest level from ``MIN_TOP_LEVEL`` (0.4 m
+squares) whose pairs number at most this many (1.6 m squares over 300 m × 300 m at 1°)."""
+
+FIRST_BATCH = 4096
+"""Top squares the search sorts and takes first, best bound first; then 4 times as many at a
+time, so that a global search sorts only the squares its threshold leaves."""
+
+
 @njit(cache=True)
 def _branch_and_bound(
     fine,
@@ -236,6 +322,7 @@ def _branch_and_bound(
     shapes,
     shifts,
     pad,
+    phased,
     ix,
     iy,
     n_cells,
@@ -248,41 +335,49 @@ def _branch_and_bound(
     keep,
     top_mask,
     known,
+    whole,
+    first_batch,
 ):
     """The ``k`` best distinct (heading, x, y) of the fine sums over a square of
     ``n_cells``² shifts, by depth-first branch and bound over the bound pyramid.
 
     ``ix``, ``iy`` (H, P) are the points' fine cells at shift (0, 0) per heading. The
-    search starts from every square of 2^``depth`` shifts that ``top_mask`` allows, best
+    search bounds every square of 2^``depth`` shifts that ``top_mask`` allows at every
+    heading in one pass (level ``depth`` split by phase in ``phased``), takes them best
     bound first, and splits a square in four while its bound beats the threshold: the
     k-th best distinct sum kept so far (0 until k are kept), and at least ``keep`` times
-    the best. The best sum is exact; the
-    runner-ups are the best distinct sums the pruning leaves (a better pose that is not
-    distinct from one kept replaces it). Returns (sums, heading indices, x, y), best first.
+    the best. The best sum is exact; the runner-ups are the best distinct sums the pruning
+    leaves (a better pose that is not distinct from one kept replaces it). ``whole`` (A, A)
+    holds one heading's top bounds, A = ⌈n_cells / 2^depth⌉, of an integer type wide enough
+    for their sums. The top squares are sorted and searched ``first_batch`` at a time, then
+    4 times as many (``_batches``). Returns (sums, heading indices, x, y), best first.
     """
     n_h = ix.shape[0]
     step = 2**depth
     n_top = -(-n_cells // step)
     # Sorting pays once the search spans many top squares (a global search).
-    cells, weights, counts = _level_cells(
+    cells, linear, weights, counts, boxes = _level_cells(
         ix, iy, shapes[:depth], shifts[:depth], pad, n_cells, n_top > 2
     )
-    top_bound = np.zeros(n_h * n_top * n_top)
+    divisor = float(BOUND_LEVELS) if depth > 0 else 1.0
+    top = np.full((n_h, n_top, n_top), -1.0)
     for h in range(n_h):
+        if depth == 0:
+            for a in range(n_top):
+                for b in range(n_top):
+                    top[h, a, b] = _exact_sum(fine, ix[h], iy[h], a, b)
+        else:
+            lv = depth - 1
+            _top_bounds(phased, cells[lv, h], weights[lv, h], counts[lv, h], whole)
+            for a in range(n_top):
+                for b in range(n_top):
+                    top[h, a, b] = whole[a, b]
         for a in range(n_top):
             for b in range(n_top):
                 if not top_mask[a, b]:
-                    continue
-                flat = (h * n_top + a) * n_top + b
-                if depth == 0:
-                    top_bound[flat] = _exact_sum(fine, ix[h], iy[h], a, b)
-                else:
-                    lv, shift = depth - 1, shifts[depth - 1]
-                    top_bound[flat] = _bound_sum(
-                        values, offsets[lv], shapes[lv], cells[lv, h], weights[lv, h],
-                        counts[lv, h], (a * step) >> shift, (b * step) >> shift,
-                    )  # fmt: skip
-    order = np.argsort(-top_bound)
+                    top[h, a, b] = -1.0
+    top = top.reshape(-1)
+    bins, tally = _batch_bins(top, 1024)
     # The kept poses, best first, and room for one more while a leaf is placed.
     kept_sum = np.zeros(k + 1)
     kept_h = np.zeros(k + 1, dtype=np.int64)
@@ -299,63 +394,95 @@ def _branch_and_bound(
     child_bound = np.zeros(4)
     child_x = np.zeros(4, dtype=np.int64)
     child_y = np.zeros(4, dtype=np.int64)
-    for flat in order:
-        if top_bound[flat] <= threshold:
+    done = False
+    for low, high in _batches(tally, first_batch):
+        members = np.flatnonzero((bins >= low) & (bins <= high))
+        for flat in members[np.argsort(-top[members])]:
+            if top[flat] / divisor <= threshold:
+                done = True
+                break
+            h = flat // (n_top * n_top)
+            stack_level[0] = depth
+            stack_x[0] = (flat // n_top) % n_top * step
+            stack_y[0] = flat % n_top * step
+            stack_bound[0] = top[flat] / divisor
+            stack_top = 1
+            while stack_top > 0:
+                stack_top -= 1
+                level, x, y = stack_level[stack_top], stack_x[stack_top], stack_y[stack_top]
+                bound = stack_bound[stack_top]
+                if bound <= threshold:
+                    continue
+                if level == 0:  # a leaf, whose bound is its exact sum: place it among the kept
+                    e = n_kept
+                    while e > 0 and kept_sum[e - 1] < bound:
+                        kept_sum[e], kept_h[e] = kept_sum[e - 1], kept_h[e - 1]
+                        kept_x[e], kept_y[e] = kept_x[e - 1], kept_y[e - 1]
+                        e -= 1
+                    kept_sum[e], kept_h[e], kept_x[e], kept_y[e] = bound, h, x, y
+                    n_kept = _keep_distinct(
+                        kept_sum,
+                        kept_h,
+                        kept_x,
+                        kept_y,
+                        n_kept + 1,
+                        headings,
+                        cell,
+                        apart_m,
+                        apart_rad,
+                    )
+                    n_kept = min(n_kept, k)
+                    threshold = max(kept_sum[k - 1] if n_kept == k else 0.0, keep * kept_sum[0])
+                    continue
+                half = 2 ** (level - 1)
+                if level == 1:
+                    _children_exact(fine, ix[h], iy[h], x, y, sums)
+                else:
+                    lv, shift = level - 2, shifts[level - 2]
+                    _children_bound(
+                        values, offsets[lv], shapes[lv], cells[lv, h], linear[lv, h],
+                        weights[lv, h], counts[lv, h], boxes[lv, h], x >> shift, y >> shift,
+                        half >> shift, sums,
+                    )  # fmt: skip
+                n_child = 0
+                for c in range(4):
+                    cx, cy = x + (c % 2) * half, y + (c // 2) * half
+                    if cx < n_cells and cy < n_cells and sums[c] > threshold:
+                        child_bound[n_child], child_x[n_child] = sums[c], cx
+                        child_y[n_child] = cy
+                        n_child += 1
+                # The weakest is pushed first, so the strongest is searched first.
+                for c in np.argsort(child_bound[:n_child]):
+                    stack_level[stack_top], stack_x[stack_top] = level - 1, child_x[c]
+                    stack_y[stack_top], stack_bound[stack_top] = child_y[c], child_bound[c]
+                    stack_top += 1
+        if done:
             break
-        h = flat // (n_top * n_top)
-        stack_level[0] = depth
-        stack_x[0] = (flat // n_top) % n_top * step
-        stack_y[0] = flat % n_top * step
-        stack_bound[0] = top_bound[flat]
-        top = 1
-        while top > 0:
-            top -= 1
-            level, x, y, bound = stack_level[top], stack_x[top], stack_y[top], stack_bound[top]
-            if bound <= threshold:
-                continue
-            if level == 0:  # a leaf, whose bound is its exact sum: place it among the kept
-                e = n_kept
-                while e > 0 and kept_sum[e - 1] < bound:
-                    kept_sum[e], kept_h[e] = kept_sum[e - 1], kept_h[e - 1]
-                    kept_x[e], kept_y[e] = kept_x[e - 1], kept_y[e - 1]
-                    e -= 1
-                kept_sum[e], kept_h[e], kept_x[e], kept_y[e] = bound, h, x, y
-                n_kept = _keep_distinct(
-                    kept_sum,
-                    kept_h,
-                    kept_x,
-                    kept_y,
-                    n_kept + 1,
-                    headings,
-                    cell,
-                    apart_m,
-                    apart_rad,
-                )
-                n_kept = min(n_kept, k)
-                threshold = max(kept_sum[k - 1] if n_kept == k else 0.0, keep * kept_sum[0])
-                continue
-            half = 2 ** (level - 1)
-            if level == 1:
-                _children_exact(fine, ix[h], iy[h], x, y, sums)
-            else:
-                lv, shift = level - 2, shifts[level - 2]
-                _children_bound(
-                    values, offsets[lv], shapes[lv], cells[lv, h], weights[lv, h],
-                    counts[lv, h], x >> shift, y >> shift, half >> shift, sums,
-                )  # fmt: skip
-            n_child = 0
-            for c in range(4):
-                cx, cy = x + (c % 2) * half, y + (c // 2) * half
-                if cx < n_cells and cy < n_cells and sums[c] > threshold:
-                    child_bound[n_child], child_x[n_child], child_y[n_child] = sums[c], cx, cy
-                    n_child += 1
-            # The weakest is pushed first, so the strongest is searched first.
-            for c in np.argsort(child_bound[:n_child]):
-                stack_level[top], stack_x[top], stack_y[top] = level - 1, child_x[c], child_y[c]
-                stack_bound[top] = child_bound[c]
-                top += 1
     n_kept = np.searchsorted(-kept_sum[:n_kept], -keep * kept_sum[0], side="right")
     return kept_sum[:n_kept], kept_h[:n_kept], kept_x[:n_kept], kept_y[:n_kept]
+
+
+@njit(cache=True)
+def _within_disk(occupied, radius):
+    """Which cells of a grid (NA, NB) have an occupied cell within ``radius`` cells (centre
+    to centre): per row offset, a window along the row counted from prefix sums."""
+    na, nb = occupied.shape
+    prefix = np.zeros((na, nb + 1), dtype=np.int64)
+    for a in range(na):
+        for b in range(nb):
+            prefix[a, b + 1] = prefix[a, b] + occupied[a, b]
+    near = np.zeros((na, nb), dtype=np.bool_)
+    reach = int(np.floor(radius))
+    for dx in range(-reach, reach + 1):
+        half = int(np.floor(np.sqrt(max(radius * radius - dx * dx, 0.0)) + 1e-9))
+        for a in range(max(0, -dx), min(na, na - dx)):
+            row = prefix[a + dx]
+            if row[nb] == 0:
+                continue
+            for b in range(nb):
+                if not near[a, b] and row[min(nb, b + half + 1)] > row[max(0, b - half)]:
+                    near[a, b] = True
+    return near
 
 
 def _segment_samples(segments: np.ndarray, spacing_m: float) -> np.ndarray:
@@ -395,6 +522,7 @@ class HypothesisSearch:
             self.fine.score, pyramid_depth(self.fine.score.shape, p.max_depth)
         )
         """The fine raster's bounds over squares of 2 to 2^max_depth cells."""
+        self._phase_levels: dict[int, np.ndarray] = {}
 
     def search(
         self,
@@ -404,6 +532,7 @@ class HypothesisSearch:
         half_width_m: float,
         reach_m: float | None = None,
         known: Pose2 | None = None,
+        first_batch: int = FIRST_BATCH,
     ) -> list[Hypothesis]:
         """The ``hypotheses`` best distinct grid poses, best first, in a square around
         ``centre_xy``.
@@ -413,7 +542,8 @@ class HypothesisSearch:
         score of the points there. Branch and bound finds the best exactly; poses
         under ``keep_fraction`` of its score are not kept. With
         ``reach_m``, positions farther than that from every map segment are not
-        searched (a scan seen from there could not reach the map).
+        searched (a scan seen from there could not reach the map). ``first_batch`` top
+        squares are sorted and searched first (the answer does not depend on it).
         """
         p = self.params
         points = np.asarray(points_robot, dtype=float).reshape(-1, 2)
@@ -426,11 +556,13 @@ class HypothesisSearch:
         half_cells = int(np.ceil(half_width_m / cell))
         start = np.asarray(centre_xy, dtype=float) - half_cells * cell
         n_cells = 2 * half_cells + 1
-        depth = min(self.pyramid.depth, int(np.ceil(np.log2(n_cells))))
+        depth = self._top_depth(n_cells, headings.size, reach_m is not None)
         # Fine cell of every point at every heading, the shift being ``start``.
         cos_sin = np.array([[np.cos(h), np.sin(h)] for h in headings]).reshape(-1, 2)
         ix, iy = _point_cells(points, cos_sin, start, self.fine.origin, cell)
         mask = self._reachable(start, n_cells, depth, reach_m)
+        n_top = mask.shape[0]
+        wide_enough = points.shape[0] * BOUND_LEVELS < 2**31  # int32 top bounds, summed fast
         sums, h, x, y = _branch_and_bound(
             self.fine.score,
             self.pyramid.values,
@@ -438,6 +570,7 @@ class HypothesisSearch:
             self.pyramid.shapes,
             self.pyramid.shifts,
             self.pyramid.pad,
+            self._phased(depth),
             ix,
             iy,
             n_cells,
@@ -450,6 +583,8 @@ class HypothesisSearch:
             p.keep_fraction,
             mask,
             self._known_sum(points, headings, start, known),
+            np.zeros((n_top, n_top), dtype=np.int32 if wide_enough else np.int64),
+            first_batch,
         )
         xy = start + cell * np.column_stack([x, y])
         return [
@@ -458,6 +593,27 @@ class HypothesisSearch:
             )
             for (px, py), k, total in zip(xy, h, sums, strict=True)
         ]
+
+    def _top_depth(self, n_cells: int, n_headings: int, everywhere: bool) -> int:
+        """The level the branch and bound starts from: squares as wide as the search around a
+        guess (one per heading), or for a search of the whole map the finest level from
+        ``MIN_TOP_LEVEL`` whose squares number at most ``MAX_TOP_SQUARES`` over all headings."""
+        whole = min(self.pyramid.depth, int(np.ceil(np.log2(n_cells))))
+        if not everywhere:
+            return whole
+        depth = min(MIN_TOP_LEVEL, whole)
+        while depth < whole and n_headings * (-(-n_cells // 2**depth)) ** 2 > MAX_TOP_SQUARES:
+            depth += 1
+        return depth
+
+    def _phased(self, depth: int) -> np.ndarray:
+        """Pyramid level ``depth`` split by phase at the stride of its top squares (kept)."""
+        if depth == 0:
+            return np.zeros((1, 1, 1, 1), dtype=np.uint8)
+        if depth not in self._phase_levels:
+            step = 2 ** (depth - level_shift(depth))
+            self._phase_levels[depth] = phase_split(self.pyramid.level(depth), step)
+        return self._phase_levels[depth]
 
     def _known_sum(
         self, points: np.ndarray, headings: np.ndarray, start: np.ndarray, known: Pose2 | None
@@ -493,14 +649,15 @@ class HypothesisSearch:
         # within side/√2 of its square's centre, so comparing centres with the reach grown
         # by side·(√2 + 1/4) keeps every square within reach (and a few more).
         samples = _segment_samples(self.segments_world, side / 2.0)
-        occupied = np.unique(np.floor((samples - start) / side).astype(np.int64), axis=0)
-        centres = corners + side / 2.0
-        occupied_centres = start + side * (occupied + 0.5)
         limit = reach_m + side * (np.sqrt(2.0) + 0.25)
-        mask = np.zeros(centres.shape[0], dtype=bool)
-        for i in range(0, occupied_centres.shape[0], 256):  # bounded temporaries
-            gap = centres[:, None, :] - occupied_centres[None, i : i + 256, :]
-            mask |= (np.hypot(gap[..., 0], gap[..., 1]) <= limit).any(axis=1)
+        # Occupied squares as far as ``limit`` beyond the searched ones: a segment outside a
+        # region can still be seen from inside it.
+        rim = int(np.ceil(limit / side))
+        occupied = np.zeros((n_top + 2 * rim, n_top + 2 * rim), dtype=np.bool_)
+        cells = np.floor((samples - start) / side).astype(np.int64) + rim
+        inside = np.all((cells >= 0) & (cells < occupied.shape[0]), axis=1)
+        occupied[cells[inside, 0], cells[inside, 1]] = True
+        mask = _within_disk(occupied, limit / side)[rim : rim + n_top, rim : rim + n_top].ravel()
         if self.params.region is not None:  # squares that meet the region's rectangle
             x0, y0, x1, y1 = self.params.region
             far = corners + side

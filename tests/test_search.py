@@ -21,6 +21,7 @@ from segloc_cli.field import (
     cell_indices,
     level_shift,
     max_pyramid,
+    phase_split,
     pyramid_cells,
     pyramid_depth,
     score_raster,
@@ -29,10 +30,14 @@ from segloc_cli.geometry import Pose2, point_segment_distances, rotation, wrap_a
 from segloc_cli.io.maps import World
 from segloc_cli.localize import STATUS_TOO_FEW_SEGMENTS, LocalizeParams, Localizer
 from segloc_cli.search import (
+    MIN_TOP_LEVEL,
     HypothesisSearch,
+    _batches,
     _exact_sum,
     _point_cells,
     _segment_samples,
+    _top_bounds,
+    _within_disk,
     distinct,
 )
 from segloc_cli.sim import NOISE_FREE, random_free_poses, random_world, simulate_scan
@@ -134,6 +139,83 @@ def test_branch_and_bound_finds_what_brute_force_finds(seed, max_depth):
         assert hyp.score * points.shape[0] == pytest.approx(sums[(h, int(x), int(y))], rel=1e-12)
         assert hyp.score >= search.params.keep_fraction * found[0].score
         assert distinct([f.pose for f in found[:i]], hyp.pose, 0.3, 3.0)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_global_search_finds_what_brute_force_finds(seed):
+    """A search with a reach (as ``--global`` makes) starts from every square of level
+    ``MIN_TOP_LEVEL`` at every heading, bounded in one pass: its best is the exhaustive
+    maximum, and taking the squares one at a time or all at once finds the same poses."""
+    rng = np.random.default_rng(8400 + seed)
+    world = random_world(rng)
+    true = Pose2(*random_free_poses(world, 1, rng)[0])
+    points = simulate_scan(world, true, NOISE_FREE, rng, 0.0).points()[::8]
+    search = HypothesisSearch(world.segments)
+    centre = np.array([true.x + rng.uniform(-0.3, 0.3), true.y + rng.uniform(-0.3, 0.3)])
+    headings = true.theta + np.deg2rad(np.arange(-4.0, 4.5, 1.0))
+    half = 0.6  # 25 × 25 positions: 4 × 4 squares of 8 at level 3
+    assert search._top_depth(25, headings.size, everywhere=True) == MIN_TOP_LEVEL
+    found = search.search(points, headings, centre, half, reach_m=100.0)
+    rows, _ = _exhaustive(search, points, headings, centre, half)
+    assert found[0].score * points.shape[0] == pytest.approx(max(r[0] for r in rows), rel=1e-12)
+    one_by_one = search.search(points, headings, centre, half, reach_m=100.0, first_batch=1)
+    assert [h.score for h in one_by_one] == [h.score for h in found]
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    st.integers(min_value=1, max_value=40),
+    st.integers(min_value=1, max_value=40),
+    st.sampled_from([2, 4]),
+    st.integers(min_value=1, max_value=9),
+    st.integers(min_value=0, max_value=2**31),
+)
+def test_top_bounds_read_the_level_at_every_square(nx, ny, step, n_top, seed):
+    """The one-pass bounds of every top square are the level's values summed over the
+    merged points, read square by square (cells outside the level count 0)."""
+    rng = np.random.default_rng(seed)
+    level = rng.integers(0, BOUND_LEVELS + 1, (nx, ny)).astype(np.uint8)
+    count = int(rng.integers(0, 12))
+    cells = rng.integers(-3 * step * n_top, max(nx, ny) + 4, (count + 2, 2))
+    weights = rng.integers(1, 50, count + 2).astype(np.int32)
+    out = np.full((n_top, n_top), -7, dtype=np.int32)
+    _top_bounds(phase_split(level, step), cells, weights, count, out)
+    expected = np.zeros((n_top, n_top), dtype=np.int64)
+    for a in range(n_top):
+        for b in range(n_top):
+            for (ci, cj), w in zip(cells[:count], weights[:count], strict=True):
+                i, j = ci + a * step, cj + b * step
+                if 0 <= i < nx and 0 <= j < ny:
+                    expected[a, b] += w * int(level[i, j])
+    np.testing.assert_array_equal(out, expected)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    st.integers(min_value=1, max_value=25),
+    st.integers(min_value=1, max_value=25),
+    st.floats(min_value=0.0, max_value=9.0),
+    st.integers(min_value=0, max_value=2**31),
+)
+def test_within_disk_is_a_distance_check(na, nb, radius, seed):
+    occupied = np.random.default_rng(seed).random((na, nb)) < 0.05
+    near = _within_disk(occupied, radius)
+    grid = np.stack(np.meshgrid(np.arange(na), np.arange(nb), indexing="ij"), -1).reshape(-1, 2)
+    marked = grid[occupied.ravel()]
+    if marked.size == 0:
+        assert not near.any()
+        return
+    gap = np.hypot(*(grid[:, None, :] - marked[None, :, :]).transpose(2, 0, 1)).min(axis=1)
+    # Exactly the cells within the radius, but for round-off right at it.
+    assert np.all(near.ravel()[gap <= radius - 1e-9])
+    assert not np.any(near.ravel()[gap > radius + 1e-9])
+
+
+def test_batches_take_the_best_bins_first_and_grow():
+    tally = np.array([5, 0, 3, 9, 1, 2, 4])
+    # From the best bin down: 4 ≥ 3 held; then 2 + 1 + 9 ≥ 12; the rest at the last bin.
+    assert _batches(tally, 3) == [(6, 6), (3, 5), (0, 2)]
+    assert _batches(tally, 100) == [(0, 6)]
 
 
 @pytest.mark.parametrize("seed", range(4))
