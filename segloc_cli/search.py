@@ -113,9 +113,10 @@ def _level_cells(ix, iy, shapes, shifts, pad, n_cells, sort):
     ``INDEX_LIMIT``.
     """
     depth, (n_h, n_p) = shifts.shape[0], ix.shape
-    cells = np.zeros((depth, n_h, n_p, 2), dtype=np.int64)
-    linear = np.zeros((depth, n_h, n_p), dtype=np.int64)
-    weights = np.zeros((depth, n_h, n_p), dtype=np.int32)
+    # Only the first counts[L, h] entries of a row are filled (and read).
+    cells = np.empty((depth, n_h, n_p, 2), dtype=np.int32)
+    linear = np.empty((depth, n_h, n_p), dtype=np.int64)
+    weights = np.empty((depth, n_h, n_p), dtype=np.int32)
     counts = np.zeros((depth, n_h), dtype=np.int64)
     boxes = np.zeros((depth, n_h, 4), dtype=np.int64)
     qi = np.empty(n_p, dtype=np.int64)
@@ -141,22 +142,22 @@ def _level_cells(ix, iy, shapes, shifts, pad, n_cells, sort):
                 order = np.argsort(keys[:m])
             else:
                 order = np.arange(m)
+            row_cells, row_weights, box = cells[lv, h], weights[lv, h], boxes[lv, h]
             q = -1
             for o in order:
-                if q < 0 or qi[o] != cells[lv, h, q, 0] or qj[o] != cells[lv, h, q, 1]:
-                    q += 1
-                    cells[lv, h, q, 0], cells[lv, h, q, 1] = qi[o], qj[o]
-                weights[lv, h, q] += 1
-            counts[lv, h] = q + 1
-            if q >= 0:
-                box = boxes[lv, h]
-                box[0], box[1] = cells[lv, h, 0, 0], cells[lv, h, 0, 0]
-                box[2], box[3] = cells[lv, h, 0, 1], cells[lv, h, 0, 1]
-                for e in range(q + 1):
-                    ci, cj = cells[lv, h, e, 0], cells[lv, h, e, 1]
-                    linear[lv, h, e] = ci * ny + cj
+                ci, cj = qi[o], qj[o]
+                if q >= 0 and ci == row_cells[q, 0] and cj == row_cells[q, 1]:
+                    row_weights[q] += 1
+                    continue
+                q += 1
+                row_cells[q, 0], row_cells[q, 1], row_weights[q] = ci, cj, 1
+                linear[lv, h, q] = ci * ny + cj
+                if q == 0:
+                    box[0], box[1], box[2], box[3] = ci, ci, cj, cj
+                else:
                     box[0], box[1] = min(box[0], ci), max(box[1], ci)
                     box[2], box[3] = min(box[2], cj), max(box[3], cj)
+            counts[lv, h] = q + 1
     return cells, linear, weights, counts, boxes
 
 
