@@ -362,21 +362,15 @@ def _branch_and_bound(
     )
     divisor = float(BOUND_LEVELS) if depth > 0 else 1.0
     top = np.full((n_h, n_top, n_top), -1.0)
+    exact = depth == 0  # no pyramid: the top squares are single shifts
     for h in range(n_h):
-        if depth == 0:
-            for a in range(n_top):
-                for b in range(n_top):
-                    top[h, a, b] = _exact_sum(fine, ix[h], iy[h], a, b)
-        else:
+        if depth > 0:
             lv = depth - 1
             _top_bounds(phased, cells[lv, h], weights[lv, h], counts[lv, h], whole)
-            for a in range(n_top):
-                for b in range(n_top):
-                    top[h, a, b] = whole[a, b]
         for a in range(n_top):
             for b in range(n_top):
-                if not top_mask[a, b]:
-                    top[h, a, b] = -1.0
+                if top_mask[a, b]:  # squares left out keep −1
+                    top[h, a, b] = _exact_sum(fine, ix[h], iy[h], a, b) if exact else whole[a, b]
     top = top.reshape(-1)
     bins, tally = _batch_bins(top, 1024)
     # The kept poses, best first, and room for one more while a leaf is placed.
@@ -464,25 +458,27 @@ def _branch_and_bound(
 
 
 @njit(cache=True)
-def _within_disk(occupied, radius):
-    """Which cells of a grid (NA, NB) have an occupied cell within ``radius`` cells (centre
-    to centre): per row offset, a window along the row counted from prefix sums."""
+def _within_disk(occupied, radius, rim):
+    """Which cells of a grid (NA, NB), less a ``rim`` of cells on every side, have an
+    occupied cell within ``radius`` cells (centre to centre): (NA − 2·rim, NB − 2·rim), by a
+    window along each row offset counted from prefix sums."""
     na, nb = occupied.shape
     prefix = np.zeros((na, nb + 1), dtype=np.int64)
     for a in range(na):
         for b in range(nb):
             prefix[a, b + 1] = prefix[a, b] + occupied[a, b]
-    near = np.zeros((na, nb), dtype=np.bool_)
+    near = np.zeros((max(0, na - 2 * rim), max(0, nb - 2 * rim)), dtype=np.bool_)
     reach = int(np.floor(radius))
     for dx in range(-reach, reach + 1):
         half = int(np.floor(np.sqrt(max(radius * radius - dx * dx, 0.0)) + 1e-9))
-        for a in range(max(0, -dx), min(na, na - dx)):
+        for a in range(max(rim, -dx), min(na - rim, na - dx)):
             row = prefix[a + dx]
             if row[nb] == 0:
                 continue
-            for b in range(nb):
-                if not near[a, b] and row[min(nb, b + half + 1)] > row[max(0, b - half)]:
-                    near[a, b] = True
+            cells = near[a - rim]
+            for b in range(rim, nb - rim):
+                if not cells[b - rim] and row[min(nb, b + half + 1)] > row[max(0, b - half)]:
+                    cells[b - rim] = True
     return near
 
 
@@ -642,9 +638,6 @@ class HypothesisSearch:
         if reach_m is None:
             return np.ones((n_top, n_top), dtype=np.bool_)
         side = step * self.fine.cell_m
-        corners = start + side * np.stack(
-            np.meshgrid(np.arange(n_top), np.arange(n_top), indexing="ij"), axis=-1
-        ).reshape(-1, 2)
         # The squares holding points every side/2 along the segments: the nearest point of a
         # segment to a square's centre lies within side/4 of such a sample, and a sample
         # within side/√2 of its square's centre, so comparing centres with the reach grown
@@ -658,9 +651,12 @@ class HypothesisSearch:
         cells = np.floor((samples - start) / side).astype(np.int64) + rim
         inside = np.all((cells >= 0) & (cells < occupied.shape[0]), axis=1)
         occupied[cells[inside, 0], cells[inside, 1]] = True
-        mask = _within_disk(occupied, limit / side)[rim : rim + n_top, rim : rim + n_top].ravel()
+        mask = _within_disk(occupied, limit / side, rim).ravel()
         if self.params.region is not None:  # squares that meet the region's rectangle
             x0, y0, x1, y1 = self.params.region
+            corners = start + side * np.stack(
+                np.meshgrid(np.arange(n_top), np.arange(n_top), indexing="ij"), axis=-1
+            ).reshape(-1, 2)
             far = corners + side
             meets = (corners[:, 0] <= x1) & (far[:, 0] >= x0)
             mask &= meets & (corners[:, 1] <= y1) & (far[:, 1] >= y0)

@@ -199,7 +199,12 @@ def test_top_bounds_read_the_level_at_every_square(nx, ny, step, n_top, seed):
 )
 def test_within_disk_is_a_distance_check(na, nb, radius, seed):
     occupied = np.random.default_rng(seed).random((na, nb)) < 0.05
-    near = _within_disk(occupied, radius)
+    near = _within_disk(occupied, radius, 0)
+    # With a rim, the same answer for the cells inside it.
+    rim = min(na, nb) // 3
+    np.testing.assert_array_equal(
+        _within_disk(occupied, radius, rim), near[rim : na - rim, rim : nb - rim]
+    )
     grid = np.stack(np.meshgrid(np.arange(na), np.arange(nb), indexing="ij"), -1).reshape(-1, 2)
     marked = grid[occupied.ravel()]
     if marked.size == 0:
