@@ -233,27 +233,48 @@ def _travel(pose, start, reach_m):
 
 
 @njit(cache=True)
-def _nearest_listed(px, py, segments, listed, first, stop):
-    """Index (−1: none) and distance (inf: none) of the point's nearest segment among
-    ``listed[first:stop]``; of equally near ones the lowest index."""
+def _nearest_listed(px, py, moved_m, segments, listed, listed_d, first, stop, hint, gate):
+    """Index and distance of the point's nearest segment among ``listed[first:stop]`` when
+    it lies within ``gate``; of equally near ones the lowest index. (-1, inf) or some
+    segment farther than ``gate`` otherwise.
+
+    ``listed_d`` holds each listed segment's distance from where the point was when the
+    list was made, ``moved_m`` (m) how far it has moved since: a segment that was farther
+    than the nearest found so far, or the gate, by more than that cannot be nearer now,
+    and is passed over without working out its distance. ``hint`` (-1: none), the
+    point's nearest segment at the step before, is tried first so that most are.
+    """
     best, best_j = np.inf, -1
+    if hint >= 0:
+        d = point_segment_distance(
+            px, py, segments[hint, 0], segments[hint, 1], segments[hint, 2], segments[hint, 3]
+        )
+        if d <= gate:
+            # Within the gate it is listed: a segment that is not lies farther than the
+            # list's radius less the travel the list allows, which is at least the gate.
+            best, best_j = d, hint
+    bound = min(best, gate) + moved_m + 1e-9 * (1.0 + abs(px) + abs(py))  # with rounding slack
     for k in range(first, stop):
+        if listed_d[k] > bound:
+            continue  # farther now than the nearest so far (or the gate): cannot win or tie
         j = listed[k]
         d = point_segment_distance(
             px, py, segments[j, 0], segments[j, 1], segments[j, 2], segments[j, 3]
         )
         if d < best or (d == best and j < best_j):
             best, best_j = d, j
+            bound = min(best, gate) + moved_m + 1e-9 * (1.0 + abs(px) + abs(py))
     return best_j, best
 
 
 @njit(cache=True)
 def _narrowed(points_world, segments, listed_from, listed, radius_m):
-    """CSR lists (offsets, indices) of each point (P, 2) narrowed to the listed segments
-    within ``radius_m`` of it."""
+    """CSR lists (offsets, indices, distances (m)) of each point (P, 2) narrowed to the
+    listed segments within ``radius_m`` of it."""
     n = points_world.shape[0]
     kept_from = np.zeros(n + 1, dtype=np.int64)
     kept = np.empty(listed.size, dtype=np.int64)
+    kept_d = np.empty(listed.size)
     count = 0
     for i in range(n):
         px, py = points_world[i, 0], points_world[i, 1]
@@ -264,9 +285,10 @@ def _narrowed(points_world, segments, listed_from, listed, radius_m):
             )
             if d <= radius_m:
                 kept[count] = j
+                kept_d[count] = d
                 count += 1
         kept_from[i + 1] = count
-    return kept_from, kept[:count]
+    return kept_from, kept[:count], kept_d[:count]
 
 
 @njit(cache=True)
@@ -325,8 +347,12 @@ def _gauss_newton(
     # lists were made, out to ``radius``: enough while the pose travels less than the
     # radius less the gate. Lists are made for twice the gate, narrowed when the gate
     # shrinks, and made anew from the grid when the pose has travelled too far for them.
+    # Each point's nearest segment at the last step is tried first at the next, and a listed
+    # segment is passed over when it was too far, given how far the point has moved since.
     lists_at = initial.copy()
-    listed_from, listed = filed_within(cells, segments, allowed, world[:0], 0.0)
+    listed_from, listed, listed_d = filed_within(cells, segments, allowed, world[:0], 0.0)
+    listed_where = np.empty((n, 2))
+    hints = np.full(n, -1, dtype=np.int64)
     radius = -np.inf
     for gate in gates:
         for _ in range(steps_per_round):
@@ -340,20 +366,29 @@ def _gauss_newton(
             renew = not travel <= radius - gate  # and on the first step, or at a NaN pose
             narrow = not renew and radius > 2.0 * gate and radius - travel >= 2.0 * gate
             if renew:
-                listed_from, listed = filed_within(cells, segments, allowed, world, 2.0 * gate)
+                listed_from, listed, listed_d = filed_within(
+                    cells, segments, allowed, world, 2.0 * gate
+                )
             elif narrow:
-                listed_from, listed = _narrowed(world, segments, listed_from, listed, 2.0 * gate)
+                listed_from, listed, listed_d = _narrowed(
+                    world, segments, listed_from, listed, 2.0 * gate
+                )
             if renew or narrow:
                 lists_at[:] = pose
+                listed_where[:] = world
                 radius = 2.0 * gate
             hessian = np.zeros((3, 3))
             gradient = np.zeros(3)
             jacobian = np.empty(3)
             used = 0
             for i in range(n):
+                px, py = world[i, 0], world[i, 1]
+                ex, ey = px - listed_where[i, 0], py - listed_where[i, 1]
                 j, d = _nearest_listed(
-                    world[i, 0], world[i, 1], segments, listed, listed_from[i], listed_from[i + 1]
-                )
+                    px, py, np.sqrt(ex * ex + ey * ey), segments, listed, listed_d,
+                    listed_from[i], listed_from[i + 1], hints[i], gate,
+                )  # fmt: skip
+                hints[i] = j
                 if not d <= gate:
                     continue
                 used += 1

@@ -159,7 +159,7 @@ class SegmentGrid:
         CSR: offsets (P + 1,) into indices. A point's list is unordered, without repeats."""
         points = np.ascontiguousarray(points_world, dtype=float).reshape(-1, 2)
         mask = self.mask_all() if allowed is None else allowed
-        return filed_within(self.cells, self.segments_world, mask, points, float(radius_m))
+        return filed_within(self.cells, self.segments_world, mask, points, float(radius_m))[:2]
 
 
 FiledCells = tuple[np.ndarray, float, np.ndarray, np.ndarray, np.ndarray]
@@ -241,16 +241,29 @@ def nearest_filed(cells, segments, allowed, points, within_m):
 @njit(cache=True)
 def filed_within(cells, segments, allowed, points, radius_m):
     """``SegmentGrid.within`` compiled: CSR (offsets (P + 1,), indices) of the allowed
-    segments within ``radius_m`` of each point."""
+    segments within ``radius_m`` of each point, and each listed segment's distance (m)."""
     offsets, members, ny = cells[3], cells[4], cells[2][1]
     n = points.shape[0]
     starts = np.zeros(n + 1, dtype=np.int64)
     found = np.empty(max(64, 8 * n), dtype=np.int64)
+    found_d = np.empty(found.size)
     count = 0
     listed_for = np.full(segments.shape[0], -1, dtype=np.int64)  # a segment filed in two cells
     for i in range(n):
         px, py = points[i, 0], points[i, 1]
         ix0, ix1, iy0, iy1 = cell_span(cells, px, py, radius_m)
+        # Room for every segment filed in the square, made before its walk: an array
+        # replaced inside the walk would slow every step of it.
+        filed = 0
+        for ix in range(ix0, ix1 + 1):
+            filed += offsets[ix * ny + iy1 + 1] - offsets[ix * ny + iy0]
+        if count + filed > found.size:
+            grown = np.empty(max(2 * found.size, count + filed), dtype=np.int64)
+            grown[:count] = found[:count]
+            found = grown
+            grown_d = np.empty(grown.size)
+            grown_d[:count] = found_d[:count]
+            found_d = grown_d
         for ix in range(ix0, ix1 + 1):
             for k in range(offsets[ix * ny + iy0], offsets[ix * ny + iy1 + 1]):
                 j = members[k]
@@ -261,11 +274,8 @@ def filed_within(cells, segments, allowed, points, radius_m):
                     px, py, segments[j, 0], segments[j, 1], segments[j, 2], segments[j, 3]
                 )
                 if d <= radius_m:
-                    if count == found.size:
-                        grown = np.empty(2 * found.size, dtype=np.int64)
-                        grown[:count] = found
-                        found = grown
                     found[count] = j
+                    found_d[count] = d
                     count += 1
         starts[i + 1] = count
-    return starts, found[:count]
+    return starts, found[:count], found_d[:count]

@@ -15,7 +15,7 @@ from segloc_cli.kernels import point_segment_distance
 from segloc_cli.localize import Localizer
 from segloc_cli.overlap import coarse_to_fine
 from segloc_cli.sim import SensorModel, random_free_poses, random_world, simulate_scan
-from segloc_cli.spatial import SegmentGrid
+from segloc_cli.spatial import SegmentGrid, filed_within
 
 coordinate = st.floats(-60.0, 60.0, allow_nan=False)
 
@@ -57,10 +57,12 @@ def test_batch_queries_match_brute_force(ends, points, radius, cell, keep):
     dist = dist.reshape(len(xy), segments.shape[0])
     within = (dist <= radius) & allowed
     offsets, listed = grid.within(xy, radius, allowed)
+    _, _, listed_d = filed_within(grid.cells, grid.segments_world, allowed, xy, radius)
     index, nearest = grid.nearest(xy, radius, allowed)
     for i in range(len(xy)):
         found = listed[offsets[i] : offsets[i + 1]]
         np.testing.assert_array_equal(np.sort(found), np.flatnonzero(within[i]))
+        np.testing.assert_array_equal(listed_d[offsets[i] : offsets[i + 1]], dist[i, found])
         np.testing.assert_array_equal(grid.mask_near(xy[i], radius), dist[i] <= radius)
         if not within[i].any():
             assert index[i] == -1 and nearest[i] == np.inf
