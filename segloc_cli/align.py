@@ -14,6 +14,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from segloc_cli.config import VOTE_SCHEMES
 from segloc_cli.geometry import segment_lengths, segment_orientations, wrap_angle
@@ -39,12 +40,15 @@ class RTable:
     ``bin_width_rad`` divides [0, π) into ``n_bins`` bins; bin b covers the
     orientations that round to b·bin_width. ``sorted_m`` holds the lengths
     (metres, rounded to 1 mm as in the paper) of the global segments, bin by
-    bin and sorted within each; ``sizes`` (n_bins,) how many each bin holds.
+    bin and sorted within each; ``sizes`` (n_bins,) how many each bin holds;
+    ``segment_ids`` which map segment each entry of ``sorted_m`` is, so that a
+    vote can be restricted to some of them (``closest_at``'s ``allowed``).
     """
 
     bin_width_rad: float
     sorted_m: np.ndarray
     sizes: np.ndarray
+    segment_ids: np.ndarray
 
     @property
     def n_bins(self) -> int:
@@ -65,29 +69,58 @@ class RTable:
         lengths = np.round(segment_lengths(segments_world), 3)
         order = np.lexsort((lengths, bins))  # by bin, then by length
         sizes = np.bincount(bins, minlength=n_bins)
-        return cls(bin_width_rad=bin_width_rad, sorted_m=lengths[order], sizes=sizes)
+        return cls(bin_width_rad, lengths[order], sizes, order)
 
     def closest_lengths(self, local_len_m: np.ndarray) -> np.ndarray:
         """(n_bins, N): per bin, the global length closest to each local one (NaN: empty bin).
 
         Ties go to the shorter global length.
         """
+        local = np.asarray(local_len_m, dtype=float).reshape(-1)
+        every_bin = np.repeat(np.arange(self.n_bins)[:, None], local.size, axis=1)
+        return self.closest_at(every_bin, local)
+
+    def closest_at(
+        self, bins: np.ndarray, local_len_m: np.ndarray, allowed: np.ndarray | None = None
+    ) -> np.ndarray:
+        """(H, N): the global length closest to local length n in bin ``bins[h, n]`` (H, N),
+        among the map segments ``allowed`` (M,) if given (NaN: none in the bin).
+
+        Ties go to the shorter global length.
+        """
         # Clipped to the key's range (a NaN length matches nothing well: it becomes 1,000 km).
         local_m = np.nan_to_num(np.asarray(local_len_m, dtype=float), nan=_MAX_LENGTH_M)
         local_mm = np.rint(np.clip(local_m, 0.0, _MAX_LENGTH_M) * 1000.0).astype(np.int64)
-        best = np.full((self.n_bins, local_mm.size), np.nan)
-        sizes = self.sizes
-        filled = np.flatnonzero(sizes)
-        if filled.size == 0 or local_mm.size == 0:
-            return best
-        global_m = np.clip(self.sorted_m, 0.0, _MAX_LENGTH_M)
-        global_mm = np.rint(global_m * 1000.0).astype(np.int64)
-        # Lengths are whole millimetres, so (difference, length) packs into one
-        # integer whose minimum per bin is the closest length, shorter on ties.
-        key = np.abs(global_mm[:, None] - local_mm[None, :]) * _KEY_BASE + global_mm[:, None]
-        starts = np.concatenate([[0], np.cumsum(sizes[filled])[:-1]])
-        best[filled] = (np.minimum.reduceat(key, starts, axis=0) % _KEY_BASE) / 1000.0
-        return best
+        global_mm = np.rint(np.clip(self.sorted_m, 0.0, _MAX_LENGTH_M) * 1000.0).astype(np.int64)
+        starts = np.concatenate([[0], np.cumsum(self.sizes)])
+        if allowed is None:
+            allowed = np.ones(self.segment_ids.size, dtype=np.bool_)
+        closest_mm = _closest_mm(
+            np.ascontiguousarray(bins, dtype=np.int64), local_mm, global_mm, starts,
+            self.segment_ids, allowed,
+        )  # fmt: skip
+        return np.where(closest_mm >= 0, closest_mm / 1000.0, np.nan)
+
+
+@njit(cache=True)
+def _closest_mm(bins, local_mm, global_mm, starts, segment_ids, allowed):
+    """``RTable.closest_at`` in whole millimetres, -1 where the bin holds no allowed segment.
+
+    (difference, length) packs into one integer whose minimum is the closest length,
+    shorter on ties.
+    """
+    n_h, n_local = bins.shape
+    out = np.full((n_h, n_local), -1, dtype=np.int64)
+    for h in range(n_h):
+        for n in range(n_local):
+            b, best = bins[h, n], -1
+            for k in range(starts[b], starts[b + 1]):
+                if allowed[segment_ids[k]]:
+                    key = abs(global_mm[k] - local_mm[n]) * _KEY_BASE + global_mm[k]
+                    if best < 0 or key < best:
+                        best = key
+            out[h, n] = best % _KEY_BASE if best >= 0 else -1
+    return out
 
 
 _KEY_BASE = 10**9
@@ -121,15 +154,16 @@ def accumulate(
     segments_robot: np.ndarray,
     headings_rad: np.ndarray,
     scheme: str = "product",
+    allowed: np.ndarray | None = None,
 ) -> np.ndarray:
-    """Votes (H,) for each candidate heading (H,) given the local map (N, 4), robot frame."""
+    """Votes (H,) for each candidate heading (H,) given the local map (N, 4), robot frame;
+    only the map segments ``allowed`` (M,) vote, if given."""
     local_len = np.round(segment_lengths(segments_robot), 3)
     sigma = segment_orientations(segments_robot)
-    closest = rtable.closest_lengths(local_len)  # (n_bins, N)
     bins = orientation_bins(
         sigma[None, :] + np.asarray(headings_rad)[:, None], rtable.bin_width_rad, rtable.n_bins
     )  # (H, N)
-    global_len = closest[bins, np.arange(local_len.size)[None, :]]  # (H, N), NaN = empty bin
+    global_len = rtable.closest_at(bins, local_len, allowed)  # (H, N), NaN = empty bin
     votes = vote_weight(scheme, local_len[None, :], np.nan_to_num(global_len))
     return np.where(np.isnan(global_len), 0.0, votes).sum(axis=1)
 
@@ -161,6 +195,7 @@ def align(
     scheme: str = "product",
     max_peaks: int = 8,
     peak_ratio: float = 0.5,
+    allowed: np.ndarray | None = None,
 ) -> Alignment:
     """Estimate the robot heading (world frame) from the local map (N, 4), robot frame.
 
@@ -169,11 +204,12 @@ def align(
     Without a prior the whole circle is scored and up to ``max_peaks`` local
     maxima of at least ``peak_ratio`` × the highest are returned, so that the
     180° twin (undirected orientations cannot tell α from α + 180°) and the
-    90° peaks of rectilinear buildings all reach stage 2.
+    90° peaks of rectilinear buildings all reach stage 2. ``allowed`` (M,) limits the
+    vote to those map segments.
     """
     step = rtable.bin_width_rad
     headings = candidate_headings(prior_rad, np.deg2rad(window_deg), step)
-    votes = accumulate(rtable, segments_robot, headings, scheme)
+    votes = accumulate(rtable, segments_robot, headings, scheme, allowed)
     if prior_rad is not None:
         offset = np.abs(wrap_angle(headings - prior_rad))
         order = np.lexsort((offset, -votes))

@@ -192,41 +192,40 @@ class Localizer:
             self._search = HypothesisSearch(self.segments_world, self.params.search)
         return self._search
 
-    def _rtable_near(self, initial: Pose2, segments_robot: np.ndarray) -> RTable:
-        """The R-table of the map segments the scan could contain, seen from near ``initial``.
+    def _near_mask(self, initial: Pose2, segments_robot: np.ndarray) -> np.ndarray | None:
+        """The map segments (mask (M,)) the scan could contain, seen from near ``initial``;
+        None when that is all of them.
 
         In a large map nearly every orientation bin holds a segment of about
         any length, so every heading collects votes and the peak drowns. When
         the position is roughly known, only segments within the scan's reach
         of where stage 2 may go (the local map's radius plus the search's
-        travel, 2·√2·η0) take part. With the whole map in reach this is the
-        map's own R-table.
+        travel, 2·√2·η0) take part.
         """
         radius = float(np.hypot(segments_robot[:, 0::2], segments_robot[:, 1::2]).max(initial=0.0))
         reach = radius + 2.0 * np.sqrt(2.0) * self.params.grid_m
-        near = self.index.near([initial.x, initial.y], reach)
-        if near.size == self.segments_world.shape[0]:
-            return self.rtable
-        return RTable.build(self.segments_world[near], self.params.bin_deg)
+        near = self.index.mask_near([initial.x, initial.y], reach)
+        return None if near.all() else near
 
     def headings(self, segments_robot: np.ndarray, initial: Pose2 | None) -> np.ndarray:
         """Stage 1: up to ``max_peaks`` headings (radians, world frame).
 
         Best first. Without an initial pose (or with no heading window) the
-        whole circle is voted over with the whole map's R-table.
+        whole circle is voted over by the whole map.
         """
         p = self.params
         if initial is None or p.window_deg is None:
-            table, prior = self.rtable, None
+            allowed, prior = None, None
         else:
-            table, prior = self._rtable_near(initial, segments_robot), initial.theta
+            allowed, prior = self._near_mask(initial, segments_robot), initial.theta
         return align(
-            table,
+            self.rtable,
             segments_robot,
             prior_rad=prior,
             window_deg=p.window_deg or 0.0,
             scheme=p.vote,
             max_peaks=p.max_peaks,
+            allowed=allowed,
         ).peaks_rad
 
     def localize(

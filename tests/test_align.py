@@ -425,3 +425,20 @@ def test_circular_peaks_degenerate_inputs():
     assert circular_peaks(np.zeros(10), 8, 0.5).size == 0
     # All equal and positive: one plateau, reported at index 0.
     np.testing.assert_array_equal(circular_peaks(np.full(6, 2.0), 8, 0.5), [0])
+
+
+def test_votes_of_allowed_segments_are_those_of_their_own_table():
+    """A vote restricted to some map segments is the vote of an R-table built from them."""
+    rng = np.random.default_rng(5)
+    ends = rng.uniform(-10.0, 10.0, (300, 2))
+    turns = rng.integers(0, 12, 300) * 15.0 + rng.uniform(-0.4, 0.4, 300)
+    lengths = rng.choice([0.5, 1.0, 1.5, 2.0, 3.0], 300)
+    world = np.array([seg(t, s, x, y) for (x, y), t, s in zip(ends, turns, lengths, strict=True)])
+    allowed = rng.random(300) < 0.3
+    local = as_local(world[:20], Pose2(1.0, -2.0, 0.3))
+    headings = candidate_headings(0.3, np.deg2rad(20.0), DEG)
+    for scheme in VOTE_SCHEMES:
+        np.testing.assert_array_equal(
+            accumulate(RTable.build(world), local, headings, scheme, allowed),
+            accumulate(RTable.build(world[allowed]), local, headings, scheme),
+        )
