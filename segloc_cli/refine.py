@@ -24,9 +24,9 @@ import numpy as np
 from numba import njit
 
 from segloc_cli.config import RefineParams
-from segloc_cli.geometry import Pose2, transform_points
+from segloc_cli.geometry import Pose2
 from segloc_cli.kernels import point_segment_distance, wrap_remainder
-from segloc_cli.spatial import SegmentGrid, filed_within
+from segloc_cli.spatial import SegmentGrid, filed_within, near_mask, nearest_filed
 
 
 @dataclass(frozen=True)
@@ -99,13 +99,6 @@ def _check_index(index: SegmentGrid, segments: np.ndarray) -> None:
         )
 
 
-def _line_normals(segments: np.ndarray) -> np.ndarray:
-    """Unit normals (M, 2) of segments (M, 4)."""
-    d = segments[:, 2:4] - segments[:, 0:2]
-    length = np.hypot(d[:, 0], d[:, 1])
-    return np.column_stack([-d[:, 1], d[:, 0]]) / np.where(length > 0, length, 1.0)[:, None]
-
-
 def _gates(params: RefineParams) -> list[float]:
     gates = [params.gate_m]
     while gates[-1] / 2.0 > params.final_gate_m:
@@ -136,15 +129,55 @@ def support(
     """
     if points_robot.shape[0] == 0 or not np.isfinite(pose.x):
         return 0.0, 0.0
-    segments = np.asarray(segments_world, dtype=float).reshape(-1, 4)
-    world = transform_points(points_robot, pose)
+    index = _index_of(np.asarray(segments_world, dtype=float).reshape(-1, 4), index)
+    points = np.ascontiguousarray(points_robot, dtype=float).reshape(-1, 2)
+    placed = _placed(
+        points, pose.as_array().astype(float), index.cells, index.segments_world,
+        index.mask_all(), float(band_m),
+    )  # fmt: skip
+    sxx, sxy, syy = placed[3:6]
+    weakest = np.linalg.eigvalsh(np.array([[sxx, sxy], [sxy, syy]]))[0]
+    return float(placed[0] / points.shape[0]), float(weakest)
+
+
+def _index_of(segments: np.ndarray, index: SegmentGrid | None) -> SegmentGrid:
+    """``index`` checked against the map's segments (M, 4), or without one a grid of one
+    cell, through which every segment is tested."""
     if index is None:
-        nearest, dist = nearest_segments(world, segments)
-    else:
-        nearest, dist = nearest_segments(world, segments, index=index, within_m=band_m)
-    on_map = dist <= band_m
-    normals = _line_normals(segments[nearest[on_map]])
-    return float(np.mean(on_map)), float(np.linalg.eigvalsh(normals.T @ normals)[0])
+        return SegmentGrid(segments, cell_m=np.inf)
+    _check_index(index, segments)
+    return index
+
+
+@njit(cache=True)
+def _placed(points, pose, cells, segments, allowed, band_m):
+    """The scan's points (P, 2), robot frame, placed at ``pose`` (3,) on the ``allowed``
+    segments of a map filed in ``cells``: (points within ``band_m`` of one, the sum of
+    their squared distances (m²), the sum over all points of 1 − (d / band)² clipped at 0,
+    and Σ nx², Σ nx·ny, Σ ny² of the unit normals of the segments the near points lie on)."""
+    n = points.shape[0]
+    c, s = np.cos(pose[2]), np.sin(pose[2])
+    world = np.empty((n, 2))
+    for i in range(n):
+        world[i, 0] = points[i, 0] * c - points[i, 1] * s + pose[0]
+        world[i, 1] = points[i, 0] * s + points[i, 1] * c + pose[1]
+    nearest, dist = nearest_filed(cells, segments, allowed, world, band_m)
+    out = np.zeros(6)
+    for i in range(n):
+        if not dist[i] <= band_m:
+            continue
+        out[0] += 1.0
+        out[1] += dist[i] * dist[i]
+        out[2] += min(max(1.0 - (dist[i] / band_m) ** 2, 0.0), 1.0)
+        j = nearest[i]
+        dx, dy = segments[j, 2] - segments[j, 0], segments[j, 3] - segments[j, 1]
+        length = np.hypot(dx, dy)
+        length = length if length > 0 else 1.0
+        nx, ny = -dy / length, dx / length
+        out[3] += nx * nx
+        out[4] += nx * ny
+        out[5] += ny * ny
+    return out
 
 
 def inlier_ratio(
@@ -182,33 +215,43 @@ def refine_pose(
     n = points.shape[0]
     if n == 0 or segments.shape[0] == 0:
         return Refinement(initial, 0.0, float("nan"), n, 0.0)
-    if index is None:
-        index = SegmentGrid(segments, cell_m=np.inf)  # one cell: every segment is tested
-    else:
-        _check_index(index, segments)
-    # Only segments within reach of the scan from near the guess can pair. Points that are
-    # not finite never pair (their distances are NaN) and must not widen the reach.
-    radii = np.hypot(points[:, 0], points[:, 1])
-    reach = float(radii[np.isfinite(radii)].max(initial=0.0)) + 2.0 * p.gate_m
-    allowed = index.mask_near([initial.x, initial.y], reach)
-    pose = _gauss_newton(
+    index = _index_of(segments, index)
+    pose, placed = _fit(
         np.ascontiguousarray(points),
         index.segments_world,
-        allowed,
         index.cells,
         initial.as_array().astype(float),
         np.array(_gates(p)),
         p.steps_per_round,
         p.min_points,
         _prior_weights(p),
-        reach,
+        2.0 * p.gate_m,
+        p.final_gate_m,
     )
     fitted = Pose2(float(pose[0]), float(pose[1]), float(pose[2]))
-    _, dist = index.nearest(transform_points(points, fitted), p.final_gate_m, allowed)
-    inliers = dist <= p.final_gate_m
-    rms = float(np.sqrt(np.mean(dist[inliers] ** 2))) if inliers.any() else float("nan")
-    score = float(np.mean(np.clip(1.0 - (dist / p.final_gate_m) ** 2, 0.0, 1.0)))
-    return Refinement(fitted, float(np.mean(inliers)), rms, n, score)
+    n_in = placed[0]
+    rms = float(np.sqrt(placed[1] / n_in)) if n_in > 0 else float("nan")
+    return Refinement(fitted, float(n_in / n), rms, n, float(placed[2] / n))
+
+
+@njit(cache=True)
+def _fit(points, segments, cells, initial, gates, steps_per_round, min_points, prior, margin_m,
+         final_gate_m):  # fmt: skip
+    """``refine_pose`` compiled: the fitted pose (3,) and ``_placed`` there."""
+    # Only segments within reach of the scan from near the guess can pair. Points that are
+    # not finite never pair (their distances are NaN) and must not widen the reach.
+    reach = 0.0
+    for i in range(points.shape[0]):
+        r = np.hypot(points[i, 0], points[i, 1])
+        if np.isfinite(r):
+            reach = max(reach, r)
+    reach += margin_m
+    allowed = near_mask(cells, segments, initial[0], initial[1], reach)
+    pose = _gauss_newton(
+        points, segments, allowed, cells, initial, gates, steps_per_round, min_points, prior,
+        reach,
+    )  # fmt: skip
+    return pose, _placed(points, pose, cells, segments, allowed, final_gate_m)
 
 
 def _prior_weights(p: RefineParams) -> np.ndarray:
