@@ -162,11 +162,22 @@ def _level_cells(ix, iy, shapes, shifts, pad, n_cells, sort):
 
 
 @njit(cache=True)
-def _children_exact(fine, ix, iy, x, y, out):
+def _children_exact(fine, ix, iy, box, x, y, out):
     """``_exact_sum`` at the four shifts (x, y), (x + 1, y), (x, y + 1), (x + 1, y + 1), into
-    ``out`` (4,) in that order, in one pass over the points (the same sums, point by point)."""
+    ``out`` (4,) in that order, in one pass over the points (the same sums, point by point).
+    ``box`` (min x, max x, min y, max y) bounds the points' cells (``_cell_box``): when it
+    lies inside ``fine`` at all four shifts, no point is checked."""
     nx, ny = fine.shape
     s0 = s1 = s2 = s3 = 0.0
+    if box[0] + x >= 0 and box[1] + x + 1 < nx and box[2] + y >= 0 and box[3] + y + 1 < ny:
+        for p in range(ix.shape[0]):
+            i, j = ix[p] + x, iy[p] + y
+            s0 += fine[i, j]
+            s1 += fine[i + 1, j]
+            s2 += fine[i, j + 1]
+            s3 += fine[i + 1, j + 1]
+        out[0], out[1], out[2], out[3] = s0, s1, s2, s3
+        return
     for p in range(ix.shape[0]):
         bx, by = ix[p], iy[p]
         if _beyond_limit(bx, by):
@@ -184,6 +195,26 @@ def _children_exact(fine, ix, iy, x, y, out):
             if in_i1 and in_j1:
                 s3 += fine[i + 1, j + 1]
     out[0], out[1], out[2], out[3] = s0, s1, s2, s3
+
+
+@njit(cache=True)
+def _cell_box(ix, iy):
+    """(min x, max x, min y, max y) of the points' fine cells (H, P), per heading (H, 4); a
+    heading with a point beyond ``INDEX_LIMIT`` gets a box no shift puts inside a raster."""
+    n_h, n_p = ix.shape
+    boxes = np.empty((n_h, 4), dtype=np.int64)
+    for h in range(n_h):
+        lo_x = lo_y = INDEX_LIMIT + 1
+        hi_x = hi_y = -INDEX_LIMIT - 1
+        for p in range(n_p):
+            bx, by = ix[h, p], iy[h, p]
+            if _beyond_limit(bx, by):
+                lo_x, hi_x = -INDEX_LIMIT - 1, INDEX_LIMIT + 1
+                break
+            lo_x, hi_x = min(lo_x, bx), max(hi_x, bx)
+            lo_y, hi_y = min(lo_y, by), max(hi_y, by)
+        boxes[h, 0], boxes[h, 1], boxes[h, 2], boxes[h, 3] = lo_x, hi_x, lo_y, hi_y
+    return boxes
 
 
 @njit(cache=True)
@@ -360,6 +391,7 @@ def _branch_and_bound(
     cells, linear, weights, counts, boxes = _level_cells(
         ix, iy, shapes[:depth], shifts[:depth], pad, n_cells, n_top > 2
     )
+    cell_boxes = _cell_box(ix, iy)
     divisor = float(BOUND_LEVELS) if depth > 0 else 1.0
     top = np.full((n_h, n_top, n_top), -1.0)
     exact = depth == 0  # no pyramid: the top squares are single shifts
@@ -431,7 +463,7 @@ def _branch_and_bound(
                     continue
                 half = 2 ** (level - 1)
                 if level == 1:
-                    _children_exact(fine, ix[h], iy[h], x, y, sums)
+                    _children_exact(fine, ix[h], iy[h], cell_boxes[h], x, y, sums)
                 else:
                     lv, shift = level - 2, shifts[level - 2]
                     _children_bound(
