@@ -334,6 +334,32 @@ def _keep_distinct(score, hh, xx, yy, n, headings, cell, apart_m, apart_rad):
     return kept
 
 
+MAX_CLIMB = 32
+"""Most moves of the climb from a known pose to a better lower bound (``_climbed``)."""
+
+
+@njit(cache=True)
+def _climbed(fine, ix, iy, h, x, y, n_cells):
+    """The best ``_exact_sum`` met climbing from the grid pose (heading index h, x, y): to the
+    best of its neighbours (±1 heading index, ±1 cell each way) inside the searched grid
+    ((H, P) points' cells ``ix``, ``iy``; n_cells² shifts) while one is better, at most
+    ``MAX_CLIMB`` moves."""
+    n_h = ix.shape[0]
+    best = _exact_sum(fine, ix[h], iy[h], x, y)
+    for _ in range(MAX_CLIMB):
+        to_h, to_x, to_y = h, x, y
+        for hh in range(max(h - 1, 0), min(h + 2, n_h)):
+            for xx in range(max(x - 1, 0), min(x + 2, n_cells)):
+                for yy in range(max(y - 1, 0), min(y + 2, n_cells)):
+                    total = _exact_sum(fine, ix[hh], iy[hh], xx, yy)
+                    if total > best:
+                        best, to_h, to_x, to_y = total, hh, xx, yy
+        if (to_h, to_x, to_y) == (h, x, y):
+            break
+        h, x, y = to_h, to_x, to_y
+    return best
+
+
 MIN_TOP_LEVEL = 3
 MAX_TOP_SQUARES = 16_000_000
 """A global search bounds every (heading, square) pair of one level in a first pass, as
@@ -611,7 +637,7 @@ class HypothesisSearch:
             p.hypotheses,
             p.keep_fraction,
             mask,
-            self._known_sum(points, headings, start, known),
+            self._known_sum(ix, iy, headings, start, n_cells, known),
             np.zeros((n_top, n_top), dtype=np.int32 if wide_enough else np.int64),
             first_batch,
         )
@@ -645,19 +671,28 @@ class HypothesisSearch:
         return self._phase_levels[depth]
 
     def _known_sum(
-        self, points: np.ndarray, headings: np.ndarray, start: np.ndarray, known: Pose2 | None
+        self,
+        ix: np.ndarray,
+        iy: np.ndarray,
+        headings: np.ndarray,
+        start: np.ndarray,
+        n_cells: int,
+        known: Pose2 | None,
     ) -> float:
-        """The sum at the grid pose nearest ``known`` (0 without one, or off the grid): a
-        lower bound on the best, so the search can prune below it from the start."""
+        """A lower bound on the best sum, so the search can prune below it from the start: the
+        sum at the grid pose nearest ``known``, or a better one of the searched grid poses
+        found climbing from it (0 without ``known``, or off the grid).
+
+        The grid pose nearest a good pose can score far below the best: half a heading
+        step turns the farthest points by several raster cells.
+        """
         if known is None or not np.isfinite([known.x, known.y, known.theta]).all():
             return 0.0
         h = int(np.argmin(np.abs(wrap_angle(headings - known.theta))))
         x, y = np.rint((np.array([known.x, known.y]) - start) / self.fine.cell_m)
-        cos_sin = np.array([[np.cos(headings[h]), np.sin(headings[h])]])
-        ix, iy = _point_cells(points, cos_sin, start, self.fine.origin, self.fine.cell_m)
         if abs(x) > INDEX_LIMIT or abs(y) > INDEX_LIMIT:
             return 0.0
-        return _exact_sum(self.fine.score, ix[0], iy[0], int(x), int(y))
+        return _climbed(self.fine.score, ix, iy, h, int(x), int(y), n_cells)
 
     def _reachable(
         self, start: np.ndarray, n_cells: int, depth: int, reach_m: float | None
