@@ -420,11 +420,13 @@ def test_noisy_room_gives_one_segment_per_wall():
 # --- the compiled extraction against its numpy formulation ------------------------------------
 #
 # The extraction as it was written in numpy before it was compiled, kept as the reference
-# the kernels must reproduce. numpy may take arctan2 from a vectorised library that rounds
-# a few results the other way than the C library the kernels call, so the two agree to
-# round-off; given the same arctan2 they agree to the bit.
+# the kernels must reproduce. numpy may take arctan2 and hypot from a vectorised library
+# (where AVX-512 is present) that rounds a few results the other way than the C library the
+# kernels call, so the two agree to round-off; given the same functions they agree to the
+# bit.
 
 _reference_arctan2 = np.arctan2
+_reference_hypot = np.hypot
 
 
 def _numpy_breakpoints(ranges_m, angles_rad, params):
@@ -437,7 +439,7 @@ def _numpy_breakpoints(ranges_m, angles_rad, params):
         )
     x = r * np.cos(angles_rad)
     y = r * np.sin(angles_rad)
-    gap = np.hypot(np.diff(x), np.diff(y))
+    gap = _reference_hypot(np.diff(x), np.diff(y))
     return (gap > d_max) | (dphi >= lam)
 
 
@@ -454,8 +456,14 @@ def _numpy_line_residuals(points, centroid, direction):
     return np.abs(d[:, 0] * direction[1] - d[:, 1] * direction[0])
 
 
+def _along(offsets, direction):
+    """Offsets (..., 2) projected on ``direction``, by products and one sum each, as the
+    kernels do (a matrix product may fuse them)."""
+    return offsets[..., 0] * direction[0] + offsets[..., 1] * direction[1]
+
+
 def _numpy_direction_sigma_rad(points, centroid, direction, range_sigma_m):
-    t = (points - centroid) @ direction
+    t = _along(points - centroid, direction)
     spread = float(np.sqrt(np.sum(t**2)))
     if spread == 0.0:
         return np.inf
@@ -473,10 +481,10 @@ def _numpy_split(points, start, stop, tol_m, out):
             continue
         a, b = points[i0], points[i1 - 1]
         chord = b - a
-        norm = np.hypot(*chord)
+        norm = _reference_hypot(*chord)
         seg = points[i0:i1] - a
         if norm < 1e-12:
-            dist = np.hypot(seg[:, 0], seg[:, 1])
+            dist = _reference_hypot(seg[:, 0], seg[:, 1])
         else:
             dist = np.abs(seg[:, 0] * chord[1] - seg[:, 1] * chord[0]) / norm
         k = int(np.argmax(dist))
@@ -569,8 +577,8 @@ def _numpy_extract_segments(scan, params=None):
             if i1 - i0 < params.min_points:
                 continue
             centroid, direction, pts = _numpy_fit_piece(ring[i0:i1])
-            t0 = (pts[0] - centroid) @ direction
-            t1 = (pts[-1] - centroid) @ direction
+            t0 = _along(pts[0] - centroid, direction)
+            t1 = _along(pts[-1] - centroid, direction)
             if (
                 pts.shape[0] < params.min_points
                 or abs(t1 - t0) < params.min_length_m
@@ -676,9 +684,10 @@ def test_compiled_extraction_equals_numpy_on_hand_made_scenes(params_name):
 
 
 def test_with_the_same_arctan2_the_compiled_extraction_is_equal_to_the_bit(monkeypatch):
-    # The C library's arctan2, as the kernels call it: every sum, product and branch is
-    # then the same, so the segments are too, to the last bit.
+    # The C library's arctan2 and hypot, as the kernels call them: every sum, product and
+    # branch is then the same, so the segments are too, to the last bit.
     monkeypatch.setitem(globals(), "_reference_arctan2", math.atan2)
+    monkeypatch.setitem(globals(), "_reference_hypot", np.vectorize(math.hypot, otypes=[float]))
     scans = [*hand_made_scans().values(), *simulated_scans(0), *simulated_scans(1)]
     for params in COMPARED_PARAMS.values():
         for i, scan in enumerate(scans):
