@@ -613,7 +613,7 @@ class HypothesisSearch:
         n_cells = 2 * half_cells + 1
         depth = self._top_depth(n_cells, headings.size, reach_m is not None)
         # Fine cell of every point at every heading, the shift being ``start``.
-        cos_sin = np.array([[np.cos(h), np.sin(h)] for h in headings]).reshape(-1, 2)
+        cos_sin = np.column_stack([np.cos(headings), np.sin(headings)])
         ix, iy = _point_cells(points, cos_sin, start, self.fine.origin, cell)
         mask = self._reachable(start, n_cells, depth, reach_m)
         n_top = mask.shape[0]
