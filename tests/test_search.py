@@ -33,6 +33,7 @@ from segloc_cli.search import (
     MIN_TOP_LEVEL,
     HypothesisSearch,
     _batches,
+    _climbed,
     _exact_sum,
     _point_cells,
     _segment_samples,
@@ -440,3 +441,28 @@ def test_a_pose_known_beforehand_prunes_without_changing_the_best(seed):
     plain = search.around(points, guess, 20.0)
     for known in (true, wrong, Pose2(np.nan, 0.0, 0.0), Pose2(1e9, -1e9, 0.0)):
         assert search.around(points, guess, 20.0, known=known)[0] == plain[0]
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_the_climb_from_a_known_pose_ends_on_a_searched_pose_no_better_than_the_best(seed):
+    """The lower bound the search prunes below is the exact sum of a grid pose it searches,
+    at least the start's: were it above the best, the best would be pruned."""
+    rng = np.random.default_rng(8400 + seed)
+    world = random_world(rng)
+    true = Pose2(*random_free_poses(world, 1, rng)[0])
+    points = simulate_scan(world, true, NOISE_FREE, rng, 0.0).points()[::4]
+    search = HypothesisSearch(world.segments)
+    guess = np.array([true.x + rng.uniform(-0.2, 0.2), true.y + rng.uniform(-0.2, 0.2)])
+    headings = true.theta + np.deg2rad(np.arange(-4.0, 4.5, 1.0))
+    rows, start = _exhaustive(search, points, headings, guess, 0.3)
+    sums = {(h, x, y): total for total, h, x, y in rows}
+    n_cells = int(round(len(rows) / len(headings)) ** 0.5)
+    cos_sin = np.column_stack([np.cos(headings), np.sin(headings)])
+    ix, iy = _point_cells(points, cos_sin, start, search.fine.origin, search.fine.cell_m)
+    for h, x, y in [(0, 0, 0), (len(headings) // 2, n_cells // 2, 3), (len(headings) - 1, 11, 2)]:
+        climbed = _climbed(search.fine.score, ix, iy, h, x, y, n_cells)
+        assert sums[(h, x, y)] <= climbed <= max(sums.values())
+        assert climbed in set(sums.values())
+    # From outside the searched square it keeps the start's own sum and climbs nowhere.
+    outside = _exact_sum(search.fine.score, ix[0], iy[0], -50, -50)
+    assert _climbed(search.fine.score, ix, iy, 0, -50, -50, n_cells) == outside
