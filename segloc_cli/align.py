@@ -12,6 +12,7 @@ is what decouples heading from position.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 from numba import njit
@@ -88,18 +89,31 @@ class RTable:
 
         Ties go to the shorter global length.
         """
-        # Clipped to the key's range (a NaN length matches nothing well: it becomes 1,000 km).
-        local_m = np.nan_to_num(np.asarray(local_len_m, dtype=float), nan=_MAX_LENGTH_M)
-        local_mm = np.rint(np.clip(local_m, 0.0, _MAX_LENGTH_M) * 1000.0).astype(np.int64)
-        global_mm = np.rint(np.clip(self.sorted_m, 0.0, _MAX_LENGTH_M) * 1000.0).astype(np.int64)
-        starts = np.concatenate([[0], np.cumsum(self.sizes)])
-        if allowed is None:
-            allowed = np.ones(self.segment_ids.size, dtype=np.bool_)
         closest_mm = _closest_mm(
-            np.ascontiguousarray(bins, dtype=np.int64), local_mm, global_mm, starts,
-            self.segment_ids, allowed,
+            np.ascontiguousarray(bins, dtype=np.int64), _whole_mm(local_len_m), self._sorted_mm,
+            self._bin_starts, self.segment_ids, self._every_segment if allowed is None else allowed,
         )  # fmt: skip
         return np.where(closest_mm >= 0, closest_mm / 1000.0, np.nan)
+
+    # Derived once per table, not per vote (a table lives as long as its map's localizer).
+    @cached_property
+    def _sorted_mm(self) -> np.ndarray:
+        return _whole_mm(self.sorted_m)
+
+    @cached_property
+    def _bin_starts(self) -> np.ndarray:
+        return np.concatenate([[0], np.cumsum(self.sizes)])
+
+    @cached_property
+    def _every_segment(self) -> np.ndarray:
+        return np.ones(self.segment_ids.size, dtype=np.bool_)
+
+
+def _whole_mm(lengths_m: np.ndarray) -> np.ndarray:
+    """Lengths (metres) in whole millimetres, clipped to the keys' range: a NaN length
+    matches nothing well, it becomes 1,000 km."""
+    metres = np.nan_to_num(np.asarray(lengths_m, dtype=float), nan=_MAX_LENGTH_M)
+    return np.rint(np.clip(metres, 0.0, _MAX_LENGTH_M) * 1000.0).astype(np.int64)
 
 
 @njit(cache=True)
