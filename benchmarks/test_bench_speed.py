@@ -7,8 +7,8 @@ Sections, one test each, every figure measured in the same run:
    over the run) localized with the defaults and with ICP, one job each; median ms per scan,
    the ratio default/icp and the right answers of each (within 10 cm and 1°).
 2. Global search time against map area: ``--global`` on ``GLOBAL_SCANS_PER_LOG`` held-out
-   scans of each shared log, and on scans simulated in a generated map of rooms tiled over
-   about ``LARGE_MAP_SIDE_M`` × ``LARGE_MAP_SIDE_M`` metres; map area, segments, median
+   scans of each shared log, and on scans simulated in generated maps of rooms tiled over
+   the sizes of ``GENERATED_MAPS`` (a building, a campus); map area, segments, median
    seconds per scan, right places (within 30 cm and 3°).
 3. Tracking rate: each shared raw log tracked with ``--track`` in its held-out map (the
    tracking protocol of `real_logs.py`); scans per second of wall time.
@@ -66,25 +66,41 @@ SCANS_PER_LOG = 40
 """Held-out scans per shared log localized by each method in section 1."""
 GLOBAL_SCANS_PER_LOG = 6
 """Held-out scans per shared log localized with ``--global`` in section 2."""
-LARGE_MAP_SIDE_M = 300.0
-"""The generated map covers about this many metres each way."""
 ROOM_PITCH_M = (24.0, 18.0)
 """Rooms of ``random_world`` (20 m × 14 m, alcoves up to 2 m beyond) every this many metres in
 x and y: neighbours never overlap; about 220 rooms and 10,000 segments over 300 m × 300 m."""
-LARGE_MAP_FIRST_SEED = 7000
-"""The generated map's rooms come from consecutive seeds from this one."""
-LARGE_MAP_SCANS = 3
-"""Scans simulated in the generated map (each in another room) and localized with --global."""
-LARGE_MAP_SEED = 1
-"""Seed of the rooms the scans are taken in, their poses and the simulated sensor's noise."""
+
+
+@dataclass(frozen=True)
+class GeneratedMap:
+    """A map of rooms tiled over about ``width_m`` × ``height_m`` metres, the rooms from
+    consecutive seeds from ``first_seed``; ``scans`` of them (each in another room) are
+    simulated and localized with --global, their rooms, poses and the sensor's noise drawn
+    from ``seed``."""
+
+    width_m: float
+    height_m: float
+    first_seed: int
+    scans: int
+    seed: int
+
+    @property
+    def name(self) -> str:
+        """The map's name in the tables and the folder its files go to."""
+        return f"rooms {self.width_m:g} × {self.height_m:g} m"
+
+
+GENERATED_MAPS = (
+    GeneratedMap(130.0, 165.0, first_seed=9000, scans=6, seed=2),
+    GeneratedMap(300.0, 300.0, first_seed=7000, scans=3, seed=1),
+)
+"""A large building's floor (130 × 165 m) and a campus (300 × 300 m), largest last."""
 
 REPO = Path(__file__).resolve().parents[1]
 WORK = REPO / "out" / "speed"
 """Where the imported logs, maps, guesses and estimates go."""
 DATASETS_FOLDER = Path(os.environ.get("SEGLOC_DATASETS", DATASETS_DIR))
 """The shared real logs (``make bench DATASETS=...`` sets ``SEGLOC_DATASETS``)."""
-LARGE_MAP = "generated rooms"
-"""The generated map's name in the tables."""
 
 _commands: dict[str, list[str]] = {}
 """Every command run, per dataset, written to ``WORK/commands.md`` at the end."""
@@ -313,14 +329,14 @@ def _held_out_for_global(name: str, split: HeldOutSplit) -> Path:
     return path
 
 
-def _tiled_rooms(first_seed: int) -> tuple[World, list[World]]:
+def _tiled_rooms(spec: GeneratedMap) -> tuple[World, list[World]]:
     """Rooms of ``random_world`` (each from its own seed) every ``ROOM_PITCH_M`` over about
-    ``LARGE_MAP_SIDE_M`` square, world frame in metres; the whole map and each room in it."""
-    columns = int(np.ceil(LARGE_MAP_SIDE_M / ROOM_PITCH_M[0]))
-    rows = int(np.ceil(LARGE_MAP_SIDE_M / ROOM_PITCH_M[1]))
+    ``spec``'s size, world frame in metres; the whole map and each room in it."""
+    columns = int(np.ceil(spec.width_m / ROOM_PITCH_M[0]))
+    rows = int(np.ceil(spec.height_m / ROOM_PITCH_M[1]))
     rooms = []
     for k in range(columns * rows):
-        room = random_world(np.random.default_rng(first_seed + k))
+        room = random_world(np.random.default_rng(spec.first_seed + k))
         shift = np.array([ROOM_PITCH_M[0] * (k % columns), ROOM_PITCH_M[1] * (k // columns)])
         rooms.append(World(room.segments + np.tile(shift, 2), room.materials, f"room {k}"))
     segments = np.concatenate([room.segments for room in rooms])
@@ -334,42 +350,49 @@ def _poses_in_rooms(rooms: list[World], count: int, rng: np.random.Generator) ->
     return np.vstack([random_free_poses(rooms[k], 1, rng) for k in chosen])
 
 
-@pytest.fixture(scope="module")
-def large_map() -> tuple[Path, Path, Path]:
-    """The generated map's world file, and a log of scans simulated in it with their true
-    poses: (world, log, survey)."""
-    work = WORK / "large-map"
+def _generated_map(spec: GeneratedMap) -> tuple[Path, Path, Path]:
+    """``spec``'s world file, and a log of scans simulated in it with their true poses:
+    (world, log, survey)."""
+    work = WORK / spec.name.replace(" × ", "x").replace(" ", "-")
     work.mkdir(parents=True, exist_ok=True)
-    world, rooms = _tiled_rooms(LARGE_MAP_FIRST_SEED)
+    world, rooms = _tiled_rooms(spec)
     world_path, poses_path = work / "world.json", work / "poses.csv"
     write_world(world_path, world)
-    poses = _poses_in_rooms(rooms, LARGE_MAP_SCANS, np.random.default_rng(LARGE_MAP_SEED))
+    poses = _poses_in_rooms(rooms, spec.scans, np.random.default_rng(spec.seed))
     count = len(poses)
     write_pose_table(
         poses_path, PoseTable(np.arange(1, count + 1), np.arange(count, dtype=float), poses)
     )
-    commands = _commands_of(LARGE_MAP)
+    commands = _commands_of(spec.name)
     commands.append(
-        f"# world.json: {len(rooms)} rooms of random_world (seeds {LARGE_MAP_FIRST_SEED}–"
-        f"{LARGE_MAP_FIRST_SEED + len(rooms) - 1}) every {ROOM_PITCH_M[0]:g} × "
+        f"# world.json: {len(rooms)} rooms of random_world (seeds {spec.first_seed}–"
+        f"{spec.first_seed + len(rooms) - 1}) every {ROOM_PITCH_M[0]:g} × "
         f"{ROOM_PITCH_M[1]:g} m; poses.csv: a free pose in each of {count} of them "
-        f"(seed {LARGE_MAP_SEED})"
+        f"(seed {spec.seed})"
     )
     run_segloc(
-        commands, "simulate", world_path, "--poses", poses_path, "--seed", LARGE_MAP_SEED,
+        commands, "simulate", world_path, "--poses", poses_path, "--seed", spec.seed,
         "--out", work / "sim",
     )  # fmt: skip
     return world_path, work / "sim" / "log.mcap", work / "sim" / "survey.csv"
 
 
-def _global_runs(splits: dict[str, HeldOutSplit], large_map) -> dict[str, GlobalRun]:
-    """``--global`` on each shared log's held-out scans, then on the generated map."""
+@pytest.fixture(scope="module")
+def generated_maps() -> dict[str, tuple[Path, Path, Path]]:
+    """Each of ``GENERATED_MAPS`` by name: (world, log, survey)."""
+    return {spec.name: _generated_map(spec) for spec in GENERATED_MAPS}
+
+
+def _global_runs(
+    splits: dict[str, HeldOutSplit], generated_maps: dict[str, tuple[Path, Path, Path]]
+) -> dict[str, GlobalRun]:
+    """``--global`` on each shared log's held-out scans, then on each generated map."""
     runs = {}
     for name, split in splits.items():
         scans = _held_out_for_global(name, split)
         runs[name] = _localize_globally(name, split.log_path, split.map_path, scans)
-    world_path, log_path, survey_path = large_map
-    runs[LARGE_MAP] = _localize_globally(LARGE_MAP, log_path, world_path, survey_path)
+    for name, (world_path, log_path, survey_path) in generated_maps.items():
+        runs[name] = _localize_globally(name, log_path, world_path, survey_path)
     return runs
 
 
@@ -385,14 +408,14 @@ def _global_table(runs: dict[str, GlobalRun]) -> str:
     return tabulate(rows, headers, floatfmt=("", ".0f", "", "", ".2f", "", ".1f", ".0f"))
 
 
-def test_speed_global_against_map_area(benchmark, splits, large_map):
-    runs = benchmark.pedantic(_global_runs, args=(splits, large_map), rounds=1, iterations=1)
-    large = runs[LARGE_MAP]
+def test_speed_global_against_map_area(benchmark, splits, generated_maps):
+    runs = benchmark.pedantic(_global_runs, args=(splits, generated_maps), rounds=1, iterations=1)
+    largest = GENERATED_MAPS[-1].name
     print(
         f"\nspeed 2: --global (no initial pose), one job, against map area (bounding box); "
         f"right place: within {PLACE_M * 100:.0f} cm and {PLACE_DEG:g}°\n{_global_table(runs)}\n"
-        f"speed 5: peak RSS of --global on the largest map ({LARGE_MAP}, {large.segments} "
-        f"segments): {large.peak_rss_mib:.0f} MiB"
+        f"speed 5: peak RSS of --global on the largest map ({largest}, "
+        f"{runs[largest].segments} segments): {runs[largest].peak_rss_mib:.0f} MiB"
     )
 
 
