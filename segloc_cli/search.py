@@ -334,6 +334,24 @@ def _keep_distinct(score, hh, xx, yy, n, headings, cell, apart_m, apart_rad):
     return kept
 
 
+@njit(cache=True)
+def _shadowed(kept_sum, kept_h, kept_x, kept_y, n_kept, headings, h, x, y, span, bound, cell,
+              apart_m, apart_rad):  # fmt: skip
+    """Whether every pose of the square of shifts [x, x + span] × [y, y + span] at heading
+    index h, none summing above ``bound``, is near a kept pose at least as good: placed,
+    each would be dropped as not distinct from it (``_keep_distinct``) and change nothing,
+    nor would the kept pose be displaced while they are placed (none beats it)."""
+    for o in range(n_kept):
+        if kept_sum[o] < bound or abs(wrap(headings[h] - headings[kept_h[o]])) > apart_rad:
+            continue
+        # The square's farthest corner from the kept pose is the farthest of its poses.
+        dx = max(abs(x - kept_x[o]), abs(x + span - kept_x[o]))
+        dy = max(abs(y - kept_y[o]), abs(y + span - kept_y[o]))
+        if np.hypot(dx, dy) * cell <= apart_m:
+            return True
+    return False
+
+
 MAX_CLIMB = 32
 """Most moves of the climb from a known pose to a better lower bound (``_climbed``)."""
 
@@ -465,6 +483,9 @@ def _branch_and_bound(
                 level, x, y = stack_level[stack_top], stack_x[stack_top], stack_y[stack_top]
                 bound = stack_bound[stack_top]
                 if bound <= threshold:
+                    continue
+                if _shadowed(kept_sum, kept_h, kept_x, kept_y, n_kept, headings, h, x, y,
+                             2**level - 1, bound, cell, apart_m, apart_rad):  # fmt: skip
                     continue
                 if level == 0:  # a leaf, whose bound is its exact sum: place it among the kept
                     e = n_kept

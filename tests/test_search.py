@@ -37,6 +37,7 @@ from segloc_cli.search import (
     _exact_sum,
     _point_cells,
     _segment_samples,
+    _shadowed,
     _top_bounds,
     _within_disk,
     distinct,
@@ -466,3 +467,26 @@ def test_the_climb_from_a_known_pose_ends_on_a_searched_pose_no_better_than_the_
     # From outside the searched square it keeps the start's own sum and climbs nowhere.
     outside = _exact_sum(search.fine.score, ix[0], iy[0], -50, -50)
     assert _climbed(search.fine.score, ix, iy, 0, -50, -50, n_cells) == outside
+
+
+def test_a_square_is_shadowed_only_when_all_its_poses_are_near_a_kept_pose_as_good():
+    """A square of shifts is passed over only if each of its poses would be dropped beside a
+    kept pose (within 0.3 m at 5 cm cells and 3°) scoring at least the square's bound."""
+    headings = np.deg2rad(np.arange(-10.0, 11.0, 1.0))
+    kept_sum = np.array([50.0, 30.0, 0.0])
+    kept_h, kept_x, kept_y = np.array([10, 2, 0]), np.array([20, 60, 0]), np.array([20, 60, 0])
+    apart_m, apart_rad, cell = 0.3, np.deg2rad(3.0), 0.05
+
+    def shadowed(h, x, y, span, bound, n_kept=2):
+        return _shadowed(kept_sum, kept_h, kept_x, kept_y, n_kept, headings, h, x, y, span,
+                         bound, cell, apart_m, apart_rad)  # fmt: skip
+
+    assert shadowed(10, 20, 20, 0, 50.0)  # the kept pose itself, no better: dropped
+    assert not shadowed(10, 20, 20, 0, 50.5)  # a better one would replace it
+    assert shadowed(13, 18, 18, 3, 49.0)  # 3°; corners (18..21)² within 0.3 m of (20, 20)
+    assert not shadowed(14, 18, 18, 3, 49.0)  # 4° off
+    # (16..22)²: corners 4 cells off each way (0.28 m); (15..21) × (16..22): 5 and 4 (0.32 m).
+    assert shadowed(10, 16, 16, 6, 49.0) and not shadowed(10, 15, 16, 6, 49.0)
+    # The second kept pose shadows what it beats near it; a third beyond n_kept counts not.
+    assert shadowed(2, 59, 61, 1, 30.0) and not shadowed(2, 59, 61, 1, 31.0)
+    assert not shadowed(0, 0, 0, 0, 0.0) and shadowed(0, 0, 0, 0, 0.0, n_kept=3)
