@@ -946,3 +946,41 @@ def test_global_refuses_track_and_no_refine(small, tmp_path, capsys, other):
     assert "--global cannot be combined with " + other in result.err
     assert "Traceback" not in result.err
     assert not out.exists()
+
+
+def _required_options():
+    """(command path, option, the other required options' arguments) for every required
+    option of every command: a value for each other required option (a choice's first
+    choice, else a file name) and one for each required argument."""
+    import click
+
+    from segloc_cli.cli import cli
+
+    def commands(command, path=()):
+        if isinstance(command, click.Group):
+            for name, sub in sorted(command.commands.items()):
+                yield from commands(sub, (*path, name))
+        else:
+            yield path, command
+
+    for path, command in commands(cli):
+        required = [p for p in command.params if isinstance(p, click.Option) and p.required]
+        arguments = [p for p in command.params if isinstance(p, click.Argument) and p.required]
+        for option in required:
+            given = ["x.mcap"] * len(arguments)
+            for other in required:
+                if other is not option:
+                    choices = getattr(other.type, "choices", None)
+                    given += [other.opts[0], choices[0] if choices else "x.csv"]
+            yield pytest.param(path, option.opts[0], given, id=f"{' '.join(path)} {option.opts[0]}")
+
+
+@pytest.mark.parametrize(("path", "option", "given"), list(_required_options()))
+def test_a_required_option_left_out_is_named(capsys, tmp_path, monkeypatch, path, option, given):
+    """Left out, a required option is one line naming it and exit status 2, not an internal
+    error once the command runs without it."""
+    monkeypatch.chdir(tmp_path)
+    result = run_cli(capsys, *path, *given)
+    assert result.code == 2, result
+    (line,) = result.err.splitlines()  # a choice's line goes on to list the choices
+    assert line.startswith(f"segloc: error: Missing option '{option}'.")

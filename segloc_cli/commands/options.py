@@ -289,9 +289,7 @@ def _as_path(option: click.Parameter, value: Any) -> Any:
 def path_option(*names: str, required: bool = False, help: str) -> Callable:
     """An option naming a file or folder (``--map``, ``--out``, ...): a ``Path``, or None
     when not given."""
-    return click.option(
-        *names, required=required, type=click.Path(path_type=Path), default=None, help=help
-    )
+    return click.option(*names, required=required, type=click.Path(path_type=Path), help=help)
 
 
 def sensor_options(noise_help: str) -> tuple[Callable, Callable]:
