@@ -17,7 +17,6 @@ import os
 import subprocess
 import sys
 import tempfile
-import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -112,27 +111,45 @@ class MeasuredRun:
     peak_rss_mib: float
 
 
+_MEASURING_LAUNCHER = """
+import os, subprocess, sys, time
+start = time.perf_counter()
+child = subprocess.Popen(sys.argv[2:])
+_, status, usage = os.wait4(child.pid, 0)
+with open(sys.argv[1], "w") as report:
+    report.write(f"{time.perf_counter() - start!r} {usage.ru_maxrss}")
+sys.exit(os.waitstatus_to_exitcode(status) % 256)
+"""
+"""Runs a command and writes its wall time (s) and peak RSS (``wait4``'s ``ru_maxrss``) to
+the file named first. A process forked from a large one is charged that one's resident set
+from the start (Linux keeps the high-water mark across exec), so the command is started from
+this small interpreter, not from the benchmark's own process."""
+
+
 def run_segloc_measured(commands: list[str], *args: object) -> MeasuredRun:
     """Run ``segloc ARGS --force`` as ``run_segloc`` does, timing it and reading its peak RSS.
 
     The peak comes from the kernel's account of the finished process (``wait4``): the
-    largest resident set of the process or of any worker it waited for.
+    largest resident set of the process or of any worker it waited for, counted from a
+    small launcher (``_MEASURING_LAUNCHER``), so the benchmark's own memory is not in it.
     """
     argv = segloc_argv(*args, "--force")
     commands.append(as_typed(argv))
-    with tempfile.TemporaryFile("w+") as out, tempfile.TemporaryFile("w+") as err:
-        start = time.perf_counter()
-        child = subprocess.Popen(argv, stdout=out, stderr=err, text=True)
-        _, status, usage = os.wait4(child.pid, 0)
-        wall_s = time.perf_counter() - start
-        # Reaped here, so the Popen object must not wait for it again.
-        child.returncode = os.waitstatus_to_exitcode(status)
+    with (
+        tempfile.TemporaryFile("w+") as out,
+        tempfile.TemporaryFile("w+") as err,
+        tempfile.TemporaryDirectory() as folder,
+    ):
+        report = Path(folder) / "measured"
+        launcher = [sys.executable, "-c", _MEASURING_LAUNCHER, str(report), *argv]
+        returncode = subprocess.run(launcher, stdout=out, stderr=err, text=True).returncode
         out.seek(0)
         err.seek(0)
         stdout, stderr = out.read(), err.read()
-    if child.returncode != 0:
-        raise SystemExit(f"command failed ({child.returncode}): {' '.join(argv)}\n{stderr}")
-    return MeasuredRun(stdout, stderr, wall_s, _max_rss_mib(usage.ru_maxrss))
+        if returncode != 0:
+            raise SystemExit(f"command failed ({returncode}): {' '.join(argv)}\n{stderr}")
+        wall_s, max_rss = report.read_text().split()
+    return MeasuredRun(stdout, stderr, float(wall_s), _max_rss_mib(int(max_rss)))
 
 
 def _max_rss_mib(ru_maxrss: int) -> float:
