@@ -21,17 +21,23 @@ from segloc_cli.config import VOTE_SCHEMES
 from segloc_cli.geometry import segment_lengths, segment_orientations, wrap_angle
 
 
+def scheme_index(scheme: str) -> int:
+    """``scheme``'s place in VOTE_SCHEMES; ``ValueError`` naming them for any other."""
+    if scheme not in VOTE_SCHEMES:
+        raise ValueError(f"unknown vote scheme {scheme!r}; choose one of {', '.join(VOTE_SCHEMES)}")
+    return VOTE_SCHEMES.index(scheme)
+
+
 def vote_weight(scheme: str, local_len_m: np.ndarray, global_len_m: np.ndarray) -> np.ndarray:
     """The vote of each (local, best global) pair under ``scheme`` (one of VOTE_SCHEMES)."""
+    scheme_index(scheme)
     if scheme == "product":
         return local_len_m * global_len_m
     if scheme == "count":
         return np.ones_like(local_len_m)
     if scheme == "local":
         return np.asarray(local_len_m, dtype=float)
-    if scheme == "sum":
-        return local_len_m + global_len_m
-    raise ValueError(f"unknown vote scheme {scheme!r}; choose one of {', '.join(VOTE_SCHEMES)}")
+    return local_len_m + global_len_m  # "sum"
 
 
 @dataclass(frozen=True)
@@ -95,6 +101,31 @@ class RTable:
         )  # fmt: skip
         return np.where(closest_mm >= 0, closest_mm / 1000.0, np.nan)
 
+    def votes(
+        self,
+        headings_rad: np.ndarray,
+        sigma_rad: np.ndarray,
+        local_len_m: np.ndarray,
+        scheme: int,
+        allowed: np.ndarray | None = None,
+    ) -> np.ndarray:
+        """(H, N): the vote of local segment n (orientation ``sigma_rad[n]``, robot frame,
+        length ``local_len_m[n]``) at heading h, by ``VOTE_SCHEMES[scheme]`` with the closest
+        length in its bin (``closest_at``), 0 where the bin holds no allowed segment."""
+        return _votes(
+            np.ascontiguousarray(headings_rad, dtype=float),
+            np.ascontiguousarray(sigma_rad, dtype=float),
+            np.ascontiguousarray(local_len_m, dtype=float),
+            _whole_mm(local_len_m),
+            self.bin_width_rad,
+            self.n_bins,
+            self._sorted_mm,
+            self._bin_starts,
+            self.segment_ids,
+            self._every_segment if allowed is None else allowed,
+            scheme,
+        )
+
     # Derived once per table, not per vote (a table lives as long as its map's localizer).
     @cached_property
     def _sorted_mm(self) -> np.ndarray:
@@ -137,6 +168,39 @@ def _closest_mm(bins, local_mm, global_mm, starts, segment_ids, allowed):
     return out
 
 
+@njit(cache=True)
+def _votes(
+    headings, sigma, local_len, local_mm, bin_width, n_bins, global_mm, starts, segment_ids,
+    allowed, scheme,
+):  # fmt: skip
+    """``RTable.votes``: what ``orientation_bins``, ``closest_at`` and ``vote_weight`` give,
+    compiled (the same arithmetic, so the same votes to the last bit)."""
+    n_h, n_local = headings.shape[0], sigma.shape[0]
+    bins = np.empty((n_h, n_local), dtype=np.int64)
+    for h in range(n_h):
+        for n in range(n_local):
+            wrapped = (sigma[n] + headings[h]) % np.pi
+            if wrapped != wrapped:  # NaN: bin 0
+                wrapped = 0.0
+            bins[h, n] = np.int64(np.rint(wrapped / bin_width)) % n_bins
+    closest_mm = _closest_mm(bins, local_mm, global_mm, starts, segment_ids, allowed)
+    out = np.zeros((n_h, n_local))
+    for h in range(n_h):
+        for n in range(n_local):
+            if closest_mm[h, n] < 0:
+                continue
+            global_len = closest_mm[h, n] / 1000.0
+            if scheme == 0:  # VOTE_SCHEMES: product, count, local, sum
+                out[h, n] = local_len[n] * global_len
+            elif scheme == 1:
+                out[h, n] = 1.0
+            elif scheme == 2:
+                out[h, n] = local_len[n]
+            else:
+                out[h, n] = local_len[n] + global_len
+    return out
+
+
 _KEY_BASE = 10**9
 """Exceeds any segment length in millimetres (1,000 km)."""
 
@@ -173,13 +237,14 @@ def accumulate(
     """Votes (H,) for each candidate heading (H,) given the local map (N, 4), robot frame;
     only the map segments ``allowed`` (M,) vote, if given."""
     local_len = np.round(segment_lengths(segments_robot), 3)
-    sigma = segment_orientations(segments_robot)
-    bins = orientation_bins(
-        sigma[None, :] + np.asarray(headings_rad)[:, None], rtable.bin_width_rad, rtable.n_bins
-    )  # (H, N)
-    global_len = rtable.closest_at(bins, local_len, allowed)  # (H, N), NaN = empty bin
-    votes = vote_weight(scheme, local_len[None, :], np.nan_to_num(global_len))
-    return np.where(np.isnan(global_len), 0.0, votes).sum(axis=1)
+    votes = rtable.votes(
+        np.asarray(headings_rad, dtype=float).reshape(-1),
+        segment_orientations(segments_robot),
+        local_len,
+        scheme_index(scheme),
+        allowed,
+    )
+    return votes.sum(axis=1)
 
 
 @dataclass(frozen=True)

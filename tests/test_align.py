@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from segloc_cli.align import (
     VOTE_SCHEMES,
@@ -15,7 +17,13 @@ from segloc_cli.align import (
     orientation_bins,
     vote_weight,
 )
-from segloc_cli.geometry import Pose2, transform_segments, wrap_angle
+from segloc_cli.geometry import (
+    Pose2,
+    segment_lengths,
+    segment_orientations,
+    transform_segments,
+    wrap_angle,
+)
 
 DEG = np.pi / 180.0
 
@@ -442,3 +450,29 @@ def test_votes_of_allowed_segments_are_those_of_their_own_table():
             accumulate(RTable.build(world), local, headings, scheme, allowed),
             accumulate(RTable.build(world[allowed]), local, headings, scheme),
         )
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), scheme=st.sampled_from(VOTE_SCHEMES))
+def test_compiled_votes_are_the_numpy_composition_to_the_last_bit(seed, scheme):
+    """``accumulate``'s one compiled pass gives what orientation bins, closest lengths and
+    vote weights give as numpy array operations, bit for bit, with and without a mask of
+    allowed segments, for orientations on bin edges, non-finite ones and lengths past the
+    keys' range."""
+    rng = np.random.default_rng(seed)
+    g = rng.uniform(-20, 20, (int(rng.integers(1, 60)), 4))
+    g[: g.shape[0] // 4, 3] = g[: g.shape[0] // 4, 1]  # horizontal: the bin-0/180° edge
+    local = rng.uniform(-8, 8, (int(rng.integers(0, 40)), 4))
+    if local.shape[0] > 2:
+        local[0, 2] = np.nan
+        local[1] = [0.0, 0.0, 2e6, 0.0]
+    table = RTable.build(g, float(rng.choice([0.5, 1.0, 2.0])))
+    headings = np.concatenate([rng.uniform(-4, 4, 30), np.deg2rad([0.25, 0.5, 179.5, -90.0])])
+    allowed = rng.random(g.shape[0]) < 0.6 if rng.random() < 0.5 else None
+    local_len = np.round(segment_lengths(local), 3)
+    sigma = segment_orientations(local)
+    bins = orientation_bins(sigma[None, :] + headings[:, None], table.bin_width_rad, table.n_bins)
+    global_len = table.closest_at(bins, local_len, allowed)
+    weights = vote_weight(scheme, local_len[None, :], np.nan_to_num(global_len))
+    expected = np.where(np.isnan(global_len), 0.0, weights).sum(axis=1)
+    np.testing.assert_array_equal(accumulate(table, local, headings, scheme, allowed), expected)
