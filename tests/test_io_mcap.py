@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import time
 from io import BytesIO
 
 import numpy as np
@@ -208,9 +209,11 @@ def test_writer_requires_range_max(tmp_path):
         LogWriter(tmp_path / "log.mcap", {"device": "x"})
 
 
-def test_every_message_is_on_disk_before_close(tmp_path):
+def test_a_durable_writer_has_every_message_on_disk_before_close(tmp_path):
+    """With durable_every_s 0 each message's chunk is ended and flushed at once (the
+    recorder waits half a second)."""
     path = tmp_path / "log.mcap"
-    writer = LogWriter(path, SENSOR)
+    writer = LogWriter(path, SENSOR, durable_every_s=0.0)
     for scan in make_scans()[:3]:
         writer.add_scan(scan)
     # Read while the writer is still open, as after a killed recorder.
@@ -262,7 +265,7 @@ def test_truncated_file_keeps_complete_scans(tmp_path, log_path, fraction):
 def test_cut_mid_message_names_the_count(tmp_path):
     path = tmp_path / "log.mcap"
     scans = make_scans()
-    writer = LogWriter(path, SENSOR)
+    writer = LogWriter(path, SENSOR, durable_every_s=0.0)
     for scan in scans[:2]:
         writer.add_scan(scan)
     size_after_two = path.stat().st_size
@@ -783,3 +786,35 @@ def test_a_ros2_bag_in_mcap_points_at_the_importer(tmp_path):
         f"{path}: channel /scan uses message encoding 'cdr'; segloc reads JSON-encoded foxglove "
         f"messages; it is a ROS bag: convert it with `segloc import rosbag {path}`"
     )
+
+
+def test_a_log_is_chunked_compressed_and_indexed(tmp_path):
+    """Every chunk is zstd-compressed and listed in the summary with its messages' indexes,
+    so a reader can seek to a time without reading the rest; the messages read back."""
+    path = tmp_path / "log.mcap"
+    scans = make_scans()
+    write_log(path, scans, odom=[(s.time_s, Pose2(1.0, 2.0, 0.5)) for s in scans])
+    with open(path, "rb") as stream:
+        summary = make_reader(stream).get_summary()
+    assert summary.chunk_indexes
+    assert {c.compression for c in summary.chunk_indexes} == {"zstd"}
+    indexed = {channel for c in summary.chunk_indexes for channel in c.message_index_offsets}
+    assert {summary.channels[k].topic for k in indexed} == {"/scan", "/odom"}
+    assert summary.statistics.message_count == 2 * len(scans)
+    assert len(read_log(path).scans) == len(scans)
+
+
+def test_a_durable_writer_flushes_a_waiting_message_once_it_is_due(tmp_path):
+    path = tmp_path / "log.mcap"
+    writer = LogWriter(path, SENSOR, durable_every_s=0.2)
+    first, second = make_scans()[:2]
+    writer.add_scan(first)  # the first goes to disk at once, with the channels
+    assert len(read_log(path).scans) == 1
+    writer.add_scan(second)
+    assert len(read_log(path).scans) == 1  # in the chunk in progress
+    writer.make_durable_if_due()
+    assert len(read_log(path).scans) == 1  # not due yet
+    time.sleep(0.25)
+    writer.make_durable_if_due()
+    assert len(read_log(path).scans) == 2
+    writer.close()

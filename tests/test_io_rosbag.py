@@ -4,10 +4,15 @@ from __future__ import annotations
 
 import math
 import shutil
+import subprocess
 from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import SEGLOC
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from mcap.reader import make_reader
 from rosbags.rosbag1 import Writer as Ros1Writer
 from rosbags.rosbag2 import StoragePlugin
 from rosbags.rosbag2 import Writer as Ros2Writer
@@ -17,7 +22,7 @@ from rosbags.typesys.store import Typestore
 from segloc_cli.errors import InputError
 from segloc_cli.geometry import Pose2, heading_to_quaternion
 from segloc_cli.io.mcap_log import read_log, write_log
-from segloc_cli.io.rosbag import read_rosbag
+from segloc_cli.io.rosbag import read_rosbag, shortest_decimals
 
 ROS1_STORE = get_typestore(Stores.ROS1_NOETIC)
 ROS2_STORE = get_typestore(Stores.LATEST)
@@ -25,13 +30,14 @@ SCAN_TYPE = "sensor_msgs/msg/LaserScan"
 ODOM_TYPE = "nav_msgs/msg/Odometry"
 FORMATS = ["ros1", "ros2-folder", "ros2-mcap"]
 
-# A 181-beam, 180° scanner. LaserScan fields are float32: what a reader gets back is
-# the float32 value, so the expectations below are float32 values widened to float64.
+# A 181-beam, 180° scanner. LaserScan fields are float32: a reader gets the angles back as
+# the float32 values widened to float64, and the ranges, intensities and range limits as the
+# shortest decimals that read back as those float32 values (``decimal``).
 N_BEAMS = 181
 ANGLE_MIN = float(np.float32(-np.pi / 2))
 ANGLE_MAX = float(np.float32(np.pi / 2))
 ANGLE_INCREMENT = float(np.float32(np.pi / 180))
-RANGE_MIN = float(np.float32(0.1))
+RANGE_MIN = 0.1  # float32 0.1 read as the shortest decimal
 RANGE_MAX = 30.0
 
 EPOCH_S = 1_700_000_000  # stamps near today's Unix time, where float seconds are coarse
@@ -227,8 +233,13 @@ def bag(kind, tmp_path) -> Path:
 WRITTEN_ORDER = [0, 1, 3, 2, 4, 5]
 
 
+def decimal(values_float32) -> np.ndarray:
+    """Float32 values as the shortest decimals that read back as each (float64)."""
+    return np.array([float(str(v)) for v in np.asarray(values_float32, np.float32).ravel()])
+
+
 def expected_ranges(k: int) -> np.ndarray:
-    ranges = scan_ranges(k).astype(float)
+    ranges = decimal(scan_ranges(k))
     ranges[INVALID_BEAMS] = 0.0
     return ranges
 
@@ -251,12 +262,12 @@ def test_scans_in_stamp_order_with_every_field(bag):
         valid = np.ones(N_BEAMS, dtype=bool)
         valid[INVALID_BEAMS] = False
         np.testing.assert_array_equal(scan.valid, valid)
-        np.testing.assert_array_equal(scan.intensities, scan_intensities(k).astype(float))
+        np.testing.assert_array_equal(scan.intensities, decimal(scan_intensities(k)))
 
     first = log.scans[0]
     assert first.ranges_m[3] == RANGE_MIN
-    assert first.ranges_m[5] == float(np.float32(29.99))
-    assert first.ranges_m[7] == float(np.float32(1.07))
+    assert first.ranges_m[5] == 29.99
+    assert first.ranges_m[7] == 1.07
     assert log.scans[3].intensities.shape == (0,)  # the third written, the fourth by stamp
 
 
@@ -276,7 +287,7 @@ def test_sensor_settings_and_warnings(bag):
     kind = "ROS 1 bag" if bag.suffix == ".bag" else "ROS 2 bag"
     assert log.sensor == {
         "range_max_m": "30.0",
-        "range_min_m": "0.10000000149011612",
+        "range_min_m": "0.1",
         "readings": "181",
         "fov_deg": "180",
         "frame_id": "laser",
@@ -674,11 +685,11 @@ def test_range_limits_that_cannot_apply_keep_the_readings_with_a_warning(tmp_pat
     log = read_rosbag(write_bag("ros1", tmp_path, TOPICS, messages), odom_topic=None)
     (scan,) = log.scans
     kept = np.isfinite(ranges) & (ranges > 0)
-    np.testing.assert_allclose(scan.ranges_m[kept], ranges[kept].astype(np.float32), rtol=0)
+    np.testing.assert_array_equal(scan.ranges_m[kept], decimal(ranges[kept]))
     assert scan.range_max_m == math.inf
     assert log.warnings == [
         f"test.bag: 1 scan(s) give range limits that cannot be applied (first: range_min "
-        f"{float(np.float32(RANGE_MIN))!r}, range_max {float(np.float32(range_max))!r} m); "
+        f"{RANGE_MIN!r}, range_max {float(decimal(range_max)[0])!r} m); "
         "their readings count up to 1000 m"
     ]
 
@@ -695,3 +706,40 @@ def test_odometry_that_is_not_a_pose_is_skipped_and_counted(tmp_path):
         "test.bag: skipped 1 message(s) on /odom that could not be decoded (first: the pose is "
         "not finite)"
     ]
+
+
+@settings(max_examples=200, deadline=None)
+@given(bits=st.lists(st.integers(0, 2**32 - 1), min_size=1, max_size=50))
+def test_shortest_decimals_read_back_as_the_same_float32(bits):
+    """Every float32 bit pattern, NaN and infinities included, survives: the decimal widened
+    back to float32 is the value given (NaN stays NaN)."""
+    values = np.array(bits, dtype=np.uint32).view(np.float32)
+    back = shortest_decimals(values).astype(np.float32)
+    assert np.array_equal(back, values, equal_nan=True)
+    finite = np.isfinite(values)
+    assert np.array_equal(np.signbit(back[finite]), np.signbit(values[finite]))
+
+
+INTEL_BAG = Path(__file__).resolve().parents[2] / "shared" / "datasets" / "intel" / "intel.orig.bag"
+
+
+@pytest.mark.skipif(not INTEL_BAG.is_file(), reason="the shared intel bag is not beside the repo")
+def test_the_imported_intel_bag_is_compact_and_indexed(tmp_path):
+    """The public Intel Research Lab bag (3.9 MB, bz2) becomes a log of at most 1.5 times its
+    size, zstd chunks listed in the summary, with every scan of the bag."""
+    out = tmp_path / "intel.mcap"
+    done = subprocess.run(
+        [str(SEGLOC), "import", "rosbag", str(INTEL_BAG), "--out", str(out)],
+        capture_output=True,
+        text=True,
+    )
+    assert done.returncode == 0, done.stderr
+    assert out.stat().st_size <= 1.5 * INTEL_BAG.stat().st_size
+    with open(out, "rb") as stream:
+        summary = make_reader(stream).get_summary()
+    assert summary.chunk_indexes and {c.compression for c in summary.chunk_indexes} == {"zstd"}
+    assert summary.statistics.channel_message_counts[_channel(summary, "/scan")] == 13631
+
+
+def _channel(summary, topic: str) -> int:
+    return next(k for k, channel in summary.channels.items() if channel.topic == topic)

@@ -219,10 +219,11 @@ def record(
     """Record laser scans from a serial scanner into an MCAP log.
 
     Runs until --scans or --duration is reached, or until Ctrl-C / SIGTERM,
-    and then finishes the file. Every scan is flushed to disk as it arrives,
-    so even a killed recorder keeps all scans but the one in flight, and a
-    scanner that stalls or is unplugged ends the run with the scans received
-    kept. Frames with a bad checksum or stray bytes are skipped and counted.
+    and then finishes the file. Scans reach the disk in compressed chunks of
+    at most half a second of recording, so even a killed recorder keeps all
+    scans but those of its last half second, and a scanner that stalls or is
+    unplugged ends the run with the scans received kept. Frames with a bad
+    checksum or stray bytes are skipped and counted.
 
     \b
     Example:

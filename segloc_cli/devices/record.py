@@ -1,9 +1,10 @@
 """Recording: scans from a scanner driver into an MCAP log, safe against every way it can end.
 
 The log is created only once the device has answered and taken its settings,
-so a wrong port or protocol leaves no empty file behind. Each scan is flushed
-to disk as it arrives (``LogWriter``): a recorder killed outright loses at most
-the scan it was writing. SIGINT and SIGTERM end the recording between scans and
+so a wrong port or protocol leaves no empty file behind. Scans reach the disk in
+compressed chunks of at most ``DURABLE_EVERY_S`` of recording (``LogWriter``): a
+recorder killed outright loses at most the scans of that last stretch. SIGINT and
+SIGTERM end the recording between scans and
 the file is finished (summary and footer) as on a normal stop. A device that
 goes silent for ``stall_s`` or disappears ends the recording with a
 ``DeviceError``, after the file has been finished with every scan received.
@@ -23,6 +24,10 @@ from segloc_cli.devices.base import DeviceError, DeviceInfo, Driver, ScanFrame
 from segloc_cli.io.mcap_log import LogWriter
 from segloc_cli.scan import Scan
 from segloc_cli.stopping import stop_requests
+
+DURABLE_EVERY_S = 0.5
+"""Longest a received scan waits in memory before its chunk is written and flushed: a
+killed recorder loses at most this much of the recording, plus the scan in flight."""
 
 
 @dataclass
@@ -75,7 +80,7 @@ def record(
                 "device.baud": str(driver.baud),
             }
             on_start(info, sensor)
-            with LogWriter(out_path, sensor) as writer:
+            with LogWriter(out_path, sensor, durable_every_s=DURABLE_EVERY_S) as writer:
                 return _stream(driver, writer, settings, stop, on_scan)
         finally:
             driver.stop()
@@ -121,6 +126,7 @@ def _stream(
                 f"{driver.port}: no scan for {settings.stall_s:g} s ({why}); "
                 f"the log keeps the {progress.scans} scans received"
             )
+        writer.make_durable_if_due()
         try:
             frame = driver.read_scan()
         except DeviceError as exc:

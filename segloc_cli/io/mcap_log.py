@@ -15,11 +15,14 @@ Each ``/scan`` record's log time is the scan's time; its publish time is the
 scan's original time when an importer had to make colliding times distinct
 (else the same), so the source's own times survive the conversion.
 
-Messages are written unchunked and the file is flushed after each one, so a
-recorder killed mid-run loses at most the message being written; ``read_log``
-reads such unfinished files record by record and keeps every complete message.
-The file is written in place, not renamed into place: a recording is read
-while it grows. An OS error while writing is an ``OutputError`` naming the file.
+Messages go into zstd-compressed chunks of up to ``CHUNK_BYTES`` (uncompressed), each
+followed by its message indexes and listed in the summary's chunk indexes, so a reader
+can seek to any time. A writer given ``durable_every_s`` (the recorder) also ends its chunk
+and flushes the file once the chunk's first message is that old, so a recorder killed
+mid-run loses at most the messages of that last stretch; ``read_log`` reads such
+unfinished files record by record and keeps every complete chunk. The file is written in
+place, not renamed into place: a recording is read while it grows. An OS error while
+writing is an ``OutputError`` naming the file.
 
 Reading a log nobody tuned segloc for. ``read_log`` refuses the whole file
 (``InputError``, one line naming it) only for what spoils every message: not
@@ -53,6 +56,7 @@ import json
 import math
 import os
 import struct
+import time
 from collections.abc import Iterable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -228,17 +232,26 @@ def _stamp(time_ns: int) -> dict:
 # --- writing -------------------------------------------------------------------
 
 
+CHUNK_BYTES = 4 * 1024 * 1024
+"""Largest chunk (uncompressed bytes) before the writer starts another: about 4,000 scans of
+180 readings, compressed to a few hundred kB."""
+
+
 class LogWriter:
     """Writes a segloc MCAP log; use as a context manager.
 
     ``sensor`` holds the recording's settings as str → str and must include
     ``range_max_m``, a positive number or ``"inf"`` when the sensor has none
-    (``ValueError`` otherwise, before the file is created). The file is
-    flushed after every message; an OS error while writing raises
-    ``OutputError`` naming the file.
+    (``ValueError`` otherwise, before the file is created). With
+    ``durable_every_s`` (seconds) no message waits longer than that in memory
+    once ``make_durable_if_due`` or another message comes: the chunk is ended and
+    the file flushed. An OS error while writing raises ``OutputError`` naming
+    the file.
     """
 
-    def __init__(self, path: str | Path, sensor: dict[str, str]):
+    def __init__(
+        self, path: str | Path, sensor: dict[str, str], durable_every_s: float | None = None
+    ):
         sensor = {str(k): str(v) for k, v in sensor.items()}
         if "range_max_m" not in sensor:
             raise ValueError("sensor settings must include 'range_max_m' (use 'inf' if none)")
@@ -250,6 +263,10 @@ class LogWriter:
             )
         self.range_max_m = range_max_m
         self.path = Path(path)
+        self._durable_every_s = durable_every_s
+        # Monotonic time of the oldest message not yet on disk; the first is due at once, so
+        # that the channels (written with it, in its chunk) are on disk from the first scan.
+        self._pending_since: float | None = -math.inf
         self._closed = True
         try:
             self._file = open(self.path, "wb")
@@ -257,9 +274,9 @@ class LogWriter:
             raise writing_error(self.path, exc) from None
         self._closed = False
         try:
-            # Unchunked: each message goes to the file as its own record, so flushing
-            # after it makes it durable without one compressed chunk per message.
-            self._writer = Writer(self._file, use_chunking=False, compression=CompressionType.NONE)
+            self._writer = Writer(
+                self._file, chunk_size=CHUNK_BYTES, compression=CompressionType.ZSTD
+            )
             self._writer.start(profile="", library="segloc")
             self._writer.add_metadata(SENSOR_METADATA_NAME, sensor)
             scan_schema = self._writer.register_schema(
@@ -301,10 +318,25 @@ class LogWriter:
                 publish_time=publish_ns,
                 sequence=self._sequence[channel_id],
             )
-            self._file.flush()
         except OSError as exc:
             raise writing_error(self.path, exc) from None
         self._sequence[channel_id] += 1
+        if self._pending_since is None:
+            self._pending_since = time.monotonic()
+        self.make_durable_if_due()
+
+    def make_durable_if_due(self) -> None:
+        """With ``durable_every_s``: end the chunk and flush the file if its oldest message
+        has waited that long (a recorder calls this while it waits for the next scan)."""
+        if self._durable_every_s is None or self._pending_since is None or self._closed:
+            return
+        if time.monotonic() - self._pending_since < self._durable_every_s:
+            return
+        try:
+            self._writer.flush()  # ends the chunk in progress
+        except OSError as exc:
+            raise writing_error(self.path, exc) from None
+        self._pending_since = None
 
     def add_scan(self, scan: Scan, original_time_s: float | None = None) -> None:
         """Append a scan. Its angles must be evenly spaced and its time finite and >= 0

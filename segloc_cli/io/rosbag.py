@@ -7,10 +7,12 @@ What comes out, in segloc's units and frames:
 - Scans: the ``sensor_msgs/LaserScan`` messages on the scan topic, sorted by
   ``header.stamp``, in the scanner's own frame (``header.frame_id``; x forward,
   angles counter-clockwise). Beam ``i`` lies at ``angle_min + i·angle_increment``
-  radians; ranges are metres. A reading is invalid when it is non-finite, below
-  ``range_min`` or at/above ``range_max`` (the bags write ``range_max`` for "no
-  return") and is returned as 0.0; ``Scan.range_max_m`` is the message's
-  ``range_max``.
+  radians; ranges and range limits are metres, each the shortest decimal that reads
+  back as the message's float32 (1.07, not 1.0700000524520874: the same reading, written
+  in a log as briefly as the scanner gave it; a comparison of two gives what it gave).
+  A reading is invalid when it is non-finite, below ``range_min`` or at/above
+  ``range_max`` (the bags write ``range_max`` for "no return") and is returned as
+  0.0; ``Scan.range_max_m`` is the message's ``range_max``.
 - Odometry: ``nav_msgs/Odometry`` ``pose.pose`` as (x m, y m, yaw rad) in the
   odometry frame (the messages' ``header.frame_id``), interpolated to each scan
   time that lies within the odometry's time span: linearly in x and y, along the
@@ -85,11 +87,17 @@ def _raw_scan(m: Any) -> _RawScan:
         angle_min=float(m.angle_min),
         angle_max=float(m.angle_max),
         angle_increment=float(m.angle_increment),
-        range_min=float(m.range_min),
-        range_max=float(m.range_max),
-        ranges=np.asarray(m.ranges, dtype=float),
-        intensities=np.asarray(m.intensities, dtype=float),
+        range_min=float(shortest_decimals(m.range_min)[0]),
+        range_max=float(shortest_decimals(m.range_max)[0]),
+        ranges=shortest_decimals(m.ranges),
+        intensities=shortest_decimals(m.intensities),
     )
+
+
+def shortest_decimals(values_float32: Any) -> np.ndarray:
+    """Float32 values as float64 (N,), each the shortest decimal that reads back as the same
+    float32 (non-finite values stay as they are)."""
+    return np.asarray(values_float32, dtype=np.float32).reshape(-1).astype(str).astype(float)
 
 
 def _raw_odom(message: Any) -> _RawOdom:
