@@ -27,6 +27,7 @@ from mcap.writer import Writer
 from segloc_cli.cli import main
 from segloc_cli.geometry import Pose2
 from segloc_cli.io.mcap_log import LogWriter, read_log
+from segloc_cli.io.tables import read_pose_table
 from segloc_cli.scan import Scan
 
 HALL_POSES = HALL / "poses.csv"
@@ -837,6 +838,23 @@ def test_import_carmen_writes_scans_odometry_and_reference(tmp_path, capsys):
     assert [float(rows[1][k]) for k in ("time_s", "x_m", "y_m")] == [10.5, 1.5, 2.5]
     assert [float(r["original_time_s"]) for r in rows] == [10.0, 10.5]  # no time collided
     assert float(rows[1]["theta_deg"]) == pytest.approx(np.rad2deg(-0.5), abs=1e-9)
+
+
+def test_import_carmen_writes_the_reference_as_tum_for_a_tum_name(tmp_path, capsys):
+    """--survey-out REF.tum gives the TUM trajectory evo reads, the same poses as the CSV."""
+    lines = [
+        _flaser([1.0, 2.0, 3.0], (1.0, 2.0, 0.5), (0.1, 0.2, 0.3), 10.0),
+        _flaser([4.0, 5.0, 6.0], (1.5, 2.5, -0.5), (0.6, 0.7, -0.3), 10.5),
+    ]
+    log_in = write_text(tmp_path / "tiny.log", "\n".join(lines) + "\n")
+    for name in ("ref.csv", "ref.tum"):
+        args = ["import", "carmen", log_in, "--out", tmp_path / f"{name}.mcap", "--survey-out"]
+        assert run_cli(capsys, *args, tmp_path / name).code == 0
+    tum, csv_table = read_pose_table(tmp_path / "ref.tum"), read_pose_table(tmp_path / "ref.csv")
+    first = (tmp_path / "ref.tum").read_text().splitlines()[1].split()
+    assert first[:4] == ["10.0", "1.0", "2.0", "0.0"]  # t x y z
+    np.testing.assert_array_equal(tum.time_s, csv_table.time_s)
+    np.testing.assert_allclose(tum.poses, csv_table.poses, rtol=0, atol=1e-12)
 
 
 def test_import_bad_inputs_are_one_line(tmp_path, capsys):

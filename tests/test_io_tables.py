@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 from test_cli import run_cli
 
 from segloc_cli.errors import InputError
-from segloc_cli.geometry import heading_to_quaternion, quaternion_to_heading
+from segloc_cli.geometry import heading_to_quaternion, quaternion_to_heading, wrap_angle
 from segloc_cli.io.files import OutputError
 from segloc_cli.io.tables import (
     ESTIMATE_COLUMNS,
@@ -26,6 +26,7 @@ from segloc_cli.io.tables import (
     read_pose_table,
     write_estimates,
     write_pose_table,
+    write_pose_table_tum,
     write_tum,
 )
 
@@ -80,6 +81,33 @@ def test_pose_table_round_trip(tmp_path):
     np.testing.assert_array_equal(back.poses[:, :2], table.poses[:, :2])
     np.testing.assert_allclose(back.poses[:, 2], table.poses[:, 2], rtol=0, atol=1e-12)
     assert path.read_text().splitlines()[0] == "pose_id,time_s,x_m,y_m,theta_deg"
+
+
+def test_pose_table_as_tum_round_trip(tmp_path):
+    """A reference written as TUM reads back with the same times and positions to the bit
+    and the same headings to rounding (through a quaternion), ids 1..N; a time missing is
+    refused before anything is written."""
+    rng = np.random.default_rng(4)
+    headings = np.concatenate([[np.pi - 1e-7, -np.pi, 1e-12, 0.0], rng.uniform(-np.pi, np.pi, 6)])
+    table = PoseTable(
+        pose_id=np.arange(7, 17),
+        time_s=np.concatenate([[0.1, 1234567.123456789, 2.0 / 3.0], rng.uniform(0, 1e4, 7)]),
+        poses=np.column_stack([rng.normal(size=10) * 100, rng.normal(size=10), headings]),
+    )
+    path = tmp_path / "reference.tum"
+    write_pose_table_tum(path, table)
+    back = read_pose_table(path)
+    np.testing.assert_array_equal(back.pose_id, np.arange(1, 11))
+    np.testing.assert_array_equal(back.time_s, table.time_s)
+    np.testing.assert_array_equal(back.poses[:, :2], table.poses[:, :2])
+    turned = np.abs(wrap_angle(back.poses[:, 2] - table.poses[:, 2]))
+    np.testing.assert_allclose(turned, 0.0, rtol=0, atol=1e-12)
+    fields = path.read_text().splitlines()[1].split()
+    assert len(fields) == 8 and float(fields[3]) == 0.0  # t x y z qx qy qz qw, on the floor
+    missing = PoseTable(table.pose_id[:2], np.array([0.0, np.nan]), table.poses[:2])
+    with pytest.raises(ValueError, match="finite time"):
+        write_pose_table_tum(tmp_path / "missing.tum", missing)
+    assert not (tmp_path / "missing.tum").exists()
 
 
 def test_pose_table_without_times_round_trip(tmp_path):

@@ -173,7 +173,8 @@ CARMEN_OPTIONS = (
     path_option(
         "--survey-out",
         help=(
-            "Also write the laser records' poses as a reference trajectory (survey CSV); in a "
+            "Also write the laser records' poses as a reference trajectory: a survey CSV, or "
+            "a TUM trajectory (which evo reads) for a name ending in .tum; in a "
             "SLAM-corrected log these are the corrected poses."
         ),
     ),
@@ -214,7 +215,7 @@ def import_carmen(log_path, out_path, survey_out, laser, range_max_m, force):
 
     from segloc_cli.io.carmen import read_carmen
     from segloc_cli.io.files import check_outputs
-    from segloc_cli.io.tables import PoseTable, write_pose_table
+    from segloc_cli.io.tables import PoseTable, write_pose_table, write_pose_table_tum
 
     outputs = {"--out": out_path, "--survey-out": survey_out}
     check_outputs({**outputs, "--out (run file)": run_file_path(out_path)}, [log_path], force)
@@ -222,11 +223,11 @@ def import_carmen(log_path, out_path, survey_out, laser, range_max_m, force):
     _write_imported(log, out_path)
     if survey_out is not None:
         n = len(log.scans)
-        write_pose_table(
-            survey_out,
-            PoseTable(np.arange(1, n + 1), log.odom_times_s, log.laser_poses),
-            {"original_time_s": log.original_times_s},
-        )
+        reference = PoseTable(np.arange(1, n + 1), log.odom_times_s, log.laser_poses)
+        if survey_out.suffix.lower() == ".tum":
+            write_pose_table_tum(survey_out, reference)  # TUM has no column for original times
+        else:
+            write_pose_table(survey_out, reference, {"original_time_s": log.original_times_s})
         info(f"{survey_out}: {n} reference poses")
 
 

@@ -715,6 +715,20 @@ def write_tum(path: str | Path, frame: pd.DataFrame) -> None:
         stream.write("\n".join(lines) + "\n")
 
 
+def write_pose_table_tum(path: str | Path, table: PoseTable) -> None:
+    """Write ``table`` as a TUM trajectory ``t x y 0 qx qy qz qw`` (what evo reads), atomically;
+    ``read_pose_table`` reads it back (pose ids 1..N). Every time must be finite
+    (``ValueError``)."""
+    time_s = np.asarray(table.time_s, dtype=float).reshape(-1)
+    if not np.all(np.isfinite(time_s)):
+        raise ValueError("a TUM trajectory needs a finite time in every row")
+    poses = np.asarray(table.poses, dtype=float).reshape(-1, 3)
+    numbers = np.column_stack([time_s, poses[:, :2], np.rad2deg(poses[:, 2])])
+    with atomic_write(path) as stream:
+        stream.write("\n".join(["# segloc reference: t x y z qx qy qz qw", *_tum_lines(numbers)]))
+        stream.write("\n")
+
+
 class TumWriter(_RowStream):
     """A TUM trajectory written row by row, as ``EstimatesWriter`` writes the CSV.
 
