@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import SEGLOC
+from conftest import HALL, SEGLOC
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from mcap.reader import make_reader
@@ -18,6 +18,7 @@ from rosbags.rosbag2 import StoragePlugin
 from rosbags.rosbag2 import Writer as Ros2Writer
 from rosbags.typesys import Stores, get_typestore
 from rosbags.typesys.store import Typestore
+from test_cli import run_cli
 
 from segloc_cli.errors import InputError
 from segloc_cli.geometry import Pose2, heading_to_quaternion
@@ -743,3 +744,18 @@ def test_the_imported_intel_bag_is_compact_and_indexed(tmp_path):
 
 def _channel(summary, topic: str) -> int:
     return next(k for k, channel in summary.channels.items() if channel.topic == topic)
+
+
+@pytest.mark.parametrize("kind", FORMATS)
+def test_a_bag_where_a_log_is_expected_names_the_import(tmp_path, capsys, kind):
+    """A ROS bag of any kind given to info or localize is one line that names the import
+    to run (exit 2), not a reading error."""
+    store = ROS1_STORE if kind == "ros1" else ROS2_STORE
+    path = write_bag(kind, tmp_path, TOPICS, [scan_record(store, 1, 0, scan_ranges(0))])
+    (tmp_path / "map.json").write_bytes((HALL / "map.json").read_bytes())
+    for args in (["info", path], ["localize", path, "--map", tmp_path / "map.json",
+                                  "--out", tmp_path / "est.csv"]):  # fmt: skip
+        result = run_cli(capsys, *args)
+        assert result.code == 2
+        (line,) = result.err.splitlines()
+        assert line.endswith(f"convert it with `segloc import rosbag {path}`"), line

@@ -776,11 +776,17 @@ def read_log(path: str | Path) -> Log:
     first incomplete or corrupt record reading stops with a warning and every
     complete message before it is kept. Messages that cannot be used are
     skipped and counted in warnings (see the module docstring for the kinds).
-    Raises ``InputError`` naming the file when it is missing, not MCAP, has no
+    Raises ``InputError`` naming the file when it is missing, not MCAP (naming
+    ``segloc import rosbag`` for a ROS 1 bag or a ROS 2 bag folder), has no
     ``/scan`` channel or a non-JSON one, has an unusable ``range_max_m``, or
     none of its ``/scan`` messages can be used.
     """
     path = Path(path)
+    if path.is_dir() and (path / "metadata.yaml").is_file():
+        raise InputError(
+            f"a ROS 2 bag folder, not a segloc log; convert it with `segloc import rosbag {path}`",
+            path=path,
+        )
     with reading(path, "an MCAP log file"):
         stream = open(path, "rb")
         size = os.fstat(stream.fileno()).st_size
@@ -804,9 +810,20 @@ def read_log(path: str | Path) -> Log:
     )
 
 
+ROS1_BAG_MAGIC = b"#ROSBAG V"
+"""How a ROS 1 bag begins (``#ROSBAG V2.0`` and a newline)."""
+
+
 def _check_magic(path: Path, stream) -> None:
-    """Refuse a file that does not start as MCAP; leaves ``stream`` at its start."""
-    if stream.read(len(MCAP_MAGIC)) != MCAP_MAGIC:
+    """Refuse a file that does not start as MCAP, naming the import for a ROS 1 bag; leaves
+    ``stream`` at its start."""
+    start = stream.read(max(len(MCAP_MAGIC), len(ROS1_BAG_MAGIC)))
+    if start.startswith(ROS1_BAG_MAGIC):
+        raise InputError(
+            f"a ROS 1 bag, not a segloc log; convert it with `segloc import rosbag {path}`",
+            path=path,
+        )
+    if not start.startswith(MCAP_MAGIC):
         raise InputError(
             "not an MCAP file (it does not start with the MCAP magic bytes); expected a "
             "segloc log such as `segloc simulate` writes",
