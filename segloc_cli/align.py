@@ -78,15 +78,6 @@ class RTable:
         sizes = np.bincount(bins, minlength=n_bins)
         return cls(bin_width_rad, lengths[order], sizes, order)
 
-    def closest_lengths(self, local_len_m: np.ndarray) -> np.ndarray:
-        """(n_bins, N): per bin, the global length closest to each local one (NaN: empty bin).
-
-        Ties go to the shorter global length.
-        """
-        local = np.asarray(local_len_m, dtype=float).reshape(-1)
-        every_bin = np.repeat(np.arange(self.n_bins)[:, None], local.size, axis=1)
-        return self.closest_at(every_bin, local)
-
     def closest_at(
         self, bins: np.ndarray, local_len_m: np.ndarray, allowed: np.ndarray | None = None
     ) -> np.ndarray:

@@ -179,7 +179,9 @@ def test_closest_length_is_chosen_among_several_in_a_bin():
     # Bin 0 holds 0.5, 1.0, 2.0, 4.0; bin 90 is empty.
     g = np.array([seg(0, 4.0), seg(0, 0.5, 0, 1), seg(0, 2.0, 0, 2), seg(0, 1.0, 0, 3)])
     table = RTable.build(g, 1.0)
-    closest = table.closest_lengths(np.array([0.1, 0.7, 0.8, 1.4, 1.6, 2.9, 3.1, 9.0]))
+    local = np.array([0.1, 0.7, 0.8, 1.4, 1.6, 2.9, 3.1, 9.0])
+    closest = table.closest_at(np.repeat([[0], [90]], local.size, axis=1), local)
+    closest = {0: closest[0], 90: closest[1]}
     # 0.1 → 0.5 (below all); 0.7 → 0.5 (0.2 < 0.3); 0.8 → 1.0; 1.4 → 1.0; 1.6 → 2.0;
     # 2.9 → 2.0 (0.9 < 1.1); 3.1 → 4.0; 9.0 → 4.0 (above all).
     np.testing.assert_allclose(closest[0], [0.5, 0.5, 1.0, 1.0, 2.0, 2.0, 4.0, 4.0])

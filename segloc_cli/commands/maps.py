@@ -128,8 +128,11 @@ def map_import(plan_path, out_path, layers, units, force):
     check_outputs(outputs, [plan_path], force)
     wanted = [name.strip() for name in (layers or "").split(",") if name.strip()]
     plan = read_dxf(plan_path, wanted, units)
-    source = {"plan": str(plan_path), "layers": list(plan.layers)}
-    source["metres_per_unit"] = plan.metres_per_unit
+    source = {
+        "plan": str(plan_path),
+        "layers": list(plan.layers),
+        "metres_per_unit": plan.metres_per_unit,
+    }
     write_map(out_path, plan.segments, source=source)
     Invocation.current().write_run_file(out_path)
     if plan.chords:
