@@ -11,11 +11,12 @@ rule serves 180 readings at 1° and 2048 at 0.18°, near walls and far ones.
 That, not per-point filtering, is what makes the local map robust to noise.
 
 The work runs in compiled kernels, one call per scan. Points are held as two
-coordinate arrays (x, y) in metres, robot frame, and a piece of them as an
-index range [start, stop). Sums are added in numpy's order (``_numpy_sum``), so
-the fits equal those of the plain numpy formulas to the last bit but for
-``arctan2``, which numpy may take from a vectorised library that rounds a few
-results the other way.
+coordinate arrays (x, y) in metres, scanner frame, and a piece of them as an
+index range [start, stop); ``extract_segments`` places the segments found in the
+robot frame by the scanner's mounting (``Scan.mount``). Sums are added in numpy's
+order (``_numpy_sum``), so the fits equal those of the plain numpy formulas to the
+last bit but for ``arctan2``, which numpy may take from a vectorised library that
+rounds a few results the other way.
 """
 
 from __future__ import annotations
@@ -41,7 +42,7 @@ _PAIRWISE_BLOCK = 128
 def breakpoints(ranges_m: np.ndarray, angles_rad: np.ndarray, params: ExtractParams) -> np.ndarray:
     """Boolean (K−1,): True where consecutive valid readings belong to different surfaces.
 
-    ``ranges_m`` (K,) in metres and ``angles_rad`` (K,) in radians, robot frame.
+    ``ranges_m`` (K,) in metres and ``angles_rad`` (K,) in radians, scanner frame.
     Adaptive breakpoint detector: the largest gap between neighbours on one
     surface, seen at incidence λ, is r·sin Δφ / sin(λ − Δφ), plus 3σ of noise.
     Neighbours λ or more apart (missing readings between) are always a breakpoint.
@@ -87,7 +88,11 @@ def direction_sigma_rad(
 
 
 def extract_segments(scan: Scan, params: ExtractParams | None = None) -> np.ndarray:
-    """Local map (N, 4) in metres, robot frame, from ``scan``. Empty (0, 4) if nothing qualifies."""
+    """Local map (N, 4) in metres, robot frame, from ``scan``. Empty (0, 4) if nothing qualifies.
+
+    The segments are found in the scanner's frame, where the readings' polar geometry
+    holds, and placed in the robot frame by the scan's mounting (``Scan.to_robot``).
+    """
     params = params or ExtractParams()
     all_angles = np.asarray(scan.angles_rad, dtype=float)
     valid = scan.valid & np.isfinite(all_angles)
@@ -96,7 +101,7 @@ def extract_segments(scan: Scan, params: ExtractParams | None = None) -> np.ndar
     if ranges.size < params.min_points:
         return np.zeros((0, 4))
     lam_rad, slack_m = _breakpoint_settings(params)
-    return _extract(
+    segments_scanner = _extract(
         ranges,
         angles,
         lam_rad,
@@ -107,6 +112,7 @@ def extract_segments(scan: Scan, params: ExtractParams | None = None) -> np.ndar
         float(np.deg2rad(params.max_direction_sigma_deg)),
         float(params.range_sigma_m),
     )
+    return scan.to_robot(segments_scanner)
 
 
 def _breakpoint_settings(params: ExtractParams) -> tuple[float, float]:
@@ -140,7 +146,7 @@ def _extract(
     max_sigma_rad: float,
     range_sigma_m: float,
 ) -> np.ndarray:
-    """Segments (N, 4) in metres, robot frame, from the valid readings of a scan (K,).
+    """Segments (N, 4) in metres, scanner frame, from the valid readings of a scan (K,).
 
     ``tol_m`` is the split and merge tolerance; the other settings are those of
     ``ExtractParams`` in the units their names give.
@@ -161,13 +167,13 @@ def _extract(
         start, stop = run[0], run[1]
         if stop - start < min_points:
             continue
-        pieces = _pieces_of_run(xs, ys, start, stop, tol_m, scratch)
+        pieces = pieces_of_run(xs, ys, start, stop, tol_m, scratch)
         if wraps and stop - start == count:
             pieces = _rejoin_across_seam(xs, ys, pieces, count, tol_m, scratch)
         for piece in pieces:
             if piece[1] - piece[0] < min_points:
                 continue
-            if _segment_of_piece(
+            if segment_of_piece(
                 xs,
                 ys,
                 piece[0],
@@ -271,17 +277,17 @@ def _runs(breaks: np.ndarray, count: int, wraps: bool) -> np.ndarray:
 
 
 @njit(cache=True, error_model="numpy")
-def _pieces_of_run(
+def pieces_of_run(
     xs: np.ndarray, ys: np.ndarray, start: int, stop: int, tol_m: float, scratch: np.ndarray
 ) -> np.ndarray:
     """Index ranges (P, 2) of the pieces of points [start, stop), split and merged, in order."""
     pieces = np.empty((stop - start, 2), dtype=np.int64)
-    found = _split(xs, ys, start, stop, tol_m, pieces)
+    found = split_points(xs, ys, start, stop, tol_m, pieces)
     return pieces[: _merge(xs, ys, pieces, found, tol_m, scratch)]
 
 
 @njit(cache=True, error_model="numpy")
-def _split(
+def split_points(
     xs: np.ndarray, ys: np.ndarray, start: int, stop: int, tol_m: float, pieces: np.ndarray
 ) -> int:
     """Recursive end-point fit on points [start, stop): writes the pieces' index ranges into
@@ -414,7 +420,7 @@ def _clipped(start: int, stop: int, size: int) -> tuple[int, int]:
 
 
 @njit(cache=True, error_model="numpy")
-def _segment_of_piece(
+def segment_of_piece(
     xs: np.ndarray,
     ys: np.ndarray,
     start: int,

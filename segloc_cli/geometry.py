@@ -2,8 +2,9 @@
 
 Conventions, used everywhere:
 
-- A pose is ``Pose2(x, y, theta)``: metres and radians, the robot (scanner)
-  frame expressed in the world frame. Arrays of poses are (N, 3).
+- A pose is ``Pose2(x, y, theta)``: metres and radians, the robot frame
+  expressed in the world frame (a scanner's mounting, ``Scan.mount``, is its
+  frame expressed in the robot frame). Arrays of poses are (N, 3).
 - A segment map is an (M, 4) float64 array of endpoints ``x1 y1 x2 y2`` in
   metres. Which frame it is in is said by the name holding it
   (``segments_robot``, ``segments_world``).

@@ -20,6 +20,7 @@ import numpy as np
 
 from segloc_cli.config import FuseParams
 from segloc_cli.geometry import Pose2, segment_lengths, transform_segments
+from segloc_cli.progress import SILENT, Progress
 
 TOUCH_M = 1e-9
 """Overlap (metres) below which two pieces only touch: rounding, not a shared stretch."""
@@ -285,13 +286,15 @@ def _fuse_groups(segments: np.ndarray, labels: np.ndarray, params: FuseParams) -
     return np.concatenate(out)[np.argsort(np.concatenate(out_group), kind="stable")]
 
 
-def fuse_segments(segments_world: np.ndarray, params: FuseParams | None = None) -> np.ndarray:
+def fuse_segments(
+    segments_world: np.ndarray, params: FuseParams | None = None, progress: Progress = SILENT
+) -> np.ndarray:
     """Fuse duplicate observations of the same walls; returns (M', 4), M' <= M, same frame.
 
     Repeats until ``mergeable_pairs`` finds nothing, so the result has no
     overlapping duplicates either. Every round each group of matching segments
     loses at least one member (the longest one absorbs its partners), so the
-    loop ends.
+    loop ends. Each round is a step of ``progress``.
     """
     params = params or FuseParams()
     segments = np.asarray(segments_world, dtype=float).reshape(-1, 4)
@@ -304,16 +307,21 @@ def fuse_segments(segments_world: np.ndarray, params: FuseParams | None = None) 
         if fused.shape[0] == segments.shape[0]:
             break  # cannot happen (see above); guards against an endless loop
         segments = fused
+        progress.advance()
     return segments
 
 
 def build_global_map(
-    local_maps: list[np.ndarray], poses: list[Pose2], params: FuseParams | None = None
+    local_maps: list[np.ndarray],
+    poses: list[Pose2],
+    params: FuseParams | None = None,
+    progress: Progress = SILENT,
 ) -> np.ndarray:
-    """Global map (M, 4), world frame, from local maps (robot frame) observed at ``poses``."""
+    """Global map (M, 4), world frame, from local maps (robot frame) observed at ``poses``;
+    ``progress`` counts the rounds of fusion."""
     if len(local_maps) != len(poses):
         raise ValueError(f"{len(local_maps)} local maps but {len(poses)} poses")
     if not local_maps:
         return np.zeros((0, 4))
     world = [transform_segments(lm, pose) for lm, pose in zip(local_maps, poses, strict=True)]
-    return fuse_segments(np.concatenate(world), params)
+    return fuse_segments(np.concatenate(world), params, progress)

@@ -19,10 +19,13 @@ length. A scan cannot produce segments at such grazing incidence (the
 breakpoint detector splits them), so such pairs are no evidence.
 
 Everything is computed in the candidate's robot frame, where the scanner is at
-the origin. L is parametrised as A + t·(B − A), t ∈ [0, 1]; the two sector
-rays and the two band edges are each a linear inequality in t, so Cls is an
-interval of t. A cheap, exact pre-filter first drops the pairs that cannot
-overlap for any candidate of an iteration, which is what keeps large maps fast.
+the origin. (A scanner mounted off the robot's origin gives its local map in the
+robot frame, so its sectors are taken from the robot's origin instead: 23 cm off,
+that moves the stage-2 pose by tenths of a millimetre in simulation.) L is
+parametrised as A + t·(B − A), t ∈ [0, 1]; the two sector rays and the two band
+edges are each a linear inequality in t, so Cls is an interval of t. A cheap,
+exact pre-filter first drops the pairs that cannot overlap for any candidate of
+an iteration, which is what keeps large maps fast.
 
 The search does each piece of work once where it can: what depends on a local
 segment alone once per search, G's frame at a candidate once for all the local

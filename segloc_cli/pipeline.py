@@ -26,6 +26,7 @@ from segloc_cli.geometry import Pose2
 from segloc_cli.io.log import Log
 from segloc_cli.io.tables import EstimateRow, PoseTable, pair_by_time
 from segloc_cli.io.times import time_range
+from segloc_cli.progress import ProgressFactory, silent
 
 MODES = ("guided", "global", "track")
 """How a log is localized: each scan from its own guess, each with none, or along a track."""
@@ -233,17 +234,33 @@ def check_global_extent(
 
 @dataclass(frozen=True)
 class BuiltMap:
-    """A segment map (M, 4), world frame, and what it was made of."""
+    """A segment map (M, 4), world frame, and what it was made of: the log's scans with a
+    survey row (their indices), each one's surveyed pose and its local map (robot frame)."""
 
     segments: np.ndarray
-    scans_used: int
-    local_segments: int
+    scan_index: np.ndarray
+    poses: list[Pose2]
+    local_maps: list[np.ndarray]
+
+    @property
+    def scans_used(self) -> int:
+        return int(self.scan_index.size)
+
+    @property
+    def local_segments(self) -> int:
+        return sum(local.shape[0] for local in self.local_maps)
 
 
 def build_map(
-    log: Log, log_path: Path, survey: PoseTable, survey_path: Path, config: Config
+    log: Log,
+    log_path: Path,
+    survey: PoseTable,
+    survey_path: Path,
+    config: Config,
+    progress: ProgressFactory = silent,
 ) -> BuiltMap:
-    """Fuse the local maps of the scans that have a survey row, each placed at its pose."""
+    """Fuse the local maps of the scans that have a survey row, each placed at its pose;
+    the extraction (scans) and the fusion (rounds) report to ``progress``."""
     from segloc_cli.extract import extract_segments
     from segloc_cli.mapping import build_global_map
 
@@ -264,12 +281,17 @@ def build_map(
             "or --tolerance-ms",
             path=survey_path,
         )
-    local_maps = [extract_segments(log.scans[i], config.extract) for i in used]
+    local_maps = []
+    with progress("extracting segments", used.size, "scan") as shown:
+        for i in used:
+            local_maps.append(extract_segments(log.scans[i], config.extract))
+            shown.advance()
     poses = [Pose2(*survey.poses[rows[i]]) for i in used]
-    segments = build_global_map(local_maps, poses, config.fuse)
+    with progress("fusing segments", None, "round") as shown:
+        segments = build_global_map(local_maps, poses, config.fuse, shown)
     if segments.shape[0] == 0:
         raise InputError("no segments could be extracted from the surveyed scans", path=log_path)
-    return BuiltMap(segments, int(used.size), sum(lm.shape[0] for lm in local_maps))
+    return BuiltMap(segments, used, poses, local_maps)
 
 
 def simulate_log(

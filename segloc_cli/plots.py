@@ -38,6 +38,7 @@ from segloc_cli.io.files import atomic_path
 from segloc_cli.io.tables import PoseTable, pair_by_time
 from segloc_cli.localize import ESTIMATED, LocalizeParams
 from segloc_cli.overlap import coarse_to_fine
+from segloc_cli.progress import ProgressFactory, silent
 from segloc_cli.scan import Scan
 
 FIGURE_DPI = 150
@@ -760,8 +761,10 @@ def write_evaluation_figures(
     items: Sequence[SurveyedScan] | None = None,
     pose_id: int | None = None,
     window_deg: float = 20.0,
+    progress: ProgressFactory = silent,
 ) -> list[Path]:
-    """Write the figures of one evaluated run into ``out_dir`` (which must exist).
+    """Write the figures of one evaluated run into ``out_dir`` (which must exist); each
+    figure is a step of ``progress``.
 
     ``table`` is a ``evaluate.table1`` result. With the global map
     ``segments_world`` (M, 4) and the run's ``items`` (``surveyed_scans``)
@@ -769,26 +772,27 @@ def write_evaluation_figures(
     coarse-to-fine tracks for ``pose_id`` (default: the first item);
     otherwise only ``errors``. Returns the paths written, PNG before PDF.
     """
-    written = []
+    figures = {}
     if segments_world is not None and items:
         segments_world = np.asarray(segments_world, dtype=float)
         chosen = [i for i in items if pose_id is None or i.pose_id == pose_id]
         if not chosen:
             raise ValueError(f"pose {pose_id} is not among the surveyed scans")
         item = chosen[0]
-        for name, fig in (
-            (OVERLAY, draw_overlay(segments_world, overlay_panels(items, table))),
-            (
-                HEADING_BY_VOTE,
-                draw_heading_by_vote(
-                    heading_errors_by_vote(segments_world, items, window_deg), window_deg
-                ),
+        figures = {
+            OVERLAY: lambda: draw_overlay(segments_world, overlay_panels(items, table)),
+            HEADING_BY_VOTE: lambda: draw_heading_by_vote(
+                heading_errors_by_vote(segments_world, items, window_deg), window_deg
             ),
-            (ACCUMULATOR, _accumulator_figure(segments_world, item, window_deg)),
-            (COARSE_TO_FINE, _coarse_to_fine_figure(segments_world, item)),
-        ):
-            written += save_figure(fig, out_dir, name)
-    written += save_figure(draw_errors(final_errors(table)), out_dir, ERRORS)
+            ACCUMULATOR: lambda: _accumulator_figure(segments_world, item, window_deg),
+            COARSE_TO_FINE: lambda: _coarse_to_fine_figure(segments_world, item),
+        }
+    figures[ERRORS] = lambda: draw_errors(final_errors(table))
+    written = []
+    with progress("drawing figures", len(figures), "figure") as shown:
+        for name, draw in figures.items():
+            written += save_figure(draw(), out_dir, name)
+            shown.advance()
     return written
 
 

@@ -1,4 +1,5 @@
-"""One laser scan in the scanner's own frame (x forward, angles counter-clockwise).
+"""One laser scan: readings in the scanner's own frame (x forward, angles counter-clockwise)
+and the scanner's mounting on the robot, which takes them into the robot frame.
 
 Also the bounds every reader of scans applies, whatever the file format: a
 reading beyond ``MAX_RANGE_M`` is no return, a scan with more than
@@ -11,6 +12,8 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+
+from segloc_cli.geometry import Pose2, transform_points
 
 MAX_RANGE_M = 1000.0
 """Largest range (m) taken as a return; no planar laser measures a kilometre, so a larger
@@ -26,16 +29,25 @@ MAX_ABS_ANGLE_RAD = 4.0 * math.pi
 """Largest beam angle magnitude (rad): a fan starting within one turn of 0 and spanning at
 most a turn stays inside ±4π, so larger angles are corrupt or not in radians."""
 
+AT_ROBOT_ORIGIN = Pose2(0.0, 0.0, 0.0)
+"""The mounting of a scanner whose frame is the robot's (the default)."""
+
 
 @dataclass(frozen=True)
 class Scan:
     """A range scan.
 
-    ``angles_rad`` (N,) are beam angles in radians in the robot frame, all
+    ``angles_rad`` (N,) are beam angles in radians in the scanner's frame, all
     finite (``ValueError`` otherwise); ``ranges_m`` (N,) the measured ranges in
     metres; a reading is invalid when it is <= 0, non-finite, or at/above
     ``range_max_m`` or ``MAX_RANGE_M`` (no return). ``time_s`` is the
     acquisition time in seconds (log time base).
+
+    ``mount``: the scanner's pose in the robot frame (metres, radians; the log's
+    laser offset, ``Log.laser_offset``). ``to_robot`` applies it, and it is the one
+    place where readings become robot-frame geometry: ``points`` and
+    ``extract.extract_segments`` give robot-frame coordinates, so every pose placed
+    under them is the robot's. The default is a scanner at the robot's origin.
     """
 
     time_s: float
@@ -43,6 +55,7 @@ class Scan:
     ranges_m: np.ndarray
     range_max_m: float = float("inf")
     intensities: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    mount: Pose2 = AT_ROBOT_ORIGIN
 
     def __post_init__(self) -> None:
         if np.shape(self.angles_rad) != np.shape(self.ranges_m):
@@ -68,7 +81,19 @@ class Scan:
         ok = self.valid
         r = np.asarray(self.ranges_m, dtype=float)[ok]
         a = np.asarray(self.angles_rad, dtype=float)[ok]
-        return np.column_stack([r * np.cos(a), r * np.sin(a)])
+        return self.to_robot(np.column_stack([r * np.cos(a), r * np.sin(a)]))
+
+    def to_robot(self, coords_scanner: np.ndarray) -> np.ndarray:
+        """Coordinates in the scanner's frame → the robot frame, by ``mount``.
+
+        ``coords_scanner``: metres, x y pairs along the last axis, such as points (K, 2)
+        or segments (M, 4) ``x1 y1 x2 y2``; the result has the same shape. A scanner at
+        the robot's origin returns its coordinates unchanged.
+        """
+        coords = np.asarray(coords_scanner, dtype=float)
+        if self.mount == AT_ROBOT_ORIGIN:
+            return coords
+        return transform_points(coords.reshape(-1, 2), self.mount).reshape(coords.shape)
 
 
 def evenly_spaced_angles(n: int, start_rad: float, end_rad: float) -> np.ndarray:

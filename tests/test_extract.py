@@ -18,7 +18,7 @@ from segloc_cli.extract import (
     fit_line,
     line_residuals,
 )
-from segloc_cli.geometry import Pose2, transform_segments
+from segloc_cli.geometry import Pose2, transform_points, transform_segments
 from segloc_cli.scan import Scan
 from segloc_cli.sim import (
     NOISE_FREE,
@@ -123,7 +123,7 @@ def test_coarse_scan_corner_reading_does_not_tilt_a_wall():
     off = np.min(np.abs(np.abs(ends) - 4.0), axis=1)
     assert off.max() < 1e-3, (
         f"segment ends up to {off.max() * 1e3:.2f} mm off the walls: the split point is "
-        "shared by the two pieces it separates (_split keeps index i0 + k in both), so one "
+        "shared by the two pieces it separates (split_points keeps index i0 + k in both), so one "
         "wall's refit includes the next wall's corner reading. Drop a shared end point that "
         "does not fit the piece's line before the merge test and the refit"
     )
@@ -723,3 +723,23 @@ def test_sums_are_added_in_numpy_order(size):
     # The fits equal numpy's to the bit only if their sums do: numpy adds pairwise.
     values = np.random.default_rng(size).normal(0.0, 3.0, size)
     assert _numpy_sum(values.copy(), size) == np.sum(values)
+
+
+def test_a_mounted_scan_gives_its_segments_and_points_on_the_robot():
+    """Segments are found in the scanner's frame and placed on the robot by the mounting:
+    the unmounted scan's, moved by it; and likewise its points."""
+    rng = np.random.default_rng(5)
+    world = random_world(rng)
+    pose = Pose2(*random_free_poses(world, 1, rng)[0])
+    scan = simulate_scan(world, pose, SensorModel(), rng, 0.0)
+    mount = Pose2(0.22, -0.04, math.radians(-25.0))
+    mounted = dataclasses.replace(scan, mount=mount)
+
+    alone = extract_segments(scan)
+    assert alone.shape[0] >= 4
+    np.testing.assert_allclose(
+        extract_segments(mounted), transform_segments(alone, mount), rtol=0, atol=1e-12
+    )
+    np.testing.assert_allclose(
+        mounted.points(), transform_points(scan.points(), mount), rtol=0, atol=1e-12
+    )

@@ -818,3 +818,87 @@ def test_a_durable_writer_flushes_a_waiting_message_once_it_is_due(tmp_path):
     writer.make_durable_if_due()
     assert len(read_log(path).scans) == 2
     writer.close()
+
+
+# --- the laser offset (the scanner's pose on the robot) -----------------------------------
+
+
+MOUNT = Pose2(0.22, -0.05, math.radians(30.0))
+OFFSET_SETTINGS = {
+    "range_max_m": "inf",
+    "laser_x_m": "0.22",
+    "laser_y_m": "-0.05",
+    "laser_theta_deg": "30.0",
+    "laser_offset_source": "--laser-offset",
+}
+
+
+def test_the_laser_offset_is_every_scan_s_mounting(tmp_path):
+    path = tmp_path / "mounted.mcap"
+    scan = Scan(1.0, np.array([0.0, np.pi / 2]), np.array([2.0, 1.0]), mount=MOUNT)
+    write_log(path, [scan], sensor=OFFSET_SETTINGS)
+    log = read_log(path)
+    assert log.laser_offset == MOUNT
+    assert log.laser_offset_source == "--laser-offset"
+    (got,) = log.scans
+    assert got.mount == MOUNT
+    # The readings stay in the scanner's frame; their points are the robot's.
+    np.testing.assert_array_equal(got.ranges_m, [2.0, 1.0])
+    c, s = math.cos(MOUNT.theta), math.sin(MOUNT.theta)
+    robot = [[0.22 + 2.0 * c, -0.05 + 2.0 * s], [0.22 - s, -0.05 + c]]
+    np.testing.assert_allclose(got.points(), robot, rtol=0, atol=1e-15)
+
+
+def test_a_log_without_the_offset_has_its_scanner_at_the_robot_origin(log_path):
+    log = read_log(log_path)
+    assert "laser_x_m" not in log.sensor
+    assert log.laser_offset == Pose2(0.0, 0.0, 0.0)
+    assert log.laser_offset_source == "none"
+    assert all(scan.mount == Pose2(0.0, 0.0, 0.0) for scan in log.scans)
+    first = log.scans[0]
+    a, r = first.angles_rad[first.valid], first.ranges_m[first.valid]
+    np.testing.assert_array_equal(first.points(), np.column_stack([r * np.cos(a), r * np.sin(a)]))
+
+
+@pytest.mark.parametrize(
+    ("key", "value", "expected"),
+    [
+        ("laser_x_m", "ahead", "laser_x_m is 'ahead', expected a number of metres within ±10"),
+        ("laser_y_m", "nan", "laser_y_m is 'nan', expected a number of metres within ±10"),
+        ("laser_x_m", "12", "laser_x_m is '12', expected a number of metres within ±10"),
+        ("laser_theta_deg", "inf", "laser_theta_deg is 'inf', expected degrees"),
+        ("laser_theta_deg", None, "laser_theta_deg is missing beside laser_x_m"),
+    ],
+)
+def test_a_malformed_offset_refuses_the_file_in_one_line(tmp_path, key, value, expected):
+    path = tmp_path / "offset.mcap"
+    sensor = dict(OFFSET_SETTINGS)
+    if value is None:
+        del sensor[key]
+    else:
+        sensor[key] = value
+    hand_log(path, [scan_payload()], sensor=sensor)
+    with pytest.raises(InputError) as error:
+        read_log(path)
+    assert str(error.value) == f"{path}: metadata segloc.sensor: {expected}"
+
+
+def test_the_writer_refuses_a_scan_mounted_otherwise_than_the_settings_say(tmp_path):
+    mounted = Scan(1.0, np.array([0.0, 0.5]), np.array([2.0, 3.0]), mount=MOUNT)
+    with LogWriter(tmp_path / "a.mcap", {"range_max_m": "inf"}) as writer:
+        with pytest.raises(ValueError, match="mounted at"):
+            writer.add_scan(mounted)
+    with LogWriter(tmp_path / "b.mcap", OFFSET_SETTINGS) as writer:
+        with pytest.raises(ValueError, match="mounted at"):
+            writer.add_scan(Scan(1.0, np.array([0.0, 0.5]), np.array([2.0, 3.0])))
+    with pytest.raises(ValueError, match="laser_x_m"):
+        LogWriter(tmp_path / "c.mcap", {**OFFSET_SETTINGS, "laser_x_m": "x"})
+
+
+def test_info_on_a_log_with_a_malformed_offset_is_one_line(tmp_path, capsys):
+    from test_cli import assert_one_line_error, run_cli
+
+    path = tmp_path / "offset.mcap"
+    hand_log(path, [scan_payload()], sensor={**OFFSET_SETTINGS, "laser_x_m": "forward"})
+    result = run_cli(capsys, "info", path)
+    assert_one_line_error(result, str(path), "laser_x_m is 'forward'")

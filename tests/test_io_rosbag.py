@@ -18,14 +18,14 @@ from rosbags.rosbag2 import StoragePlugin
 from rosbags.rosbag2 import Writer as Ros2Writer
 from rosbags.typesys import Stores, get_typestore
 from rosbags.typesys.store import Typestore
-from test_cli import run_cli
+from test_cli import assert_one_line_error, run_cli
 
 from segloc_cli.errors import InputError
 from segloc_cli.geometry import Pose2, heading_to_quaternion
 from segloc_cli.io.mcap_log import read_log, write_log
-from segloc_cli.io.rosbag import read_rosbag, shortest_decimals
+from segloc_cli.io.rosbag import read_rosbag, ros1_typestore, shortest_decimals
 
-ROS1_STORE = get_typestore(Stores.ROS1_NOETIC)
+ROS1_STORE = ros1_typestore()
 ROS2_STORE = get_typestore(Stores.LATEST)
 SCAN_TYPE = "sensor_msgs/msg/LaserScan"
 ODOM_TYPE = "nav_msgs/msg/Odometry"
@@ -91,6 +91,21 @@ def scan_ranges(k: int) -> np.ndarray:
 INVALID_BEAMS = [0, 1, 2, 4, 6, N_BEAMS - 1]
 
 
+def no_mounting(name: str, robot: str | None = "base_link") -> str:
+    """The warning on a bag whose transforms do not place its scanner on its robot
+    (``robot`` None: a bag read without odometry)."""
+    why = (
+        "no odometry frame and no transform to laser (the scans' frame)"
+        if robot is None
+        else f"no transform from {robot} (the robot) to laser (the scans' frame) in /tf_static "
+        "or /tf"
+    )
+    return (
+        f"{name}: {why}; the scanner is taken to be at the robot's origin "
+        "(--laser-offset X,Y,THETA_DEG sets it)"
+    )
+
+
 def scan_intensities(k: int) -> np.ndarray:
     """Intensities of the ``k``-th scan written; the third has none."""
     if k == 2:
@@ -128,13 +143,13 @@ def laser_scan(
     )
 
 
-def odometry(store: Typestore, stamp_ns: int, pose: Pose2):
+def odometry(store: Typestore, stamp_ns: int, pose: Pose2, child: str = "base_link"):
     t = store.types
     qx, qy, qz, qw = heading_to_quaternion(pose.theta).tolist()
     vector = t["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0)
     return t[ODOM_TYPE](
         header=header(store, stamp_ns, "odom"),
-        child_frame_id="base_link",
+        child_frame_id=child,
         pose=t["geometry_msgs/msg/PoseWithCovariance"](
             pose=t["geometry_msgs/msg/Pose"](
                 position=t["geometry_msgs/msg/Point"](x=pose.x, y=pose.y, z=0.0),
@@ -160,9 +175,12 @@ def scan_record(store: Typestore, record_ns: int, *args, **kwargs) -> tuple[str,
     return ("/scan", record_ns, serialize(store, laser_scan(store, *args, **kwargs), SCAN_TYPE))
 
 
-def odom_record(store: Typestore, record_ns: int, stamp_ns: int, pose: Pose2) -> tuple:
-    """An /odom message for ``write_bag``."""
-    return ("/odom", record_ns, serialize(store, odometry(store, stamp_ns, pose), ODOM_TYPE))
+def odom_record(
+    store: Typestore, record_ns: int, stamp_ns: int, pose: Pose2, child: str = "base_link"
+) -> tuple:
+    """An /odom message for ``write_bag`` (``child``: its child_frame_id)."""
+    message = odometry(store, stamp_ns, pose, child)
+    return ("/odom", record_ns, serialize(store, message, ODOM_TYPE))
 
 
 def write_bag(kind: str, where: Path, topics: dict[str, str], messages: list) -> Path:
@@ -295,9 +313,15 @@ def test_sensor_settings_and_warnings(bag):
         "source": f"{kind} {bag.name}",
         "scan_topic": "/scan",
         "odom_topic": "/odom",
+        "laser_x_m": "0.0",
+        "laser_y_m": "0.0",
+        "laser_theta_deg": "0.0",
+        "laser_offset_source": "none",
     }
+    assert log.laser_offset == Pose2(0.0, 0.0, 0.0)
     assert log.warnings == [
-        f"{bag.name}: 2 of 6 scans lie outside the time span of /odom and have no odometry"
+        no_mounting(bag.name),
+        f"{bag.name}: 2 of 6 scans lie outside the time span of /odom and have no odometry",
     ]
 
 
@@ -308,7 +332,7 @@ def test_without_odometry_topic(bag):
     assert log.odom_times_s.shape == (0,)
     assert log.odom_poses.shape == (0, 3)
     assert log.sensor["odom_topic"] == "none"
-    assert log.warnings == []
+    assert log.warnings == [no_mounting(bag.name, robot=None)]
 
 
 def test_round_trip_through_the_mcap_log(bag, tmp_path):
@@ -365,6 +389,7 @@ def test_odd_scans_are_read_with_warnings(tmp_path):
     assert second.intensities.shape == (0,)
     np.testing.assert_array_equal(second.ranges_m, expected_ranges(0))
     assert log.warnings == [
+        no_mounting("test.bag", robot=None),
         "test.bag: 1 scan(s) hold a number of ranges other than angle_min to angle_max at "
         "angle_increment spans; their angles follow angle_min + i·angle_increment",
         "test.bag: 1 scan(s) hold a number of intensities other than the number of ranges; "
@@ -412,14 +437,15 @@ def test_undecodable_messages_are_skipped_and_counted(kind, tmp_path):
     assert [scan.time_s for scan in log.scans] == SCAN_TIMES_S
     assert log.odom_times_s.tolist() == EXPECTED_ODOM_TIMES_S
     np.testing.assert_allclose(log.odom_poses, EXPECTED_ODOM_POSES, rtol=0, atol=1e-12)
-    assert len(log.warnings) == 3
+    assert len(log.warnings) == 4
     assert log.warnings[0].startswith(
         f"{path.name}: skipped 2 message(s) on /scan that could not be decoded (first: "
     )
     assert log.warnings[1].startswith(
         f"{path.name}: skipped 1 message(s) on /odom that could not be decoded (first: "
     )
-    assert log.warnings[2] == (
+    assert log.warnings[2] == no_mounting(path.name)
+    assert log.warnings[3] == (
         f"{path.name}: 2 of 6 scans lie outside the time span of /odom and have no odometry"
     )
 
@@ -540,7 +566,10 @@ def test_odometry_topic_without_messages_is_a_warning(tmp_path):
     log = read_rosbag(path)
     assert len(log.scans) == 6
     assert log.odom_poses.shape == (0, 3)
-    assert log.warnings == ["test.bag: topic /odom holds no odometry; none imported"]
+    assert log.warnings == [
+        no_mounting("test.bag", robot=None),
+        "test.bag: topic /odom holds no odometry; none imported",
+    ]
 
 
 # --- colliding stamps --------------------------------------------------------------------
@@ -573,8 +602,9 @@ def test_colliding_stamps_get_distinct_times_and_odometry_at_the_real_stamp(kind
         log.odom_poses, [[0, 0, 0], [0, 0, 0], [0, 0, 0], [3, 0, 0]], rtol=0, atol=1e-12
     )
     assert log.warnings == [
+        no_mounting(path.name),
         f"{path.name}: 3 of 4 scans share their time with another or go back in time; "
-        "gave them distinct times in stamp and bag order (see README: colliding times)"
+        "gave them distinct times in stamp and bag order (see README: colliding times)",
     ]
 
 
@@ -591,7 +621,8 @@ def test_scans_stamped_before_1970_are_skipped(tmp_path):
     assert [s.time_s for s in log.scans] == [float(EPOCH_S)]
     np.testing.assert_array_equal(log.scans[0].ranges_m, expected_ranges(1))
     assert log.warnings == [
-        "test_bag: skipped 1 scan(s) on /scan stamped before 1970 (negative header.stamp)"
+        "test_bag: skipped 1 scan(s) on /scan stamped before 1970 (negative header.stamp)",
+        no_mounting("test_bag", robot=None),
     ]
 
     only = write_bag("ros2-folder", tmp_path / "only", TOPICS, messages[:1])
@@ -623,6 +654,7 @@ def test_scans_with_unusable_fans_or_too_many_readings_are_skipped(tmp_path):
         "test.bag: skipped 2 scan(s) on /scan with an unusable beam fan "
         "(first: non-finite fan angles (-1.5707963705062866 to nan rad))",
         "test.bag: skipped 1 scan(s) on /scan with more than 100,000 readings",
+        no_mounting("test.bag", robot=None),
     ]
 
 
@@ -689,9 +721,10 @@ def test_range_limits_that_cannot_apply_keep_the_readings_with_a_warning(tmp_pat
     np.testing.assert_array_equal(scan.ranges_m[kept], decimal(ranges[kept]))
     assert scan.range_max_m == math.inf
     assert log.warnings == [
+        no_mounting("test.bag", robot=None),
         f"test.bag: 1 scan(s) give range limits that cannot be applied (first: range_min "
         f"{RANGE_MIN!r}, range_max {float(decimal(range_max)[0])!r} m); "
-        "their readings count up to 1000 m"
+        "their readings count up to 1000 m",
     ]
 
 
@@ -705,7 +738,8 @@ def test_odometry_that_is_not_a_pose_is_skipped_and_counted(tmp_path):
     np.testing.assert_allclose(log.odom_poses[:, 0], [0.0, 1.0, 2.0])
     assert log.warnings == [
         "test.bag: skipped 1 message(s) on /odom that could not be decoded (first: the pose is "
-        "not finite)"
+        "not finite)",
+        no_mounting("test.bag"),
     ]
 
 
@@ -759,3 +793,366 @@ def test_a_bag_where_a_log_is_expected_names_the_import(tmp_path, capsys, kind):
         assert result.code == 2
         (line,) = result.err.splitlines()
         assert line.endswith(f"convert it with `segloc import rosbag {path}`"), line
+
+
+# --- the scanner's mounting: /tf_static, /tf and --laser-offset ---------------------------
+
+TF_TYPE = "tf2_msgs/msg/TFMessage"
+TF_TOPICS = {**TOPICS, "/tf_static": TF_TYPE, "/tf": TF_TYPE}
+
+
+def quaternion(roll: float = 0.0, pitch: float = 0.0, yaw: float = 0.0) -> tuple:
+    """The rotation ``yaw`` about z after ``pitch`` about y after ``roll`` about x (rad), as a
+    quaternion x y z w (ROS's fixed-axis roll, pitch, yaw)."""
+    cr, sr = math.cos(roll / 2), math.sin(roll / 2)
+    cp, sp = math.cos(pitch / 2), math.sin(pitch / 2)
+    cy, sy = math.cos(yaw / 2), math.sin(yaw / 2)
+    return (
+        sr * cp * cy - cr * sp * sy,
+        cr * sp * cy + sr * cp * sy,
+        cr * cp * sy - sr * sp * cy,
+        cr * cp * cy + sr * sp * sy,
+    )
+
+
+def tf_record(store: Typestore, topic: str, record_ns: int, links: list) -> tuple:
+    """A TFMessage for ``write_bag`` holding ``links``: (parent, child, (x, y, z) m,
+    quaternion x y z w), each the child's pose in its parent."""
+    t = store.types
+    stamped = [
+        t["geometry_msgs/msg/TransformStamped"](
+            header=header(store, 0, parent),
+            child_frame_id=child,
+            transform=t["geometry_msgs/msg/Transform"](
+                translation=t["geometry_msgs/msg/Vector3"](x=xyz[0], y=xyz[1], z=xyz[2]),
+                rotation=t["geometry_msgs/msg/Quaternion"](x=q[0], y=q[1], z=q[2], w=q[3]),
+            ),
+        )
+        for parent, child, xyz, q in links
+    ]
+    return (topic, record_ns, serialize(store, t[TF_TYPE](transforms=stamped), TF_TYPE))
+
+
+def mounted_bag(kind: str, where: Path, static: list, moving: list = (), child="base_link"):
+    """The standard scans and odometry (child frame ``child``) with ``static`` links on
+    /tf_static (one message) and each entry of ``moving`` (a list of links) as a /tf message."""
+    store = store_of(kind)
+    record_ns = EPOCH_S * 1_000_000_000
+    messages = [m for m in standard_messages(kind) if m[0] == "/scan"]
+    messages += [
+        odom_record(store, record_ns + 1_000_000 * k + 500_000, stamp, pose, child)
+        for k, (stamp, pose) in enumerate(ODOM)
+    ]
+    messages.append(tf_record(store, "/tf_static", record_ns - 1, static))
+    messages += [
+        tf_record(store, "/tf", record_ns + 1_000_000 * k + 700_000, links)
+        for k, links in enumerate(moving)
+    ]
+    return write_bag(kind, where, TF_TOPICS, sorted(messages, key=lambda m: m[1]))
+
+
+# base_link → laser_mount → laser: two links with a yaw each, heights that the floor plane
+# drops, and a camera beside them in the tree.
+MOUNT_LINK = ("base_link", "laser_mount", (0.2, 0.05, 0.3), quaternion(yaw=math.radians(30)))
+LASER_LINK = ("laser_mount", "laser", (0.02, -0.01, 0.05), quaternion(yaw=math.radians(15)))
+CAMERA_LINK = ("base_link", "camera", (0.1, 0.0, 1.2), quaternion(pitch=0.3))
+EXPECTED_MOUNT = Pose2(0.2, 0.05, math.radians(30)).compose(Pose2(0.02, -0.01, math.radians(15)))
+SOURCE = "tf_static:base_link->laser"
+
+
+def beam_points_3d(scan, links: list) -> np.ndarray:
+    """Where a scan's valid beams end in the robot frame, through the 3D chain of ``links``
+    (parent first; each as ``tf_record`` takes it), projected onto the floor (K, 2)."""
+    from segloc_cli.io.tf import transform_matrix
+
+    chain = np.eye(4)
+    for _, _, xyz, q in links:
+        chain = chain @ transform_matrix(xyz, q)
+    a, r = scan.angles_rad[scan.valid], scan.ranges_m[scan.valid]
+    beams = np.column_stack([r * np.cos(a), r * np.sin(a), np.zeros_like(r), np.ones_like(r)])
+    return (beams @ chain.T)[:, :2]
+
+
+def test_a_two_link_chain_on_tf_static_composes_to_the_mounting(kind, tmp_path):
+    path = mounted_bag(kind, tmp_path, [MOUNT_LINK, LASER_LINK, CAMERA_LINK])
+    log = read_rosbag(path)
+
+    offset = log.laser_offset
+    assert offset.x == pytest.approx(EXPECTED_MOUNT.x, abs=1e-12)
+    assert offset.y == pytest.approx(EXPECTED_MOUNT.y, abs=1e-12)
+    assert offset.theta_deg == pytest.approx(45.0, abs=1e-9)
+    assert (offset.x, offset.y) == pytest.approx((0.222320508, 0.051339746), abs=1e-9)
+    assert log.sensor["laser_offset_source"] == SOURCE
+    assert log.sensor["laser_x_m"] == repr(offset.x)
+    assert all(scan.mount == offset for scan in log.scans)
+    assert not any("laser" in w for w in log.warnings)
+    # The scan's points are where its beams end on the robot, through the 3D chain.
+    first = log.scans[0]
+    np.testing.assert_allclose(
+        first.points(), beam_points_3d(first, [MOUNT_LINK, LASER_LINK]), rtol=0, atol=1e-12
+    )
+
+
+def test_the_robot_frame_is_the_odometry_s_child_even_beside_the_scanner(tmp_path):
+    """base_footprint holds base_link and the laser side by side: the chain runs up from
+    base_link and down to the laser."""
+    links = [
+        ("base_footprint", "base_link", (0.1, 0.0, 0.2), quaternion(yaw=math.radians(90))),
+        ("base_footprint", "laser", (0.3, 0.1, 0.4), quaternion(yaw=math.radians(-30))),
+    ]
+    log = read_rosbag(mounted_bag("ros1", tmp_path, links))
+    expected = (
+        Pose2(0.1, 0.0, math.radians(90)).inverse().compose(Pose2(0.3, 0.1, math.radians(-30)))
+    )
+    assert log.laser_offset.x == pytest.approx(expected.x, abs=1e-12)
+    assert log.laser_offset.y == pytest.approx(expected.y, abs=1e-12)
+    assert log.laser_offset.theta == pytest.approx(expected.theta, abs=1e-12)
+    assert log.laser_offset_source == SOURCE
+
+
+def test_without_odometry_the_top_of_the_scanner_s_tree_is_the_robot(tmp_path):
+    links = [("base_footprint", "base_link", (0.0, 0.0, 0.1), (0, 0, 0, 1)), MOUNT_LINK, LASER_LINK]
+    log = read_rosbag(mounted_bag("ros2-folder", tmp_path, links), odom_topic=None)
+    assert log.laser_offset_source == "tf_static:base_footprint->laser"
+    assert log.laser_offset.x == pytest.approx(EXPECTED_MOUNT.x, abs=1e-12)
+    assert log.laser_offset.theta_deg == pytest.approx(45.0, abs=1e-9)
+
+
+def test_a_mounting_published_unchanged_on_tf_counts_and_motion_does_not(tmp_path):
+    moving = [
+        [("odom", "base_link", (0.1 * k, 0.0, 0.0), (0, 0, 0, 1)), MOUNT_LINK, LASER_LINK]
+        for k in range(3)
+    ]
+    log = read_rosbag(mounted_bag("ros1", tmp_path, [CAMERA_LINK], moving))
+    assert log.laser_offset_source == "tf:base_link->laser"
+    assert log.laser_offset.theta_deg == pytest.approx(45.0, abs=1e-9)
+
+    # A laser link that moves (a panning scanner) is no mounting.
+    panning = [[MOUNT_LINK, (*LASER_LINK[:3], quaternion(yaw=0.1 * k))] for k in range(3)]
+    (tmp_path / "pan").mkdir()
+    log = read_rosbag(mounted_bag("ros1", tmp_path / "pan", [CAMERA_LINK], panning))
+    assert log.laser_offset == Pose2(0.0, 0.0, 0.0)
+    assert log.laser_offset_source == "none"
+    assert no_mounting("test.bag") in log.warnings
+
+
+def test_laser_offset_overrides_the_bag(tmp_path):
+    path = mounted_bag("ros1", tmp_path, [MOUNT_LINK, LASER_LINK])
+    log = read_rosbag(path, laser_offset=(0.1, -0.2, 90.0))
+    assert log.laser_offset == Pose2(0.1, -0.2, math.pi / 2)
+    assert log.sensor["laser_theta_deg"] == "90.0"
+    assert log.laser_offset_source == "--laser-offset"
+    assert all(scan.mount == log.laser_offset for scan in log.scans)
+
+
+def test_an_upside_down_scanner_is_mirrored_into_an_upright_scan(tmp_path):
+    flipped = ("base_link", "laser", (0.15, 0.0, 0.2), quaternion(roll=math.pi, yaw=0.4))
+    path = mounted_bag("ros2-mcap", tmp_path, [flipped])
+    log = read_rosbag(path)
+    as_recorded = read_rosbag(path, laser_offset=(0.0, 0.0, 0.0)).scans[0]
+
+    assert log.sensor["laser_upside_down"] == "yes"
+    assert log.laser_offset.theta == pytest.approx(0.4, abs=1e-12)
+    assert (
+        f"test.mcap: the scanner (laser) is mounted upside down ({SOURCE}); its beams are "
+        "mirrored into an upright scan"
+    ) in log.warnings
+    first = log.scans[0]
+    assert np.all(np.diff(first.angles_rad) > 0)  # counter-clockwise still
+    np.testing.assert_array_equal(first.ranges_m, as_recorded.ranges_m[::-1])
+    # The beams end where the 3D mounting puts them, in reversed order.
+    np.testing.assert_allclose(
+        first.points(), beam_points_3d(as_recorded, [flipped])[::-1], rtol=0, atol=1e-12
+    )
+
+
+def test_a_tilted_scanner_is_read_as_level_with_a_warning_and_a_vertical_one_refused(tmp_path):
+    tilted = ("base_link", "laser", (0.2, 0.0, 0.3), quaternion(pitch=math.radians(10)))
+    log = read_rosbag(mounted_bag("ros1", tmp_path, [tilted]))
+    assert log.laser_offset.x == pytest.approx(0.2, abs=1e-12)
+    assert log.laser_offset.theta == pytest.approx(0.0, abs=1e-12)
+    assert (
+        f"test.bag: the scanner (laser) is tilted 10.0° from the floor plane of base_link "
+        f"({SOURCE}); its scans are taken as level"
+    ) in log.warnings
+
+    vertical = ("base_link", "laser", (0.2, 0.0, 0.3), quaternion(pitch=math.radians(90)))
+    (tmp_path / "vertical").mkdir()
+    path = mounted_bag("ros1", tmp_path / "vertical", [vertical])
+    with pytest.raises(InputError) as info:
+        read_rosbag(path)
+    assert str(info.value) == (
+        f"{path}: the scanner (laser) is tilted 90.0° from the floor plane ({SOURCE}): it does "
+        "not scan a floor plan; --laser-offset X,Y,THETA_DEG imports its scans as level"
+    )
+    assert read_rosbag(path, laser_offset=(0.2, 0.0, 0.0)).laser_offset.x == 0.2
+
+
+def test_import_and_info_say_the_offset_and_keep_it_through_the_log(capsys, tmp_path):
+    from segloc_cli.io.mcap_log import read_log
+
+    path = mounted_bag("ros1", tmp_path, [MOUNT_LINK, LASER_LINK])
+    out = tmp_path / "log.mcap"
+    done = run_cli(capsys, "import", "rosbag", path, "--out", out)
+    assert done.code == 0, done.err
+    line = "laser offset: x 0.222321 m, y 0.0513397 m, theta 45° (robot frame; from "
+    assert f"{line}{SOURCE})" in done.err.splitlines()
+    in_memory, back = read_rosbag(path), read_log(out)
+    assert back.laser_offset == in_memory.laser_offset  # the round trip keeps every bit
+    assert back.scans[0].mount == in_memory.laser_offset
+    assert {k: v for k, v in back.sensor.items() if k.startswith("laser")} == {
+        k: v for k, v in in_memory.sensor.items() if k.startswith("laser")
+    }
+    shown = run_cli(capsys, "info", out)
+    assert f"{line}{SOURCE})" in shown.out.splitlines()
+
+    given = tmp_path / "given.mcap"
+    done = run_cli(capsys, "import", "rosbag", path, "--out", given, "--laser-offset", "0.3,0,-90")
+    assert done.code == 0, done.err
+    assert read_log(given).laser_offset == Pose2(0.3, 0.0, -math.pi / 2)
+    shown = run_cli(capsys, "info", given)
+    assert "laser offset: x 0.3 m, y 0 m, theta -90° (robot frame; from --laser-offset)" in (
+        shown.out.splitlines()
+    )
+
+
+def test_a_bag_without_a_mounting_says_so_in_one_line(capsys, tmp_path):
+    path = write_bag("ros1", tmp_path, TOPICS, standard_messages("ros1"))
+    out = tmp_path / "log.mcap"
+    done = run_cli(capsys, "import", "rosbag", path, "--out", out)
+    assert done.code == 0, done.err
+    offset_lines = [line for line in done.err.splitlines() if "origin" in line]
+    assert offset_lines == [f"segloc: warning: {no_mounting('test.bag')}"]
+    shown = run_cli(capsys, "info", out)
+    assert "laser offset: none (the scanner is taken to be at the robot's origin)" in (
+        shown.out.splitlines()
+    )
+
+
+@pytest.mark.parametrize("value", ["0.2,0", "a,b,c", "0,0,nan", "11,0,0", "0.1,0.2,0.3,4"])
+def test_a_bad_laser_offset_is_one_line(capsys, tmp_path, value):
+    path = write_bag("ros1", tmp_path, TOPICS, standard_messages("ros1"))
+    result = run_cli(
+        capsys, "import", "rosbag", path, "--out", tmp_path / "o.mcap", "--laser-offset", value
+    )
+    assert_one_line_error(result, "--laser-offset", repr(value), "X_M,Y_M,THETA_DEG")
+    assert not (tmp_path / "o.mcap").exists()
+
+
+# --- localizing an off-centre scanner's bag: the robot's pose --------------------------------
+
+HALL_MOUNT = Pose2(0.22, 0.06, math.radians(12.0))
+"""A scanner 0.22 m ahead of base_link and 6 cm to its left, turned 12° (as two links)."""
+HALL_LINKS = [
+    ("base_link", "laser_mount", (0.22, 0.06, 0.35), quaternion(yaw=math.radians(20.0))),
+    ("laser_mount", "laser", (0.0, 0.0, 0.05), quaternion(yaw=math.radians(-8.0))),
+]
+N_HALL_SCANS = 8
+
+
+def hall_bag(where: Path, kind: str) -> tuple[Path, np.ndarray]:
+    """A bag of simulated scans of the hall taken by the mounted scanner at random robot
+    poses, odometry at the robot poses off by up to 0.5 m and 10°; and the true robot poses
+    (S, 3)."""
+    from segloc_cli.io.maps import read_world
+    from segloc_cli.sim import (
+        SensorModel,
+        initial_guesses,
+        random_free_poses,
+        simulate_scan,
+        uniform_initial_errors,
+    )
+
+    store = store_of(kind)
+    rng = np.random.default_rng(2000)
+    world = read_world(HALL / "world.json")
+    truth = random_free_poses(world, N_HALL_SCANS, rng)
+    guesses = initial_guesses(truth, uniform_initial_errors(N_HALL_SCANS, 0.5, 10.0, rng))
+    sensor = SensorModel(readings=1024)
+    step = 2 * math.pi / sensor.readings
+    messages = [tf_record(store, "/tf_static", 1, HALL_LINKS)]
+    for k, (pose, guess) in enumerate(zip(truth, guesses, strict=True)):
+        scanner = Pose2(*pose).compose(HALL_MOUNT)
+        scan = simulate_scan(world, scanner, sensor, rng, 0.0)
+        ranges = np.where(scan.valid, scan.ranges_m, np.inf).astype(np.float32)
+        message = laser_scan(store, k * 200_000_000, ranges, range_max=sensor.range_max_m)
+        message.angle_min, message.angle_increment = 0.0, step
+        message.angle_max = step * (sensor.readings - 1)
+        messages.append(("/scan", 10 + 2 * k, serialize(store, message, SCAN_TYPE)))
+        messages.append(odom_record(store, 11 + 2 * k, k * 200_000_000, Pose2(*guess)))
+    return write_bag(kind, where, TF_TOPICS, messages), truth
+
+
+def localized(capsys, tmp_path: Path, bag: Path, *options: str) -> np.ndarray:
+    """Import ``bag`` (with ``options``) and localize it on the hall's map: the estimates
+    (S, 3) x m, y m, theta rad in scan order."""
+    import pandas as pd
+
+    log, out = tmp_path / "log.mcap", tmp_path / "est.csv"
+    imported = run_cli(capsys, "import", "rosbag", bag, "--out", log, *options)
+    assert imported.code == 0, imported.err
+    done = run_cli(capsys, "localize", log, "--map", HALL / "map.json", "--out", out)
+    assert done.code == 0, done.err
+    rows = pd.read_csv(out)
+    return np.column_stack([rows.x_m, rows.y_m, np.deg2rad(rows.theta_deg)])
+
+
+def pose_errors(estimates: np.ndarray, truth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Position errors (S,) m and |heading errors| (S,) degrees."""
+    from segloc_cli.geometry import wrap_angle
+
+    position = np.hypot(*(estimates[:, :2] - truth[:, :2]).T)
+    heading = np.abs(np.rad2deg(wrap_angle(estimates[:, 2] - truth[:, 2])))
+    return position, heading
+
+
+@pytest.mark.parametrize("kind", ["ros1", "ros2-mcap"])
+def test_an_off_centre_scanner_localizes_the_robot(capsys, tmp_path, kind):
+    """The bag's two-link mounting is found, kept through the log, and every estimate is
+    the robot's pose within the simulated tests' 2 cm and 0.3°. Imported as if the scanner
+    sat at the robot's origin, the same scans give the scanner's poses instead: off by the
+    mounting, so the test tells the two apart."""
+    from segloc_cli.io.mcap_log import read_log
+
+    bag, truth = hall_bag(tmp_path, kind)
+    (tmp_path / "with").mkdir()
+    (tmp_path / "without").mkdir()
+
+    estimates = localized(capsys, tmp_path / "with", bag)
+    log = read_log(tmp_path / "with" / "log.mcap")
+    assert log.laser_offset_source == SOURCE
+    assert log.laser_offset.x == pytest.approx(HALL_MOUNT.x, abs=1e-12)
+    assert log.laser_offset.y == pytest.approx(HALL_MOUNT.y, abs=1e-12)
+    assert log.laser_offset.theta == pytest.approx(HALL_MOUNT.theta, abs=1e-12)
+    position, heading = pose_errors(estimates, truth)
+    assert position.max() < 0.02 and heading.max() < 0.3, (position, heading)
+
+    unmounted = localized(capsys, tmp_path / "without", bag, "--laser-offset", "0,0,0")
+    position, heading = pose_errors(unmounted, truth)
+    assert position.min() > 0.2 and heading.min() > 11.0, (position, heading)
+    scanner_poses = np.array([Pose2(*p).compose(HALL_MOUNT).as_array() for p in truth])
+    position, heading = pose_errors(unmounted, scanner_poses)
+    assert position.max() < 0.02 and heading.max() < 0.3, (position, heading)
+
+
+def test_a_ros2_bag_folder_imports_and_its_run_file_hashes_the_folder(capsys, tmp_path):
+    import tomllib
+
+    path = write_bag("ros2-folder", tmp_path / "bag", TOPICS, standard_messages("ros2-folder"))
+    assert path.is_dir()
+    out = tmp_path / "log.mcap"
+    done = run_cli(capsys, "import", "rosbag", path, "--out", out)
+    assert done.code == 0, done.err
+    run_file = tmp_path / "log.run.toml"
+
+    def recorded() -> str:
+        inputs = tomllib.loads(run_file.read_text(encoding="utf-8"))["run"]["inputs"]
+        [bag] = [i for i in inputs if i["path"] == "bag" or i["path"].endswith("bag")]
+        return bag["sha256"]
+
+    before = recorded()
+    with (path / "metadata.yaml").open("a", encoding="utf-8") as stream:
+        stream.write("\n")  # a changed file in the folder must change the folder's hash
+    done = run_cli(capsys, "import", "rosbag", path, "--out", out, "--force")
+    assert done.code == 0, done.err
+    assert recorded() != before

@@ -481,3 +481,39 @@ def test_fused_maps_hold_no_overlapping_duplicates(n, where, seed):
     assert overlapping_duplicates(fused)[0].size == 0
     assert mergeable_pairs(fused, FuseParams())[0].size == 0
     np.testing.assert_array_equal(fuse_segments(fused), fused)
+
+
+def test_a_map_built_from_an_off_centre_scanner_lies_on_the_walls():
+    """``map build`` places each scan's segments at the robot's surveyed pose through the
+    scanner's mounting: the map lies on the hall's walls, where the same scans taken as
+    mounted at the robot's origin would put it a mounting away."""
+    from dataclasses import replace
+    from pathlib import Path
+
+    from segloc_cli.config import Config
+    from segloc_cli.geometry import point_segment_distances, sample_segments
+    from segloc_cli.io.log import Log
+    from segloc_cli.io.maps import read_world
+    from segloc_cli.io.tables import read_pose_table
+    from segloc_cli.pipeline import build_map
+    from segloc_cli.sim import NOISE_FREE, simulate_scan
+
+    hall = Path(__file__).resolve().parents[1] / "datasets" / "hall"
+    world = read_world(hall / "world.json")
+    survey = read_pose_table(hall / "survey.csv")
+    mount = Pose2(0.22, 0.05, np.deg2rad(10.0))
+    rng = np.random.default_rng(3)
+    scans = [
+        replace(simulate_scan(world, Pose2(*p).compose(mount), NOISE_FREE, rng, t), mount=mount)
+        for t, p in zip(survey.time_s, survey.poses, strict=True)
+    ]
+
+    def built_off_the_walls(scans) -> np.ndarray:
+        log = Log(scans, survey.time_s, np.zeros(0), np.zeros((0, 3)), {})
+        segments = build_map(log, hall / "log.mcap", survey, hall, Config()).segments
+        return point_segment_distances(sample_segments(segments, 0.1), world.segments).min(1)
+
+    mounted = built_off_the_walls(scans)
+    assert np.percentile(mounted, 99) < 0.01, np.percentile(mounted, [50, 99])
+    unmounted = built_off_the_walls([replace(s, mount=Pose2(0.0, 0.0, 0.0)) for s in scans])
+    assert np.median(unmounted) > 0.1

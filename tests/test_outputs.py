@@ -14,6 +14,7 @@ from pathlib import Path
 import pytest
 from conftest import HALL, SEGLOC
 from test_cli import ESTIMATE_HEADER, assert_one_line_error, run_cli
+from test_foxglove import validated_messages
 
 from segloc_cli.errors import InputError
 from segloc_cli.geometry import Pose2
@@ -195,9 +196,10 @@ def _complete_rows(path: Path) -> list[dict]:
 def test_a_stopped_localize_keeps_every_finished_row(tmp_path, how):
     log = tmp_path / "long.mcap"
     _long_log(log, copies=60)
-    out = tmp_path / "est.csv"
+    out, view = tmp_path / "est.csv", tmp_path / "run.mcap"
+    argv = ["localize", log, "--map", MAP, "--out", out, "--mcap", view]
     proc = subprocess.Popen(
-        [str(SEGLOC), "localize", str(log), "--map", str(MAP), "--out", str(out)],
+        [str(SEGLOC), *map(str, argv)],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
@@ -216,8 +218,11 @@ def test_a_stopped_localize_keeps_every_finished_row(tmp_path, how):
         assert proc.returncode == 130
         assert f"interrupted (SIGTERM) after {len(rows)} of 600 scans" in err
         assert "Traceback" not in err
+        shown = validated_messages(view)  # the run view is finished, with every row's scan
+        assert len(shown["/scan"]) == len(shown["/status"]) == len(rows)
     else:
         assert proc.returncode == -signal.SIGKILL
+        assert not view.exists(), "a killed run left a run view it never finished"
 
 
 # --------------------------------------------------------------------------- inputs kept

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import math
 import sys
 from pathlib import Path
 
@@ -16,6 +15,7 @@ from segloc_cli.commands.options import (
     config_option,
     force_option,
     info,
+    parse_planar_pose,
     path_option,
     sensor_options,
     with_options,
@@ -35,16 +35,7 @@ def _protocol_choice() -> click.Choice:
 def _parse_pose(value: str) -> Pose2:
     from segloc_cli.io.maps import MAX_COORDINATE_M
 
-    try:
-        x, y, theta_deg = (float(v) for v in value.split(","))
-    except ValueError:
-        x = y = theta_deg = math.nan
-    if not (max(abs(x), abs(y)) <= MAX_COORDINATE_M and math.isfinite(theta_deg)):
-        raise click.BadParameter(
-            f"{value!r}; use X_M,Y_M,THETA_DEG, finite and within ±{MAX_COORDINATE_M:g} m "
-            "(e.g. 2.5,1.0,90)",
-            param_hint="--pose",
-        )
+    x, y, theta_deg = parse_planar_pose(value, "--pose", MAX_COORDINATE_M, "2.5,1.0,90")
     return Pose2(x, y, float(np.deg2rad(theta_deg)))
 
 

@@ -234,11 +234,12 @@ def _write_plots(
     """Draw the figures of ``evaluate --plots``; ``figure_data`` is (map, log, log path) or None,
     ``paths`` (survey, estimates) name the inputs in errors."""
     from segloc_cli.plots import MAP_FIGURES, surveyed_scans, write_evaluation_figures
+    from segloc_cli.progress import Progress
 
     plots_dir.mkdir(parents=True, exist_ok=True)
     if figure_data is None:
         info(f"skipped {', '.join(MAP_FIGURES)}: they need --map MAP.json and --log LOG.mcap")
-        written = write_evaluation_figures(plots_dir, table)
+        written = write_evaluation_figures(plots_dir, table, progress=Progress)
     else:
         segments_world, log, log_path = figure_data
         survey_path, estimates_path = paths
@@ -251,7 +252,9 @@ def _write_plots(
                 f"(scans {time_range(log.scan_times_s)}); is this the log of the estimates?",
                 path=log_path,
             )
-        written = write_evaluation_figures(plots_dir, table, segments_world, items)
+        written = write_evaluation_figures(
+            plots_dir, table, segments_world, items, progress=Progress
+        )
     for path in written:
         info(f"wrote {path}")
 

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import io
 import sys
 import time
 from collections import Counter
@@ -28,9 +27,9 @@ from segloc_cli.commands.options import (
 from segloc_cli.config import LOCALIZE_TUNING, MATCHER, STAGES
 from segloc_cli.runfile import run_file_path
 
-PROGRESS_MIN_SCANS = 20
-"""Show a progress bar when a run works through at least this many scans."""
 EXIT_INTERRUPTED = 130
+PROGRESS_LABELS = {"guided": "localizing", "global": "global search", "track": "tracking"}
+"""What the progress display says a run of each mode is doing."""
 
 LOCALIZE_OPTIONS = (
     path_option(
@@ -39,6 +38,13 @@ LOCALIZE_OPTIONS = (
     path_option("--out", "out_path", required=True, help="Estimates CSV to write."),
     path_option(
         "--tum", "tum_path", help="Also write the estimates as a TUM trajectory (for evo)."
+    ),
+    path_option(
+        "--mcap",
+        "mcap_path",
+        help="Also write the run view to open in Foxglove: the map, each scan placed at its "
+        "estimate, the guesses, runner-ups, local segments and statuses (layout: "
+        "docs/foxglove-layout.json).",
     ),
     click.option(
         "--initial",
@@ -85,7 +91,9 @@ LOCALIZE_OPTIONS = (
     "log_paths", metavar="LOG.mcap...", nargs=-1, required=True, type=click.Path(path_type=Path)
 )
 @with_options(*LOCALIZE_OPTIONS)
-def localize(log_paths, map_path, out_path, tum_path, initial, global_search, track, region, **_):
+def localize(
+    log_paths, map_path, out_path, tum_path, mcap_path, initial, global_search, track, region, **_
+):
     """Localize every scan of one or more logs against a map.
 
     For each scan: extract its segments, find the heading by the stage-1 vote
@@ -119,7 +127,8 @@ def localize(log_paths, map_path, out_path, tum_path, initial, global_search, tr
     _check_modes(config, global_search, track)
     mode = "global" if global_search else "track" if track else "guided"
     guess_file = None if initial == GUESSES_KEYWORD else Path(initial)
-    outputs = {"--out": out_path, "--tum": tum_path, "--out (run file)": run_file_path(out_path)}
+    outputs = {"--out": out_path, "--tum": tum_path, "--mcap": mcap_path}
+    outputs["--out (run file)"] = run_file_path(out_path)
     check_outputs(outputs, [*log_paths, map_path, guess_file], run.force)
     segments_world = read_map(map_path)
     if mode == "global":
@@ -130,13 +139,21 @@ def localize(log_paths, map_path, out_path, tum_path, initial, global_search, tr
     def stop() -> bool:
         return bool(stops)
 
+    logs = [load_log(p) for p in log_paths]
     runs = [
-        pipeline.localize_log(load_log(p), p, localizer, mode, guess_file, config, stop)
-        for p in log_paths
+        pipeline.localize_log(log, p, localizer, mode, guess_file, config, stop)
+        for log, p in zip(logs, log_paths, strict=True)
     ]
     for message in pipeline.overlapping_logs(runs):
         warn(message)
-    summary = _write_rows(runs, out_path, tum_path, stops, timed=mode == "global")
+    with ExitStack() as stack:
+        rows = (row for run in runs for row in run.rows)
+        if mcap_path is not None:
+            view = stack.enter_context(
+                _run_view(mcap_path, segments_world, log_paths, map_path, mode)
+            )
+            rows = _shown(view, runs, logs, config)
+        summary = _write_rows(rows, runs, out_path, tum_path, stops, mode)
     run.write_run_file(out_path)
     _report(summary, out_path, stops, skipped=sum(r.skipped for r in runs))
 
@@ -167,35 +184,91 @@ def _check_modes(config, global_search: bool, track: bool) -> None:
         )
 
 
-def _write_rows(runs, out_path: Path, tum_path: Path | None, stops: list[str], timed: bool):
-    """Write each run's rows to ``out_path`` (and ``tum_path``) as they come, with a progress
-    bar on long runs (and, when ``timed``, the first scan's time as the time to expect per
-    scan). Ctrl-C, SIGTERM and SIGHUP, noted in ``stops``, stop it between scans with every
-    finished row kept. Returns (n scans planned, statuses, runtimes (ms), s)."""
+def _run_view(mcap_path: Path, segments_world, log_paths, map_path: Path, mode: str):
+    """The run view's writer, for a run of the logs on the map."""
+    from segloc_cli.io.runview import RunViewWriter
+
+    metadata = {"command": "localize", "mode": mode, "map": str(map_path)}
+    metadata["logs"] = ", ".join(str(log_path) for log_path in log_paths)
+    return RunViewWriter(mcap_path, segments_world, metadata)
+
+
+def _shown(view, runs, logs, config):
+    """The rows of ``runs``, each also added to the run view with its scan."""
+    from segloc_cli.extract import extract_segments
+    from segloc_cli.io.runview import pose_or_none
+
+    for run, log in zip(runs, logs, strict=True):
+        scans = {scan.time_s: scan for scan in log.scans}
+        for row in run.rows:
+            scan = scans[row["time_s"]]
+            view.add(
+                scan,
+                extract_segments(scan, config.extract),
+                pose_or_none(row["x_m"], row["y_m"], row["theta_deg"]),
+                guess=pose_or_none(row["init_x_m"], row["init_y_m"], row["init_theta_deg"]),
+                runner_up=pose_or_none(
+                    row["runner_up_x_m"], row["runner_up_y_m"], row["runner_up_theta_deg"]
+                ),
+                status=row["status"],
+                level=_level(row["status"]),
+                text=_row_text(run.path, row),
+            )
+            yield row
+
+
+def _level(status: str) -> str:
+    """The run view's log level of a status: info when the estimate is accepted, warning when
+    a distinct pose fits nearly as well, error otherwise."""
+    from segloc_cli.confidence import STATUS_AMBIGUOUS
+    from segloc_cli.localize import ESTIMATED
+
+    return "info" if status in ESTIMATED else "warning" if status == STATUS_AMBIGUOUS else "error"
+
+
+def _row_text(log_path: Path, row) -> str:
+    """One line on a row for the run view's log."""
+    import math
+
+    runner_up = (
+        f"a distinct pose fits {row['runner_up_ratio']:.0%}"
+        if math.isfinite(row["runner_up_x_m"])
+        else "no distinct pose fits as well"
+    )
+    return (
+        f"{log_path.name} pose {row['pose_id']} at {row['time_s']:.3f} s: "
+        f"{row['inlier_ratio']:.0%} of the points on the map, overlap {row['overlap']:.2f} m, "
+        f"{row['n_local_segments']} local segments; {runner_up}"
+    )
+
+
+def _write_rows(rows, runs, out_path: Path, tum_path: Path | None, stops: list[str], mode: str):
+    """Write ``rows`` (those of ``runs``) to ``out_path`` (and ``tum_path``) as they come,
+    with progress on long runs (and, for a global search, the first scan's time as the time
+    to expect per scan). Ctrl-C, SIGTERM and SIGHUP, noted in ``stops``, stop it between
+    scans with every finished row kept. Returns (n scans planned, statuses, runtimes (ms), s)."""
     from segloc_cli.io.tables import EstimatesWriter, TumWriter
+    from segloc_cli.progress import Progress
     from segloc_cli.stopping import stop_requests
 
     n_scans = sum(run.times_s.size for run in runs)
-    rows = (row for run in runs for row in run.rows)
     t0 = time.perf_counter()
     statuses: list[str] = []
     runtimes_ms: list[float] = []
-    stream = sys.stderr if n_scans >= PROGRESS_MIN_SCANS else io.StringIO()
     with ExitStack() as stack:
         stack.enter_context(stop_requests(stops))
         writers = [stack.enter_context(EstimatesWriter(out_path))]
         if tum_path is not None:
             writers.append(stack.enter_context(TumWriter(tum_path)))
-        bar = stack.enter_context(
-            click.progressbar(rows, length=n_scans, label="localizing", file=stream)
-        )
+        progress = stack.enter_context(Progress(PROGRESS_LABELS[mode], n_scans, "scan"))
         try:
-            for row in bar:
+            for row in rows:
+                progress.advance()
                 for writer in writers:
                     writer.write_row(row)
                 statuses.append(row["status"])
                 runtimes_ms.append(row["runtime_ms"])
-                if timed and len(runtimes_ms) == 1:
+                if mode == "global" and len(runtimes_ms) == 1:
                     _expect(row["runtime_ms"], n_scans)
                 if stops:
                     break

@@ -14,12 +14,14 @@ from segloc_cli.commands.options import (
     force_option,
     info,
     load_log,
+    parse_planar_pose,
     path_option,
     sensor_options,
     warn,
     with_options,
 )
 from segloc_cli.errors import InputError
+from segloc_cli.geometry import Pose2
 from segloc_cli.runfile import run_file_path
 from segloc_cli.scan import MAX_RANGE_M
 from segloc_cli.sim import SensorModel
@@ -145,6 +147,18 @@ def simulate(world_path, poses_path, out_dir, readings, noise_cm, seed, init_err
     info(f"wrote {len(truth)} scans to {log_path} and the true poses to {survey_path}")
 
 
+def laser_offset_line(log) -> str:
+    """One line on the log's laser offset: the scanner's pose in the robot frame and where
+    it came from."""
+    offset, source = log.laser_offset, log.laser_offset_source
+    if source == "none" and offset == Pose2(0.0, 0.0, 0.0):
+        return "laser offset: none (the scanner is taken to be at the robot's origin)"
+    return (
+        f"laser offset: x {offset.x:.6g} m, y {offset.y:.6g} m, theta {offset.theta_deg:.6g}° "
+        f"(robot frame; from {source})"
+    )
+
+
 @click.group("import")
 def import_group() -> None:
     """Convert public laser logs into segloc's MCAP log."""
@@ -153,17 +167,20 @@ def import_group() -> None:
 def _write_imported(log, out_path: Path) -> None:
     """Write scans, odometry at the scans and sensor settings of an imported log, and the
     run file beside it."""
-    from segloc_cli.geometry import Pose2
     from segloc_cli.io.files import atomic_path
     from segloc_cli.io.mcap_log import write_log
+    from segloc_cli.progress import Progress
 
     for warning in log.warnings:
         warn(warning)
     odometry = [
         (float(t), Pose2(*p)) for t, p in zip(log.odom_times_s, log.odom_poses, strict=True)
     ]
-    with atomic_path(out_path) as partial:
-        write_log(partial, log.scans, odometry, log.sensor, log.original_times_s)
+    with (
+        atomic_path(out_path) as partial,
+        Progress("writing the log", len(log.scans), "scan") as shown,
+    ):
+        write_log(partial, log.scans, odometry, log.sensor, log.original_times_s, shown)
     Invocation.current().write_run_file(out_path)
     info(f"{out_path}: {len(log.scans)} scans, {len(log.odom_times_s)} odometry poses")
 
@@ -216,10 +233,11 @@ def import_carmen(log_path, out_path, survey_out, laser, range_max_m, force):
     from segloc_cli.io.carmen import read_carmen
     from segloc_cli.io.files import check_outputs
     from segloc_cli.io.tables import PoseTable, write_pose_table, write_pose_table_tum
+    from segloc_cli.progress import Progress
 
     outputs = {"--out": out_path, "--survey-out": survey_out}
     check_outputs({**outputs, "--out (run file)": run_file_path(out_path)}, [log_path], force)
-    log = read_carmen(log_path, laser=laser, range_max_m=range_max_m)
+    log = read_carmen(log_path, laser=laser, range_max_m=range_max_m, progress=Progress)
     _write_imported(log, out_path)
     if survey_out is not None:
         n = len(log.scans)
@@ -242,6 +260,15 @@ ROSBAG_OPTIONS = (
         show_default=True,
         help="nav_msgs/Odometry topic, interpolated to each scan's time ('' for none).",
     ),
+    click.option(
+        "--laser-offset",
+        metavar="X,Y,THETA_DEG",
+        default=None,
+        help="The scanner's pose in the robot frame (the odometry's child frame, e.g. "
+        "base_link): x and y in metres, heading in degrees, e.g. 0.22,0,0 for a scanner "
+        "22 cm ahead. Overrides the bag's /tf_static (and unchanging /tf) transforms, which "
+        "give it by default; with neither, the scanner is taken to be at the robot's origin.",
+    ),
     config_option,
     force_option,
 )
@@ -250,16 +277,31 @@ ROSBAG_OPTIONS = (
 @import_group.command("rosbag")
 @click.argument("bag_path", metavar="PATH", type=click.Path(path_type=Path))
 @with_options(*ROSBAG_OPTIONS)
-def import_rosbag(bag_path, out_path, scan_topic, odom_topic, force):
-    """Import a ROS 1 .bag, a ROS 2 bag folder or a ROS 2 .mcap file."""
+def import_rosbag(bag_path, out_path, scan_topic, odom_topic, laser_offset, force):
+    """Import a ROS 1 .bag, a ROS 2 bag folder or a ROS 2 .mcap file.
+
+    Scans stay in the scanner's frame; the scanner's pose on the robot (--laser-offset,
+    else the bag's transforms) is kept in the log's sensor settings, and segloc places the
+    scans on the robot by it, so that the odometry, the survey and every estimate are the
+    robot's poses. An upside-down scanner's beams are mirrored into an upright scan.
+    """
     from segloc_cli.io.files import check_outputs
+    from segloc_cli.io.log import MAX_LASER_OFFSET_M
     from segloc_cli.io.rosbag import read_rosbag
 
+    given = None
+    if laser_offset is not None:
+        given = parse_planar_pose(laser_offset, "--laser-offset", MAX_LASER_OFFSET_M, "0.22,0,0")
     check_outputs(
         {"--out": out_path, "--out (run file)": run_file_path(out_path)}, [bag_path], force
     )
-    log = read_rosbag(bag_path, scan_topic=scan_topic, odom_topic=odom_topic or None)
+    from segloc_cli.progress import Progress
+
+    topics = {"scan_topic": scan_topic, "odom_topic": odom_topic or None}
+    log = read_rosbag(bag_path, **topics, laser_offset=given, progress=Progress)
     _write_imported(log, out_path)
+    if log.laser_offset_source != "none":  # else a warning has said so
+        info(laser_offset_line(log))
 
 
 @click.command("info")
@@ -278,6 +320,7 @@ def info_command(log_path):
         f"{time_range(log.scan_times_s)}"
     )
     click.echo(f"/odom:     {log.odom_times_s.size} poses, {time_range(log.odom_times_s)}")
+    click.echo(laser_offset_line(log))
     for topic, count in sorted(log.message_counts.items()):
         if topic not in ("/scan", "/odom"):
             click.echo(f"{topic}: {count} messages (not read by segloc)")

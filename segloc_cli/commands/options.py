@@ -41,6 +41,21 @@ def info(message: str) -> None:
     click.echo(message, err=True)
 
 
+def parse_planar_pose(value: str, option: str, limit_m: float, example: str) -> tuple[float, ...]:
+    """``X_M,Y_M,THETA_DEG`` text as (x m, y m, heading degrees), each finite, x and y within
+    ±``limit_m``; else ``click.BadParameter`` naming ``option`` and giving ``example``."""
+    try:
+        x, y, theta_deg = (float(v) for v in value.split(","))
+    except ValueError:
+        x = y = theta_deg = math.nan
+    if not (max(abs(x), abs(y)) <= limit_m and math.isfinite(theta_deg)):
+        raise click.BadParameter(
+            f"{value!r}; use X_M,Y_M,THETA_DEG, finite and within ±{limit_m:g} m (e.g. {example})",
+            param_hint=option,
+        )
+    return x, y, theta_deg
+
+
 def load_log(path: Path):
     """Read a segloc MCAP log, printing its reader's warnings."""
     from segloc_cli.io.mcap_log import read_log
@@ -270,12 +285,13 @@ class Invocation:
         named = [(k, v) for k, v in self.options.items() if isinstance(v, Path) and v.is_file()]
         return [*self.arguments, *named]
 
-    def write_run_file(self, output: Path) -> Path:
-        """Write the run file beside ``output``; return its path."""
+    def write_run_file(self, output: Path, also_read: list[tuple[str, Path]] = ()) -> Path:
+        """Write the run file beside ``output``, its inputs with ``also_read`` (role, path):
+        files the inputs led to, such as a grid's image; return its path."""
         from segloc_cli.runfile import run_file_path, write_run_file
 
         path = run_file_path(output)
-        write_run_file(path, self.command, self.options, self.inputs())
+        write_run_file(path, self.command, self.options, [*self.inputs(), *also_read])
         return path
 
 

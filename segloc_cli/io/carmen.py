@@ -96,8 +96,9 @@ import numpy as np
 from segloc_cli.errors import InputError
 from segloc_cli.geometry import wrap_angle
 from segloc_cli.io.files import reading
-from segloc_cli.io.log import Log
+from segloc_cli.io.log import MAX_LASER_OFFSET_M, Log
 from segloc_cli.io.times import MAX_TIME_S, importer_times
+from segloc_cli.progress import Progress, ProgressFactory, silent
 from segloc_cli.scan import MAX_READINGS, Scan, evenly_spaced_angles, fan_defect
 
 LASER_RECORDS = {"front": ("FLASER", "ROBOTLASER1"), "rear": ("RLASER",)}
@@ -120,8 +121,6 @@ SENTINEL_MIN_COUNT = 2
 """Times the inferred no-return value must occur at least: a lone reading never is one."""
 SENTINEL_MAX_ABOVE_FRACTION = 0.001
 """Largest share of the readings that may lie above the inferred no-return value."""
-MAX_LASER_OFFSET_M = 10.0
-"""Largest magnitude (m) of a laser offset PARAM that is used; a larger one is ignored."""
 BINARY_LINE_FRACTION = 0.5
 """A file is refused as not text when more than this share of its non-empty lines hold NULs."""
 LINES_SHOWN = 5
@@ -538,7 +537,12 @@ class _Parsed:
     n_lines: int = 0
 
 
-def read_carmen(path: str | Path, laser: str = "front", range_max_m: float | None = None) -> Log:
+def read_carmen(
+    path: str | Path,
+    laser: str = "front",
+    range_max_m: float | None = None,
+    progress: ProgressFactory = silent,
+) -> Log:
     """Read the scans of one laser and their poses from a CARMEN log.
 
     ``path``: a CARMEN text log, plain or gzip-compressed (found by its magic
@@ -551,7 +555,8 @@ def read_carmen(path: str | Path, laser: str = "front", range_max_m: float | Non
     text, or holds no usable record of the chosen laser. Everything else odd
     (bad records, NUL bytes, damaged gzip, colliding times, no maximum range
     found) is a line of ``Log.warnings``. The log's ``odom_times_s`` are the
-    scans' times and its ``laser_poses`` the records' pose fields.
+    scans' times and its ``laser_poses`` the records' pose fields. The parsing reports
+    its lines to ``progress``.
     """
     if laser not in LASER_RECORDS:
         raise ValueError(f"laser must be one of {sorted(LASER_RECORDS)}, got {laser!r}")
@@ -559,7 +564,9 @@ def read_carmen(path: str | Path, laser: str = "front", range_max_m: float | Non
         raise ValueError(f"range_max_m must be positive, got {range_max_m}")
     path = Path(path)
     warnings: list[str] = []
-    parsed = _parse_lines(_read_lines(path, warnings), LASER_RECORDS[laser])
+    lines = _read_lines(path, warnings)
+    with progress("reading the log", len(lines), "line") as shown:
+        parsed = _parse_lines(lines, LASER_RECORDS[laser], shown)
     _check_records(path, parsed, laser, warnings)
     records = parsed.records
     per_record, rule = _range_maxes(path, parsed, laser, range_max_m, warnings)
@@ -582,10 +589,12 @@ def read_carmen(path: str | Path, laser: str = "front", range_max_m: float | Non
     )
 
 
-def _parse_lines(lines: list[bytes], wanted: tuple[str, ...]) -> _Parsed:
-    """The records of the laser record types ``wanted``, the PARAMs and what was skipped."""
+def _parse_lines(lines: list[bytes], wanted: tuple[str, ...], progress: Progress) -> _Parsed:
+    """The records of the laser record types ``wanted``, the PARAMs and what was skipped;
+    each line is a step of ``progress``."""
     parsed = _Parsed()
     for number, line in enumerate(lines, start=1):
+        progress.advance()
         if b"\x00" in line:
             parsed.with_nul.append(number)
             parsed.n_lines += 1

@@ -2,14 +2,17 @@
 
 Layout (JSON message encoding, opens in Foxglove as is):
 
-- ``/scan``: ``foxglove.LaserScan`` in frame ``laser`` with an identity pose.
-  Beam angles are evenly spaced from ``start_angle`` to ``end_angle`` inclusive;
-  invalid readings (<= 0, non-finite, >= the maximum range or ``MAX_RANGE_M``)
-  are written as 0.
+- ``/scan``: ``foxglove.LaserScan`` in frame ``laser`` (the scanner's own) with an
+  identity pose. Beam angles are evenly spaced from ``start_angle`` to ``end_angle``
+  inclusive; invalid readings (<= 0, non-finite, >= the maximum range or
+  ``MAX_RANGE_M``) are written as 0.
 - ``/odom``: ``foxglove.PoseInFrame``, the robot's pose in frame ``world``
   (x, y in metres, heading as a rotation about +z).
 - Metadata record ``segloc.sensor``: the sensor settings as str → str,
-  including ``range_max_m``. It is written first so that a log cut short keeps it.
+  including ``range_max_m`` and, when the scanner is not at the robot's origin, its
+  pose on the robot (``laser_x_m``, ``laser_y_m``, ``laser_theta_deg``,
+  ``laser_offset_source``: see ``segloc_cli.io.log``), which ``read_log`` gives every
+  scan as ``Scan.mount``. It is written first so that a log cut short keeps it.
 
 Each ``/scan`` record's log time is the scan's time; its publish time is the
 scan's original time when an importer had to make colliding times distinct
@@ -27,7 +30,8 @@ writing is an ``OutputError`` naming the file.
 Reading a log nobody tuned segloc for. ``read_log`` refuses the whole file
 (``InputError``, one line naming it) only for what spoils every message: not
 MCAP, no ``/scan`` channel, a ``/scan`` or ``/odom`` channel that is not JSON,
-an unusable ``range_max_m`` in ``segloc.sensor`` (it applies to every scan), or
+an unusable ``range_max_m`` or laser offset in ``segloc.sensor`` (they apply to every
+scan), or
 ``/scan`` messages none of which is usable. A single bad message is skipped and
 counted instead, with one warning line per kind of fault giving the count and
 the first message numbers (counted from 1 per topic), so that every good scan
@@ -71,15 +75,15 @@ from mcap.writer import CompressionType, Writer
 from segloc_cli.errors import InputError
 from segloc_cli.geometry import Pose2, heading_to_quaternion, quaternion_to_heading, wrap_angle
 from segloc_cli.io.files import reading, writing_error
-from segloc_cli.io.log import Log
+from segloc_cli.io.log import SENSOR_METADATA_NAME, Log, laser_offset_of
 from segloc_cli.io.maps import MAX_COORDINATE_M
+from segloc_cli.progress import SILENT, Progress
 from segloc_cli.scan import MAX_READINGS, Scan, evenly_spaced_angles, fan_defect
 
 SCAN_TOPIC = "/scan"
 ODOM_TOPIC = "/odom"
 SCAN_SCHEMA_NAME = "foxglove.LaserScan"
 ODOM_SCHEMA_NAME = "foxglove.PoseInFrame"
-SENSOR_METADATA_NAME = "segloc.sensor"
 SCAN_FRAME_ID = "laser"
 WORLD_FRAME_ID = "world"
 ANGLE_SPACING_TOLERANCE_RAD = 1e-9
@@ -242,7 +246,11 @@ class LogWriter:
 
     ``sensor`` holds the recording's settings as str → str and must include
     ``range_max_m``, a positive number or ``"inf"`` when the sensor has none
-    (``ValueError`` otherwise, before the file is created). With
+    (``ValueError`` otherwise, before the file is created). Its laser offset
+    (``segloc_cli.io.log.laser_offset_of``; the robot's origin when absent) is the
+    mounting every scan written must have, as the scans are stored in the scanner's
+    frame and the offset only in the settings (``ValueError`` for a malformed offset
+    or a scan mounted otherwise). With
     ``durable_every_s`` (seconds) no message waits longer than that in memory
     once ``make_durable_if_due`` or another message comes: the chunk is ended and
     the file flushed. An OS error while writing raises ``OutputError`` naming
@@ -262,6 +270,10 @@ class LogWriter:
                 f"got {sensor['range_max_m']!r}"
             )
         self.range_max_m = range_max_m
+        try:
+            self.laser_offset = laser_offset_of(sensor)
+        except InputError as exc:
+            raise ValueError(str(exc)) from None
         self.path = Path(path)
         self._durable_every_s = durable_every_s
         # Monotonic time of the oldest message not yet on disk; the first is due at once, so
@@ -347,6 +359,11 @@ class LogWriter:
         time, and ``read_log`` returns it in ``Log.original_times_s``.
         """
         start, end, time_ns, publish_ns = _check_scan(scan, original_time_s)
+        if scan.mount != self.laser_offset:
+            raise ValueError(
+                f"scan at t={scan.time_s} s is mounted at {scan.mount}, but the log's sensor "
+                f"settings give the laser offset {self.laser_offset}"
+            )
         ranges = np.asarray(scan.ranges_m, dtype=float).reshape(-1)
         # A reading is kept only if it is valid for the scan and for the log's sensor,
         # so that what is read back is valid exactly when it was written valid.
@@ -411,8 +428,10 @@ def write_log(
     odom: Iterable[tuple[float, Pose2]] = (),
     sensor: dict[str, str] | None = None,
     original_times_s: Iterable[float] | None = None,
+    progress: Progress = SILENT,
 ) -> None:
-    """Write scans and ``(time_s, Pose2)`` odometry to a new log.
+    """Write scans and ``(time_s, Pose2)`` odometry to a new log; each scan written is a
+    step of ``progress``.
 
     Without ``range_max_m`` in ``sensor``, the first scan's ``range_max_m`` is used.
     ``original_times_s`` (one per scan, seconds) are the scans' times in their source
@@ -436,6 +455,7 @@ def write_log(
     with LogWriter(path, settings) as writer:
         for k, scan in enumerate(scans):
             writer.add_scan(scan, None if originals is None else originals[k])
+            progress.advance()
         for time_s, pose in odom:
             writer.add_odom(time_s, pose)
 
@@ -778,8 +798,8 @@ def read_log(path: str | Path) -> Log:
     skipped and counted in warnings (see the module docstring for the kinds).
     Raises ``InputError`` naming the file when it is missing, not MCAP (naming
     ``segloc import rosbag`` for a ROS 1 bag or a ROS 2 bag folder), has no
-    ``/scan`` channel or a non-JSON one, has an unusable ``range_max_m``, or
-    none of its ``/scan`` messages can be used.
+    ``/scan`` channel or a non-JSON one, has an unusable ``range_max_m`` or laser offset
+    (naming the setting), or none of its ``/scan`` messages can be used.
     """
     path = Path(path)
     if path.is_dir() and (path / "metadata.yaml").is_file():
@@ -795,7 +815,8 @@ def read_log(path: str | Path) -> Log:
         found = _read_records(stream, size)
     _check_channels(path, found)
     range_max_m = _sensor_range_max(path, found.sensor)
-    scans = [_scan(record, range_max_m) for record in found.scan_records]
+    mount = laser_offset_of(found.sensor, path)
+    scans = [_scan(record, range_max_m, mount) for record in found.scan_records]
     return Log(
         scans=scans,
         original_times_s=np.array(
@@ -958,8 +979,9 @@ def _read_warnings(name: str, found: _Found, n_scans: int) -> list[str]:
     return warnings
 
 
-def _scan(record: _ScanRecord, range_max_m: float) -> Scan:
-    """The scan of a usable message, invalid readings as 0."""
+def _scan(record: _ScanRecord, range_max_m: float, mount: Pose2) -> Scan:
+    """The scan of a usable message, mounted at ``mount`` (the scanner's pose in the robot
+    frame), invalid readings as 0."""
     scan = Scan(
         # Integer true division rounds once, so times written from float seconds read back
         # as the same float whenever they were whole nanoseconds.
@@ -968,6 +990,7 @@ def _scan(record: _ScanRecord, range_max_m: float) -> Scan:
         ranges_m=record.ranges,
         range_max_m=range_max_m,
         intensities=record.intensities,
+        mount=mount,
     )
     return replace(scan, ranges_m=np.where(scan.valid, scan.ranges_m, 0.0))
 

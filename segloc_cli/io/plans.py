@@ -1,4 +1,5 @@
-"""Building plans as segment maps: DXF drawings in and out, through ezdxf.
+"""Building plans as segment maps: DXF drawings in and out, through ezdxf; the plan type
+every plan reader returns (``Plan``; SVG drawings are in ``svg``, nav2 grids in ``grids``).
 
 A plan's walls are its straight lines. Reading a DXF takes, from the model space (or the
 layers asked for), every ``LINE``, every piece of a ``LWPOLYLINE`` or 2D ``POLYLINE``
@@ -43,13 +44,35 @@ MAX_INSERT_DEPTH = 16
 
 @dataclass(frozen=True)
 class Plan:
-    """Segments read from a plan: (M, 4) metres; the metres per drawing unit applied; the
-    layers the segments came from; how many arc pieces were taken as chords."""
+    """What a plan reader made of a file.
+
+    ``segments`` (M, 4) metres, world frame; ``source`` the record of what was read, for
+    the map file's ``source`` (JSON-serialisable, its ``format`` first); ``chords`` how
+    many curved pieces were taken as straight chords; ``summary`` a phrase saying where
+    the segments came from ("from layer(s) WALLS (1 drawing unit = 0.001 m)");
+    ``also_read`` the other files it was read from (a grid's image), for the run file.
+    """
 
     segments: np.ndarray
-    metres_per_unit: float
-    layers: tuple[str, ...]
-    chords: int
+    source: dict
+    chords: int = 0
+    summary: str = ""
+    also_read: tuple[Path, ...] = ()
+
+
+def checked_plan_segments(path: Path, pieces_m: np.ndarray, hint: str) -> np.ndarray:
+    """Pieces (M, 4) in metres, less those shorter than ``MIN_SEGMENT_LENGTH_M``.
+
+    Raises ``InputError`` naming ``path`` when a coordinate is not finite or lies beyond
+    ``MAX_COORDINATE_M``; ``hint`` ends that message (the scale applied, the option to check).
+    """
+    segments = np.asarray(pieces_m, dtype=float).reshape(-1, 4)
+    if not np.all(np.isfinite(segments)) or np.any(np.abs(segments) > MAX_COORDINATE_M):
+        raise InputError(
+            f"a line lies beyond ±{MAX_COORDINATE_M:g} m once in metres{hint}", path=path
+        )
+    lengths = np.hypot(segments[:, 2] - segments[:, 0], segments[:, 3] - segments[:, 1])
+    return segments[lengths >= MIN_SEGMENT_LENGTH_M]
 
 
 def read_dxf(path: str | Path, layers: Sequence[str] = (), units: str | None = None) -> Plan:
@@ -92,22 +115,18 @@ def read_dxf(path: str | Path, layers: Sequence[str] = (), units: str | None = N
         chords += arcs
         if drawn:
             found_layers.add(layer)
-    segments = np.array(pieces, dtype=float).reshape(-1, 4) * scale
-    if not np.all(np.isfinite(segments)) or np.any(np.abs(segments) > MAX_COORDINATE_M):
-        raise InputError(
-            f"a line lies beyond ±{MAX_COORDINATE_M:g} m once in metres (×{scale:g}); "
-            "check --units",
-            path=path,
-        )
-    lengths = np.hypot(segments[:, 2] - segments[:, 0], segments[:, 3] - segments[:, 1])
-    segments = segments[lengths >= MIN_SEGMENT_LENGTH_M]
+    pieces_m = np.array(pieces, dtype=float).reshape(-1, 4) * scale
+    segments = checked_plan_segments(path, pieces_m, f" (×{scale:g}); check --units")
     if len(segments) == 0:
         where = f"on layer(s) {', '.join(layers)}" if layers else "in its model space"
         raise InputError(
             f"no LINE, LWPOLYLINE or POLYLINE {where}; its layers are {', '.join(known)}",
             path=path,
         )
-    return Plan(segments, scale, tuple(sorted(found_layers)), chords)
+    read_layers = sorted(found_layers)
+    source = {"format": "dxf", "plan": str(path), "layers": read_layers, "metres_per_unit": scale}
+    summary = f"from layer(s) {', '.join(read_layers)} (1 drawing unit = {scale:g} m)"
+    return Plan(segments, source, chords, summary)
 
 
 def write_dxf(path: str | Path, segments_world: np.ndarray) -> None:

@@ -6,17 +6,31 @@ What comes out, in segloc's units and frames:
 
 - Scans: the ``sensor_msgs/LaserScan`` messages on the scan topic, sorted by
   ``header.stamp``, in the scanner's own frame (``header.frame_id``; x forward,
-  angles counter-clockwise). Beam ``i`` lies at ``angle_min + i·angle_increment``
-  radians; ranges and range limits are metres, each the shortest decimal that reads
-  back as the message's float32 (1.07, not 1.0700000524520874: the same reading, written
-  in a log as briefly as the scanner gave it; a comparison of two gives what it gave).
+  angles counter-clockwise), mounted on the robot as below. Beam ``i`` lies at
+  ``angle_min + i·angle_increment`` radians; ranges and range limits are metres, each
+  the shortest decimal that reads back as the message's float32 (1.07, not
+  1.0700000524520874: the same reading, written in a log as briefly as the scanner
+  gave it; a comparison of two gives what it gave).
   A reading is invalid when it is non-finite, below ``range_min`` or at/above
   ``range_max`` (the bags write ``range_max`` for "no return") and is returned as
   0.0; ``Scan.range_max_m`` is the message's ``range_max``.
-- Odometry: ``nav_msgs/Odometry`` ``pose.pose`` as (x m, y m, yaw rad) in the
-  odometry frame (the messages' ``header.frame_id``), interpolated to each scan
-  time that lies within the odometry's time span: linearly in x and y, along the
-  shorter arc in heading. Scans outside that span get no odometry.
+- Odometry: ``nav_msgs/Odometry`` ``pose.pose`` as (x m, y m, yaw rad): the robot's
+  pose (its ``child_frame_id``, e.g. ``base_link``) in the odometry frame (the
+  messages' ``header.frame_id``), interpolated to each scan time that lies within
+  the odometry's time span: linearly in x and y, along the shorter arc in heading.
+  Scans outside that span get no odometry.
+- The scanner's mounting, its pose in the robot frame: the chain of ``/tf_static``
+  transforms (and ``/tf`` ones that never change) from the odometry's child frame
+  (without odometry, the top of the scanner's tree) to the scans' ``header.frame_id``,
+  composed and projected onto the floor plane (``segloc_cli.io.tf``), or the
+  ``laser_offset`` given instead. It becomes the sensor settings ``laser_x_m``,
+  ``laser_y_m``, ``laser_theta_deg`` and ``laser_offset_source`` and every scan's
+  ``Scan.mount``, so that the scans' points, local maps and every pose are the
+  robot's. With no chain the scanner is at the robot's origin (source ``none``, a
+  warning). A scan plane tilted more than ``MAX_TILT_DEG`` is read as level with a
+  warning, one tilted more than ``MAX_PLANAR_TILT_DEG`` is refused; an upside-down
+  scanner's scans are mirrored (beam order reversed, angles negated) into those of
+  an upright one, with a warning and ``laser_upside_down`` set.
 - Times are ``header.stamp`` in seconds (not the times the bag recorded them);
   scans stamped before 0 (possible in ROS 2), with more than
   ``segloc_cli.scan.MAX_READINGS`` readings or with a beam fan that
@@ -47,16 +61,42 @@ from rosbags.rosbag2 import ReaderError as Ros2ReaderError
 from rosbags.typesys import Stores, get_typestore
 
 from segloc_cli.errors import InputError
-from segloc_cli.geometry import quaternion_to_heading, wrap_angle
-from segloc_cli.io.log import Log
+from segloc_cli.geometry import Pose2, quaternion_to_heading, wrap_angle
+from segloc_cli.io.log import (
+    MAX_LASER_OFFSET_M,
+    Log,
+    laser_offset_of,
+    laser_offset_settings,
+)
 from segloc_cli.io.ros1_salvage import salvage_ros1
+from segloc_cli.io.tf import (
+    TF_STATIC_TOPIC,
+    TF_TOPIC,
+    TF_TYPES,
+    Mounting,
+    Transform,
+    bare,
+    find_mounting,
+    fixed_links,
+    root_of,
+)
 from segloc_cli.io.times import importer_times
+from segloc_cli.progress import Progress, ProgressFactory, silent
 from segloc_cli.scan import MAX_RANGE_M, MAX_READINGS, Scan, fan_defect
 
 SCAN_TYPE = "sensor_msgs/msg/LaserScan"
 ODOM_TYPE = "nav_msgs/msg/Odometry"
 EXPECTED_BAG = "a ROS 1 .bag file, a ROS 2 bag folder with metadata.yaml, or a ROS 2 .mcap file"
 NS_PER_S = 1_000_000_000
+TF_TOPICS = (TF_STATIC_TOPIC, TF_TOPIC)
+MAX_TILT_DEG = 3.0
+"""Largest tilt (degrees) of a scan plane from the robot's floor plane taken as level; a
+scanner tilted more is still read as level, with a warning."""
+MAX_PLANAR_TILT_DEG = 45.0
+"""Largest tilt (degrees) of a scan plane with which a bag is imported from its transforms:
+a scanner nearer vertical than level does not scan the floor plan."""
+NO_OFFSET = "none"
+"""The laser offset's source when neither the bag nor ``--laser-offset`` gives one."""
 
 
 class _RawScan(NamedTuple):
@@ -73,6 +113,18 @@ class _RawScan(NamedTuple):
 
 # Stamp (ns), x, y, and the orientation quaternion qx, qy, qz, qw.
 _RawOdom = tuple[int, float, float, float, float, float, float]
+
+
+class _Messages(NamedTuple):
+    """What the messages of a bag held, in bag order: decoded scans, odometry and
+    transforms, the first non-empty ``child_frame_id`` of the odometry (the robot's frame,
+    or ""), and per topic the errors of the messages that could not be decoded."""
+
+    scans: list[_RawScan]
+    odom: list[_RawOdom]
+    transforms: list[Transform]
+    robot_frame: str
+    failures: dict[str, list[str]]
 
 
 def _stamp_ns(message: Any) -> int:
@@ -100,6 +152,22 @@ def shortest_decimals(values_float32: Any) -> np.ndarray:
     return np.asarray(values_float32, dtype=np.float32).reshape(-1).astype(str).astype(float)
 
 
+def _raw_transforms(topic: str, message: Any) -> list[Transform]:
+    """The transforms of a TFMessage; ``ValueError`` (the message is skipped and counted)
+    when one of them is not finite or its rotation is no rotation."""
+    transforms = []
+    for stamped in message.transforms:
+        t, q = stamped.transform.translation, stamped.transform.rotation
+        translation, rotation = (t.x, t.y, t.z), (q.x, q.y, q.z, q.w)
+        if not all(math.isfinite(v) for v in (*translation, *rotation)):
+            raise ValueError(f"the transform to {stamped.child_frame_id} is not finite")
+        if not any(rotation):
+            raise ValueError(f"the rotation to {stamped.child_frame_id} is all zeros")
+        parent, child = str(stamped.header.frame_id), str(stamped.child_frame_id)
+        transforms.append(Transform(topic, parent, child, translation, rotation))
+    return transforms
+
+
 def _raw_odom(message: Any) -> _RawOdom:
     """The pose of an Odometry message; ``ValueError`` (the message is skipped and counted)
     when it is not finite or its orientation is no rotation."""
@@ -115,6 +183,16 @@ def _raw_odom(message: Any) -> _RawOdom:
 
 
 # --- opening -------------------------------------------------------------------------
+
+
+def ros1_typestore():
+    """The ROS 1 (Noetic) message types, with ``tf2_msgs/TFMessage``, which the store
+    lacks, for bags that carry no definitions of their own (a salvaged bag's are not read)."""
+    from rosbags.typesys import get_types_from_msg
+
+    store = get_typestore(Stores.ROS1_NOETIC)
+    store.register(get_types_from_msg("geometry_msgs/TransformStamped[] transforms", TF_TYPES[0]))
+    return store
 
 
 def _open(path: Path) -> AnyReader:
@@ -170,120 +248,172 @@ def _topic_connections(path: Path, reader: AnyReader, topic: str, msgtype: str) 
 
 
 def _read_messages(
-    path: Path, reader: AnyReader, scan_topic: str, odom_topic: str | None
-) -> tuple[list[_RawScan], list[_RawOdom], dict[str, list[str]]]:
-    """Decoded scans and odometry in bag order, and per topic the decoding errors."""
+    path: Path,
+    reader: AnyReader,
+    scan_topic: str,
+    odom_topic: str | None,
+    tf_topics: set[str],
+    progress: ProgressFactory,
+) -> _Messages:
+    """The bag's scans, odometry and, from those of ``tf_topics`` it holds as transforms,
+    its transforms (``_Messages``)."""
     scan_connections = _topic_connections(path, reader, scan_topic, SCAN_TYPE)
     odom_connections = (
         [] if odom_topic is None else _topic_connections(path, reader, odom_topic, ODOM_TYPE)
     )
+    tf_connections = [
+        connection
+        for topic, info in reader.topics.items()
+        if topic in tf_topics
+        for connection in info.connections
+        if connection.msgtype in TF_TYPES
+    ]
+    wanted = [*scan_connections, *odom_connections, *tf_connections]
     messages = (
         (connection.topic, connection.msgtype, data)
-        for connection, _, data in reader.messages([*scan_connections, *odom_connections])
+        for connection, _, data in reader.messages(wanted)
     )
-    return _decoded(messages, reader.deserialize, scan_topic)
+    total = sum(connection.msgcount for connection in wanted)
+    with progress("reading the bag", total, "message") as shown:
+        return _decoded(messages, reader.deserialize, scan_topic, shown)
 
 
 def _decoded(
-    messages: Iterable[tuple[str, str, bytes]], deserialize: Callable, scan_topic: str
-) -> tuple[list[_RawScan], list[_RawOdom], dict[str, list[str]]]:
-    """Scans and odometry from (topic, type, raw bytes) in bag order (every topic but the scan
-    topic is odometry), and per topic the messages that could not be decoded."""
-    raw_scans: list[_RawScan] = []
-    raw_odom: list[_RawOdom] = []
-    failures: dict[str, list[str]] = {}
+    messages: Iterable[tuple[str, str, bytes]],
+    deserialize: Callable,
+    scan_topic: str,
+    progress: Progress,
+) -> _Messages:
+    """``_Messages`` from (topic, type, raw bytes) in bag order: the scan topic holds scans,
+    ``TF_TOPICS`` transforms and every other topic odometry. Each message is a step of
+    ``progress``."""
+    decoded = _Messages([], [], [], "", {})
+    robot_frame = ""
     for topic, msgtype, data in messages:
-        wanted = SCAN_TYPE if topic == scan_topic else ODOM_TYPE
+        progress.advance()
+        if topic == scan_topic:
+            wanted = (SCAN_TYPE,)
+        else:
+            wanted = TF_TYPES if topic in TF_TOPICS else (ODOM_TYPE,)
         try:
-            if msgtype != wanted:
-                raise ValueError(f"type {msgtype}, expected {wanted}")
+            if msgtype not in wanted:
+                raise ValueError(f"type {msgtype}, expected {wanted[0]}")
             message = deserialize(data, msgtype)
             if topic == scan_topic:
-                raw_scans.append(_raw_scan(message))
+                decoded.scans.append(_raw_scan(message))
+            elif topic in TF_TOPICS:
+                decoded.transforms.extend(_raw_transforms(topic, message))
             else:
-                raw_odom.append(_raw_odom(message))
+                decoded.odom.append(_raw_odom(message))
+                robot_frame = robot_frame or bare(str(message.child_frame_id))
         except (AnyReaderError, ValueError, struct.error, IndexError, KeyError) as exc:
-            failures.setdefault(topic, []).append(str(exc))
-    return raw_scans, raw_odom, failures
+            decoded.failures.setdefault(topic, []).append(str(exc))
+    return decoded._replace(robot_frame=robot_frame)
 
 
 def _salvaged(
-    path: Path, scan_topic: str, odom_topic: str | None, refusal: InputError
-) -> tuple[list[_RawScan], list[_RawOdom], dict[str, list[str]], str]:
+    path: Path,
+    scan_topic: str,
+    odom_topic: str | None,
+    tf_topics: set[str],
+    refusal: InputError,
+    progress: ProgressFactory,
+) -> tuple[_Messages, str]:
     """A ROS 1 bag that the reader refused, read without its index (``ros1_salvage``), and
     the warning that says so; ``refusal`` is raised when that finds nothing either."""
     topics = {scan_topic} | ({odom_topic} if odom_topic else set())
     try:
-        salvage = salvage_ros1(path, topics)
+        salvage = salvage_ros1(path, topics | tf_topics)
     except (OSError, ValueError):
         raise refusal from None
-    typestore = get_typestore(Stores.ROS1_NOETIC)
-    decoded = _decoded(salvage.messages, typestore.deserialize_ros1, scan_topic)
-    if not decoded[0]:
+    deserialize = ros1_typestore().deserialize_ros1
+    with progress("decoding the salvaged messages", len(salvage.messages), "message") as shown:
+        decoded = _decoded(salvage.messages, deserialize, scan_topic, shown)
+    if not decoded.scans:
         raise refusal from None
     where = "" if salvage.stopped is None else f", up to where {salvage.stopped}"
     note = (
         f"{path.name}: the bag's index is missing or damaged (a recording cut short?); read "
-        f"its {len(salvage.messages)} messages on {', '.join(sorted(topics))} record by "
+        f"its {len(salvage.messages)} messages on "
+        f"{', '.join(sorted(topics | {topic for topic, _, _ in salvage.messages}))} record by "
         f"record{where}"
     )
-    return (*decoded, note)
+    return decoded, note
 
 
 # --- reading -------------------------------------------------------------------------
 
 
 def read_rosbag(
-    path: str | Path, scan_topic: str = "/scan", odom_topic: str | None = "/odom"
+    path: str | Path,
+    scan_topic: str = "/scan",
+    odom_topic: str | None = "/odom",
+    laser_offset: tuple[float, float, float] | None = None,
+    progress: ProgressFactory = silent,
 ) -> Log:
-    """Read laser scans and odometry from a ROS bag (see the module docstring).
+    """Read laser scans and odometry from a ROS bag (see the module docstring); the
+    messages read are steps of ``progress``.
 
-    ``odom_topic=None`` reads no odometry. Raises ``InputError`` naming the bag
-    when it is missing or not a bag, when a topic is absent or of the wrong type,
-    when it is damaged, or when it holds no scan that can be decoded. A message
-    that cannot be decoded is skipped and counted in ``warnings``. The log's
-    ``odom_times_s`` are the times of the scans inside the odometry's time span.
+    ``odom_topic=None`` reads no odometry. ``laser_offset`` (``x_m, y_m, theta_deg``:
+    the scanner's pose in the robot frame, metres and degrees) sets the mounting instead
+    of the bag's transforms. Raises ``InputError`` naming the bag when it is missing or
+    not a bag, when a topic is absent or of the wrong type, when it is damaged, when it
+    holds no scan that can be decoded, or when its transforms stand the scanner nearer
+    vertical than level. A message that cannot be decoded is skipped and counted in
+    ``warnings``. The log's ``odom_times_s`` are the times of the scans inside the
+    odometry's time span.
     """
     path = Path(path)
-    raw_scans, raw_odom, failures, warnings = _bag_messages(path, scan_topic, odom_topic)
+    tf_topics = set() if laser_offset is not None else set(TF_TOPICS)
+    decoded, warnings = _bag_messages(path, scan_topic, odom_topic, tf_topics, progress)
     warnings += [
         f"{path.name}: skipped {len(errors)} message(s) on {topic} that could not be decoded "
         f"(first: {errors[0]})"
-        for topic, errors in failures.items()
+        for topic, errors in decoded.failures.items()
     ]
-    raw_scans = _scans_to_import(path, raw_scans, failures, scan_topic, warnings)
+    raw_scans = _scans_to_import(path, decoded.scans, decoded.failures, scan_topic, warnings)
+    offset_settings, mirrored = _laser_offset(
+        path, decoded, raw_scans[0].frame_id, laser_offset, warnings
+    )
+    if mirrored:
+        raw_scans = [_mirrored(raw) for raw in raw_scans]
     # Integer true division rounds once: the same float read_log gives back.
     original_times_s = np.array([raw.stamp_ns / NS_PER_S for raw in raw_scans], dtype=float)
     times_s, collided = importer_times(
         original_times_s, path, "scans", "stamp and bag order", path.name
     )
-    scans, scan_warnings = _scans(raw_scans, times_s)
+    scans, scan_warnings = _scans(raw_scans, times_s, laser_offset_of(offset_settings, path))
     warnings += [f"{path.name}: {text}" for text in scan_warnings]
     warnings += [collided] if collided else []
     scan_ns = np.array([s.stamp_ns for s in raw_scans], dtype=np.int64)
-    odom_times_s, odom_poses = _odometry(path, raw_odom, scan_ns, times_s, odom_topic, warnings)
+    odom_times_s, odom_poses = _odometry(path, decoded.odom, scan_ns, times_s, odom_topic, warnings)
     return Log(
         scans=scans,
         original_times_s=original_times_s,
         odom_times_s=odom_times_s,
         odom_poses=odom_poses,
-        sensor=_sensor(path, raw_scans, scan_topic, odom_topic),
+        sensor=_sensor(path, raw_scans, scan_topic, odom_topic) | offset_settings,
         warnings=warnings,
     )
 
 
 def _bag_messages(
-    path: Path, scan_topic: str, odom_topic: str | None
-) -> tuple[list[_RawScan], list[_RawOdom], dict[str, list[str]], list[str]]:
-    """Decoded scans and odometry in bag order, per topic the decoding errors, and the
-    warning that the bag was salvaged (a ROS 1 bag the reader refused) or none."""
+    path: Path,
+    scan_topic: str,
+    odom_topic: str | None,
+    tf_topics: set[str],
+    progress: ProgressFactory,
+) -> tuple[_Messages, list[str]]:
+    """The bag's decoded messages (``_Messages``) and the warning that the bag was salvaged
+    (a ROS 1 bag the reader refused) or none."""
     try:
         reader, refusal = _open(path), None
     except InputError as refused:
         reader, refusal = None, refused
     if reader is not None:
         try:
-            return (*_read_messages(path, reader, scan_topic, odom_topic), [])
+            topics = (scan_topic, odom_topic, tf_topics)
+            return _read_messages(path, reader, *topics, progress), []
         except InputError:
             raise
         except Exception as exc:  # the bag library meets damaged bytes in many ways
@@ -294,8 +424,93 @@ def _bag_messages(
     # A ROS 1 bag cut short has no index (it is written last) but whole chunks.
     if path.suffix != ".bag" or not path.is_file():
         raise refusal
-    *decoded, note = _salvaged(path, scan_topic, odom_topic, refusal)
-    return (*decoded, [note])
+    decoded, note = _salvaged(path, scan_topic, odom_topic, tf_topics, refusal, progress)
+    return decoded, [note]
+
+
+# --- the scanner's mounting ----------------------------------------------------------
+
+
+def _laser_offset(
+    path: Path,
+    decoded: _Messages,
+    scan_frame: str,
+    given: tuple[float, float, float] | None,
+    warnings: list[str],
+) -> tuple[dict[str, str], bool]:
+    """The laser-offset sensor settings (``segloc_cli.io.log.laser_offset_settings``) and
+    whether the beams are to be mirrored (an upside-down scanner): ``given`` when it is
+    there, else the chain from the robot's frame to ``scan_frame`` in the bag's transforms
+    (a warning when there is none)."""
+    if given is not None:
+        return laser_offset_settings(*given, "--laser-offset"), False
+    scanner = bare(scan_frame)
+    links = fixed_links(decoded.transforms)
+    robot = decoded.robot_frame or root_of(links, scanner)
+    mounting = None
+    if robot == scanner and decoded.robot_frame:
+        return laser_offset_settings(0.0, 0.0, 0.0, f"frame_id:{robot}"), False
+    if robot == scanner:
+        why = f"no odometry frame and no transform to {scanner} (the scans' frame)"
+    elif (mounting := find_mounting(links, robot, scanner)) is None:
+        why = (
+            f"no transform from {robot} (the robot) to {scanner} (the scans' frame) in "
+            f"{TF_STATIC_TOPIC} or {TF_TOPIC}"
+        )
+    else:
+        why = _unusable(path, mounting, scanner)
+    if why is not None or mounting is None:
+        warnings.append(
+            f"{path.name}: {why}; the scanner is taken to be at the robot's origin "
+            "(--laser-offset X,Y,THETA_DEG sets it)"
+        )
+        return laser_offset_settings(0.0, 0.0, 0.0, NO_OFFSET), False
+    if mounting.tilt_deg > MAX_TILT_DEG:
+        warnings.append(
+            f"{path.name}: the scanner ({scanner}) is tilted {mounting.tilt_deg:.1f}° from "
+            f"the floor plane of {robot} ({mounting.source}); its scans are taken as level"
+        )
+    if mounting.upside_down:
+        warnings.append(
+            f"{path.name}: the scanner ({scanner}) is mounted upside down ({mounting.source});"
+            " its beams are mirrored into an upright scan"
+        )
+    theta_deg = math.degrees(mounting.theta_rad)
+    settings = laser_offset_settings(mounting.x_m, mounting.y_m, theta_deg, mounting.source)
+    flipped = {"laser_upside_down": "yes"} if mounting.upside_down else {}
+    return settings | flipped, mounting.upside_down
+
+
+def _unusable(path: Path, mounting: Mounting, scanner: str) -> str | None:
+    """Why a mounting found in the transforms is not used, or None when it is; the
+    transforms of a scanner nearer vertical than level are refused (``InputError``)."""
+    if not all(math.isfinite(v) for v in (mounting.x_m, mounting.y_m, mounting.theta_rad)):
+        return f"the transforms to {scanner} ({mounting.source}) are not finite"
+    if max(abs(mounting.x_m), abs(mounting.y_m)) > MAX_LASER_OFFSET_M:
+        return (
+            f"the transforms place {scanner} at ({mounting.x_m:.6g}, {mounting.y_m:.6g}) m "
+            f"({mounting.source}), more than {MAX_LASER_OFFSET_M:g} m from the robot"
+        )
+    if mounting.tilt_deg > MAX_PLANAR_TILT_DEG:
+        raise InputError(
+            f"the scanner ({scanner}) is tilted {mounting.tilt_deg:.1f}° from the floor plane "
+            f"({mounting.source}): it does not scan a floor plan; --laser-offset X,Y,THETA_DEG "
+            "imports its scans as level",
+            path=path,
+        )
+    return None
+
+
+def _mirrored(raw: _RawScan) -> _RawScan:
+    """The scan of an upside-down scanner as its upright twin would see it: beam order
+    reversed, angles negated (still counter-clockwise from ``angle_min``)."""
+    last_rad = raw.angle_min + max(len(raw.ranges) - 1, 0) * raw.angle_increment
+    return raw._replace(
+        angle_min=-last_rad,
+        angle_max=-raw.angle_min,
+        ranges=raw.ranges[::-1].copy(),
+        intensities=raw.intensities[::-1].copy(),
+    )
 
 
 def _scans_to_import(
@@ -379,9 +594,11 @@ def _with_usable_limits(raw: _RawScan) -> _RawScan:
     return raw._replace(range_min=low, range_max=high)
 
 
-def _scans(raw_scans: list[_RawScan], times_s: np.ndarray) -> tuple[list[Scan], list[str]]:
+def _scans(
+    raw_scans: list[_RawScan], times_s: np.ndarray, mount: Pose2
+) -> tuple[list[Scan], list[str]]:
     """Scans (invalid readings as 0.0) at ``times_s`` (S,) seconds from decoded messages,
-    and notes on oddities."""
+    mounted at ``mount`` (the scanner's pose in the robot frame), and notes on oddities."""
     scans = []
     n_count_mismatch = 0
     n_intensity_mismatch = 0
@@ -394,7 +611,7 @@ def _scans(raw_scans: list[_RawScan], times_s: np.ndarray) -> tuple[list[Scan], 
         if len(raw.intensities) not in (0, len(raw.ranges)):
             n_intensity_mismatch += 1
             raw = raw._replace(intensities=np.zeros(0))
-        scans.append(_scan(raw, float(time_s)))
+        scans.append(_scan(raw, float(time_s), mount))
     notes = _scan_notes(bad_limits, n_count_mismatch, n_intensity_mismatch)
     range_maxes = sorted({s.range_max_m for s in scans})
     if len(range_maxes) > 1:
@@ -412,9 +629,9 @@ def _spanned_count(raw: _RawScan) -> int:
     return round((raw.angle_max - raw.angle_min) / raw.angle_increment) + 1
 
 
-def _scan(raw: _RawScan, time_s: float) -> Scan:
-    """The scan of a message with usable range limits, at ``time_s`` seconds; readings
-    outside the limits or not finite become 0.0."""
+def _scan(raw: _RawScan, time_s: float, mount: Pose2) -> Scan:
+    """The scan of a message with usable range limits, at ``time_s`` seconds, mounted at
+    ``mount``; readings outside the limits or not finite become 0.0."""
     n = len(raw.ranges)
     with np.errstate(invalid="ignore"):
         valid = (
@@ -426,6 +643,7 @@ def _scan(raw: _RawScan, time_s: float) -> Scan:
         ranges_m=np.where(valid, raw.ranges, 0.0),
         range_max_m=raw.range_max,
         intensities=raw.intensities,
+        mount=mount,
     )
 
 

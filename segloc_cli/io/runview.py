@@ -1,0 +1,361 @@
+"""The run view: an MCAP file that shows a localization run (or a map build) in Foxglove.
+
+Written with the Foxglove SDK, so every message is protobuf under Foxglove's own published
+schema (the schema travels in the file) and the file is chunked, indexed and compressed
+(zstd). Frames: ``world`` (the map), ``base_link`` (the robot, at the estimate) and
+``laser`` (the scanner, mounted on the robot). Topics:
+
+- ``/map``: ``foxglove.SceneUpdate``, one entity ``map`` of line segments in ``world``,
+  written once at the first scan's time and kept for the whole run.
+- ``/tf``: ``foxglove.FrameTransforms`` at each scan with a pose: ``world → base_link`` (the
+  estimate, or the surveyed pose of a map build) and ``base_link → laser`` (the mounting).
+- ``/scan``: ``foxglove.LaserScan`` in ``laser``, every scan, with or without a pose;
+  invalid readings as 0 (Foxglove skips them).
+- ``/estimate``, ``/guess``, ``/runner_up``: ``foxglove.PoseInFrame`` in ``world``: the
+  answer, the initial guess and the best distinct alternative, each where it exists.
+- ``/local_segments``: ``foxglove.SceneUpdate``, one entity ``local_segments`` in
+  ``base_link``: the segments the localizer extracted from the scan, with the status as text
+  above the robot. Each scan's entity replaces the last.
+- ``/status``: ``foxglove.Log``, one line per scan at the level the caller gives (a run:
+  info when the estimate is accepted, warning when ambiguous, error otherwise).
+
+Every message's log time is its scan's time (ns), and metadata record ``segloc.run`` says
+what the file shows. The file is written beside the target and renamed into place when it
+is closed, like every other output.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from types import TracebackType
+
+import numpy as np
+
+from segloc_cli.geometry import Pose2, heading_to_quaternion
+from segloc_cli.io.files import atomic_path, writing_error
+from segloc_cli.scan import Scan
+
+WORLD_FRAME = "world"
+ROBOT_FRAME = "base_link"
+LASER_FRAME = "laser"
+RUN_METADATA_NAME = "segloc.run"
+
+POSE_TOPICS = ("/estimate", "/guess", "/runner_up")
+"""The poses of each scan, in ``world``."""
+TOPICS = ("/map", "/tf", "/scan", *POSE_TOPICS, "/local_segments", "/status")
+"""Every topic of a run view, in the order its channels are made."""
+
+CHUNK_BYTES = 4 * 2**20
+"""Uncompressed chunk size (bytes) of the run view."""
+LINE_WIDTH_PX = {"map": 2.0, "local_segments": 3.0}
+"""Line thickness (screen pixels, so that it stays readable at any zoom)."""
+RGBA = {"map": (0.85, 0.85, 0.85, 1.0), "local_segments": (1.0, 0.55, 0.0, 1.0)}
+TEXT_HEIGHT_M = 0.4
+LEVELS = ("info", "warning", "error")
+"""Levels of the ``/status`` lines."""
+
+
+class RunViewWriter:
+    """Writes a run view (see the module docstring); use as a context manager.
+
+    ``map_segments`` (M, 4) ``x1 y1 x2 y2`` metres in ``world``; ``metadata`` str → str,
+    stored as ``segloc.run``. Each scan's ``mount`` gives its ``base_link → laser``.
+    An OS error raises ``OutputError`` naming ``path``; a run cut short by an exception
+    leaves no file.
+    """
+
+    def __init__(
+        self,
+        path: str | Path,
+        map_segments: np.ndarray,
+        metadata: dict[str, str] | None = None,
+    ):
+        import foxglove
+        from foxglove import channels
+        from foxglove.mcap import MCAPCompression, MCAPWriteOptions
+
+        self.path = Path(path)
+        self._map = np.asarray(map_segments, dtype=float).reshape(-1, 4)
+        self._map_written = False
+        self._atomic = atomic_path(self.path)
+        temporary = self._atomic.__enter__()
+        self._context = foxglove.Context()
+        options = MCAPWriteOptions(compression=MCAPCompression.Zstd, chunk_size=CHUNK_BYTES)
+        try:
+            self._writer = foxglove.open_mcap(
+                temporary, allow_overwrite=True, context=self._context, writer_options=options
+            )
+        except (OSError, RuntimeError) as exc:
+            self._atomic.__exit__(type(exc), exc, None)
+            raise writing_error(self.path, OSError(str(exc))) from None
+        self._open = True
+        self._writer.write_metadata(RUN_METADATA_NAME, dict(metadata or {}))
+        made = {
+            "/map": channels.SceneUpdateChannel,
+            "/tf": channels.FrameTransformsChannel,
+            "/scan": channels.LaserScanChannel,
+            **dict.fromkeys(POSE_TOPICS, channels.PoseInFrameChannel),
+            "/local_segments": channels.SceneUpdateChannel,
+            "/status": channels.LogChannel,
+        }
+        self._channels = {topic: made[topic](topic, context=self._context) for topic in TOPICS}
+
+    def __enter__(self) -> RunViewWriter:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        traceback: TracebackType | None,
+    ) -> None:
+        if exc_type is None:
+            self.close()
+        else:
+            self._abandon(exc_type, exc, traceback)
+
+    def add(
+        self,
+        scan: Scan,
+        local_segments: np.ndarray,
+        pose: Pose2 | None,
+        *,
+        guess: Pose2 | None = None,
+        runner_up: Pose2 | None = None,
+        status: str = "ok",
+        level: str = "info",
+        text: str = "",
+    ) -> None:
+        """One scan: its readings, its local segments (K, 4) metres in the robot frame, its
+        pose in ``world`` (None or NaN: none was found), the guess and runner-up where they
+        exist, its status, and a line of text for the log at ``level`` (one of ``LEVELS``)."""
+        time_ns = _time_ns(scan.time_s)
+        if not self._map_written:
+            self._write_map(time_ns)
+        stamp = _timestamp(time_ns)
+        pose, guess, runner_up = (_finite(p) for p in (pose, guess, runner_up))
+        if pose is not None:
+            self._log("/tf", _transforms(stamp, pose, scan.mount), time_ns)
+        self._log("/scan", _laser_scan(stamp, scan), time_ns)
+        for topic, shown in zip(POSE_TOPICS, (pose, guess, runner_up), strict=True):
+            if shown is not None:
+                self._log(topic, _pose_in_frame(stamp, shown), time_ns)
+        entity = _lines_entity(stamp, "local_segments", ROBOT_FRAME, local_segments, status)
+        self._log("/local_segments", _scene_update(entity), time_ns)
+        self._log("/status", _log_line(stamp, status, level, text), time_ns)
+
+    def close(self) -> None:
+        """Finish the file (with the map even if no scan came) and rename it into place."""
+        if not self._open:
+            return
+        self._open = False
+        if not self._map_written:
+            self._write_map(0)
+        try:
+            self._writer.close()
+        except (OSError, RuntimeError) as exc:
+            self._atomic.__exit__(type(exc), exc, None)
+            raise writing_error(self.path, OSError(str(exc))) from None
+        self._atomic.__exit__(None, None, None)
+
+    def _abandon(self, exc_type, exc, traceback) -> None:
+        """Close the writer and remove the unfinished file: the run failed."""
+        if not self._open:
+            return
+        self._open = False
+        self._writer.close()
+        self._atomic.__exit__(exc_type, exc, traceback)
+
+    def _log(self, topic: str, message, time_ns: int) -> None:
+        self._channels[topic].log(message, log_time=time_ns)
+
+    def _write_map(self, time_ns: int) -> None:
+        entity = _lines_entity(_timestamp(time_ns), "map", WORLD_FRAME, self._map, None)
+        self._log("/map", _scene_update(entity), time_ns)
+        self._map_written = True
+
+
+def _transforms(stamp, robot: Pose2, mount: Pose2):
+    """``world → base_link`` at the robot's pose and ``base_link → laser`` by the mounting."""
+    from foxglove.messages import FrameTransforms
+
+    return FrameTransforms(
+        transforms=[
+            _transform(stamp, WORLD_FRAME, ROBOT_FRAME, robot),
+            _transform(stamp, ROBOT_FRAME, LASER_FRAME, mount),
+        ]
+    )
+
+
+def _time_ns(time_s: float) -> int:
+    return max(0, round(time_s * 1e9))
+
+
+def _finite(pose: Pose2 | None) -> Pose2 | None:
+    if pose is None or not np.all(np.isfinite(pose.as_array())):
+        return None
+    return pose
+
+
+def _timestamp(time_ns: int):
+    from foxglove.messages import Timestamp
+
+    return Timestamp(sec=time_ns // 1_000_000_000, nsec=time_ns % 1_000_000_000)
+
+
+def _pose(pose: Pose2):
+    from foxglove.messages import Pose, Quaternion, Vector3
+
+    qx, qy, qz, qw = heading_to_quaternion(pose.theta)
+    return Pose(
+        position=Vector3(x=pose.x, y=pose.y, z=0.0),
+        orientation=Quaternion(x=qx, y=qy, z=qz, w=qw),
+    )
+
+
+def _transform(stamp, parent: str, child: str, pose: Pose2):
+    from foxglove.messages import FrameTransform, Quaternion, Vector3
+
+    qx, qy, qz, qw = heading_to_quaternion(pose.theta)
+    return FrameTransform(
+        timestamp=stamp,
+        parent_frame_id=parent,
+        child_frame_id=child,
+        translation=Vector3(x=pose.x, y=pose.y, z=0.0),
+        rotation=Quaternion(x=qx, y=qy, z=qz, w=qw),
+    )
+
+
+def _pose_in_frame(stamp, pose: Pose2):
+    from foxglove.messages import PoseInFrame
+
+    return PoseInFrame(timestamp=stamp, frame_id=WORLD_FRAME, pose=_pose(pose))
+
+
+def _laser_scan(stamp, scan: Scan):
+    from foxglove.messages import LaserScan
+
+    ranges = np.where(scan.valid, scan.ranges_m, 0.0)
+    angles = np.asarray(scan.angles_rad, dtype=float)
+    intensities = np.asarray(scan.intensities, dtype=float)
+    return LaserScan(
+        timestamp=stamp,
+        frame_id=LASER_FRAME,
+        pose=_pose(Pose2(0.0, 0.0, 0.0)),
+        start_angle=float(angles[0]) if angles.size else 0.0,
+        end_angle=float(angles[-1]) if angles.size else 0.0,
+        ranges=ranges.tolist(),
+        intensities=intensities.tolist() if intensities.size == ranges.size else [],
+    )
+
+
+def _lines_entity(stamp, name: str, frame: str, segments: np.ndarray, status: str | None):
+    """A scene entity of the segments (K, 4) metres in ``frame``, with ``status`` as text."""
+    from foxglove.messages import (
+        Color,
+        LinePrimitive,
+        LinePrimitiveLineType,
+        Point3,
+        SceneEntity,
+        TextPrimitive,
+    )
+
+    ends = np.asarray(segments, dtype=float).reshape(-1, 2)
+    line = LinePrimitive(
+        type=LinePrimitiveLineType.LineList,
+        pose=_pose(Pose2(0.0, 0.0, 0.0)),
+        thickness=LINE_WIDTH_PX[name],
+        scale_invariant=True,
+        points=[Point3(x=x, y=y, z=0.0) for x, y in ends.tolist()],
+        color=Color(**dict(zip("rgba", RGBA[name], strict=True))),
+    )
+    texts = []
+    if status is not None:
+        texts.append(
+            TextPrimitive(
+                pose=_pose(Pose2(0.0, 0.0, 0.0)),
+                billboard=True,
+                font_size=TEXT_HEIGHT_M,
+                scale_invariant=False,
+                color=Color(r=1.0, g=1.0, b=1.0, a=1.0),
+                text=status,
+            )
+        )
+    return SceneEntity(
+        timestamp=stamp, frame_id=frame, id=name, frame_locked=True, lines=[line], texts=texts
+    )
+
+
+def _scene_update(entity):
+    from foxglove.messages import SceneUpdate
+
+    return SceneUpdate(entities=[entity])
+
+
+def _log_line(stamp, status: str, level: str, text: str):
+    from foxglove.messages import Log, LogLevel
+
+    levels = {"info": LogLevel.Info, "warning": LogLevel.Warning, "error": LogLevel.Error}
+    message = f"{status}: {text}" if text else status
+    return Log(timestamp=stamp, level=levels[level], message=message, name="segloc")
+
+
+def pose_or_none(x: float, y: float, theta_deg: float) -> Pose2 | None:
+    """A ``Pose2`` from metres and degrees, or None when any is NaN (no pose)."""
+    if not all(math.isfinite(v) for v in (x, y, theta_deg)):
+        return None
+    return Pose2.from_deg(x, y, theta_deg)
+
+
+POSE_COLORS = {"/estimate": "#2ca02cff", "/guess": "#1f77b4ff", "/runner_up": "#d62728ff"}
+"""Arrow colours of the poses in the layout: answer green, guess blue, runner-up red."""
+
+
+def foxglove_layout() -> str:
+    """The Foxglove layout (JSON) that opens a run view: a top-down 3D panel in ``world``
+    with every topic shown (the scans at the estimates, the three poses as arrows), the
+    status log and the estimates' messages beside it."""
+    import foxglove.layouts as fl
+
+    topics = {
+        "/map": fl.BaseRendererSceneUpdateTopicSettings(visible=True),
+        "/local_segments": fl.BaseRendererSceneUpdateTopicSettings(visible=True),
+        "/scan": fl.BaseRendererLaserScanTopicSettings(
+            visible=True, point_size=3.0, color_mode="flat", flat_color="#ffd21fff"
+        ),
+        **{
+            topic: fl.BaseRendererPoseTopicSettings(visible=True, type="arrow", color=color)
+            for topic, color in POSE_COLORS.items()
+        },
+    }
+    scene = fl.ThreeDeePanel(
+        title="run",
+        config=fl.ThreeDeeConfig(
+            follow_tf=WORLD_FRAME,
+            follow_mode="follow-none",
+            camera_state=fl.ThreeDeeCameraState(perspective=False, distance=60.0, phi=0.0),
+            topics=topics,
+        ),
+    )
+    side = fl.SplitContainer(
+        direction="column",
+        items=[
+            fl.SplitItem(
+                content=fl.LogPanel(title="status", config=fl.LogConfig(topic_to_render="/status"))
+            ),
+            fl.SplitItem(
+                content=fl.RawMessagesPanel(
+                    title="estimate", config=fl.RawMessagesConfig(topic_path="/estimate")
+                )
+            ),
+        ],
+    )
+    layout = fl.Layout(
+        content=fl.SplitContainer(
+            direction="row",
+            items=[fl.SplitItem(proportion=3, content=scene), fl.SplitItem(content=side)],
+        )
+    )
+    return json.dumps(json.loads(layout.to_json()), indent=2) + "\n"

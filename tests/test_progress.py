@@ -1,0 +1,148 @@
+"""Progress of long work: nothing for short work, plain lines with rate and time left where
+standard error is not a terminal, a bar where it is; and the commands that report it."""
+
+from __future__ import annotations
+
+import io
+
+import pytest
+from conftest import HALL
+from test_cli import run_cli
+
+from segloc_cli import progress as progress_module
+from segloc_cli.progress import SILENT, Progress, plain_line
+
+
+class Clock:
+    """A monotonic clock the test moves by hand (seconds)."""
+
+    def __init__(self) -> None:
+        self.now = 1000.0
+
+    def __call__(self) -> float:
+        return self.now
+
+
+@pytest.fixture
+def clock(monkeypatch):
+    fake = Clock()
+    monkeypatch.setattr(progress_module.time, "monotonic", fake)
+    return fake
+
+
+def test_a_plain_line_gives_count_share_rate_and_time_left():
+    assert plain_line("localizing", 30, 120, "scan", 15.0) == (
+        "segloc: localizing: 30/120 scans (25%), 2.0 scans/s, 00:45 left"
+    )
+    assert plain_line("global search", 2, 10, "scan", 8.0) == (
+        "segloc: global search: 2/10 scans (20%), 4.0 s/scan, 00:32 left"
+    )
+    assert plain_line("reading", 500, None, "message", 100.0) == (
+        "segloc: reading: 500 messages, 5.0 messages/s, 01:40 so far"
+    )
+    assert plain_line("fusing", 1, None, "round", 8.0) == (
+        "segloc: fusing: 1 round, 8.0 s/round, 00:08 so far"
+    )
+    assert plain_line("reading", 0, 10, "scan", 0.0) == (
+        "segloc: reading: 0/10 scans (0%), ?, ? left"
+    )
+
+
+def test_plain_lines_come_every_few_seconds_and_once_at_the_end(clock):
+    stream = io.StringIO()
+    with Progress("localizing", 100, "scan", stream=stream, terminal=False) as shown:
+        for _ in range(100):
+            clock.now += 0.25  # 4 scans per second, 25 s in all
+            shown.advance()
+    lines = stream.getvalue().splitlines()
+    every = progress_module.PLAIN_EVERY_S
+    assert len(lines) == int(25 / every) + 1
+    assert lines[0] == "segloc: localizing: 20/100 scans (20%), 4.0 scans/s, 00:20 left"
+    assert lines[-1] == "segloc: localizing: 100/100 scans (100%), 4.0 scans/s, 00:00 left"
+
+
+def test_short_work_shows_nothing(clock):
+    for terminal in (False, True):
+        stream = io.StringIO()
+        with Progress("building the map", 50, "scan", stream=stream, terminal=terminal) as p:
+            for _ in range(50):
+                clock.now += 0.01
+                p.advance()
+        assert stream.getvalue() == "", f"terminal={terminal}"
+
+
+def test_a_terminal_gets_a_bar_with_rate_and_time_left(monkeypatch):
+    monkeypatch.setattr(progress_module, "SHOW_AFTER_S", 0.0)
+    stream = io.StringIO()
+    with Progress("tracking", 10, "scan", stream=stream, terminal=True) as shown:
+        shown.advance(3)
+    drawn = stream.getvalue()
+    bar = drawn.split("\r")[1]
+    assert bar.startswith("tracking:") and "/10 [00:00<" in bar and bar.endswith("scan/s]")
+    assert drawn.split("\r")[2].strip() == "", "the bar is cleared when the work ends"
+
+
+def test_the_silent_progress_prints_nothing(capsys):
+    SILENT.advance(5)
+    SILENT.close()
+    assert capsys.readouterr() == ("", "")
+
+
+# --------------------------------------------------------------------------- the commands
+
+
+@pytest.fixture
+def every_step_shown(monkeypatch):
+    """Progress shown from the first step and a plain line at every step."""
+    monkeypatch.setattr(progress_module, "SHOW_AFTER_S", 0.0)
+    monkeypatch.setattr(progress_module, "PLAIN_EVERY_S", 0.0)
+
+
+def _progress_lines(err: str, what: str) -> list[str]:
+    return [line for line in err.splitlines() if line.startswith(f"segloc: {what}: ")]
+
+
+def test_long_commands_report_progress_in_plain_lines(capsys, tmp_path, every_step_shown):
+    mapping = HALL / "mapping"
+    built = run_cli(
+        capsys, "map", "build", mapping / "log.mcap", "--survey", mapping / "survey.csv",
+        "--out", tmp_path / "map.json",
+    )  # fmt: skip
+    assert built.code == 0, built.err
+    extracting = _progress_lines(built.err, "extracting segments")
+    assert extracting[-1].startswith("segloc: extracting segments: 125/125 scans (100%), ")
+    assert len(extracting) == 125 + 1  # a line per scan here, and the last one again
+    assert _progress_lines(built.err, "fusing segments")[-1].endswith(" so far")
+
+    estimates = tmp_path / "est.csv"
+    ran = run_cli(capsys, "localize", HALL / "log.mcap", "--map", tmp_path / "map.json",
+                  "--out", estimates)  # fmt: skip
+    assert ran.code == 0, ran.err
+    assert _progress_lines(ran.err, "localizing")[-1].startswith(
+        "segloc: localizing: 10/10 scans (100%), "
+    )
+    assert _progress_lines(ran.err, "localizing")[-1].endswith(" 00:00 left")
+
+    drawn = run_cli(capsys, "evaluate", estimates, "--survey", HALL / "survey.csv",
+                    "--plots", tmp_path / "plots")  # fmt: skip
+    assert drawn.code == 0, drawn.err
+    assert _progress_lines(drawn.err, "drawing figures")[-1].startswith(
+        "segloc: drawing figures: 1/1 figure"
+    )
+
+
+def test_an_import_reports_reading_and_writing(capsys, tmp_path, every_step_shown):
+    from test_io_carmen import laser_line, write
+
+    lines = [laser_line([1.0, 2.0, 3.0] * 60, (0.1 * i, 0, 0), (0.1 * i, 0, 0), 1.0 + i)
+             for i in range(4)]  # fmt: skip
+    source = tmp_path / "run.log"
+    write(source, lines)
+    done = run_cli(capsys, "import", "carmen", source, "--out", tmp_path / "log.mcap")
+    assert done.code == 0, done.err
+    assert _progress_lines(done.err, "reading the log")[-1].startswith(
+        "segloc: reading the log: 4/4 lines (100%), "
+    )
+    assert _progress_lines(done.err, "writing the log")[-1].startswith(
+        "segloc: writing the log: 4/4 scans (100%), "
+    )
