@@ -167,6 +167,9 @@ def test_the_hall_run_view_shows_the_map_every_scan_and_each_estimate(tmp_path, 
     rows = list(csv.DictReader(out.open(encoding="utf-8")))
     log = read_log(LOG)
     messages = validated_messages(view)
+    with open(view, "rb") as stream:  # chunked, indexed and compressed like every log
+        summary = make_reader(stream).get_summary()
+    assert summary.chunk_indexes and {c.compression for c in summary.chunk_indexes} == {"zstd"}
     runner_ups = [r for r in rows if r["runner_up_x_m"] != ""]
     assert set(messages) == set(TOPICS) - (set() if runner_ups else {"/runner_up"})
     assert len(messages.get("/runner_up", [])) == len(runner_ups)
