@@ -260,15 +260,22 @@ class RawLog:
     scans: int
 
 
+SCANNER_FRAME = ("--laser-offset", "0,0,0")
+"""How a raw ROS bag is imported here: in the scanner's frame, not the robot's. The maps and
+the reference poses come from the corrected CARMEN logs, whose poses are the scanner's (and
+so are the relations'), so the scanner's poses are the ones to track and score; a bag's
+base_link → laser offset (0.04 m in fr079's) would otherwise stand between them."""
+
+
 def prepare_raw_log(name: str, datasets: Path, work: Path, commands: list[str]) -> RawLog:
     """Import dataset ``name``'s raw log (ROS bag or CARMEN) into ``work`` and write the pose
     that seeds ``--track`` at its first scan; the commands run are appended to ``commands``."""
     from segloc_cli.io.mcap_log import read_log
 
     raw = datasets / name / DATASETS[name][1]
-    raw_format = "rosbag" if raw.suffix == ".bag" else "carmen"
+    raw_format, options = ("rosbag", SCANNER_FRAME) if raw.suffix == ".bag" else ("carmen", ())
     log_path, first_pose_path = work / "raw.mcap", work / "first_pose.csv"
-    run_segloc(commands, "import", raw_format, raw, "--out", log_path)
+    run_segloc(commands, "import", raw_format, raw, *options, "--out", log_path)
     scans = read_log(log_path).scans
     commands.append(f"# first_pose.csv: (0, 0, 0) at the first scan of {log_path.name}")
     write_pose_table(

@@ -32,6 +32,8 @@ from protocol import (
     DATASETS,
     DATASETS_DIR,
     HOLD_OUT_EVERY,
+    PLACE_DEG,
+    PLACE_M,
     SUCCESS_DEG,
     SUCCESS_M,
     HeldOutSplit,
@@ -39,7 +41,9 @@ from protocol import (
     distances,
     errors_against_truth,
     is_right,
+    is_right_place,
     prepare_held_out,
+    prepare_raw_log,
     rows_by_pose_id,
     run_segloc,
     stage2_answers,
@@ -115,12 +119,15 @@ def _scored(est: pd.DataFrame, truth: PoseTable) -> dict:
     """Success, confidence and error figures of estimates against their reference poses.
 
     Right: within ``SUCCESS_M`` and ``SUCCESS_DEG`` whatever the status; a
-    silent failure is a wrong answer with status ok. Gross: beyond 30 cm or
-    3° (a wrong place, not an imprecise one).
+    silent failure is a wrong answer with status ok. Gross: beyond ``PLACE_M`` or
+    ``PLACE_DEG`` (a wrong place, not an imprecise one). The ``*_place`` figures are the
+    convergence view: right = within ``PLACE_M`` and ``PLACE_DEG``, a bound the reference
+    poses (SLAM output, not ground truth) can support.
     """
     pos, head = errors_against_truth(est, truth)
     right = is_right(pos, head)
-    gross = ~((pos < 0.3) & (head < 3.0))
+    place = is_right_place(pos, head)
+    gross = ~place
     ok = (est["status"] == "ok").to_numpy()
     finite = np.isfinite(pos)
 
@@ -144,6 +151,10 @@ def _scored(est: pd.DataFrame, truth: PoseTable) -> dict:
             "wrong_flagged": share(~ok, ~right),
             "gross_flagged": share(~ok, gross),
             "right_flagged": share(~ok, right),
+            "success_place": share(place),
+            "silent_place": share(gross & ok),
+            "wrong_flagged_place": share(~ok, gross),
+            "right_flagged_place": share(~ok, place),
             "median_pos_m": percentile(pos, 50),
             "p95_pos_m": percentile(pos, 95),
             "median_head_deg": percentile(head, 50),
@@ -252,28 +263,21 @@ def failures_figure(
 
 def tracking(name: str, split: HeldOutSplit, data: Path, work: Path, log: list[str]) -> dict:
     """Protocol (b): the raw log tracked in the map of ``split`` from (0, 0, 0) at its start."""
-    _, raw_name, relations_name = DATASETS[name]
-    raw = data / name / raw_name
-    raw_format = "rosbag" if raw.suffix == ".bag" else "carmen"
-    run_segloc(log, "import", raw_format, raw, "--out", work / "raw.mcap")
+    relations_name = DATASETS[name][2]
+    raw = prepare_raw_log(name, data, work, log)
     from segloc_cli.io.mcap_log import read_log
 
-    raw_log = read_log(work / "raw.mcap")
-    start = raw_log.scans[0].time_s
-    write_pose_table(
-        work / "first_pose.csv",
-        PoseTable(np.array([1]), np.array([start]), np.zeros((1, 3))),
-    )
+    raw_log = read_log(raw.log_path)
     t0 = time.perf_counter()
     run_segloc(
         log,
         "localize",
-        work / "raw.mcap",
+        raw.log_path,
         "--map",
         split.map_path,
         "--track",
         "--initial",
-        work / "first_pose.csv",
+        raw.first_pose_path,
         "--out",
         work / "track.csv",
     )
@@ -404,6 +408,38 @@ def _verdict_cells(summary: dict) -> str:
     return " | ".join(_pct(summary[key]) for key in VERDICT_KEYS)
 
 
+CONVERGENCE_KEYS = ("success_place", "silent_place", "wrong_flagged_place", "right_flagged_place")
+CONVERGENCE_TARGETS = ("≥ 99 %", "≤ 1 %", "≥ 95 %", "≤ 5 %")
+"""What the verdict and the search aim at in the convergence view, in ``CONVERGENCE_KEYS``
+order."""
+
+
+def convergence_section(results: dict) -> list[str]:
+    """The convergence view of both protocols: right = within ``PLACE_M`` and ``PLACE_DEG``
+    of the reference, beside the targets, from the same runs as the tables above."""
+    lines = [
+        "",
+        f"## Convergence view: right = within {PLACE_M * 100:.0f} cm and {PLACE_DEG:g}°",
+        "",
+        "The same runs scored with a bound the reference poses can support: they are SLAM "
+        "output and miss the datasets' ground-truth relations by more than 1° on 24–38 % of "
+        "them (see *How exact are the reference poses?*), so within 10 cm and 1° counts some "
+        "right answers as wrong. Silent: beyond the bound yet ok. Wrong flagged: the share of "
+        "answers beyond the bound whose status is not ok; right flagged: of those within it.",
+        "",
+        "| dataset | protocol | right | silent | wrong flagged | right flagged |",
+        "|---|---|---:|---:|---:|---:|",
+        "| target | | " + " | ".join(CONVERGENCE_TARGETS) + " |",
+    ]
+    for name, r in results.items():
+        for protocol, key in (("perturbation", "perturbation"), ("global", "global")):
+            if r.get(key) is None:
+                continue
+            cells = " | ".join(_pct(r[key][k]) for k in CONVERGENCE_KEYS)
+            lines.append(f"| {name} | {protocol} | {cells} |")
+    return lines
+
+
 def report(results: dict, commands: dict) -> str:
     """The markdown report: a table per protocol, the reference check, every command."""
     lines = [
@@ -461,6 +497,7 @@ def report(results: dict, commands: dict) -> str:
             continue
         statuses = ", ".join(f"{n} {s}" for s, n in sorted(g["statuses"].items()))
         lines.append(f"| {name} | {_verdict_cells(g)} | {statuses} | {g['median_ms']:.0f} |")
+    lines += convergence_section(results)
     lines += [
         "",
         "## (b) Tracking protocol",
