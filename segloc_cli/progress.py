@@ -23,11 +23,6 @@ SHOW_AFTER_S = 2.0
 """Work that ends sooner than this (s) shows no progress."""
 PLAIN_EVERY_S = 5.0
 """Seconds between the plain lines written when standard error is not a terminal."""
-PLAIN_FORMAT = (
-    "segloc: {desc}: {n_fmt}/{total_fmt} {unit}s ({percentage:.0f}%), {rate_fmt}, {remaining} left"
-)
-PLAIN_FORMAT_OPEN = "segloc: {desc}: {n_fmt} {unit}s, {rate_fmt}, {elapsed} so far"
-"""The plain line, with a known total and without one."""
 
 
 class Progress:

@@ -1156,3 +1156,24 @@ def test_a_ros2_bag_folder_imports_and_its_run_file_hashes_the_folder(capsys, tm
     done = run_cli(capsys, "import", "rosbag", path, "--out", out, "--force")
     assert done.code == 0, done.err
     assert recorded() != before
+
+
+def test_a_transform_message_that_is_no_transform_is_skipped_and_counted(tmp_path):
+    broken = ("base_link", "laser", (math.nan, 0.0, 0.0), quaternion())
+    # The good chain comes on /tf (unchanging); a broken /tf_static message is skipped whole.
+    path = mounted_bag("ros1", tmp_path, [broken], moving=[[MOUNT_LINK, LASER_LINK]] * 2)
+    log = read_rosbag(path)
+    assert log.warnings[0] == (
+        "test.bag: skipped 1 message(s) on /tf_static that could not be decoded (first: the "
+        "transform is not finite (to laser))"
+    )
+    assert log.laser_offset_source == "tf:base_link->laser"
+    assert abs(log.laser_offset.x - EXPECTED_MOUNT.x) < 1e-12
+    zero = ("base_link", "laser", (0.1, 0.0, 0.0), (0.0, 0.0, 0.0, 0.0))
+    (tmp_path / "zero").mkdir()
+    path = mounted_bag("ros1", tmp_path / "zero", [zero])
+    assert (
+        read_rosbag(path)
+        .warnings[0]
+        .endswith("(first: the transform's rotation quaternion is all zeros (to laser))")
+    )

@@ -196,7 +196,6 @@ def _run_view(mcap_path: Path, segments_world, log_paths, map_path: Path, mode: 
 def _shown(view, runs, logs, config):
     """The rows of ``runs``, each also added to the run view with its scan."""
     from segloc_cli.extract import extract_segments
-    from segloc_cli.io.runview import pose_or_none
 
     for run, log in zip(runs, logs, strict=True):
         scans = {scan.time_s: scan for scan in log.scans}
@@ -205,16 +204,22 @@ def _shown(view, runs, logs, config):
             view.add(
                 scan,
                 extract_segments(scan, config.extract),
-                pose_or_none(row["x_m"], row["y_m"], row["theta_deg"]),
-                guess=pose_or_none(row["init_x_m"], row["init_y_m"], row["init_theta_deg"]),
-                runner_up=pose_or_none(
-                    row["runner_up_x_m"], row["runner_up_y_m"], row["runner_up_theta_deg"]
-                ),
+                _row_pose(row, ""),
+                guess=_row_pose(row, "init_"),
+                runner_up=_row_pose(row, "runner_up_"),
                 status=row["status"],
                 level=_level(row["status"]),
                 text=_row_text(run.path, row),
             )
             yield row
+
+
+def _row_pose(row, prefix: str):
+    """The pose of a row's ``{prefix}x_m``, ``y_m``, ``theta_deg`` columns: NaN where the row
+    has none, which the run view leaves out."""
+    from segloc_cli.geometry import Pose2
+
+    return Pose2.from_deg(row[f"{prefix}x_m"], row[f"{prefix}y_m"], row[f"{prefix}theta_deg"])
 
 
 def _level(status: str) -> str:

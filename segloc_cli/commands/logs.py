@@ -23,7 +23,7 @@ from segloc_cli.commands.options import (
 from segloc_cli.errors import InputError
 from segloc_cli.geometry import Pose2
 from segloc_cli.runfile import run_file_path
-from segloc_cli.scan import MAX_RANGE_M
+from segloc_cli.scan import AT_ROBOT_ORIGIN, MAX_RANGE_M
 from segloc_cli.sim import SensorModel
 
 
@@ -151,7 +151,7 @@ def laser_offset_line(log) -> str:
     """One line on the log's laser offset: the scanner's pose in the robot frame and where
     it came from."""
     offset, source = log.laser_offset, log.laser_offset_source
-    if source == "none" and offset == Pose2(0.0, 0.0, 0.0):
+    if source == "none" and offset == AT_ROBOT_ORIGIN:
         return "laser offset: none (the scanner is taken to be at the robot's origin)"
     return (
         f"laser offset: x {offset.x:.6g} m, y {offset.y:.6g} m, theta {offset.theta_deg:.6g}° "
@@ -288,6 +288,7 @@ def import_rosbag(bag_path, out_path, scan_topic, odom_topic, laser_offset, forc
     from segloc_cli.io.files import check_outputs
     from segloc_cli.io.log import MAX_LASER_OFFSET_M
     from segloc_cli.io.rosbag import read_rosbag
+    from segloc_cli.progress import Progress
 
     given = None
     if laser_offset is not None:
@@ -295,10 +296,13 @@ def import_rosbag(bag_path, out_path, scan_topic, odom_topic, laser_offset, forc
     check_outputs(
         {"--out": out_path, "--out (run file)": run_file_path(out_path)}, [bag_path], force
     )
-    from segloc_cli.progress import Progress
-
-    topics = {"scan_topic": scan_topic, "odom_topic": odom_topic or None}
-    log = read_rosbag(bag_path, **topics, laser_offset=given, progress=Progress)
+    log = read_rosbag(
+        bag_path,
+        scan_topic=scan_topic,
+        odom_topic=odom_topic or None,
+        laser_offset=given,
+        progress=Progress,
+    )
     _write_imported(log, out_path)
     if log.laser_offset_source != "none":  # else a warning has said so
         info(laser_offset_line(log))

@@ -51,6 +51,7 @@ from segloc_cli.config import ExtractParams
 from segloc_cli.errors import InputError
 from segloc_cli.geometry import Pose2, transform_segments
 from segloc_cli.io.files import atomic_path, reading, write_text_atomic
+from segloc_cli.io.maps import shown_value
 from segloc_cli.io.plans import Plan, checked_plan_segments
 from segloc_cli.raster import SPLIT_CELLS, line_cells, trace_walls
 
@@ -299,9 +300,8 @@ def _number(path: Path, document: dict, key: str) -> float:
     return float(value)
 
 
-def _shown(value, limit: int = 60) -> str:
-    text = " ".join(repr(value).split())
-    return text if len(text) <= limit else text[: limit - 3] + "..."
+def _shown(value) -> str:
+    return shown_value(value, limit=60)
 
 
 # --- writing ------------------------------------------------------------------------------

@@ -151,7 +151,7 @@ def read_world(path: str | Path) -> World:
     materials = _parse_materials(path, document, len(segments))
     name = document.get("name", Path(path).stem)
     if not isinstance(name, str):
-        raise InputError(f"`name` must be a string, got {_shown(name)}", path=path)
+        raise InputError(f"`name` must be a string, got {shown_value(name)}", path=path)
     return World(segments=segments, materials=materials, name=name)
 
 
@@ -216,12 +216,12 @@ def _check_header(path, document: dict, accepted: tuple[str, ...]) -> str:
                 '"segloc-world" file with materials',
                 path=path,
             )
-        found = "missing" if kind is None else _shown(kind)
+        found = "missing" if kind is None else shown_value(kind)
         raise InputError(f"`format` is {found}; expected {wanted}", path=path)
     version = document.get("version")
     if isinstance(version, bool) or version != SUPPORTED_VERSION:
         raise InputError(
-            f"unsupported {kind} version {_shown(version)}; this segloc reads version "
+            f"unsupported {kind} version {shown_value(version)}; this segloc reads version "
             f"{SUPPORTED_VERSION}",
             path=path,
         )
@@ -243,7 +243,8 @@ def _parse_segments(path, document: dict) -> np.ndarray:
     for index, item in enumerate(raw):
         if not (isinstance(item, list) and len(item) == 4 and all(_is_number(v) for v in item)):
             raise InputError(
-                f"segment {index} must be 4 finite numbers [x1, y1, x2, y2], got {_shown(item)}",
+                f"segment {index} must be 4 finite numbers [x1, y1, x2, y2], "
+                f"got {shown_value(item)}",
                 path=path,
             )
     segments = np.array(raw, dtype=float).reshape(-1, 4)
@@ -272,7 +273,7 @@ def bounds_problem(segments: np.ndarray) -> str | None:
     if far.size:
         return (
             f"segment {int(far[0])} has a coordinate beyond ±{MAX_COORDINATE_M:g} m "
-            f"({_shown(segments[far[0]].tolist())})"
+            f"({shown_value(segments[far[0]].tolist())})"
         )
     lengths = np.hypot(segments[:, 2] - segments[:, 0], segments[:, 3] - segments[:, 1])
     short = np.flatnonzero(lengths < MIN_SEGMENT_LENGTH_M)
@@ -294,8 +295,9 @@ def bounds_problem(segments: np.ndarray) -> str | None:
     return None
 
 
-def _shown(value, limit: int = 80) -> str:
-    """``repr`` of a value from a user's file, cut to ``limit`` characters."""
+def shown_value(value, limit: int = 80) -> str:
+    """``repr`` of a value from a user's file on one line, cut to ``limit`` characters, as
+    error messages quote it."""
     text = _one_line(repr(value))
     return text if len(text) <= limit else text[: limit - 3] + "..."
 
@@ -318,7 +320,7 @@ def _parse_materials(path, document: dict, n_segments: int) -> np.ndarray:
     for index, material in enumerate(raw):
         if material not in MATERIALS:
             raise InputError(
-                f"segment {index} has unknown material {_shown(material)}; "
+                f"segment {index} has unknown material {shown_value(material)}; "
                 f"use one of {list(MATERIALS)}",
                 path=path,
             )

@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from segloc_cli.errors import InputError
+from segloc_cli.geometry import segment_lengths
 from segloc_cli.io.files import atomic_path, reading
 from segloc_cli.io.maps import MAX_COORDINATE_M, MIN_SEGMENT_LENGTH_M
 
@@ -71,8 +72,7 @@ def checked_plan_segments(path: Path, pieces_m: np.ndarray, hint: str) -> np.nda
         raise InputError(
             f"a line lies beyond ±{MAX_COORDINATE_M:g} m once in metres{hint}", path=path
         )
-    lengths = np.hypot(segments[:, 2] - segments[:, 0], segments[:, 3] - segments[:, 1])
-    return segments[lengths >= MIN_SEGMENT_LENGTH_M]
+    return segments[segment_lengths(segments) >= MIN_SEGMENT_LENGTH_M]
 
 
 def read_dxf(path: str | Path, layers: Sequence[str] = (), units: str | None = None) -> Plan:

@@ -79,6 +79,7 @@ from segloc_cli.io.tf import (
     find_mounting,
     fixed_links,
     root_of,
+    transform_matrix,
 )
 from segloc_cli.io.times import importer_times
 from segloc_cli.progress import Progress, ProgressFactory, silent
@@ -159,10 +160,10 @@ def _raw_transforms(topic: str, message: Any) -> list[Transform]:
     for stamped in message.transforms:
         t, q = stamped.transform.translation, stamped.transform.rotation
         translation, rotation = (t.x, t.y, t.z), (q.x, q.y, q.z, q.w)
-        if not all(math.isfinite(v) for v in (*translation, *rotation)):
-            raise ValueError(f"the transform to {stamped.child_frame_id} is not finite")
-        if not any(rotation):
-            raise ValueError(f"the rotation to {stamped.child_frame_id} is all zeros")
+        try:
+            transform_matrix(translation, rotation)  # the one check of a transform
+        except ValueError as exc:
+            raise ValueError(f"{exc} (to {stamped.child_frame_id})") from None
         parent, child = str(stamped.header.frame_id), str(stamped.child_frame_id)
         transforms.append(Transform(topic, parent, child, translation, rotation))
     return transforms
@@ -412,8 +413,8 @@ def _bag_messages(
         reader, refusal = None, refused
     if reader is not None:
         try:
-            topics = (scan_topic, odom_topic, tf_topics)
-            return _read_messages(path, reader, *topics, progress), []
+            decoded = _read_messages(path, reader, scan_topic, odom_topic, tf_topics, progress)
+            return decoded, []
         except InputError:
             raise
         except Exception as exc:  # the bag library meets damaged bytes in many ways
@@ -504,7 +505,7 @@ def _unusable(path: Path, mounting: Mounting, scanner: str) -> str | None:
 def _mirrored(raw: _RawScan) -> _RawScan:
     """The scan of an upside-down scanner as its upright twin would see it: beam order
     reversed, angles negated (still counter-clockwise from ``angle_min``)."""
-    last_rad = raw.angle_min + max(len(raw.ranges) - 1, 0) * raw.angle_increment
+    last_rad = _last_angle(raw)
     return raw._replace(
         angle_min=-last_rad,
         angle_max=-raw.angle_min,
@@ -561,13 +562,18 @@ def _odometry(
     return times_s[inside], odom_poses
 
 
+def _last_angle(raw: _RawScan) -> float:
+    """The angle (rad) of a scan's last beam, at ``angle_increment`` steps from ``angle_min``."""
+    return raw.angle_min + max(len(raw.ranges) - 1, 0) * raw.angle_increment
+
+
 def _usable(raw_scans: list[_RawScan]) -> tuple[list[_RawScan], list[tuple[str, list[str]]]]:
     """The scans that can be imported, and per reason the defects of those that cannot."""
     kept = []
     dropped: dict[str, list[str]] = {}
     for raw in raw_scans:
         n = len(raw.ranges)
-        last_rad = raw.angle_min + max(n - 1, 0) * raw.angle_increment
+        last_rad = _last_angle(raw)
         if raw.stamp_ns < 0:
             dropped.setdefault("stamped before 1970 (negative header.stamp)", []).append("")
         elif n > MAX_READINGS:

@@ -27,7 +27,6 @@ is closed, like every other output.
 from __future__ import annotations
 
 import json
-import math
 from pathlib import Path
 from types import TracebackType
 
@@ -53,6 +52,8 @@ LINE_WIDTH_PX = {"map": 2.0, "local_segments": 3.0}
 """Line thickness (screen pixels, so that it stays readable at any zoom)."""
 RGBA = {"map": (0.85, 0.85, 0.85, 1.0), "local_segments": (1.0, 0.55, 0.0, 1.0)}
 TEXT_HEIGHT_M = 0.4
+FRAME_ORIGIN = Pose2(0.0, 0.0, 0.0)
+"""The pose of a scan or a primitive drawn in its own frame."""
 LEVELS = ("info", "warning", "error")
 """Levels of the ``/status`` lines."""
 
@@ -205,26 +206,31 @@ def _timestamp(time_ns: int):
     return Timestamp(sec=time_ns // 1_000_000_000, nsec=time_ns % 1_000_000_000)
 
 
-def _pose(pose: Pose2):
-    from foxglove.messages import Pose, Quaternion, Vector3
+def _position_and_rotation(pose: Pose2):
+    """A planar pose as Foxglove's position (``Vector3``, z 0) and rotation about +z."""
+    from foxglove.messages import Quaternion, Vector3
 
     qx, qy, qz, qw = heading_to_quaternion(pose.theta)
-    return Pose(
-        position=Vector3(x=pose.x, y=pose.y, z=0.0),
-        orientation=Quaternion(x=qx, y=qy, z=qz, w=qw),
-    )
+    return Vector3(x=pose.x, y=pose.y, z=0.0), Quaternion(x=qx, y=qy, z=qz, w=qw)
+
+
+def _pose(pose: Pose2):
+    from foxglove.messages import Pose
+
+    position, orientation = _position_and_rotation(pose)
+    return Pose(position=position, orientation=orientation)
 
 
 def _transform(stamp, parent: str, child: str, pose: Pose2):
-    from foxglove.messages import FrameTransform, Quaternion, Vector3
+    from foxglove.messages import FrameTransform
 
-    qx, qy, qz, qw = heading_to_quaternion(pose.theta)
+    translation, rotation = _position_and_rotation(pose)
     return FrameTransform(
         timestamp=stamp,
         parent_frame_id=parent,
         child_frame_id=child,
-        translation=Vector3(x=pose.x, y=pose.y, z=0.0),
-        rotation=Quaternion(x=qx, y=qy, z=qz, w=qw),
+        translation=translation,
+        rotation=rotation,
     )
 
 
@@ -243,7 +249,7 @@ def _laser_scan(stamp, scan: Scan):
     return LaserScan(
         timestamp=stamp,
         frame_id=LASER_FRAME,
-        pose=_pose(Pose2(0.0, 0.0, 0.0)),
+        pose=_pose(FRAME_ORIGIN),
         start_angle=float(angles[0]) if angles.size else 0.0,
         end_angle=float(angles[-1]) if angles.size else 0.0,
         ranges=ranges.tolist(),
@@ -265,7 +271,7 @@ def _lines_entity(stamp, name: str, frame: str, segments: np.ndarray, status: st
     ends = np.asarray(segments, dtype=float).reshape(-1, 2)
     line = LinePrimitive(
         type=LinePrimitiveLineType.LineList,
-        pose=_pose(Pose2(0.0, 0.0, 0.0)),
+        pose=_pose(FRAME_ORIGIN),
         thickness=LINE_WIDTH_PX[name],
         scale_invariant=True,
         points=[Point3(x=x, y=y, z=0.0) for x, y in ends.tolist()],
@@ -275,7 +281,7 @@ def _lines_entity(stamp, name: str, frame: str, segments: np.ndarray, status: st
     if status is not None:
         texts.append(
             TextPrimitive(
-                pose=_pose(Pose2(0.0, 0.0, 0.0)),
+                pose=_pose(FRAME_ORIGIN),
                 billboard=True,
                 font_size=TEXT_HEIGHT_M,
                 scale_invariant=False,
@@ -300,13 +306,6 @@ def _log_line(stamp, status: str, level: str, text: str):
     levels = {"info": LogLevel.Info, "warning": LogLevel.Warning, "error": LogLevel.Error}
     message = f"{status}: {text}" if text else status
     return Log(timestamp=stamp, level=levels[level], message=message, name="segloc")
-
-
-def pose_or_none(x: float, y: float, theta_deg: float) -> Pose2 | None:
-    """A ``Pose2`` from metres and degrees, or None when any is NaN (no pose)."""
-    if not all(math.isfinite(v) for v in (x, y, theta_deg)):
-        return None
-    return Pose2.from_deg(x, y, theta_deg)
 
 
 POSE_COLORS = {"/estimate": "#2ca02cff", "/guess": "#1f77b4ff", "/runner_up": "#d62728ff"}

@@ -85,8 +85,7 @@ def read_svg(
                 f"not an SVG drawing: not well-formed XML ({exc})", path=path
             ) from None
         except _SVG_ERRORS as exc:
-            text = " ".join(str(exc).split()) or type(exc).__name__
-            raise InputError(f"not a readable SVG drawing ({text})", path=path) from None
+            raise _unreadable(path, exc) from None
     if not isinstance(drawing, se.SVG):
         raise InputError("not an SVG drawing: its outermost element is not <svg>", path=path)
     to_user = _to_user_units(path, drawing, se)
@@ -97,8 +96,7 @@ def read_svg(
     try:
         pieces, chords, shapes = _pieces_in_user_units(drawing, to_user, se)
     except _SVG_ERRORS as exc:
-        text = " ".join(str(exc).split()) or type(exc).__name__
-        raise InputError(f"not a readable SVG drawing ({text})", path=path) from None
+        raise _unreadable(path, exc) from None
     x0, y0 = (float(v) for v in origin_m)
     placed = np.array([x0, y0, x0, y0]) + scale_m * pieces * np.array([1.0, -1.0, 1.0, -1.0])
     segments = checked_plan_segments(path, placed, f" (×{scale_m:g}); check --scale and --origin")
@@ -142,6 +140,12 @@ def write_svg(path: str | Path, segments_world: np.ndarray) -> None:
         f"{lines}</g>\n</svg>\n"
     )
     write_text_atomic(path, text)
+
+
+def _unreadable(path: Path, exc: Exception) -> InputError:
+    """The one-line error for a drawing svgelements fails on, with its reason on one line."""
+    text = " ".join(str(exc).split()) or type(exc).__name__
+    return InputError(f"not a readable SVG drawing ({text})", path=path)
 
 
 def _pieces_in_user_units(drawing, to_user, se) -> tuple[np.ndarray, int, int]:
