@@ -32,6 +32,10 @@ from protocol import (
     DATASETS,
     DATASETS_DIR,
     HOLD_OUT_EVERY,
+    OWN_SCAN_ONLY,
+    PERTURB_SEED,
+    PERTURB_THETA_DEG,
+    PERTURB_XY_M,
     PLACE_DEG,
     PLACE_M,
     SUCCESS_DEG,
@@ -42,6 +46,7 @@ from protocol import (
     errors_against_truth,
     is_right,
     is_right_place,
+    perturbed_guesses,
     prepare_held_out,
     prepare_raw_log,
     rows_by_pose_id,
@@ -53,33 +58,24 @@ from segloc_cli.geometry import Pose2
 from segloc_cli.io.maps import read_map
 from segloc_cli.io.tables import PoseTable, read_estimates, read_pose_table, write_pose_table
 
-SEED = 2009
-PERTURB_XY_M = 1.5
-PERTURB_THETA_DEG = 20.0
 TRACK_LIMIT_M = 1.0
 
 
 def localize_held_out(split: HeldOutSplit, log: list[str], *options: object, out: Path) -> None:
-    """Localize the corrected log's scans in the map of ``split`` with ``options``, into ``out``."""
-    run_segloc(log, "localize", split.log_path, "--map", split.map_path, *options, "--out", out)
+    """Localize the held-out scans in the map of ``split`` with ``options``, into ``out``: the
+    guesses or poses ``options`` pass with ``--initial`` each seed only their own scan."""
+    run_segloc(
+        log, "localize", split.log_path, "--map", split.map_path, *OWN_SCAN_ONLY, *options,
+        "--out", out,
+    )  # fmt: skip
 
 
 def perturbation(name: str, split: HeldOutSplit, work: Path, log: list[str]) -> dict:
     """Protocol (a): the held-out scans localized from their reference poses plus uniform errors."""
-    log.append(f"# guesses.csv: reference + uniform errors, seed {SEED}")
-    rng = np.random.default_rng(SEED)
+    log.append(f"# guesses.csv: reference + uniform errors, seed {PERTURB_SEED}")
     truth = split.held_out_reference()
     n = len(truth)
-    offsets = np.column_stack(
-        [
-            rng.uniform(-PERTURB_XY_M, PERTURB_XY_M, (n, 2)),
-            np.deg2rad(rng.uniform(-PERTURB_THETA_DEG, PERTURB_THETA_DEG, n)),
-        ]
-    )
-    write_pose_table(
-        work / "guesses.csv",
-        PoseTable(truth.pose_id, truth.time_s, truth.poses + offsets),
-    )
+    write_pose_table(work / "guesses.csv", perturbed_guesses(truth))
     t0 = time.perf_counter()
     localize_held_out(split, log, "--initial", work / "guesses.csv", out=work / "perturb.csv")
     elapsed = time.perf_counter() - t0
@@ -453,7 +449,8 @@ def report(results: dict, commands: dict) -> str:
         "",
         f"Map from the corrected log's scans at their poses, leaving out every "
         f"{HOLD_OUT_EVERY}th; each left-out scan localized from its reference pose plus uniform "
-        f"errors in ±{PERTURB_XY_M} m, ±{PERTURB_XY_M} m, ±{PERTURB_THETA_DEG:g}° (seed {SEED}). "
+        f"errors in ±{PERTURB_XY_M} m, ±{PERTURB_XY_M} m, ±{PERTURB_THETA_DEG:g}° "
+        f"(seed {PERTURB_SEED}). "
         f"Right: within {SUCCESS_M * 100:.0f} cm and {SUCCESS_DEG:g}° of the reference pose, "
         "whatever the status. Silent: wrong but status ok. Flagged: status not ok (ambiguous, "
         "lost, too few segments). Gross: beyond 30 cm or 3°. Stage 2: the stage-2 pose of "
