@@ -6,7 +6,7 @@ STAMP := $(VENV)/.installed
 DEMO_OUT := out/demo
 HALL := datasets/hall
 
-.PHONY: setup demo test fuzz bench bench-real bench-peers figures lint hall clean
+.PHONY: setup demo test fuzz bench bench-real bench-peers calibrate figures lint hall clean
 
 # The last step compiles numba's kernels into their cache, so that no first run waits for it
 # (a failure there only costs that wait; tests/test_warmup.py catches it).
@@ -47,6 +47,12 @@ bench: $(STAMP)
 DATASETS ?= ../shared/datasets
 bench-real: $(STAMP)
 	$(BIN)/python benchmarks/real_logs.py --datasets $(DATASETS) --out benchmarks/results-real.md
+
+# Fit the verdict's confidence model on simulated rooms and the real logs' calibration splits
+# (scans the benchmarks do not score): segloc_cli/confidence_model.json and
+# benchmarks/results-calibration.md.
+calibrate: $(STAMP)
+	$(BIN)/python benchmarks/calibrate.py --datasets $(DATASETS)
 
 # Every method (two-stage, ICP, correlative) on the same seeded trials per initial-error bin,
 # on the hall and the real logs: benchmarks/results-peers.md and benchmarks/peers-trials.csv.

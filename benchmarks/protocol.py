@@ -13,6 +13,7 @@ Poses are in the world frame: metres, and radians in a ``PoseTable``; an estimat
 
 from __future__ import annotations
 
+import itertools
 import os
 import subprocess
 import sys
@@ -47,10 +48,11 @@ errors uniform in ±``PERTURB_XY_M`` per axis (metres) and ±``PERTURB_THETA_DEG
 drawn with seed ``PERTURB_SEED``."""
 
 OWN_SCAN_ONLY = ("--tolerance-ms", "1")
-"""How ``localize`` pairs held-out scans with their guesses here: each guess seeds only the
-scan at its own time. The corrected logs hold scans 10 ms apart (intel 8 pairs, fr079 2),
-and the default 50 ms would also hand a guess to the neighbour, a scan of the map, and
-score that scan against the held-out scan's reference."""
+"""How held-out scans are paired with poses here: each pose goes to the scan at its own time
+only. The corrected logs hold scans 10 ms apart (intel 8 pairs, fr079 2), and the default
+50 ms would hand a held-out scan's guess to its neighbour, a scan of the map, and score that
+scan against the held-out scan's reference; and when building the map, place the held-out
+scan at its neighbour's pose."""
 
 
 def is_right(pos_m, head_deg):
@@ -194,11 +196,15 @@ class HeldOutSplit:
         return subset_poses(self.reference, self.held_out)
 
 
-def prepare_held_out(name: str, datasets: Path, work: Path, commands: list[str]) -> HeldOutSplit:
+def prepare_held_out(
+    name: str, datasets: Path, work: Path, commands: list[str], first: int = 0
+) -> HeldOutSplit:
     """Import dataset ``name``'s corrected log into ``work`` and build its map without the
-    held-out scans (every ``HOLD_OUT_EVERY``-th); the commands run are appended to ``commands``.
+    held-out scans (every ``HOLD_OUT_EVERY``-th from the ``first``, 0-based); the commands run
+    are appended to ``commands``.
 
-    ``datasets`` is the folder holding a folder per dataset (see ``DATASETS``).
+    ``datasets`` is the folder holding a folder per dataset (see ``DATASETS``). The benchmarks
+    hold out the scans from the first; ``calibrate.py`` fits the verdict on another split.
     """
     carmen_log = datasets / name / DATASETS[name][0]
     log_path, reference_path = work / "corrected.mcap", work / "reference.csv"
@@ -209,17 +215,37 @@ def prepare_held_out(name: str, datasets: Path, work: Path, commands: list[str])
     # in the log and the reference alike.
     reference = read_pose_table(reference_path)
     held_out = np.zeros(len(reference), dtype=bool)
-    held_out[::HOLD_OUT_EVERY] = True
+    held_out[first::HOLD_OUT_EVERY] = True
+    start = f", from scan {first + 1}" if first else ""
     commands.append(
         f"# map_poses.csv, held_out.csv: written by {Path(sys.argv[0]).name} "
-        f"(every {HOLD_OUT_EVERY}th scan held out)"
+        f"(every {HOLD_OUT_EVERY}th scan held out{start})"
     )
-    map_poses_path, held_out_path = work / "map_poses.csv", work / "held_out.csv"
+    map_path, held_out_path = map_without(log_path, reference, held_out, work, commands)
+    return HeldOutSplit(log_path, map_path, held_out_path, reference, held_out)
+
+
+def map_without(
+    log_path: Path,
+    reference: PoseTable,
+    held_out: np.ndarray,
+    work: Path,
+    commands: list[str],
+    held_out_name: str = "held_out.csv",
+) -> tuple[Path, Path]:
+    """Build ``work/map.json`` from the scans of ``log_path`` at their ``reference`` poses,
+    leaving out those ``held_out`` ((N,) bool) marks, whose poses go to ``held_out_name``;
+    returns (map path, held-out poses path). ``map_poses.csv`` holds the others."""
+    map_poses_path, held_out_path = work / "map_poses.csv", work / held_out_name
     write_pose_table(map_poses_path, subset_poses(reference, ~held_out))
     write_pose_table(held_out_path, subset_poses(reference, held_out))
     map_path = work / "map.json"
-    run_segloc(commands, "map", "build", log_path, "--survey", map_poses_path, "--out", map_path)
-    return HeldOutSplit(log_path, map_path, held_out_path, reference, held_out)
+    # Paired within 1 ms, a held-out scan 10 ms from a map scan does not take its survey row.
+    run_segloc(
+        commands, "map", "build", log_path, "--survey", map_poses_path, *OWN_SCAN_ONLY,
+        "--out", map_path,
+    )  # fmt: skip
+    return map_path, held_out_path
 
 
 def subset_poses(table: PoseTable, mask: np.ndarray) -> PoseTable:
@@ -342,3 +368,43 @@ def stage2_answers(est: pd.DataFrame) -> pd.DataFrame:
     return est.assign(
         x_m=est["stage2_x_m"], y_m=est["stage2_y_m"], theta_deg=est["stage2_theta_deg"]
     )
+
+
+CONFIDENCE_BINS = (0.0, 0.5, 0.7, 0.8, 0.9, 0.95, 0.99, 1.0)
+"""Edges of the confidence bins of a reliability table."""
+
+
+def reliability_rows(confidence: np.ndarray, right: np.ndarray) -> list[list[str]]:
+    """Per bin of ``CONFIDENCE_BINS``: the bin, its trials, their mean confidence and the
+    share of them that is right (``right`` (N,) bool beside ``confidence`` (N,))."""
+    rows = []
+    for lo, hi in itertools.pairwise(CONFIDENCE_BINS):
+        inside = (confidence >= lo) & ((confidence < hi) if hi < 1.0 else (confidence <= hi))
+        n = int(inside.sum())
+        shown = [f"{confidence[inside].mean():.3f}", f"{right[inside].mean():.3f}"] if n else []
+        rows.append([f"{lo:g}–{hi:g}", str(n), *(shown or ["—", "—"])])
+    return rows
+
+
+def same_scans(wanted: list, scans: list, look_back: int = 50, look_ahead: int = 3000):
+    """Index into ``scans`` of the scan with the same readings as each of ``wanted`` (−1: none).
+
+    Both lists are nearly in recording order (the corrected logs swap a
+    neighbouring pair now and then), so the search walks on from the previous
+    match; readings agree within a millimetre (text logs print fewer digits).
+    """
+    ranges = [np.asarray(s.ranges_m, dtype=float) for s in scans]
+    out = np.full(len(wanted), -1, dtype=np.int64)
+    last = 0
+    for k, scan in enumerate(wanted):
+        target = np.asarray(scan.ranges_m, dtype=float)
+        for i in range(max(0, last - look_back), min(len(scans), last + look_ahead)):
+            if ranges[i].shape == target.shape and np.max(np.abs(ranges[i] - target)) < 1e-3:
+                out[k], last = i, i
+                break
+    return out
+
+
+def percent(share: float) -> str:
+    """A share (0–1) as a percentage, or a dash where there is none."""
+    return "—" if not np.isfinite(share) else f"{share * 100:.1f} %"

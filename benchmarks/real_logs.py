@@ -14,8 +14,13 @@ For each dataset, through the command line exactly as a user would run it:
     (found in the raw log by its readings) is compared with its reference pose,
     and the reference poses themselves are scored on the relations beside
     segloc's tracked poses.
+(c) Precision protocol (``precision.py``). The relations' end scans, held out of
+    a map of their own, each localized from a perturbed guess and scored on the
+    ground-truth relations.
 
-Writes a markdown report with every figure and the commands behind it.
+The confidence column of (a) and the global runs is checked for calibration (a
+reliability table and figure). Writes a markdown report with every figure and the
+commands behind it.
 Usage: python benchmarks/real_logs.py [--datasets DIR] [--only intel,aces] [--work DIR] [--out FILE]
 """
 
@@ -28,6 +33,7 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from precision import precision, precision_section
 from protocol import (
     DATASETS,
     DATASETS_DIR,
@@ -46,11 +52,14 @@ from protocol import (
     errors_against_truth,
     is_right,
     is_right_place,
+    percent,
     perturbed_guesses,
     prepare_held_out,
     prepare_raw_log,
+    reliability_rows,
     rows_by_pose_id,
     run_segloc,
+    same_scans,
     stage2_answers,
 )
 
@@ -361,25 +370,6 @@ def reference_check(relations_path: Path, times_s: np.ndarray, poses: np.ndarray
     }
 
 
-def same_scans(wanted: list, scans: list, look_back: int = 50, look_ahead: int = 3000):
-    """Index into ``scans`` of the scan with the same readings as each of ``wanted`` (−1: none).
-
-    Both lists are nearly in recording order (the corrected logs swap a
-    neighbouring pair now and then), so the search walks on from the previous
-    match; readings agree within a millimetre (text logs print fewer digits).
-    """
-    ranges = [np.asarray(s.ranges_m, dtype=float) for s in scans]
-    out = np.full(len(wanted), -1, dtype=np.int64)
-    last = 0
-    for k, scan in enumerate(wanted):
-        target = np.asarray(scan.ranges_m, dtype=float)
-        for i in range(max(0, last - look_back), min(len(scans), last + look_ahead)):
-            if ranges[i].shape == target.shape and np.max(np.abs(ranges[i] - target)) < 1e-3:
-                out[k], last = i, i
-                break
-    return out
-
-
 VERDICT_HEADER = (
     "right | right and ok | silent | silent, gross | wrong flagged | gross flagged | right flagged"
 )
@@ -394,14 +384,9 @@ VERDICT_KEYS = (
 )
 
 
-def _pct(share: float) -> str:
-    """A share (0–1) as a percentage, or a dash where there is none."""
-    return "—" if not np.isfinite(share) else f"{share * 100:.1f} %"
-
-
 def _verdict_cells(summary: dict) -> str:
     """The ``VERDICT_HEADER`` cells of one ``_scored`` summary, as percentages."""
-    return " | ".join(_pct(summary[key]) for key in VERDICT_KEYS)
+    return " | ".join(percent(summary[key]) for key in VERDICT_KEYS)
 
 
 CONVERGENCE_KEYS = ("success_place", "silent_place", "wrong_flagged_place", "right_flagged_place")
@@ -431,12 +416,83 @@ def convergence_section(results: dict) -> list[str]:
         for protocol, key in (("perturbation", "perturbation"), ("global", "global")):
             if r.get(key) is None:
                 continue
-            cells = " | ".join(_pct(r[key][k]) for k in CONVERGENCE_KEYS)
+            cells = " | ".join(percent(r[key][k]) for k in CONVERGENCE_KEYS)
             lines.append(f"| {name} | {protocol} | {cells} |")
     return lines
 
 
-def report(results: dict, commands: dict) -> str:
+def verdict_trials(name: str, protocol: str, est: pd.DataFrame, truth: PoseTable) -> pd.DataFrame:
+    """Each estimate row's confidence and whether it found the right place."""
+    pos, head = errors_against_truth(est, truth)
+    return pd.DataFrame(
+        {
+            "dataset": name,
+            "protocol": protocol,
+            "confidence": est["confidence"].to_numpy(dtype=float),
+            "right": is_right_place(pos, head),
+        }
+    )
+
+
+RELIABILITY_FIGURE = FIGURES / "reliability.png"
+
+
+def reliability_figure(trials: pd.DataFrame) -> None:
+    """Observed share right against the confidence, per bin and protocol, with the diagonal
+    a calibrated confidence lies on."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(5.5, 5))
+    ax.plot([0, 1], [0, 1], color="0.6", lw=1, label="calibrated")
+    for (protocol, group), marker in zip(trials.groupby("protocol"), "os", strict=False):
+        rows = reliability_rows(group["confidence"].to_numpy(), group["right"].to_numpy())
+        shown = [(float(r[2]), float(r[3]), int(r[1])) for r in rows if r[2] != "—"]
+        x, y, n = (np.array(v) for v in zip(*shown, strict=True))
+        ax.scatter(x, y, s=20 + 200 * n / n.max(), marker=marker, alpha=0.7, label=protocol)
+    ax.set_xlabel("confidence (mean of the bin)")
+    ax.set_ylabel(f"share right (within {PLACE_M * 100:.0f} cm and {PLACE_DEG:g}°)")
+    ax.set_xlim(0, 1.02)
+    ax.set_ylim(0, 1.02)
+    ax.legend(loc="lower right")
+    ax.set_title("Reliability on the benchmark's trials (marker area: trials)")
+    fig.tight_layout()
+    FIGURES.mkdir(parents=True, exist_ok=True)
+    fig.savefig(RELIABILITY_FIGURE, dpi=80)
+    plt.close(fig)
+
+
+def verdict_section(trials: pd.DataFrame) -> list[str]:
+    """How the confidence bears out on the trials above: a reliability table per protocol,
+    pooled over the datasets, and its figure."""
+    lines = [
+        "",
+        "## The confidence column",
+        "",
+        "Each row's `confidence` is the probability the verdict's model gives that the answer "
+        "is the right place; it was fitted by `make calibrate` on other trials (see "
+        "[results-calibration.md](results-calibration.md)), none of them scored here. Where "
+        "the confidence is calibrated, the share right in each bin equals the bin's mean "
+        "confidence (the diagonal of the figure); above it, the confidence is cautious, "
+        f"below it, rash. Right: within {PLACE_M * 100:.0f} cm and {PLACE_DEG:g}° of the "
+        f"reference. Figure: [reliability](figures/{RELIABILITY_FIGURE.name}).",
+    ]
+    for protocol, group in trials.groupby("protocol", sort=False):
+        rows = reliability_rows(group["confidence"].to_numpy(), group["right"].to_numpy())
+        lines += [
+            "",
+            f"**{protocol}** ({len(group)} trials, {group['right'].mean():.1%} right)",
+            "",
+            "| confidence | trials | mean confidence | share right |",
+            "|---|---:|---:|---:|",
+            *("| " + " | ".join(row) + " |" for row in rows),
+        ]
+    return lines
+
+
+def report(results: dict, commands: dict, trials: pd.DataFrame | None = None) -> str:
     """The markdown report: a table per protocol, the reference check, every command."""
     lines = [
         "# segloc on real logs",
@@ -471,8 +527,8 @@ def report(results: dict, commands: dict) -> str:
             f"| {name} | {a['scans']} | {a['held_out']} | {a['map_segments']} | "
             f"{a['median_local_segments']:.0f} | {_verdict_cells(a)} | "
             f"{a['median_pos_m'] * 100:.1f} | {a['median_head_deg']:.2f} | "
-            f"{a['median_ms']:.1f} | {_pct(a['success_stage2'])} | "
-            f"{a['median_pos_stage2_m'] * 100:.1f} | {_pct(a['reference_fit'])} |"
+            f"{a['median_ms']:.1f} | {percent(a['success_stage2'])} | "
+            f"{a['median_pos_stage2_m'] * 100:.1f} | {percent(a['reference_fit'])} |"
         )
     lines += [
         "",
@@ -495,13 +551,21 @@ def report(results: dict, commands: dict) -> str:
         statuses = ", ".join(f"{n} {s}" for s, n in sorted(g["statuses"].items()))
         lines.append(f"| {name} | {_verdict_cells(g)} | {statuses} | {g['median_ms']:.0f} |")
     lines += convergence_section(results)
+    tracked = {n: r["tracking"]["relations"] for n, r in results.items() if r.get("tracking")}
+    tracked = {n: {"trans_m": t["trans_m"], "rot_deg": t["rot_deg"]} for n, t in tracked.items()}
+    measured = {n: r["precision"] for n, r in results.items() if r.get("precision")}
+    if measured:
+        lines += ["", *precision_section(measured, tracked or None)]
+    if trials is not None and len(trials):
+        lines += verdict_section(trials)
     lines += [
         "",
         "## (b) Tracking protocol",
         "",
         "The raw log tracked with `--track` against the map of (a), seeded with (0, 0, 0) at its "
-        "first scan. The relation metric counts only relations whose two times have an accepted "
-        "estimate (ok or recovered). The distance columns compare, for every scan of the "
+        "first scan. The relation metric counts every relation whose two times have an "
+        "estimate, whatever its status (a lost scan carries its dead-reckoning pose). The "
+        "distance columns compare, for every scan of the "
         "corrected log (found in the raw log by its identical readings), the tracked pose with "
         "the reference pose; a lost scan counts with the dead-reckoning pose it carries. "
         "segloc tracks in a map built from the corrected log, a prior that the SLAM systems "
@@ -559,8 +623,8 @@ def report(results: dict, commands: dict) -> str:
         ref, ours = c["reference"], c["segloc"]
         lines.append(
             f"| {name} | {c['relations']} | {ref['rot_mean_deg']:.2f} | "
-            f"{_pct(ref['rot_over_1deg'])} | {ref['trans_mean_m']:.3f} | "
-            f"{ours['rot_mean_deg']:.2f} | {_pct(ours['rot_over_1deg'])} | "
+            f"{percent(ref['rot_over_1deg'])} | {ref['trans_mean_m']:.3f} | "
+            f"{ours['rot_mean_deg']:.2f} | {percent(ours['rot_over_1deg'])} | "
             f"{ours['trans_mean_m']:.3f} |"
         )
     lines += ["", *commands_section(commands)]
@@ -575,7 +639,7 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results-real.md"))
     parser.add_argument("--no-tracking", action="store_true")
     args = parser.parse_args()
-    results, commands = {}, {}
+    results, commands, trials = {}, {}, []
     for name in args.only.split(","):
         work = args.work / name
         work.mkdir(parents=True, exist_ok=True)
@@ -587,12 +651,20 @@ def main() -> None:
         print(f"{name}: global localization", flush=True)
         results[name]["global"] = global_localization(split, work, log)
         print(f"  {json.dumps(results[name]['global'])}", flush=True)
+        truth = split.held_out_reference()
+        for protocol, table in (("perturbation", "perturb.csv"), ("global", "global.csv")):
+            trials.append(verdict_trials(name, protocol, read_estimates(work / table), truth))
         if not args.no_tracking:
             print(f"{name}: tracking protocol", flush=True)
             results[name]["tracking"] = tracking(name, split, args.datasets, work, log)
             print(f"  {json.dumps(results[name]['tracking'], default=str)}", flush=True)
+        print(f"{name}: precision protocol", flush=True)
+        results[name]["precision"] = precision(name, args.datasets, work / "precision", log)
+        print(f"  {json.dumps(results[name]['precision'], default=str)}", flush=True)
         commands[name] = log
-    args.out.write_text(report(results, commands), encoding="utf-8")
+    verdict = pd.concat(trials, ignore_index=True)
+    reliability_figure(verdict)
+    args.out.write_text(report(results, commands, verdict), encoding="utf-8")
     (args.work / "results.json").write_text(json.dumps(results, indent=2, default=str))
     print(f"wrote {args.out}")
 

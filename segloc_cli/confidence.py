@@ -1,38 +1,153 @@
-"""How far to trust an estimate: ``ok``, ``ambiguous`` or ``lost``.
+"""How far to trust an estimate: a confidence, and the status ``ok``, ``ambiguous`` or ``lost``.
 
-Three numbers decide. The share of the scan's points that lie on the map at
-the answer (its inlier ratio) says whether the scan was explained at all; a
-wrong pose can still explain much of a scan, so the margin over the best
-distinct alternative says whether anything else explains it about as well
-(a 180° view down a featureless corridor fits many places along it); and
-since a search may not reach the alternatives, how firmly the points on the
-map fix the position along their weakest direction says whether the scan
-could tell such places apart at all.
+The confidence is the probability that the answer is the right place (within 30 cm and 3°
+of the truth), predicted from what the fit leaves behind (``Evidence``): how much of the
+scan lies on the map at the answer, how firmly those points fix the position along their
+weakest direction, and how far the best distinct alternative falls behind. A logistic model
+(``ConfidenceModel``) maps them to the probability; its weights are fitted by
+``benchmarks/calibrate.py`` on simulated and real trials and shipped in
+``confidence_model.json`` beside this module, with the trials they were fitted on.
+
+The status follows from it (``judge``): ``lost`` when too little of the scan lies on the map,
+``ambiguous`` when the confidence is below ``min_confidence`` or nothing pins the position
+along one direction (a corridor), else ``ok``.
 """
 
 from __future__ import annotations
 
+import functools
+import json
 import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
 
 from segloc_cli.config import ConfidenceParams
 
 STATUS_OK = "ok"
 STATUS_AMBIGUOUS = "ambiguous"
-"""A distinct pose explains the scan nearly as well as the answer."""
+"""The answer may well be the wrong place: a distinct pose explains the scan nearly as well,
+or the scan cannot tell such places apart."""
 STATUS_LOST = "lost"
 """Too little of the scan lies on the map at the answer."""
 
+MODEL_PATH = Path(__file__).with_name("confidence_model.json")
+FEATURES = ("inlier_ratio", "log_hold_points", "inlier_margin", "score_margin", "tie")
+"""The inputs of the model, the keys of ``Evidence.features``. The inliers' RMS distance and
+the counts of points and of local segments were tried too and left out: on sources left out
+of the fit they made its predictions worse, the counts standing for which scanner took the
+scan rather than for the fit."""
+TIE_SCALE = 0.003
+"""Score margin (the score runs 0–1) below which ``tie`` is near its largest, −log TIE_SCALE:
+the answer and its rival fit alike there to within the scatter of the score itself."""
+
+
+@dataclass(frozen=True)
+class Evidence:
+    """What the verdict weighs, measured at the answer after refinement.
+
+    ``inlier_ratio`` and ``runner_up_ratio``: shares (0–1) of the scan's points within the
+    final gate of a map segment at the answer and at its best distinct alternative (0 when
+    none was found); ``score`` and ``runner_up_score``: the fit scores there (``Refinement.
+    score``, 0–1, which also rewards how close the points lie); ``hold_points``: how many
+    points' worth fix the position along its weakest direction (``refine.support``).
+    """
+
+    inlier_ratio: float
+    runner_up_ratio: float
+    score: float
+    runner_up_score: float
+    hold_points: float
+
+    def features(self) -> dict[str, float]:
+        """The model's inputs by name (``FEATURES``): plain numbers, none NaN.
+
+        ``tie`` = −log(score margin + ``TIE_SCALE``) rises steeply as the margin falls to 0: a
+        linear weight on the margin alone cannot tell a clear lead of a few hundredths from
+        the exact tie a symmetric place gives.
+        """
+        score_margin = self.score - self.runner_up_score
+        return {
+            "inlier_ratio": self.inlier_ratio,
+            "log_hold_points": math.log1p(max(self.hold_points, 0.0)),
+            "inlier_margin": self.inlier_ratio - self.runner_up_ratio,
+            "score_margin": score_margin,
+            "tie": -math.log(max(score_margin, 0.0) + TIE_SCALE),
+        }
+
+
+@dataclass(frozen=True)
+class ConfidenceModel:
+    """A logistic model: P(right) = 1 / (1 + exp(−(bias + Σ wᵢ (xᵢ − meanᵢ) / scaleᵢ))).
+
+    ``features`` names the inputs (keys of ``Evidence.features``) in the order of
+    ``mean``, ``scale`` and ``weights``.
+    """
+
+    features: tuple[str, ...]
+    mean: tuple[float, ...]
+    scale: tuple[float, ...]
+    weights: tuple[float, ...]
+    bias: float
+
+    def probability(self, evidence: Evidence) -> float:
+        """P(the answer is the right place) given ``evidence``, in [0, 1]."""
+        values = evidence.features()
+        x = np.array([values[name] for name in self.features], dtype=float)
+        z = self.bias + float(np.dot(self.weights, (x - self.mean) / np.asarray(self.scale)))
+        return 1.0 / (1.0 + math.exp(-min(max(z, -700.0), 700.0)))
+
+    def as_dict(self) -> dict:
+        """The model as the JSON object ``confidence_model.json`` holds under "model"."""
+        return {
+            "features": list(self.features),
+            "mean": list(self.mean),
+            "scale": list(self.scale),
+            "weights": list(self.weights),
+            "bias": self.bias,
+        }
+
+    @classmethod
+    def from_dict(cls, data: dict) -> ConfidenceModel:
+        """The model from its JSON object (see ``as_dict``)."""
+        return cls(
+            features=tuple(data["features"]),
+            mean=tuple(float(v) for v in data["mean"]),
+            scale=tuple(float(v) for v in data["scale"]),
+            weights=tuple(float(v) for v in data["weights"]),
+            bias=float(data["bias"]),
+        )
+
+
+UNINFORMED = ConfidenceModel(features=(), mean=(), scale=(), weights=(), bias=0.0)
+"""A model that knows nothing: 0.5 for every answer. The calibration localizes with it, so
+that what it fits never depends on an earlier fit."""
+
+
+@functools.cache
+def shipped_model() -> ConfidenceModel:
+    """The model fitted by ``benchmarks/calibrate.py``, read once from ``MODEL_PATH``."""
+    return ConfidenceModel.from_dict(json.loads(MODEL_PATH.read_text(encoding="utf-8"))["model"])
+
 
 def judge(
-    inlier_ratio: float,
-    runner_up_ratio: float,
-    params: ConfidenceParams,
-    hold_points: float = math.inf,
-) -> str:
-    """Status of an answer from its inlier share, its best distinct alternative's (0 if none)
-    and how firmly its points fix the position along their weakest direction."""
+    evidence: Evidence, params: ConfidenceParams, model: ConfidenceModel | None = None
+) -> tuple[str, float]:
+    """Status and confidence of an answer from its ``evidence``, by ``model`` (the shipped
+    one by default)."""
+    confidence = (model or shipped_model()).probability(evidence)
+    status = points_status(evidence.inlier_ratio, evidence.hold_points, params)
+    if status == STATUS_OK and confidence < params.min_confidence:
+        status = STATUS_AMBIGUOUS
+    return status, confidence
+
+
+def points_status(inlier_ratio: float, hold_points: float, params: ConfidenceParams) -> str:
+    """The status the points alone give, rivals unasked: ``lost`` below the inlier share,
+    ``ambiguous`` where they cannot fix the position along one direction, else ``ok``."""
     if not inlier_ratio >= params.min_inlier_ratio:
         return STATUS_LOST
-    if inlier_ratio - runner_up_ratio < params.min_margin or hold_points < params.min_hold_points:
+    if hold_points < params.min_hold_points:
         return STATUS_AMBIGUOUS
     return STATUS_OK

@@ -10,7 +10,7 @@ here.
 option of the command line (``--grid-m``) and the key in a ``--config`` table
 (``grid-m = 1.5``); ``path`` says which field of ``Config`` it sets; ``help``
 is the option's help text, or None for a tuning setting, which the command
-line accepts but does not list (``docs/configuration.md`` lists them all).
+line accepts but does not list (the README's settings table lists them all).
 
 This module imports nothing heavier than numpy: the command line reads it at start-up.
 """
@@ -133,12 +133,13 @@ class SearchParams:
 
 @dataclass(frozen=True)
 class ConfidenceParams:
-    """Thresholds on inlier ratios (shares of the scan's points, 0–1)."""
+    """Thresholds of the verdict: on the inlier share (0–1), the confidence (a probability,
+    see ``confidence.py``) and the points that fix the position."""
 
     min_inlier_ratio: float = 0.5
     """Below this share of points on the map the answer is ``lost``."""
-    min_margin: float = 0.1
-    """The answer's share must beat the best distinct alternative's by this, else ``ambiguous``."""
+    min_confidence: float = 0.9
+    """Below this probability of being the right place the answer is ``ambiguous``."""
     min_hold_points: float = MIN_HOLD_POINTS
     """The points on the map must fix the position in every direction by this many points'
     worth (``refine.support``), else ``ambiguous``."""
@@ -169,9 +170,9 @@ class LocalizeParams:
     min_segments: int = 3
     """Fewer local segments and the status is ``too_few_segments`` (stage 2 does not run)."""
     min_points: int = 20
-    """Fewer valid readings and the status is ``too_few_segments``. The verdict compares
-    inlier shares with a margin of 0.1: below 20 points two stray readings would decide it, and
-    three segments of extraction's 4 readings each leave little to check a fit against."""
+    """Fewer valid readings and the status is ``too_few_segments``. The verdict weighs shares
+    of the points: below 20, two stray readings would swing them by a tenth, and three segments
+    of extraction's 4 readings each leave little to check a fit against."""
     min_spread_m: float = MIN_POINT_SPREAD_M
     """Points spread less than this across their main direction: ``too_few_segments``."""
     refine: RefineParams | None = field(default_factory=RefineParams)
@@ -357,7 +358,7 @@ _TUNING_BOUNDS: dict[str, tuple[float, float, bool]] = {
     "localize.search.distinct_m": (0.0, 1e4, False),
     "localize.search.distinct_deg": (0.0, 180.0, False),
     "localize.confidence.min_inlier_ratio": (0.0, 1.0, False),
-    "localize.confidence.min_margin": (0.0, 1.0, False),
+    "localize.confidence.min_confidence": (0.0, 1.0, False),
     "localize.confidence.min_hold_points": (0.0, 1e6, False),
     "track.min_inlier_ratio": (0.0, 1.0, False),
     "track.widen": (1.0, 100.0, False),

@@ -13,11 +13,18 @@ from typing import Protocol
 import numpy as np
 
 from segloc_cli.align import RTable, align
-from segloc_cli.confidence import STATUS_OK, judge
+from segloc_cli.confidence import (
+    STATUS_OK,
+    ConfidenceModel,
+    Evidence,
+    judge,
+    points_status,
+    shipped_model,
+)
 from segloc_cli.config import ExtractParams, LocalizeParams, RefineParams, SearchParams
 from segloc_cli.extract import extract_segments
 from segloc_cli.geometry import Pose2
-from segloc_cli.io.tables import EstimateRow
+from segloc_cli.io.tables import EstimateRow, HypothesisRow
 from segloc_cli.overlap import coarse_to_fine
 from segloc_cli.refine import Refinement, refine_pose, support
 from segloc_cli.scan import Scan
@@ -35,6 +42,18 @@ ESTIMATED = (STATUS_OK, STATUS_RECOVERED)
 (``ambiguous`` and ``lost`` rows hold a pose too, the best found, but it is not trusted.)"""
 
 
+@dataclass(frozen=True)
+class Hypothesis:
+    """A distinct pose (world frame) that explains the scan: the share of its points on the
+    map there, its fit score (``Refinement.score``) and the probability that it is the right
+    place, weighed against the best other hypothesis."""
+
+    pose: Pose2
+    inlier_ratio: float
+    score: float
+    confidence: float
+
+
 @dataclass(frozen=True, kw_only=True)
 class Estimate:
     """Outcome for one scan, world frame. ``pose`` is NaN-filled when nothing was found.
@@ -45,7 +64,11 @@ class Estimate:
     same when refinement is off). ``inlier_ratio`` is the share of the scan's
     points on the map at ``pose`` (NaN when not measured). ``runner_up`` is
     the best fit distinct from ``pose`` among the hypotheses refined, with its
-    own inlier share (None and NaN when there was none).
+    own inlier share (None and NaN when there was none). ``confidence`` is the
+    probability that ``pose`` is the right place (``confidence.py``), from
+    ``evidence``; NaN and None where no rival was sought (``--no-refine``).
+    ``hypotheses`` lists the distinct fits found, best first (the first is
+    ``pose``, the second ``runner_up``); empty where no rival was sought.
     """
 
     pose: Pose2
@@ -57,6 +80,9 @@ class Estimate:
     inlier_ratio: float = float("nan")
     runner_up: Pose2 | None = None
     runner_up_ratio: float = float("nan")
+    confidence: float = float("nan")
+    evidence: Evidence | None = None
+    hypotheses: tuple[Hypothesis, ...] = ()
 
 
 def usable_points(points_robot: np.ndarray | None) -> np.ndarray | None:
@@ -135,7 +161,8 @@ class Localizer:
     ``index``, ``near_index``, ``rtable`` and ``search`` let a localizer with
     other settings share what another built on the same map (see
     ``with_params``); by default they are built here (``near_index`` and the
-    search on first use).
+    search on first use). ``model`` gives the verdict's confidence (the shipped
+    model by default).
     """
 
     uses_segments = True
@@ -150,8 +177,10 @@ class Localizer:
         rtable: RTable | None = None,
         search: HypothesisSearch | None = None,
         near_index: SegmentGrid | None = None,
+        model: ConfidenceModel | None = None,
     ):
         self.params = params or LocalizeParams()
+        self.model = shipped_model() if model is None else model
         self.segments_world = np.asarray(segments_world, dtype=float)
         if rtable is None:
             rtable = RTable.build(self.segments_world, self.params.bin_deg)
@@ -175,6 +204,7 @@ class Localizer:
             rtable=self.rtable if same_bins else None,
             search=self.hypothesis_search if same_search else None,
             near_index=self.near_index,
+            model=self.model,
         )
 
     @property
@@ -330,12 +360,25 @@ class Localizer:
     def _checked_by_points(self, est: Estimate, points_robot: np.ndarray) -> Estimate:
         """The paper's answer with a verdict from the scan's points: overlap alone rates a
         pose that shares a few segments with the map as highly as the right one, so the
-        answer is ``lost`` unless enough of the points lie on the map there."""
+        answer is ``lost`` unless enough of the points lie on the map there. No rival was
+        sought, so the points alone decide (``points_status``), with no confidence."""
         ratio, hold = support(
             points_robot, self.segments_world, est.pose, self._band_m, index=self.near_index
         )
-        status = judge(ratio, 0.0, self.params.confidence, hold)
+        status = points_status(ratio, hold, self.params.confidence)
         return replace(est, inlier_ratio=ratio, status=status)
+
+    def _evidence(
+        self, points_robot: np.ndarray, best: Refinement, runner_up: Refinement | None
+    ) -> Evidence:
+        """What the verdict weighs at ``best``, against its best distinct rival."""
+        return Evidence(
+            inlier_ratio=best.inlier_ratio,
+            runner_up_ratio=0.0 if runner_up is None else runner_up.inlier_ratio,
+            score=best.score,
+            runner_up_score=0.0 if runner_up is None else runner_up.score,
+            hold_points=self.hold_points(points_robot, best.pose),
+        )
 
     @property
     def _band_m(self) -> float:
@@ -376,7 +419,8 @@ class Localizer:
         n_local: int,
         stage2_pose: Pose2 | None,
     ) -> Estimate:
-        """Refine every seed; the best fit score wins, judged against its best distinct rival."""
+        """Refine every seed; the best fit score wins, judged against its best distinct rival,
+        and every distinct fit is listed with its own confidence."""
         p = self.params
         if not seeds:
             return Estimate(
@@ -386,34 +430,43 @@ class Localizer:
                 align_theta_rad=heading,
                 stage2_pose=stage2_pose,
             )
-        fits: list[Refinement] = sorted(
-            (
-                refine_pose(points_robot, self.segments_world, s, p.refine, index=self.near_index)
-                for s in seeds
-            ),
-            key=lambda fit: -fit.score,
-        )
-        best = fits[0]
-        apart = p.search or SearchParams()
-        rivals = [
-            f
-            for f in fits[1:]
-            if distinct([best.pose], f.pose, apart.distinct_m, apart.distinct_deg)
+        fits = [
+            refine_pose(points_robot, self.segments_world, s, p.refine, index=self.near_index)
+            for s in seeds
         ]
-        runner_up = rivals[0] if rivals else None
-        runner_up_ratio = 0.0 if runner_up is None else runner_up.inlier_ratio
-        hold = self.hold_points(points_robot, best.pose)
+        kept = self._distinct(fits)
+        best = kept[0]
+        runner_up = kept[1] if len(kept) > 1 else None
+        evidence = self._evidence(points_robot, best, runner_up)
+        status, confidence = judge(evidence, p.confidence, self.model)
+        others = [
+            Hypothesis(f.pose, f.inlier_ratio, f.score,
+                       self.model.probability(self._evidence(points_robot, f, best)))
+            for f in kept[1:]
+        ]  # fmt: skip
         return Estimate(
             pose=best.pose,
-            status=judge(best.inlier_ratio, runner_up_ratio, p.confidence, hold),
+            status=status,
             n_local_segments=n_local,
             align_theta_rad=heading,
             overlap_m=overlap_m,
             stage2_pose=stage2_pose,
             inlier_ratio=best.inlier_ratio,
             runner_up=None if runner_up is None else runner_up.pose,
-            runner_up_ratio=runner_up_ratio,
+            runner_up_ratio=evidence.runner_up_ratio,
+            confidence=confidence,
+            evidence=evidence,
+            hypotheses=(Hypothesis(best.pose, best.inlier_ratio, best.score, confidence), *others),
         )
+
+    def _distinct(self, fits: list[Refinement]) -> list[Refinement]:
+        """The fits, best score first, each kept only if distinct from every one kept before."""
+        apart = self.params.search or SearchParams()
+        kept: list[Refinement] = []
+        for fit in sorted(fits, key=lambda f: -f.score):
+            if distinct([k.pose for k in kept], fit.pose, apart.distinct_m, apart.distinct_deg):
+                kept.append(fit)
+        return kept
 
 
 def estimate_row(
@@ -443,7 +496,19 @@ def estimate_row(
         runner_up_ratio=est.runner_up_ratio,
         n_local_segments=est.n_local_segments,
         runtime_ms=runtime_ms,
+        confidence=est.confidence,
         status=status,
+        hypotheses=[
+            HypothesisRow(
+                x_m=h.pose.x,
+                y_m=h.pose.y,
+                theta_deg=h.pose.theta_deg,
+                inlier_ratio=h.inlier_ratio,
+                score=h.score,
+                confidence=h.confidence,
+            )
+            for h in est.hypotheses
+        ],
     )
 
 

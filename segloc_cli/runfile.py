@@ -33,7 +33,12 @@ MAX_CONFIG_BYTES = 1 << 20
 
 def run_file_path(output: Path) -> Path:
     """Where the run file of ``output`` goes: beside it, ``est.csv`` → ``est.run.toml``."""
-    return output.with_name(f"{output.stem if output.suffix else output.name}.run.toml")
+    return beside(output, ".run.toml")
+
+
+def beside(output: Path, ending: str) -> Path:
+    """A file beside ``output`` named after it: ``est.csv`` and ".run.toml" → ``est.run.toml``."""
+    return output.with_name(f"{output.stem if output.suffix else output.name}{ending}")
 
 
 def read_table(path: Path, command: Sequence[str], commands: set[tuple[str, ...]]) -> dict:

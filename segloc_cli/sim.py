@@ -442,6 +442,50 @@ def random_world(rng: np.random.Generator, size_m: tuple[float, float] = (20.0, 
     return World(segments=np.vstack(parts), materials=np.array(labels, dtype=str), name="random")
 
 
+def symmetric_room(rng: np.random.Generator) -> World:
+    """A rectangular room of 8–16 m × 5–10 m that looks the same after a half turn about its
+    centre: two to four boxes, each with its twin rotated 180° about the centre.
+
+    Every pose has a twin (the half turn of it) from which a scanner sees the very same
+    scan, so no scan alone can tell the two apart.
+    """
+    width, height = rng.uniform(8.0, 16.0), rng.uniform(5.0, 10.0)
+    corners = np.array([[0.0, 0.0], [width, 0.0], [width, height], [0.0, height]])
+    parts = [_polygon_segments(corners)]
+    centre = np.array([width, height]) / 2.0
+    for _ in range(int(rng.integers(2, 5))):
+        size = (rng.uniform(0.4, 1.2), rng.uniform(0.4, 1.0))
+        # In the lower half, clear of the walls and of the centre line, so twins never meet.
+        spot = rng.uniform([1.5, 1.2], [width - 1.5, max(1.3, height / 2.0 - 1.2)])
+        theta = rng.uniform(0.0, np.pi)
+        parts += [_box(spot, size, theta), _box(2.0 * centre - spot, size, theta + np.pi)]
+    segments = np.vstack(parts)
+    return World(segments=segments, materials=np.full(len(segments), "wall"), name="symmetric")
+
+
+def repeating_corridor(rng: np.random.Generator, length_m: float = 80.0) -> World:
+    """A straight corridor 2–3 m wide and ``length_m`` long, closed at both ends, with a door
+    recess every 4–6 m along both walls, the same period all along.
+
+    Far from the ends (beyond the scanner's range) a scan looks the same one period further
+    on, so it cannot tell neighbouring stretches apart.
+    """
+    width, period = rng.uniform(2.0, 3.0), rng.uniform(4.0, 6.0)
+    door, depth = rng.uniform(0.9, 1.2), rng.uniform(0.2, 0.4)
+    starts = np.arange(period / 2.0, length_m - period / 2.0, period)
+    parts = [np.array([[0.0, 0.0, 0.0, width], [length_m, 0.0, length_m, width]])]
+    for y, out in ((0.0, -depth), (width, depth)):
+        gaps = np.ravel(np.column_stack([starts, starts + door]))
+        edges = np.concatenate([[0.0], gaps, [length_m]])
+        parts.append(np.column_stack([edges[0::2], np.full(edges.size // 2, y),
+                                      edges[1::2], np.full(edges.size // 2, y)]))  # fmt: skip
+        for x in starts:  # the recess: two jambs and its back
+            parts.append(np.array([[x, y, x, y + out], [x, y + out, x + door, y + out],
+                                   [x + door, y + out, x + door, y]]))  # fmt: skip
+    segments = np.vstack(parts)
+    return World(segments=segments, materials=np.full(len(segments), "wall"), name="corridor")
+
+
 def random_free_poses(
     world: World, n: int, rng: np.random.Generator, clearance_m: float = 0.6
 ) -> np.ndarray:

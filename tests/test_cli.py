@@ -37,7 +37,7 @@ ESTIMATE_HEADER = (
     "pose_id,time_s,init_x_m,init_y_m,init_theta_deg,align_theta_deg,"
     "stage2_x_m,stage2_y_m,stage2_theta_deg,x_m,y_m,theta_deg,overlap,inlier_ratio,"
     "runner_up_x_m,runner_up_y_m,runner_up_theta_deg,runner_up_ratio,"
-    "n_local_segments,runtime_ms,status"
+    "n_local_segments,runtime_ms,confidence,status"
 )
 
 # Reina & Gonzalez (2000), Table 1: initial errors X (cm), Y (cm), θ (°) per pose,
@@ -753,7 +753,7 @@ def _estimates_csv(path: Path, poses: list[tuple[float, float, float, float]], s
     lines = [ESTIMATE_HEADER]
     for k, (t, x, y, th) in enumerate(poses, 1):
         lines.append(
-            f"{k},{t},{x},{y},{th},{th},{x},{y},{th},{x},{y},{th},1.0,0.9,,,,0.0,10,1.0,{status}"
+            f"{k},{t},{x},{y},{th},{th},{x},{y},{th},{x},{y},{th},1.0,0.9,,,,0.0,10,1.0,0.99,{status}"
         )
     return write_text(path, "\n".join(lines) + "\n")
 

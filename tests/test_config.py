@@ -230,7 +230,7 @@ def test_run_file_records_settings_version_and_inputs(hall, capsys):
 
 def test_run_file_repeats_the_run_from_another_folder(hall, capsys):
     (hall / "tuned.toml").write_text(
-        "[localize]\nsearch-half-width-m = 1.0\nconfidence-min-margin = 0.2\nrecentre = 2\n",
+        "[localize]\nsearch-half-width-m = 1.0\nconfidence-min-confidence = 0.8\nrecentre = 2\n",
         encoding="utf-8",
     )
     (hall / "runs").mkdir()

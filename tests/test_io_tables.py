@@ -511,9 +511,22 @@ def estimates_frame() -> pd.DataFrame:
             "runner_up_ratio": [0.5, 0.0, np.nan],
             "n_local_segments": [14, 3, 0],
             "runtime_ms": [2.5, 3.75, 0.125],
+            "confidence": [0.9987654321, 1.0 / 7.0, np.nan],
             "status": ["ok", "ok, weak", "no_segments"],
         }
     )
+
+
+def test_estimates_of_an_earlier_version_without_confidence_read_and_write(tmp_path):
+    earlier = estimates_frame().drop(columns=["confidence"])
+    path = tmp_path / "old.csv"
+    earlier.to_csv(path, index=False)
+    back = read_estimates(path)
+    assert list(back.columns) == ESTIMATE_COLUMNS
+    assert back["confidence"].isna().all()
+    write_estimates(tmp_path / "again.csv", earlier)
+    again = read_estimates(tmp_path / "again.csv")
+    pd.testing.assert_frame_equal(again, back, check_exact=True)
 
 
 def test_estimates_round_trip(tmp_path):

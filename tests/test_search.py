@@ -1,4 +1,4 @@
-"""Score rasters, the hypothesis search, the confidence verdict and global localization."""
+"""Score rasters, the hypothesis search and global localization."""
 
 from __future__ import annotations
 
@@ -7,13 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from segloc_cli.confidence import (
-    STATUS_AMBIGUOUS,
-    STATUS_LOST,
-    STATUS_OK,
-    ConfidenceParams,
-    judge,
-)
+from segloc_cli.confidence import STATUS_AMBIGUOUS, STATUS_OK
 from segloc_cli.config import SearchParams
 from segloc_cli.extract import extract_segments
 from segloc_cli.field import (
@@ -267,14 +261,6 @@ def test_distinct_poses():
     assert distinct([a], Pose2.from_deg(0.3, 0.3, 0.0), 0.3, 3.0)
     assert distinct([a], Pose2.from_deg(0.0, 0.0, 4.0), 0.3, 3.0)
     assert not distinct([a], Pose2.from_deg(0.0, 0.0, 359.0), 0.3, 3.0)
-
-
-@pytest.mark.parametrize(
-    ("inliers", "runner_up", "status"),
-    [(0.9, 0.0, STATUS_OK), (0.9, 0.85, STATUS_AMBIGUOUS), (0.45, 0.0, STATUS_LOST)],
-)
-def test_judge(inliers, runner_up, status):
-    assert judge(inliers, runner_up, ConfidenceParams(0.5, 0.1)) == status
 
 
 @pytest.mark.parametrize("seed", [7101, 7202])

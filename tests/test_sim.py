@@ -22,7 +22,9 @@ from segloc_cli.sim import (
     paper_initial_errors,
     random_free_poses,
     random_world,
+    repeating_corridor,
     simulate_scan,
+    symmetric_room,
     uniform_initial_errors,
 )
 
@@ -439,3 +441,42 @@ def test_hall_map_covers_what_the_test_poses_see():
         )
         near = point_segment_distances(points, segments_map).min(axis=1) < 0.05
         assert near.mean() >= 0.9, pose[0]
+
+
+def _same_lines(a: np.ndarray, b: np.ndarray) -> bool:
+    """Whether two sets of segments (M, 4) hold the same lines, whichever way each runs."""
+
+    def canonical(segments):
+        ends = segments.reshape(-1, 2, 2)
+        flipped = (ends[:, 0, 0] > ends[:, 1, 0]) | (
+            (ends[:, 0, 0] == ends[:, 1, 0]) & (ends[:, 0, 1] > ends[:, 1, 1])
+        )
+        ends = np.where(flipped[:, None, None], ends[:, ::-1], ends)
+        return np.round(ends.reshape(-1, 4), 6)
+
+    return {tuple(r) for r in canonical(a)} == {tuple(r) for r in canonical(b)}
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_a_symmetric_room_is_its_own_half_turn(seed):
+    world = symmetric_room(np.random.default_rng(seed))
+    ends = world.segments.reshape(-1, 2)
+    centre = (ends.min(axis=0) + ends.max(axis=0)) / 2.0
+    turned = (2.0 * centre - ends).reshape(-1, 4)
+    assert _same_lines(turned, world.segments)
+    assert len(world.segments) > 4  # not only the four walls
+
+
+def test_a_repeating_corridor_looks_the_same_one_period_on():
+    world = repeating_corridor(np.random.default_rng(4), length_m=60.0)
+    segments = world.segments
+    xs = np.unique(np.round(segments[(segments[:, 0] == segments[:, 2])][:, 0], 9))
+    jambs = xs[(xs > 0) & (xs < 60.0)]
+    period = np.diff(jambs[0::2])
+    np.testing.assert_allclose(period, period[0], atol=1e-9)  # doors at one period
+    # Away from the end walls, every wall shifted by a period is a wall of the corridor.
+    far = (segments[:, [0, 2]].min(axis=1) > 10.0) & (segments[:, [0, 2]].max(axis=1) < 40.0)
+    shifted = segments[far] + np.array([period[0], 0.0, period[0], 0.0])
+    walls = {tuple(r) for r in np.round(segments, 6)}
+    assert far.sum() > 20
+    assert all(tuple(r) in walls for r in np.round(shifted, 6))

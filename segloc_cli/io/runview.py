@@ -13,6 +13,8 @@ schema (the schema travels in the file) and the file is chunked, indexed and com
   invalid readings as 0 (Foxglove skips them).
 - ``/estimate``, ``/guess``, ``/runner_up``: ``foxglove.PoseInFrame`` in ``world``: the
   answer, the initial guess and the best distinct alternative, each where it exists.
+- ``/hypotheses``: ``foxglove.PosesInFrame`` in ``world``: every distinct pose found
+  besides the answer (the runner-up first), where the caller lists any.
 - ``/local_segments``: ``foxglove.SceneUpdate``, one entity ``local_segments`` in
   ``base_link``: the segments the localizer extracted from the scan, with the status as text
   above the robot. Each scan's entity replaces the last.
@@ -43,7 +45,7 @@ RUN_METADATA_NAME = "segloc.run"
 
 POSE_TOPICS = ("/estimate", "/guess", "/runner_up")
 """The poses of each scan, in ``world``."""
-TOPICS = ("/map", "/tf", "/scan", *POSE_TOPICS, "/local_segments", "/status")
+TOPICS = ("/map", "/tf", "/scan", *POSE_TOPICS, "/hypotheses", "/local_segments", "/status")
 """Every topic of a run view, in the order its channels are made."""
 
 CHUNK_BYTES = 4 * 2**20
@@ -98,6 +100,7 @@ class RunViewWriter:
             "/tf": channels.FrameTransformsChannel,
             "/scan": channels.LaserScanChannel,
             **dict.fromkeys(POSE_TOPICS, channels.PoseInFrameChannel),
+            "/hypotheses": channels.PosesInFrameChannel,
             "/local_segments": channels.SceneUpdateChannel,
             "/status": channels.LogChannel,
         }
@@ -125,13 +128,16 @@ class RunViewWriter:
         *,
         guess: Pose2 | None = None,
         runner_up: Pose2 | None = None,
+        hypotheses: tuple[Pose2, ...] = (),
         status: str = "ok",
         level: str = "info",
         text: str = "",
     ) -> None:
         """One scan: its readings, its local segments (K, 4) metres in the robot frame, its
         pose in ``world`` (None or NaN: none was found), the guess and runner-up where they
-        exist, its status, and a line of text for the log at ``level`` (one of ``LEVELS``)."""
+        exist, the other distinct poses found (``hypotheses``, best first, the answer not
+        among them), its status, and a line of text for the log at ``level`` (one of
+        ``LEVELS``)."""
         time_ns = _time_ns(scan.time_s)
         if not self._map_written:
             self._write_map(time_ns)
@@ -143,6 +149,9 @@ class RunViewWriter:
         for topic, shown in zip(POSE_TOPICS, (pose, guess, runner_up), strict=True):
             if shown is not None:
                 self._log(topic, _pose_in_frame(stamp, shown), time_ns)
+        listed = [p for p in map(_finite, hypotheses) if p is not None]
+        if listed:
+            self._log("/hypotheses", _poses_in_frame(stamp, listed), time_ns)
         entity = _lines_entity(stamp, "local_segments", ROBOT_FRAME, local_segments, status)
         self._log("/local_segments", _scene_update(entity), time_ns)
         self._log("/status", _log_line(stamp, status, level, text), time_ns)
@@ -240,6 +249,12 @@ def _pose_in_frame(stamp, pose: Pose2):
     return PoseInFrame(timestamp=stamp, frame_id=WORLD_FRAME, pose=_pose(pose))
 
 
+def _poses_in_frame(stamp, poses: list[Pose2]):
+    from foxglove.messages import PosesInFrame
+
+    return PosesInFrame(timestamp=stamp, frame_id=WORLD_FRAME, poses=[_pose(p) for p in poses])
+
+
 def _laser_scan(stamp, scan: Scan):
     from foxglove.messages import LaserScan
 
@@ -309,12 +324,14 @@ def _log_line(stamp, status: str, level: str, text: str):
 
 
 POSE_COLORS = {"/estimate": "#2ca02cff", "/guess": "#1f77b4ff", "/runner_up": "#d62728ff"}
-"""Arrow colours of the poses in the layout: answer green, guess blue, runner-up red."""
+"""Arrow colours of the poses in the layout: answer green, guess blue, runner-up red (the
+other hypotheses are small arrows along ``HYPOTHESES_GRADIENT``, red to orange)."""
+HYPOTHESES_GRADIENT = ("#d62728ff", "#ff7f0eff")
 
 
 def foxglove_layout() -> str:
     """The Foxglove layout (JSON) that opens a run view: a top-down 3D panel in ``world``
-    with every topic shown (the scans at the estimates, the three poses as arrows), the
+    with every topic shown (the scans at the estimates, the poses as arrows), the
     status log and the estimates' messages beside it."""
     import foxglove.layouts as fl
 
@@ -328,6 +345,9 @@ def foxglove_layout() -> str:
             topic: fl.BaseRendererPoseTopicSettings(visible=True, type="arrow", color=color)
             for topic, color in POSE_COLORS.items()
         },
+        "/hypotheses": fl.BaseRendererPosesTopicSettings(
+            visible=True, type="arrow", arrow_scale=(0.6, 0.1, 0.1), gradient=HYPOTHESES_GRADIENT
+        ),
     }
     scene = fl.ThreeDeePanel(
         title="run",

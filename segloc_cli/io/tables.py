@@ -42,7 +42,7 @@ STREAM_FSYNC_INTERVAL_S = 1.0
 SURVEY_COLUMNS = ["pose_id", "time_s", "x_m", "y_m", "theta_deg"]
 
 
-class EstimateRow(TypedDict):
+class EstimateColumns(TypedDict):
     """One row of the estimates CSV: the outcome for one scan, world frame.
 
     Positions in metres, headings in degrees, NaN where a value was not made:
@@ -51,7 +51,9 @@ class EstimateRow(TypedDict):
     (``x_m``, ``y_m``, ``theta_deg``), the stage-2 overlap (m of segment), the
     share of the scan's points on the map at the answer, the best distinct
     alternative found and its share (``runner_up_*``), the count of local
-    segments, the time spent on the scan (ms) and the verdict (``status``).
+    segments, the time spent on the scan (ms), the probability that the answer is
+    the right place (``confidence``, NaN where no verdict was made from the scan's
+    points) and the verdict (``status``).
     The fields, in order, are the file's columns.
     """
 
@@ -75,15 +77,40 @@ class EstimateRow(TypedDict):
     runner_up_ratio: float
     n_local_segments: int
     runtime_ms: float
+    confidence: float
     status: str
 
 
-ESTIMATE_COLUMNS = list(EstimateRow.__annotations__)
-"""Columns of the estimates CSV, in order: the fields of ``EstimateRow``."""
-ESTIMATE_INT_COLUMNS = [c for c, kind in get_type_hints(EstimateRow).items() if kind is int]
-ESTIMATE_TEXT_COLUMNS = [c for c, kind in get_type_hints(EstimateRow).items() if kind is str]
+class HypothesisRow(TypedDict):
+    """One distinct pose found for a scan (world frame; metres, degrees): its share of points
+    on the map, fit score (0–1) and probability of being the right place."""
+
+    x_m: float
+    y_m: float
+    theta_deg: float
+    inlier_ratio: float
+    score: float
+    confidence: float
+
+
+class EstimateRow(EstimateColumns, total=False):
+    """An estimates row as a run makes it: the columns, and beside them (not a column) the
+    distinct poses found for the scan, best first (``HypothesesWriter``)."""
+
+    hypotheses: list[HypothesisRow]
+
+
+ESTIMATE_COLUMNS = list(EstimateColumns.__annotations__)
+"""Columns of the estimates CSV, in order: the fields of ``EstimateColumns``."""
+ESTIMATE_INT_COLUMNS = [c for c, kind in get_type_hints(EstimateColumns).items() if kind is int]
+ESTIMATE_TEXT_COLUMNS = [c for c, kind in get_type_hints(EstimateColumns).items() if kind is str]
+HYPOTHESIS_COLUMNS = ["pose_id", "time_s", "rank", *HypothesisRow.__annotations__]
+"""Columns of the hypotheses CSV (``HypothesesWriter``): a row per distinct pose of a scan,
+``rank`` 1 the answer."""
 # Float columns that must hold a number in every row; the others may be empty (NaN).
 ESTIMATE_REQUIRED_FLOAT_COLUMNS = ["time_s"]
+ESTIMATE_LATER_COLUMNS = ["confidence"]
+"""Columns that files written by earlier versions lack; read as empty (NaN) there."""
 
 
 @dataclass(frozen=True)
@@ -491,8 +518,13 @@ def _cell(value: object) -> str:
 # --- estimates -------------------------------------------------------------------------
 
 
+def _missing_columns(present) -> list[str]:
+    """The estimates columns not in ``present``, those of earlier versions' files excepted."""
+    return [c for c in ESTIMATE_COLUMNS if c not in present and c not in ESTIMATE_LATER_COLUMNS]
+
+
 def _check_estimate_frame(frame: pd.DataFrame) -> None:
-    missing = [c for c in ESTIMATE_COLUMNS if c not in frame.columns]
+    missing = _missing_columns(frame.columns)
     if missing:
         raise ValueError(f"estimates frame lacks columns {missing}")
 
@@ -506,12 +538,12 @@ def estimate_cells(row: Mapping[str, object]) -> list[str]:
     Raises ``ValueError`` when a column is absent, or an integer column or
     ``time_s`` has no value.
     """
-    missing = [c for c in ESTIMATE_COLUMNS if c not in row]
+    missing = _missing_columns(row)
     if missing:
         raise ValueError(f"estimates row lacks columns {missing}")
     cells = []
     for c in ESTIMATE_COLUMNS:
-        value = row[c]
+        value = row.get(c)
         absent = value is None or bool(pd.isna(value))
         if absent and (c in ESTIMATE_INT_COLUMNS or c in ESTIMATE_REQUIRED_FLOAT_COLUMNS):
             raise ValueError(f"estimates column {c} must have a value in every row")
@@ -538,7 +570,8 @@ def write_estimates(path: str | Path, frame: pd.DataFrame) -> None:
     for column in [*ESTIMATE_INT_COLUMNS, *ESTIMATE_REQUIRED_FLOAT_COLUMNS]:
         if frame[column].isna().any():
             raise ValueError(f"estimates column {column} must have a value in every row")
-    columns = {c: frame[c].tolist() for c in ESTIMATE_COLUMNS}
+    absent = [None] * len(frame)
+    columns = {c: frame[c].tolist() if c in frame else absent for c in ESTIMATE_COLUMNS}
     with atomic_write(path) as stream:
         writer = csv.writer(stream, lineterminator="\n")
         writer.writerow(ESTIMATE_COLUMNS)
@@ -643,18 +676,18 @@ def read_estimates(path: str | Path) -> pd.DataFrame:
     """
     path = Path(path)
     header, data = _read_csv_rows(path, _read_text(path))
-    missing = [c for c in ESTIMATE_COLUMNS if c not in header]
+    missing = _missing_columns(header)
     if missing:
         raise InputError(
             f"missing column(s) {', '.join(missing)}; expected an estimates CSV written by "
             "`segloc localize`",
             path=path,
         )
-    col = {name: header.index(name) for name in ESTIMATE_COLUMNS}
+    col = {name: header.index(name) if name in header else None for name in ESTIMATE_COLUMNS}
     values: dict[str, list] = {c: [] for c in ESTIMATE_COLUMNS}
     for row, fields in data:
         for c in ESTIMATE_COLUMNS:
-            text = fields[col[c]]
+            text = "" if col[c] is None else fields[col[c]]
             if c in ESTIMATE_INT_COLUMNS:
                 values[c].append(_parse_int(path, row, c, text))
             elif c in ESTIMATE_TEXT_COLUMNS:
@@ -727,6 +760,25 @@ def write_pose_table_tum(path: str | Path, table: PoseTable) -> None:
     with atomic_write(path) as stream:
         stream.write("\n".join(["# segloc reference: t x y z qx qy qz qw", *_tum_lines(numbers)]))
         stream.write("\n")
+
+
+class HypothesesWriter(_RowStream):
+    """The hypotheses CSV (``HYPOTHESIS_COLUMNS``), written as ``EstimatesWriter`` writes the
+    estimates: for each estimates row, a line for each of the first ``limit`` poses its
+    ``hypotheses`` list (none for a row without), ranked from 1, the answer."""
+
+    def __init__(self, path: str | Path, limit: int):
+        super().__init__(path, ",".join(HYPOTHESIS_COLUMNS))
+        self.limit = int(limit)
+
+    def write_row(self, row: Mapping[str, object]) -> None:
+        """Write the hypotheses of one estimates row (needs ``pose_id`` and ``time_s``)."""
+        listed = list(row.get("hypotheses") or [])[: self.limit]
+        for rank, hypothesis in enumerate(listed, 1):
+            cells = [str(int(row["pose_id"])), _fmt(row["time_s"]), str(rank)]
+            values = (float(hypothesis[c]) for c in HypothesisRow.__annotations__)
+            cells += [_fmt(v) if math.isfinite(v) else "" for v in values]
+            self.write_line(",".join(cells))
 
 
 class TumWriter(_RowStream):

@@ -18,7 +18,7 @@ import importlib
 
 import numpy as np
 
-from segloc_cli.confidence import ConfidenceParams, judge
+from segloc_cli.confidence import ConfidenceParams, points_status
 from segloc_cli.config import METHODS
 from segloc_cli.errors import SeglocError
 from segloc_cli.geometry import Pose2
@@ -96,5 +96,5 @@ def judged_estimate(
         return Estimate(pose=NAN_POSE, status=STATUS_NO_OVERLAP, n_local_segments=0)
     band = RefineParams().final_gate_m
     ratio, hold = support(points_robot, segments_world, pose, band, index=index)
-    status = judge(ratio, 0.0, ConfidenceParams(), hold)
+    status = points_status(ratio, hold, ConfidenceParams())
     return Estimate(pose=pose, status=status, n_local_segments=0, inlier_ratio=ratio)
