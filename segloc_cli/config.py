@@ -72,7 +72,8 @@ class ExtractParams:
 
 @dataclass(frozen=True)
 class FuseParams:
-    """When two world-frame segments are one wall (metres, degrees)."""
+    """When two world-frame segments are one wall (metres, degrees), and how the scans' poses
+    are polished before their segments are fused."""
 
     angle_deg: float = 3.0
     """Largest difference of undirected orientation."""
@@ -80,6 +81,13 @@ class FuseParams:
     """Largest distance of either segment's endpoints from the other's line."""
     gap_m: float = 0.15
     """Largest gap between their extents along the common line (negative = overlap)."""
+    polish_rounds: int = 0
+    """Rounds of polishing: each scan's pose re-fitted to the map the other half of the scans
+    make (``mapping.polish_poses``); 0 keeps the poses as surveyed."""
+    polish_max_shift_m: float = 0.2
+    """A polished pose farther than this from the surveyed one is not taken (a bad fit)."""
+    polish_min_inlier_ratio: float = 0.6
+    """A polished pose with a smaller share of the scan's points on the map is not taken."""
 
 
 @dataclass(frozen=True)
@@ -351,6 +359,7 @@ _TUNING_BOUNDS: dict[str, tuple[float, float, bool]] = {
     "extract.breakpoint_lambda_deg": (0.0, 90.0, True),
     "extract.max_direction_sigma_deg": (0.0, 180.0, True),
     "fuse.gap_m": (-1e4, 1e4, False),
+    "fuse.polish_min_inlier_ratio": (0.0, 1.0, False),
     "localize.min_spread_m": (0.0, 1e4, False),
     "localize.search.keep_fraction": (0.0, 1.0, True),
     "localize.search.max_depth": (0, 12, False),
@@ -498,7 +507,16 @@ TOLERANCE = Setting(
 """Pairing by time, in every command that pairs; its help names what is paired."""
 
 EXTRACT = _tuning("extract-", "extract")
-FUSE = _tuning("fuse-", "fuse")
+FUSE = _tuning("fuse-", "fuse", "polish_rounds")
+POLISH = Setting(
+    "polish",
+    ("fuse", "polish_rounds"),
+    0,
+    10,
+    help="Polish the surveyed poses this many rounds before fusing: each scan is fitted to "
+    "the map the other half of the scans make, which sharpens walls blurred by pose errors "
+    "(0: use the poses as given).",
+)
 LOCALIZE_TUNING = (
     *(
         _tuning_setting(key, ("localize", name))
@@ -517,7 +535,7 @@ LOCALIZE_TUNING = (
 """Localization's tuning settings: config-file keys (and unlisted options)."""
 
 SETTINGS: dict[str, Setting] = {
-    s.key: s for s in (*STAGES, *MATCHER, TOLERANCE, *EXTRACT, *FUSE, *LOCALIZE_TUNING)
+    s.key: s for s in (*STAGES, *MATCHER, TOLERANCE, *EXTRACT, POLISH, *FUSE, *LOCALIZE_TUNING)
 }
 """Every setting by key."""
 
@@ -533,7 +551,7 @@ def settings_table() -> str:
         ("Matcher and pairing (`localize`; `tolerance-ms` also `map build`, `evaluate`)",
          (*MATCHER, TOLERANCE)),
         ("Extraction (`localize`, `map build`)", EXTRACT),
-        ("Fusion (`map build`)", FUSE),
+        ("Fusion (`map build`)", (POLISH, *FUSE)),
         ("Checks, search, refinement, verdict and tracking (`localize`)", LOCALIZE_TUNING),
     ]  # fmt: skip
     lines = ["| key | default | meaning |", "|---|---|---|"]

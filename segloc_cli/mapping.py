@@ -12,6 +12,10 @@ lie on different lines (two parallel walls a few centimetres apart, a wall and
 the furniture along it). A group is fused into one segment only if every
 member lies on the fitted line within the same tolerances; otherwise it is
 regrown from its longest member, one line at a time.
+
+Surveyed poses that are themselves estimates (a SLAM solution) put each wall down a little
+differently from each pass, and the fused map holds the blur. ``polish_poses`` re-fits each
+scan to the map the other half of the scans make, before fusing.
 """
 
 from __future__ import annotations
@@ -325,3 +329,47 @@ def build_global_map(
         return np.zeros((0, 4))
     world = [transform_segments(lm, pose) for lm, pose in zip(local_maps, poses, strict=True)]
     return fuse_segments(np.concatenate(world), params, progress)
+
+
+def polish_poses(
+    local_maps: list[np.ndarray],
+    points: list[np.ndarray],
+    poses: list[Pose2],
+    params: FuseParams,
+    progress: Progress = SILENT,
+) -> list[Pose2]:
+    """The scans' poses (world frame) after ``params.polish_rounds`` rounds of polishing.
+
+    In each round the scans are split by order into two halves, alternately; each half's
+    scans are fitted (``refine_pose``, their valid points (P, 2) in the robot frame) to the
+    map the other half's local maps make at their current poses. A scan is never fitted to
+    its own segments, which would hold it where it is. A fit that moves the pose by more
+    than ``polish_max_shift_m`` or puts less than ``polish_min_inlier_ratio`` of the points on
+    the map is not taken. ``progress`` counts the rounds.
+    """
+    from segloc_cli.refine import refine_pose
+    from segloc_cli.spatial import NEAR_CELL_M, SegmentGrid
+
+    n = len(poses)
+    if not (len(local_maps) == len(points) == n):
+        raise ValueError(f"{len(local_maps)} local maps, {len(points)} scans, {n} poses")
+    halves = (np.arange(0, n, 2), np.arange(1, n, 2))
+    current = list(poses)
+    for _ in range(params.polish_rounds):
+        polished = list(current)
+        for fitted, other in (halves, halves[::-1]):
+            segments = build_global_map([local_maps[i] for i in other],
+                                        [current[i] for i in other], params)  # fmt: skip
+            if segments.shape[0] == 0:
+                continue
+            index = SegmentGrid(segments, cell_m=NEAR_CELL_M)
+            for i in fitted:
+                fit = refine_pose(points[i], segments, current[i], index=index)
+                shift = np.hypot(fit.pose.x - current[i].x, fit.pose.y - current[i].y)
+                if fit.inlier_ratio >= params.polish_min_inlier_ratio and (
+                    shift <= params.polish_max_shift_m
+                ):
+                    polished[i] = fit.pose
+        current = polished
+        progress.advance()
+    return current

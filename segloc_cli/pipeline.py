@@ -259,10 +259,12 @@ def build_map(
     config: Config,
     progress: ProgressFactory = silent,
 ) -> BuiltMap:
-    """Fuse the local maps of the scans that have a survey row, each placed at its pose;
-    the extraction (scans) and the fusion (rounds) report to ``progress``."""
+    """Fuse the local maps of the scans that have a survey row, each placed at its pose (after
+    ``config.fuse.polish_rounds`` rounds of ``mapping.polish_poses``, if any; ``BuiltMap.poses``
+    holds the poses used); the extraction (scans), polishing and fusion (rounds) report to
+    ``progress``."""
     from segloc_cli.extract import extract_segments
-    from segloc_cli.mapping import build_global_map
+    from segloc_cli.mapping import build_global_map, polish_poses
 
     times = log.scan_times_s
     rows = pair_by_time(
@@ -287,6 +289,10 @@ def build_map(
             local_maps.append(extract_segments(log.scans[i], config.extract))
             shown.advance()
     poses = [Pose2(*survey.poses[rows[i]]) for i in used]
+    if config.fuse.polish_rounds:
+        points = [log.scans[i].points() for i in used]
+        with progress("polishing poses", config.fuse.polish_rounds, "round") as shown:
+            poses = polish_poses(local_maps, points, poses, config.fuse, shown)
     with progress("fusing segments", None, "round") as shown:
         segments = build_global_map(local_maps, poses, config.fuse, shown)
     if segments.shape[0] == 0:

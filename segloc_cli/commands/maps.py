@@ -42,8 +42,9 @@ BUILD_OPTIONS = (
         "--mcap",
         "mcap_path",
         help="Also write a view to open in Foxglove: the built map over the scans that made "
-        "it, each at its surveyed pose with its local segments.",
+        "it, each at its surveyed (or polished) pose with its local segments.",
     ),
+    setting_option("polish"),
     setting_option("tolerance-ms", pairing="pairing scans with survey rows"),
     config_option,
     force_option,
