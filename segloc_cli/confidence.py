@@ -2,8 +2,9 @@
 
 The confidence is the probability that the answer is the right place (within 30 cm and 3°
 of the truth), predicted from what the fit leaves behind (``Evidence``): how much of the
-scan lies on the map at the answer, how firmly those points fix the position along their
-weakest direction, and how far the best distinct alternative falls behind. A logistic model
+scan lies on the map at the answer, how many of its beams would have passed through a wall,
+how firmly the points fix the position along their weakest direction, and how far the best
+distinct alternative falls behind. A logistic model
 (``ConfidenceModel``) maps them to the probability; its weights are fitted by
 ``benchmarks/calibrate.py`` on simulated and real trials and shipped in
 ``confidence_model.json`` beside this module, with the trials they were fitted on.
@@ -33,7 +34,14 @@ STATUS_LOST = "lost"
 """Too little of the scan lies on the map at the answer."""
 
 MODEL_PATH = Path(__file__).with_name("confidence_model.json")
-FEATURES = ("inlier_ratio", "log_hold_points", "inlier_margin", "score_margin", "tie")
+FEATURES = (
+    "inlier_ratio",
+    "log_hold_points",
+    "inlier_margin",
+    "score_margin",
+    "tie",
+    "crossing_ratio",
+)
 """The inputs of the model, the keys of ``Evidence.features``. The inliers' RMS distance and
 the counts of points and of local segments were tried too and left out: on sources left out
 of the fit they made its predictions worse, the counts standing for which scanner took the
@@ -51,7 +59,9 @@ class Evidence:
     final gate of a map segment at the answer and at its best distinct alternative (0 when
     none was found); ``score`` and ``runner_up_score``: the fit scores there (``Refinement.
     score``, 0–1, which also rewards how close the points lie); ``hold_points``: how many
-    points' worth fix the position along its weakest direction (``refine.support``).
+    points' worth fix the position along its weakest direction (``refine.support``);
+    ``crossing_ratio``: the share of the beams that would have passed through a wall of the
+    map to reach their reading (``freespace.crossing_ratio``).
     """
 
     inlier_ratio: float
@@ -59,6 +69,7 @@ class Evidence:
     score: float
     runner_up_score: float
     hold_points: float
+    crossing_ratio: float
 
     def features(self) -> dict[str, float]:
         """The model's inputs by name (``FEATURES``): plain numbers, none NaN.
@@ -74,6 +85,7 @@ class Evidence:
             "inlier_margin": self.inlier_ratio - self.runner_up_ratio,
             "score_margin": score_margin,
             "tie": -math.log(max(score_margin, 0.0) + TIE_SCALE),
+            "crossing_ratio": self.crossing_ratio,
         }
 
 

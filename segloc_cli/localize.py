@@ -23,6 +23,7 @@ from segloc_cli.confidence import (
 )
 from segloc_cli.config import ExtractParams, LocalizeParams, RefineParams, SearchParams
 from segloc_cli.extract import extract_segments
+from segloc_cli.freespace import crossing_ratio
 from segloc_cli.geometry import Pose2
 from segloc_cli.io.tables import EstimateRow, HypothesisRow
 from segloc_cli.overlap import coarse_to_fine
@@ -378,6 +379,7 @@ class Localizer:
             score=best.score,
             runner_up_score=0.0 if runner_up is None else runner_up.score,
             hold_points=self.hold_points(points_robot, best.pose),
+            crossing_ratio=crossing_ratio(points_robot, best.pose, self.near_index),
         )
 
     @property

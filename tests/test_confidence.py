@@ -31,8 +31,9 @@ from segloc_cli.sim import NOISE_FREE, random_free_poses, random_world, simulate
 
 def _evidence(**changes) -> Evidence:
     values = dict(
-        inlier_ratio=0.9, runner_up_ratio=0.2, score=0.8, runner_up_score=0.15, hold_points=40.0
-    )
+        inlier_ratio=0.9, runner_up_ratio=0.2, score=0.8, runner_up_score=0.15, hold_points=40.0,
+        crossing_ratio=0.05,
+    )  # fmt: skip
     return Evidence(**{**values, **changes})
 
 
@@ -50,6 +51,7 @@ def test_features_are_the_listed_inputs_worked_out_by_hand():
     assert features["score_margin"] == pytest.approx(0.65)
     assert features["log_hold_points"] == pytest.approx(math.log(41.0))
     assert features["tie"] == pytest.approx(-math.log(0.65 + TIE_SCALE))
+    assert features["crossing_ratio"] == 0.05
     # A tie scores the most; a rival fitting better by score cannot make it larger.
     tied = _evidence(runner_up_score=0.8).features()["tie"]
     assert tied == pytest.approx(-math.log(TIE_SCALE))
