@@ -43,7 +43,6 @@ from protocol import (
     prepare_held_out,
     reliability_rows,
 )
-from scipy.special import expit
 from sklearn.linear_model import LogisticRegression
 from sklearn.preprocessing import StandardScaler
 
@@ -162,8 +161,7 @@ def fit(trials: pd.DataFrame) -> ConfidenceModel:
 
 def predict(model: ConfidenceModel, trials: pd.DataFrame) -> np.ndarray:
     """The model's probability for each trial row."""
-    x = (trials[list(model.features)].to_numpy() - model.mean) / np.asarray(model.scale)
-    return expit(model.bias + x @ np.asarray(model.weights))
+    return model.probabilities(trials[list(model.features)].to_numpy())
 
 
 def left_out_predictions(trials: pd.DataFrame) -> np.ndarray:

@@ -106,9 +106,12 @@ class ConfidenceModel:
     def probability(self, evidence: Evidence) -> float:
         """P(the answer is the right place) given ``evidence``, in [0, 1]."""
         values = evidence.features()
-        x = np.array([values[name] for name in self.features], dtype=float)
-        z = self.bias + float(np.dot(self.weights, (x - self.mean) / np.asarray(self.scale)))
-        return 1.0 / (1.0 + math.exp(-min(max(z, -700.0), 700.0)))
+        return float(self.probabilities(np.array([[values[name] for name in self.features]]))[0])
+
+    def probabilities(self, x: np.ndarray) -> np.ndarray:
+        """P(right) (N,) for the rows of ``x`` (N, F), the ``features`` in order."""
+        z = self.bias + (np.asarray(x, dtype=float) - self.mean) / self.scale @ self.weights
+        return 1.0 / (1.0 + np.exp(-np.clip(z, -700.0, 700.0)))
 
     def as_dict(self) -> dict:
         """The model as the JSON object ``confidence_model.json`` holds under "model"."""

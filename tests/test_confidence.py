@@ -15,6 +15,7 @@ from segloc_cli.confidence import (
     STATUS_LOST,
     STATUS_OK,
     TIE_SCALE,
+    UNINFORMED,
     ConfidenceModel,
     Evidence,
     judge,
@@ -72,6 +73,15 @@ def test_probability_stays_in_the_open_unit_interval_at_any_evidence():
     huge = ConfidenceModel(("inlier_margin",), (0.0,), (1e-9,), (1.0,), 0.0)
     assert 0.0 <= huge.probability(_evidence(runner_up_ratio=0.0)) <= 1.0
     assert 0.0 <= huge.probability(_evidence(runner_up_ratio=1.0)) <= 1.0
+
+
+def test_the_uninformed_model_gives_even_odds_and_rows_match_single_answers():
+    assert UNINFORMED.probability(_evidence()) == 0.5
+    rows = [_evidence(runner_up_ratio=r) for r in (0.0, 0.5, 0.85)]
+    x = np.array([[e.features()["inlier_margin"]] for e in rows])
+    np.testing.assert_allclose(
+        MARGIN_MODEL.probabilities(x), [MARGIN_MODEL.probability(e) for e in rows], rtol=1e-15
+    )
 
 
 def test_model_round_trips_through_its_json_object():

@@ -128,9 +128,10 @@ def localize(
 
     Each row's confidence is the probability that its answer is the right
     place (within 30 cm and 3°), fitted on simulated and real trials from
-    how much of the scan lies on the map, how far the best distinct pose
-    (the runner_up columns) falls behind, and how firmly the points fix the
-    position. The status follows: ok at a confidence of 0.9 or more
+    how much of the scan lies on the map, how many of its beams would have
+    passed through a wall, how far the best distinct pose (the runner_up
+    columns) falls behind, and how firmly the points fix the position. The
+    status follows: ok at a confidence of 0.9 or more
     (--confidence-min-confidence); ambiguous below it, or where nothing fixes
     the position along one direction (a featureless corridor); lost (under
     half the scan lies on the map). A scan that yields too few segments gets
