@@ -41,6 +41,7 @@ from protocol import (
     PERTURB_THETA_DEG,
     PERTURB_XY_M,
     map_without,
+    mean_sd,
     percent,
     perturbed_guesses,
     prepare_raw_log,
@@ -356,22 +357,6 @@ def _published(name: str) -> dict | None:
 # --- the report -------------------------------------------------------------------
 
 
-def _pm(value: object, digits: int) -> str:
-    """Mean ± std with ``digits`` decimals from a {"mean", "std"} dict, a (mean, std) pair or
-    a bare mean; a dash where there is none (NaN or None)."""
-    if isinstance(value, dict):
-        mean, std = value.get("mean"), value.get("std")
-    elif isinstance(value, list | tuple):
-        mean, std = value
-    else:
-        mean, std = value, None
-    if mean is None or not math.isfinite(mean):
-        return "—"
-    if std is None or not math.isfinite(std):
-        return f"{mean:.{digits}f}"
-    return f"{mean:.{digits}f} ± {std:.{digits}f}"
-
-
 def _error_cells(figures: dict | None, with_used: bool) -> list[str]:
     """Cells of a ``_flat``-shaped dict (plus "used"): [relations used,] translation (m) and
     rotation (°) error mean ± std; dashes for None."""
@@ -379,8 +364,8 @@ def _error_cells(figures: dict | None, with_used: bool) -> list[str]:
     used = [str(f.get("used", 0))] if with_used else []
     return [
         *used,
-        _pm({"mean": f.get("trans_mean_m"), "std": f.get("trans_std_m")}, 3),
-        _pm({"mean": f.get("rot_mean_deg"), "std": f.get("rot_std_deg")}, 2),
+        mean_sd({"mean": f.get("trans_mean_m"), "std": f.get("trans_std_m")}, 3),
+        mean_sd({"mean": f.get("rot_mean_deg"), "std": f.get("rot_std_deg")}, 2),
     ]
 
 
@@ -440,16 +425,16 @@ def precision_section(
             str(r["end_scans"]),
             str(r["map_scans"]),
             percent(r["ok_share"]),
-            _pm({"mean": r["trans_mean_m"], "std": r["trans_std_m"]}, 3),
-            _pm({"mean": r["rot_mean_deg"], "std": r["rot_std_deg"]}, 2),
+            mean_sd({"mean": r["trans_mean_m"], "std": r["trans_std_m"]}, 3),
+            mean_sd({"mean": r["rot_mean_deg"], "std": r["rot_std_deg"]}, 2),
             *_error_cells(r.get("only_ok"), with_used=True),
             *_error_cells(r.get("reference"), with_used=False),
-            _pm(pub.get("trans_m"), 3),
-            _pm(pub.get("rot_deg"), 2),
+            mean_sd(pub.get("trans_m"), 3),
+            mean_sd(pub.get("rot_deg"), 2),
         ]
         if tracking:
             t = tracking.get(name) or {}
-            cells += [_pm(t.get("trans_m"), 3), _pm(t.get("rot_deg"), 2)]
+            cells += [mean_sd(t.get("trans_m"), 3), mean_sd(t.get("rot_deg"), 2)]
         cells.append(f"{r['median_ms']:.1f}")
         lines.append("| " + " | ".join(cells) + " |")
     return lines

@@ -408,3 +408,19 @@ def same_scans(wanted: list, scans: list, look_back: int = 50, look_ahead: int =
 def percent(share: float) -> str:
     """A share (0–1) as a percentage, or a dash where there is none."""
     return "—" if not np.isfinite(share) else f"{share * 100:.1f} %"
+
+
+def mean_sd(value: object, digits: int) -> str:
+    """Mean ± std with ``digits`` decimals from a {"mean", "std"} dict, a (mean, std) pair or
+    a bare mean; a dash where there is none (NaN or None)."""
+    if isinstance(value, dict):
+        mean, std = value.get("mean"), value.get("std")
+    elif isinstance(value, list | tuple):
+        mean, std = value
+    else:
+        mean, std = value, None
+    if mean is None or not np.isfinite(mean):
+        return "—"
+    if std is None or not np.isfinite(std):
+        return f"{mean:.{digits}f}"
+    return f"{mean:.{digits}f} ± {std:.{digits}f}"

@@ -52,6 +52,7 @@ from protocol import (
     errors_against_truth,
     is_right,
     is_right_place,
+    mean_sd,
     percent,
     perturbed_guesses,
     prepare_held_out,
@@ -117,11 +118,6 @@ CARTOGRAPHER = {
 }
 """Cartographer's mean relation errors (m, °) on the same relations: Hess et al., Real-time
 loop closure in 2D LIDAR SLAM, ICRA 2016, Table II."""
-
-
-def _mean_sd(summary: dict, digits: int) -> str:
-    """A relation error's mean ± standard deviation from an ``evaluate`` JSON summary."""
-    return f"{summary['mean']:.{digits}f} ± {summary['std']:.{digits}f}"
 
 
 LISTED = 5
@@ -648,12 +644,7 @@ def report(results: dict, commands: dict, trials: pd.DataFrame | None = None) ->
         pub = (b.get("published") or {}).get("GraphMapping", {})
 
         def pm(d, key, digits):
-            v = d.get(key)
-            if isinstance(v, dict):
-                return f"{v['mean']:.{digits}f} ± {v['std']:.{digits}f}"
-            if isinstance(v, list | tuple):
-                return f"{v[0]:.{digits}f} ± {v[1]:.{digits}f}"
-            return "—"
+            return mean_sd(d.get(key), digits)
 
         statuses = ", ".join(f"{n} {s}" for s, n in sorted(b["statuses"].items()))
         lines.append(
@@ -681,7 +672,7 @@ def report(results: dict, commands: dict, trials: pd.DataFrame | None = None) ->
         carto = CARTOGRAPHER.get(name, ("—", "—"))
         lines.append(
             f"| {name} | {polished['map_segments']} | {polished['segments']} | "
-            f"{_mean_sd(rel['trans_m'], 3)} | {_mean_sd(rel['rot_deg'], 2)} | "
+            f"{mean_sd(rel['trans_m'], 3)} | {mean_sd(rel['rot_deg'], 2)} | "
             f"{carto[0]} | {carto[1]} |"
         )
     lines += [
