@@ -40,6 +40,7 @@ from protocol import (
     PERTURB_SEED,
     PERTURB_THETA_DEG,
     PERTURB_XY_M,
+    RawLog,
     map_without,
     mean_sd,
     percent,
@@ -59,7 +60,7 @@ from segloc_cli.io.tables import (
     read_pose_table,
     write_pose_table,
 )
-from segloc_cli.relations import PUBLISHED, Relations, read_relations
+from segloc_cli.relations import PUBLISHED, Relations, published_json, read_relations
 
 SAME_TIME_S = 1e-3
 """A relation's time names the raw-log scan nearest it within this (seconds). The relations'
@@ -134,22 +135,38 @@ def write_relations_subset(source: Path, kept: np.ndarray, out: Path) -> None:
     out.write_text("".join(line + "\n" for line, keep in zip(lines, kept, strict=True) if keep))
 
 
+@dataclass(frozen=True)
+class ImportedLogs:
+    """A dataset's corrected log, imported as ``log_path`` with its reference poses at
+    ``reference_path``, and its raw log."""
+
+    log_path: Path
+    reference_path: Path
+    raw: RawLog
+
+
+def import_logs(name: str, datasets: Path, work: Path, commands: list[str]) -> ImportedLogs:
+    """Import dataset ``name``'s corrected and raw logs into ``work``; the commands run are
+    appended to ``commands``."""
+    log_path, reference_path = work / "corrected.mcap", work / "reference.csv"
+    run_segloc(
+        commands, "import", "carmen", datasets / name / DATASETS[name][0], "--out", log_path,
+        "--survey-out", reference_path,
+    )  # fmt: skip
+    return ImportedLogs(log_path, reference_path, prepare_raw_log(name, datasets, work, commands))
+
+
 def prepare_relation_split(
-    name: str, datasets: Path, work: Path, commands: list[str]
+    name: str, datasets: Path, work: Path, commands: list[str], logs: ImportedLogs
 ) -> RelationSplit:
-    """Import dataset ``name``'s corrected and raw logs into ``work``, choose the relations
-    whose two ends are corrected scans and build the map without those end scans; the
-    commands run are appended to ``commands``.
+    """Choose the relations of dataset ``name`` whose two ends are scans of its corrected log
+    (``logs``) and build the map in ``work`` without those end scans; the commands run are
+    appended to ``commands``.
 
     The map is built as ``protocol.map_without`` builds the other benchmarks' maps.
     """
-    carmen_log = datasets / name / DATASETS[name][0]
     relations_source = datasets / name / DATASETS[name][2]
-    log_path, reference_path = work / "corrected.mcap", work / "reference.csv"
-    run_segloc(
-        commands, "import", "carmen", carmen_log, "--out", log_path, "--survey-out", reference_path
-    )
-    raw = prepare_raw_log(name, datasets, work, commands)
+    log_path, reference_path, raw = logs.log_path, logs.reference_path, logs.raw
     corrected_scans = read_log(log_path).scans
     raw_scans = read_log(raw.log_path).scans
     reference = read_pose_table(reference_path)
@@ -235,11 +252,14 @@ def _both_ends(relations: Relations, est: pd.DataFrame, mask: np.ndarray) -> int
     return within(relations, times, SAME_TIME_S)
 
 
-def precision(name: str, datasets: Path, work: Path, commands: list[str]) -> dict:
+def precision(
+    name: str, datasets: Path, work: Path, commands: list[str], logs: ImportedLogs | None = None
+) -> dict:
     """The precision protocol for dataset ``name`` (see the module docstring), in ``work``.
 
-    ``datasets`` holds a folder per dataset (``protocol.DATASETS``); the commands run are
-    appended to ``commands``. Returns a JSON-able dict: counts of relations (in the file;
+    ``datasets`` holds a folder per dataset (``protocol.DATASETS``); ``logs`` are its logs as
+    already imported (imported into ``work`` when None); the commands run are appended to
+    ``commands``. Returns a JSON-able dict: counts of relations (in the file;
     ``relations_available`` with both ends corrected scans; ``relations_used`` scored),
     ``end_scans`` held out and ``map_scans``; the relation errors of all the answers,
     whatever their status, ``trans_mean_m``/``trans_std_m`` (metres) and
@@ -252,7 +272,8 @@ def precision(name: str, datasets: Path, work: Path, commands: list[str]) -> dic
     """
     start = time.perf_counter()
     work.mkdir(parents=True, exist_ok=True)
-    split = prepare_relation_split(name, datasets, work, commands)
+    logs = logs or import_logs(name, datasets, work, commands)
+    split = prepare_relation_split(name, datasets, work, commands, logs)
     truth = subset_poses(split.reference, split.held_out)
     commands.append(
         f"# guesses.csv: end scans' reference + uniform errors (±{PERTURB_XY_M} m, "
@@ -309,7 +330,8 @@ def precision(name: str, datasets: Path, work: Path, commands: list[str]) -> dic
         "median_ms": float(est["runtime_ms"].median()),
         "wall_s": wall_s,
         "total_wall_s": time.perf_counter() - start,
-        "published": metric.get("published") or _published(name),
+        # None of a dataset's relations scored, evaluate did not run: the figures still show.
+        "published": metric.get("published") or published_json(PUBLISHED.get(name, {})) or None,
     }
 
 
@@ -340,17 +362,6 @@ def _flat(summary: dict | None) -> dict:
         "trans_std_m": get("trans_m", "std"),
         "rot_mean_deg": get("rot_deg", "mean"),
         "rot_std_deg": get("rot_deg", "std"),
-    }
-
-
-def _published(name: str) -> dict | None:
-    """``PUBLISHED[name]`` shaped as ``segloc evaluate --format json`` gives it (for a
-    dataset none of whose relations could be scored, so evaluate was not run)."""
-    if name not in PUBLISHED:
-        return None
-    return {
-        method: {e: {"mean": v[e][0], "std": v[e][1]} for e in ("trans_m", "rot_deg")}
-        for method, v in PUBLISHED[name].items()
     }
 
 

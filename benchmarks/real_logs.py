@@ -33,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-from precision import precision, precision_section
+from precision import ImportedLogs, precision, precision_section
 from protocol import (
     DATASETS,
     DATASETS_DIR,
@@ -47,6 +47,7 @@ from protocol import (
     SUCCESS_DEG,
     SUCCESS_M,
     HeldOutSplit,
+    RawLog,
     commands_section,
     distances,
     errors_against_truth,
@@ -296,10 +297,12 @@ def failures_figure(
     plt.close(fig)
 
 
-def tracking(name: str, split: HeldOutSplit, data: Path, work: Path, log: list[str]) -> dict:
-    """Protocol (b): the raw log tracked in the map of ``split`` from (0, 0, 0) at its start."""
+def tracking(
+    name: str, split: HeldOutSplit, raw: RawLog, data: Path, work: Path, log: list[str]
+) -> dict:
+    """Protocol (b): the raw log ``raw`` tracked in the map of ``split`` from (0, 0, 0) at its
+    start."""
     relations_name = DATASETS[name][2]
-    raw = prepare_raw_log(name, data, work, log)
     from segloc_cli.io.mcap_log import read_log
 
     raw_log = read_log(raw.log_path)
@@ -729,12 +732,15 @@ def main() -> None:
         truth = split.held_out_reference()
         for protocol, table in (("perturbation", "perturb.csv"), ("global", "global.csv")):
             trials.append(verdict_trials(name, protocol, read_estimates(work / table), truth))
+        raw = prepare_raw_log(name, args.datasets, work, log)
         if not args.no_tracking:
             print(f"{name}: tracking protocol", flush=True)
-            results[name]["tracking"] = tracking(name, split, args.datasets, work, log)
+            results[name]["tracking"] = tracking(name, split, raw, args.datasets, work, log)
             print(f"  {json.dumps(results[name]['tracking'], default=str)}", flush=True)
         print(f"{name}: precision protocol", flush=True)
-        results[name]["precision"] = precision(name, args.datasets, work / "precision", log)
+        logs = ImportedLogs(split.log_path, work / "reference.csv", raw)
+        precision_work = work / "precision"
+        results[name]["precision"] = precision(name, args.datasets, precision_work, log, logs)
         print(f"  {json.dumps(results[name]['precision'], default=str)}", flush=True)
         commands[name] = log
     verdict = pd.concat(trials, ignore_index=True)

@@ -486,16 +486,22 @@ def _json_ready(value: object) -> object:
     return value
 
 
+def published_json(published: dict) -> dict:
+    """A dataset's entry of ``PUBLISHED`` as the JSON format gives it: method → error →
+    {"mean", "std"}."""
+    return {
+        method: {
+            name: {"mean": float(values[name][0]), "std": float(values[name][1])}
+            for name in ("trans_m", "rot_deg")
+        }
+        for method, values in published.items()
+    }
+
+
 def _format_json(summary: dict, published: dict | None, label: str) -> str:
     document: dict[str, object] = {"trajectory": label, "summary": _json_ready(summary)}
     if published:
-        document["published"] = {
-            method: {
-                name: {"mean": float(values[name][0]), "std": float(values[name][1])}
-                for name in ("trans_m", "rot_deg")
-            }
-            for method, values in published.items()
-        }
+        document["published"] = published_json(published)
         document["published_source"] = PUBLISHED_SOURCE
     return json.dumps(document, indent=2, ensure_ascii=False, allow_nan=False) + "\n"
 
