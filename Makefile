@@ -6,7 +6,7 @@ STAMP := $(VENV)/.installed
 DEMO_OUT := out/demo
 HALL := datasets/hall
 
-.PHONY: setup demo test fuzz bench bench-real bench-peers calibrate figures lint hall clean
+.PHONY: setup demo test fuzz bench bench-real bench-sweep bench-peers calibrate figures lint hall clean
 
 # The last step compiles numba's kernels into their cache, so that no first run waits for it
 # (a failure there only costs that wait; tests/test_warmup.py catches it).
@@ -16,7 +16,7 @@ $(STAMP): pyproject.toml
 	@command -v $(PYTHON) >/dev/null 2>&1 || { echo "error: $(PYTHON) not found; install Python 3.11 or run 'make PYTHON=python3 ...'" >&2; exit 2; }
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e '.[dev,peers]'
+	$(BIN)/python -m pip install --quiet -e '.[dev,peers,sweep]'
 	$(BIN)/python -m segloc_cli.warmup || echo "warning: warm-up failed" >&2
 	@touch $(STAMP)
 
@@ -47,6 +47,10 @@ bench: $(STAMP)
 DATASETS ?= ../shared/datasets
 bench-real: $(STAMP)
 	$(BIN)/python benchmarks/real_logs.py --datasets $(DATASETS) --out benchmarks/results-real.md
+
+# segloc sweep on the real logs' held-out scans (3 search windows × 2 seeds), on 1 and 2 workers.
+bench-sweep: $(STAMP)
+	$(BIN)/python benchmarks/sweep_real.py --datasets $(DATASETS) --out benchmarks/results-sweep.md
 
 # Fit the verdict's confidence model on simulated rooms and the real logs' calibration splits
 # (scans the benchmarks do not score): segloc_cli/confidence_model.json and

@@ -17,6 +17,7 @@ from segloc_cli.commands.evaluate import EXIT_GATE_FAILED, evaluate
 from segloc_cli.commands.localize import EXIT_INTERRUPTED, localize
 from segloc_cli.commands.logs import import_group, info_command, simulate
 from segloc_cli.commands.maps import map_group
+from segloc_cli.commands.sweep import sweep
 from segloc_cli.errors import SeglocError
 
 EXIT_BAD_INPUT = 2
@@ -49,7 +50,7 @@ def cli() -> None:
     """
 
 
-for command in (simulate, import_group, map_group, localize, evaluate, emulate, record):
+for command in (simulate, import_group, map_group, localize, evaluate, sweep, emulate, record):
     cli.add_command(command)
 cli.add_command(info_command, "info")
 

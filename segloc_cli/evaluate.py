@@ -147,8 +147,7 @@ def table1(
         return est[name].to_numpy(dtype=float)
 
     truth_x_m, truth_y_m, truth_theta_rad = truth[:, 0], truth[:, 1], truth[:, 2]
-    err_x_cm = 100.0 * (truth_x_m - col("x_m"))
-    err_y_cm = 100.0 * (truth_y_m - col("y_m"))
+    final = final_errors(truth, col("x_m"), col("y_m"), col("theta_deg"))
     # Stage 1 searched a window around the initial heading; without one its peak is not an answer.
     align_theta_deg = np.where(np.isfinite(col("init_theta_deg")), col("align_theta_deg"), np.nan)
     table = pd.DataFrame(
@@ -158,10 +157,7 @@ def table1(
             "init_x_cm": 100.0 * (truth_x_m - col("init_x_m")),
             "init_y_cm": 100.0 * (truth_y_m - col("init_y_m")),
             "init_theta_deg": _wrapped_deg(truth_theta_rad - np.deg2rad(col("init_theta_deg"))),
-            "err_x_cm": err_x_cm,
-            "err_y_cm": err_y_cm,
-            "err_theta_deg": _wrapped_deg(truth_theta_rad - np.deg2rad(col("theta_deg"))),
-            "err_xy_cm": np.hypot(err_x_cm, err_y_cm),
+            **final,
             "status": _status_text(est["status"].to_numpy(dtype=object)),
         },
         columns=list(TABLE_COLUMNS),
@@ -169,6 +165,22 @@ def table1(
     table.attrs["n_surveyed"] = int(survey_times_s.size)
     table.attrs["tolerance_s"] = float(tolerance_s)
     return table
+
+
+def final_errors(
+    truth: np.ndarray, x_m: np.ndarray, y_m: np.ndarray, theta_deg: np.ndarray
+) -> dict[str, np.ndarray]:
+    """Errors of estimates (metres, degrees) against their true poses ``truth`` (N, 3: x m,
+    y m, θ rad), surveyed minus estimate: ``err_x_cm``, ``err_y_cm``, ``err_theta_deg``
+    (wrapped to [-180, 180)) and ``err_xy_cm`` (Euclidean), NaN where the estimate is."""
+    err_x_cm = 100.0 * (truth[:, 0] - x_m)
+    err_y_cm = 100.0 * (truth[:, 1] - y_m)
+    return {
+        "err_x_cm": err_x_cm,
+        "err_y_cm": err_y_cm,
+        "err_theta_deg": _wrapped_deg(truth[:, 2] - np.deg2rad(theta_deg)),
+        "err_xy_cm": np.hypot(err_x_cm, err_y_cm),
+    }
 
 
 def scored(table: pd.DataFrame, only_ok: bool = False) -> np.ndarray:
@@ -246,7 +258,7 @@ def summary(
     has_pose = scored(table)
     accepted = table["status"].isin(ESTIMATED).to_numpy()
     gated = fail_above_cm is not None or fail_above_deg is not None
-    beyond, failing = _gate_masks(table, fail_above_cm, fail_above_deg)
+    beyond, failing = gate_masks(table, fail_above_cm, fail_above_deg)
     result.attrs.update(
         {
             "n_surveyed": n_surveyed,
@@ -294,7 +306,7 @@ def _gate_checks(fail_above_cm: float | None, fail_above_deg: float | None) -> l
     return checks
 
 
-def _gate_masks(
+def gate_masks(
     table: pd.DataFrame, fail_above_cm: float | None, fail_above_deg: float | None
 ) -> tuple[np.ndarray, np.ndarray]:
     """(N,) bool each: poses beyond a limit, and poses that fail the gate (see ``gate``)."""
@@ -461,7 +473,7 @@ def _pose_flags(table: pd.DataFrame, stats: pd.DataFrame) -> tuple[np.ndarray, n
     score = scored(table, stats.attrs["only_ok"])
     if stats.attrs["n_beyond"] is None:
         return score, None
-    beyond, _ = _gate_masks(table, stats.attrs["fail_above_cm"], stats.attrs["fail_above_deg"])
+    beyond, _ = gate_masks(table, stats.attrs["fail_above_cm"], stats.attrs["fail_above_deg"])
     return score, beyond
 
 

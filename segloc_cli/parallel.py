@@ -68,8 +68,11 @@ _warmed: weakref.WeakSet = weakref.WeakSet()
 """Localizers already run once in this process (their kernels compiled, their parts built)."""
 
 
-def _warm_up(localizer: ScanMatcher, scans: Sequence[Scan], guesses, extract_params) -> None:
-    """Build the localizer's lazy parts in the parent, so that forked workers share them."""
+def prepare_localizer(
+    localizer: ScanMatcher, scans: Sequence[Scan], guesses, extract_params
+) -> None:
+    """Build the localizer's lazy parts and run it once on the first scan, untimed, so that
+    no scan's time includes them (and forked workers share what was built)."""
     if isinstance(localizer, Localizer) and localizer.params.refine is not None:
         if localizer.params.search is not None or guesses is None:
             localizer.hypothesis_search  # noqa: B018 (built on first access)
@@ -99,7 +102,7 @@ def localize_scans_parallel(
         yield from localize_scans(scans, initial_poses, pose_ids, localizer, extract_params)
         return
     global _job
-    _warm_up(localizer, scans, initial_poses, extract_params)
+    prepare_localizer(localizer, scans, initial_poses, extract_params)
     blocks = [(i, min(i + BLOCK_SCANS, len(scans))) for i in range(0, len(scans), BLOCK_SCANS)]
     _job = (list(scans), initial_poses, list(pose_ids), localizer, extract_params)
     context = multiprocessing.get_context("fork")

@@ -314,21 +314,10 @@ def simulate_log(
     paper's Table 1 errors; "uniform", XY_M, THETA_DEG: uniform within those)."""
     from segloc_cli.io.files import atomic_path
     from segloc_cli.io.mcap_log import LogWriter
-    from segloc_cli.sim import (
-        initial_guesses,
-        paper_initial_errors,
-        simulate_scan,
-        uniform_initial_errors,
-    )
+    from segloc_cli.sim import initial_errors, initial_guesses, simulate_scan
 
     rng = np.random.default_rng(seed)
-    mode, xy_m, theta_deg = init_errors
-    n = len(truth)
-    if mode == "paper":
-        errors = paper_initial_errors(n)
-    else:
-        errors = uniform_initial_errors(n, xy_m, theta_deg, rng)
-    guesses = initial_guesses(truth.poses, errors)
+    guesses = initial_guesses(truth.poses, initial_errors(len(truth), init_errors, rng))
     with atomic_path(log_path) as partial, LogWriter(partial, settings) as log:
         for t, pose, guess in zip(truth.time_s, truth.poses, guesses, strict=True):
             log.add_odom(float(t), Pose2(*guess))

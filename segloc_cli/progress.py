@@ -48,6 +48,7 @@ class Progress:
         self._started = time.monotonic()
         self._next_line = self._started + max(SHOW_AFTER_S, PLAIN_EVERY_S)
         self._lines = 0
+        self._shown_done = -1
         self._bar: tqdm | None = None
         if self._terminal:
             self._bar = tqdm(
@@ -83,7 +84,8 @@ class Progress:
             self._bar.close()
             self._bar = None
         elif self._lines:
-            self._write_line(time.monotonic())
+            if self.done != self._shown_done:  # not when the last line said it all
+                self._write_line(time.monotonic())
             self._lines = 0
 
     def _write_line(self, now: float) -> None:
@@ -92,6 +94,7 @@ class Progress:
         )
         self._stream.flush()
         self._lines += 1
+        self._shown_done = self.done
 
 
 def plain_line(what: str, done: int, total: int | None, unit: str, elapsed_s: float) -> str:

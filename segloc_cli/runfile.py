@@ -48,14 +48,7 @@ def read_table(path: Path, command: Sequence[str], commands: set[tuple[str, ...]
     Tables that name no command of ``commands`` (nor ``[run]``) and keys outside any
     table are refused, naming them, so a misspelt table does not pass unnoticed.
     """
-    with reading(path, "a TOML configuration"):
-        if path.stat().st_size > MAX_CONFIG_BYTES:
-            raise InputError(f"is over {MAX_CONFIG_BYTES:,} bytes; not a configuration", path=path)
-        text = path.read_bytes().decode("utf-8", errors="replace")
-    try:
-        document = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise InputError(f"is not valid TOML: {exc}", path=path) from None
+    document = load_toml(path)
     for key, value in document.items():
         if not isinstance(value, dict):
             raise InputError(
@@ -68,6 +61,19 @@ def read_table(path: Path, command: Sequence[str], commands: set[tuple[str, ...]
     for name in command:
         table = table.get(name, {})
     return table
+
+
+def load_toml(path: Path, what: str = "a TOML configuration") -> dict:
+    """The TOML document in ``path``, refused with one line if it is unreadable, over
+    ``MAX_CONFIG_BYTES`` or not TOML."""
+    with reading(path, what):
+        if path.stat().st_size > MAX_CONFIG_BYTES:
+            raise InputError(f"is over {MAX_CONFIG_BYTES:,} bytes; not a configuration", path=path)
+        text = path.read_bytes().decode("utf-8", errors="replace")
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise InputError(f"is not valid TOML: {exc}", path=path) from None
 
 
 def _check_tables(path: Path, document: dict, commands: set[tuple[str, ...]]) -> None:

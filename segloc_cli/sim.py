@@ -27,7 +27,7 @@ from segloc_cli.geometry import (
     wrap_angle,
 )
 from segloc_cli.io.maps import World
-from segloc_cli.scan import Scan
+from segloc_cli.scan import MAX_RANGE_M, Scan
 
 EXPLORER_READINGS = (128, 256, 1024, 2048)
 
@@ -248,6 +248,37 @@ def uniform_initial_errors(
     xy = rng.uniform(-xy_m, xy_m, size=(n, 2))
     theta = rng.uniform(-np.deg2rad(theta_deg), np.deg2rad(theta_deg), size=n)
     return np.column_stack([xy, theta])
+
+
+def parse_init_errors(value: str) -> tuple[str, float, float]:
+    """Initial-error text → ("paper", 0, 0) or ("uniform", XY_M, THETA_DEG): 'paper' (the
+    paper's Table 1) or 'uniform:XY_M,THETA_DEG' (uniform in ±XY_M per axis and ±THETA_DEG).
+    Raises ValueError with a message that says what is accepted."""
+    if value == "paper":
+        return ("paper", 0.0, 0.0)
+    if value.startswith("uniform:"):
+        try:
+            xy, theta = (float(v) for v in value[len("uniform:") :].split(","))
+        except ValueError:
+            pass
+        else:
+            if 0 <= xy <= MAX_RANGE_M and 0 <= theta <= 180:
+                return ("uniform", xy, theta)
+    raise ValueError(
+        f"{value!r}; use 'paper' or 'uniform:XY_M,THETA_DEG' with XY_M in 0..{MAX_RANGE_M:g} "
+        "and THETA_DEG in 0..180 (e.g. uniform:1.5,20)"
+    )
+
+
+def initial_errors(
+    n: int, init_errors: tuple[str, float, float], rng: np.random.Generator
+) -> np.ndarray:
+    """Initial errors (n, 3: dx m, dy m, dtheta rad) of ``parse_init_errors``'s result: the
+    paper's (``rng`` unused) or uniform draws from ``rng``."""
+    mode, xy_m, theta_deg = init_errors
+    if mode == "paper":
+        return paper_initial_errors(n)
+    return uniform_initial_errors(n, xy_m, theta_deg, rng)
 
 
 def initial_guesses(true_poses: np.ndarray, errors: np.ndarray) -> np.ndarray:

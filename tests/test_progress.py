@@ -56,7 +56,7 @@ def test_plain_lines_come_every_few_seconds_and_once_at_the_end(clock):
             shown.advance()
     lines = stream.getvalue().splitlines()
     every = progress_module.PLAIN_EVERY_S
-    assert len(lines) == int(25 / every) + 1
+    assert len(lines) == int(25 / every)  # the last, at 25 s, is not written again at the end
     assert lines[0] == "segloc: localizing: 20/100 scans (20%), 4.0 scans/s, 00:20 left"
     assert lines[-1] == "segloc: localizing: 100/100 scans (100%), 4.0 scans/s, 00:00 left"
 
@@ -111,7 +111,7 @@ def test_long_commands_report_progress_in_plain_lines(capsys, tmp_path, every_st
     assert built.code == 0, built.err
     extracting = _progress_lines(built.err, "extracting segments")
     assert extracting[-1].startswith("segloc: extracting segments: 125/125 scans (100%), ")
-    assert len(extracting) == 125 + 1  # a line per scan here, and the last one again
+    assert len(extracting) == 125  # a line per scan here, the last one not repeated
     assert _progress_lines(built.err, "fusing segments")[-1].endswith(" so far")
 
     estimates = tmp_path / "est.csv"

@@ -14,6 +14,7 @@ from segloc_cli.commands.options import (
     ModuleChoice,
     config_option,
     force_option,
+    format_option,
     info,
     load_log,
     path_option,
@@ -48,14 +49,7 @@ EVALUATE_OPTIONS = (
         default=None,
         help="With --relations: add the published graph-mapping errors for this dataset.",
     ),
-    click.option(
-        "--format",
-        "fmt",
-        type=ModuleChoice("segloc_cli.evaluate", "FORMATS"),
-        default="md",
-        show_default=True,
-        help="Table format.",
-    ),
+    format_option("segloc_cli.evaluate", "FORMATS", "Table format."),
     path_option(
         "--out",
         "out_path",

@@ -151,7 +151,7 @@ def localize(
 
     run = Invocation.current()
     config = _with_region(run.config, _parse_region(region, global_search))
-    _check_modes(config, global_search, track)
+    check_modes(config, global_search, track)
     mode = "global" if global_search else "track" if track else "guided"
     guess_file = None if initial == GUESSES_KEYWORD else Path(initial)
     listed = None if hypotheses is None else (beside(out_path, ".hypotheses.csv"), hypotheses)
@@ -189,7 +189,7 @@ def localize(
         info(f"{listed[0]}: up to {listed[1]} distinct poses per scan, best first")
 
 
-def _check_modes(config, global_search: bool, track: bool) -> None:
+def check_modes(config, global_search: bool, track: bool) -> None:
     """Refuse settings that cannot go together, before any file is read."""
     import numpy as np
 

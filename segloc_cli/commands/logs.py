@@ -53,21 +53,12 @@ def check_increasing_times(times_s, path: Path, what: str) -> None:
 
 
 def _parse_init_errors(value: str) -> tuple[str, float, float]:
-    if value == "paper":
-        return ("paper", 0.0, 0.0)
-    if value.startswith("uniform:"):
-        try:
-            xy, theta = (float(v) for v in value[len("uniform:") :].split(","))
-        except ValueError:
-            pass
-        else:
-            if 0 <= xy <= MAX_RANGE_M and 0 <= theta <= 180:
-                return ("uniform", xy, theta)
-    raise click.BadParameter(
-        f"{value!r}; use 'paper' or 'uniform:XY_M,THETA_DEG' with XY_M in 0..{MAX_RANGE_M:g} "
-        "and THETA_DEG in 0..180 (e.g. uniform:1.5,20)",
-        param_hint="--init-errors",
-    )
+    from segloc_cli.sim import parse_init_errors
+
+    try:
+        return parse_init_errors(value)
+    except ValueError as exc:
+        raise click.BadParameter(str(exc), param_hint="--init-errors") from None
 
 
 SIMULATE_OPTIONS = (

@@ -150,6 +150,18 @@ def with_options(*decorators: Callable) -> Callable:
     return apply
 
 
+def format_option(module: str, constant: str, help: str) -> Callable:
+    """``--format``: one of the formats that ``module``'s ``constant`` lists, md by default."""
+    return click.option(
+        "--format",
+        "fmt",
+        type=ModuleChoice(module, constant),
+        default="md",
+        show_default=True,
+        help=help,
+    )
+
+
 force_option = click.option(
     "--force", is_flag=True, help="Overwrite the output file(s) if they exist."
 )
@@ -174,7 +186,7 @@ def option_key(option: click.Parameter) -> str:
     return longest.lstrip("-")
 
 
-def _options_by_key(command: click.Command) -> dict[str, click.Option]:
+def options_by_key(command: click.Command) -> dict[str, click.Option]:
     return {
         option_key(p): p
         for p in command.params
@@ -209,13 +221,13 @@ def _apply_config(ctx: click.Context, value: Path | None) -> None:
         warn(note)
     if not table:
         warn(f"{value} has no [{'.'.join(command)}] table; nothing was set from it")
-    options = _options_by_key(ctx.command)
+    options = options_by_key(ctx.command)
     defaults = {}
     for key, raw in table.items():
         option = options.get(key)
         if option is None:
             raise InputError(_unknown_key(key, command, options), path=value)
-        defaults[option.name] = _config_value(ctx, option, key, raw, value)
+        defaults[option.name] = config_value(ctx, option, key, raw, value)
     ctx.default_map = {**(ctx.default_map or {}), **defaults}
 
 
@@ -226,7 +238,7 @@ def _unknown_key(key: str, command: tuple[str, ...], options: dict) -> str:
     return f"unknown key {key!r} in [{name}]; keys are long option names; {hint}"
 
 
-def _config_value(ctx: click.Context, option: click.Option, key: str, raw: Any, path: Path):
+def config_value(ctx: click.Context, option: click.Option, key: str, raw: Any, path: Path):
     """A value of a configuration table, checked as the option checks its own."""
     if option.is_flag and not isinstance(raw, bool):
         raise InputError(f"key {key!r} is a flag: give true or false, not {raw!r}", path=path)

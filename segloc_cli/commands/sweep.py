@@ -1,0 +1,181 @@
+"""``segloc sweep``: logs × settings × seeds localized and scored, on a Dask cluster."""
+
+from __future__ import annotations
+
+import os
+import sys
+from pathlib import Path
+
+import click
+
+from segloc_cli.commands.options import (
+    Invocation,
+    config_option,
+    force_option,
+    format_option,
+    info,
+    path_option,
+    warn,
+)
+from segloc_cli.errors import InputError
+
+EXIT_TASKS_FAILED = 1
+EXIT_INTERRUPTED = 130
+
+
+@click.command()
+@click.argument("spec_path", metavar="SPEC.toml", type=click.Path(path_type=Path))
+@path_option("--out", "out_path", required=True, help="Results table to write (Parquet).")
+@click.option(
+    "--scheduler",
+    metavar="ADDRESS",
+    default=None,
+    help="Run the tasks on the Dask cluster of this scheduler (e.g. tcp://10.0.0.5:8786) "
+    "instead of a local one.",
+)
+@click.option(
+    "--jobs",
+    type=click.IntRange(1, 1024),
+    default=os.cpu_count() or 1,
+    show_default="this machine's cores",
+    help="Worker processes of the local cluster (not with --scheduler).",
+)
+@format_option("segloc_cli.sweep", "SUMMARY_FORMATS", "Format of the summary printed.")
+@config_option
+@force_option
+def sweep(spec_path, out_path, scheduler, jobs, fmt, force):
+    """Localize and score every log × combination of settings × seed of a spec.
+
+    \b
+    The spec (TOML; paths relative to its folder):
+      map = "datasets/hall/map.json"
+      logs = ["datasets/hall/log.mcap"]
+      survey = "datasets/hall/survey.csv"
+      init-errors = "uniform:1.5,20"   # guesses = survey − errors; or initial = "FILE"
+      seeds = [1, 2]
+      [grid]                           # every combination is run
+      iterations = [6, 8]
+      grid-m = [1.0, 1.5]
+
+    Any setting of segloc localize (its long option name, e.g. method,
+    global, no-refine, search-half-width-m) can be fixed at the top level or
+    listed in [grid]. A log may be a table {path = ..., map = ..., survey =
+    ...} with a map and survey of its own. The guesses are drawn per seed and
+    log (the same for every combination), or taken from initial = "FILE", or
+    from the log's /odom (initial = "odom", the default). fail-above-cm and
+    fail-above-deg (10 cm, 1°) set the summary's gates, as in evaluate.
+
+    Each task (one log, combination and seed) runs on a Dask worker: a local
+    cluster of --jobs processes, or the cluster of --scheduler, whose workers
+    must have segloc installed and read each log from the path given (a
+    shared folder); the map, survey and guesses go with the task.
+
+    OUT holds one row per log × scan × seed × combination: the task's key,
+    log, combination and seed, the grid's values, the guess and estimate
+    (metres, degrees), status, confidence, errors (cm, degrees, surveyed
+    minus estimate) and runtime_ms. The rows are the same wherever and in
+    whatever order the tasks ran, but for runtime_ms. Each finished task is
+    kept at once (in OUT.parts/ until the sweep ends), so a sweep stopped by
+    Ctrl-C or even killed keeps all it finished, and running it again with
+    the same OUT runs only the tasks it lacks (--force starts afresh). A task
+    that fails is tried once more, then kept as a row with status "task
+    failed" and its error; the sweep goes on, exits 1, and a rerun tries it
+    again.
+
+    Every survey pose within a log's time span has a row: one that no scan
+    lies near in time to has status "no scan", one without a guess "no
+    guess", and both count as misses. The summary printed has a row per
+    combination: poses, the share within the gates, median and 95th
+    percentile errors (a pose without an estimate counting as infinitely
+    wrong), and the median time per scan.
+    """
+    from segloc_cli.commands.sweepspec import read_spec
+
+    _check_extra()
+    if (
+        scheduler is not None
+        and click.get_current_context().get_parameter_source("jobs")
+        == click.core.ParameterSource.COMMANDLINE
+    ):
+        raise click.UsageError("--jobs sets the local cluster; with --scheduler, the cluster's "
+                               "workers are those started with `dask worker`")  # fmt: skip
+    run = Invocation.current()
+    if not out_path.parent.is_dir():
+        raise InputError("the folder does not exist", path=out_path.parent)
+    if out_path.is_dir():
+        raise InputError("is a folder; --out takes a Parquet file", path=out_path)
+    plan = read_spec(spec_path)
+    table, stops = _run(plan, out_path, scheduler, jobs, force)
+    run.write_run_file(out_path, also_read=plan.inputs)
+    _report(plan, table, out_path, fmt, stops)
+
+
+def _check_extra() -> None:
+    """Refuse to start without Dask and pyarrow, saying how to get them."""
+    import importlib.util
+
+    missing = [m for m in ("distributed", "pyarrow") if importlib.util.find_spec(m) is None]
+    if missing:
+        raise click.UsageError(
+            f"segloc sweep needs {' and '.join(missing)}: pip install 'segloc[sweep]'"
+        )
+
+
+def _run(plan, out_path: Path, scheduler: str | None, jobs: int, force: bool):
+    """Run the plan's tasks not yet in ``out_path``; (the table written, stop signals)."""
+    from segloc_cli.progress import Progress
+    from segloc_cli.stopping import stop_requests
+    from segloc_cli.sweep import ResultStore, connect, run_tasks
+
+    store = ResultStore(out_path, fresh=force)
+    planned = {t.key for t in plan.tasks}
+    foreign = store.done() - planned  # failures of other tasks hold nothing, and are dropped
+    if foreign:
+        raise InputError(
+            f"holds {len(foreign)} task(s) this spec does not plan (another spec's results?); "
+            "use another --out, or --force to replace it",
+            path=out_path,
+        )
+    done = store.done()
+    todo = [t for t in plan.tasks if t.key not in done]
+    workers = f"{jobs} worker{'s' if jobs > 1 else ''}"
+    where = f"the cluster at {scheduler}" if scheduler else f"a local cluster of {workers}"
+    info(
+        f"segloc sweep: {len(plan.tasks)} tasks"
+        + (f", {len(plan.tasks) - len(todo)} done before" if len(todo) < len(plan.tasks) else "")
+        + (f"; running {len(todo)} on {where}" if todo else "; nothing to run")
+    )
+    stops: list[str] = []
+    if todo:
+        with stop_requests(stops), connect(scheduler, jobs) as client:
+            with Progress("sweeping", len(todo), "task") as progress:
+                run_tasks(client, todo, store, progress.advance, lambda: bool(stops))
+    table = store.finish([t.key for t in plan.tasks])
+    return table, stops
+
+
+def _report(plan, table, out_path: Path, fmt: str, stops: list[str]) -> None:
+    """Print the summary, then how the sweep ended; exit 130 if stopped, 1 if tasks failed."""
+    from segloc_cli.sweep import STATUS_TASK_FAILED, format_summary, summary
+
+    if len(table):
+        stats = summary(table, plan.grid_keys, *plan.gates.values())
+        click.echo(format_summary(stats, fmt), nl=False)
+    held = table["task"].nunique() if len(table) else 0
+    if stops and held < len(plan.tasks):  # a stop that came after the last task changes nothing
+        click.echo(
+            f"segloc: interrupted ({stops[0]}) with {held} of {len(plan.tasks)} tasks in "
+            f"{out_path}; run the same command again to finish",
+            err=True,
+        )
+        sys.exit(EXIT_INTERRUPTED)
+    info(f"{out_path}: {len(table)} rows from {held} tasks")
+    failures = table[table["status"] == STATUS_TASK_FAILED] if len(table) else table
+    if len(failures):
+        first = failures.iloc[0]
+        warn(
+            f"{len(failures)} task(s) failed, kept as rows with status {STATUS_TASK_FAILED!r}; "
+            f"the first ({first['log']}, combination {first['combination']}, seed "
+            f"{first['seed']}): {first['error']}"
+        )
+        sys.exit(EXIT_TASKS_FAILED)

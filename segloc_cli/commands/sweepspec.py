@@ -1,0 +1,286 @@
+"""A sweep's spec: the TOML file read and checked, and the tasks it plans.
+
+The spec names a map, the logs, a survey (the true poses each answer is scored against), how
+the initial guesses are made and the seeds; any localize setting is fixed at the top level
+(``iterations = 8``) or listed in ``[grid]`` (``iterations = [6, 8]``), whose every
+combination is run. Keys are ``segloc localize``'s long option names, as in a ``--config``
+table, and each value is checked as that option checks its own. Paths are relative to the
+spec's folder. A log may be a table, ``{path = "...", map = "...", survey = "..."}``, to
+give it a map and survey of its own.
+"""
+
+from __future__ import annotations
+
+import difflib
+import itertools
+import zlib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import click
+import numpy as np
+
+from segloc_cli.commands.options import GUESSES_KEYWORD, config_value, options_by_key
+from segloc_cli.errors import InputError
+from segloc_cli.sweep import Task, task_key
+
+SPEC_KEYS = {
+    "map": "the segment map (MAP.json) of every log that names none",
+    "logs": "the logs (MCAP) to localize: paths, or tables {path, map, survey}",
+    "survey": "the true poses (survey CSV or TUM) of every log that names none",
+    "init-errors": "guesses = survey − errors: 'paper' or 'uniform:XY_M,THETA_DEG', one draw "
+    "per seed and log (as the spec names it)",
+    "initial": "guesses from a file (CSV or TUM), or 'odom': the log's /odom (the default)",
+    "seeds": "the seeds of the guesses' draws (default [0])",
+    "fail-above-cm": "the summary's gate on |err_x| and |err_y| (default 10 cm)",
+    "fail-above-deg": "the summary's gate on |err_theta| (default 1°)",
+}
+"""The spec's own keys (besides localize's settings and ``[grid]``), with what they hold."""
+DEFAULT_GATES = {"fail-above-cm": 10.0, "fail-above-deg": 1.0}
+NOT_SWEPT = {"map", "out", "tum", "mcap", "hypotheses", "initial", "track", "jobs", "region"}
+"""Localize options a spec does not take: its outputs, its inputs (given by the spec's own
+keys), tracking (whose scans follow one another, not one task's guesses) and the worker
+count (the sweep's --jobs)."""
+LOG_TABLE_KEYS = ("path", "map", "survey")
+
+
+@dataclass(frozen=True)
+class Plan:
+    """What a spec asks: its tasks in order, the grid's keys, the summary's gates, and
+    every file it reads (role, path), for the run file."""
+
+    tasks: list[Task]
+    grid_keys: tuple[str, ...]
+    gates: dict[str, float]
+    inputs: list[tuple[str, Path]]
+
+
+def read_spec(path: Path) -> Plan:
+    """The plan of the spec ``path``; a bad key or value is an ``InputError`` naming it."""
+    from segloc_cli.commands.localize import localize
+    from segloc_cli.runfile import load_toml
+
+    document = load_toml(path, "a sweep spec (TOML)")
+    ctx = click.Context(localize, info_name="localize")
+    options = {k: o for k, o in options_by_key(localize).items() if k not in NOT_SWEPT}
+    grid = document.pop("grid", {})
+    if not isinstance(grid, dict):
+        raise InputError("[grid] must be a table of lists: iterations = [6, 8]", path=path)
+    for key, value in document.items():
+        if isinstance(value, dict):
+            raise InputError(f"table [{key}] is no part of a spec; the only table is [grid]", path)
+        if key not in SPEC_KEYS and key not in options:
+            raise InputError(_unknown(key, options), path=path)
+    fixed = {
+        key: config_value(ctx, options[key], key, value, path)
+        for key, value in document.items()
+        if key in options
+    }
+    grid_values = _grid(grid, options, fixed, ctx, path)
+    combinations = [
+        dict(zip(grid_values, values, strict=True))
+        for values in itertools.product(*grid_values.values())
+    ]
+    for combination in combinations:
+        _check_combination({**fixed, **combination}, path)
+    logs = _logs(document, path)
+    seeds = _seeds(document.get("seeds", [0]), path)
+    gates = {k: _gate(document.get(k, v), k, path) for k, v in DEFAULT_GATES.items()}
+    return _planned(document, path, logs, combinations, fixed, seeds, gates, tuple(grid_values))
+
+
+def _unknown(key: str, options: dict) -> str:
+    known = [*SPEC_KEYS, *options]
+    close = difflib.get_close_matches(key, known, n=1)
+    hint = f"did you mean {close[0]!r}?" if close else "see segloc sweep --help"
+    return (
+        f"unknown key {key!r}; a spec takes {', '.join(SPEC_KEYS)} and localize's settings; {hint}"
+    )
+
+
+def _grid(grid: dict, options: dict, fixed: dict, ctx, path: Path) -> dict[str, list]:
+    """The grid's keys with their checked values, in the spec's order."""
+    values: dict[str, list] = {}
+    for key, listed in grid.items():
+        if key not in options:
+            raise InputError(
+                _unknown(key, options).replace("unknown key", "unknown [grid] key"), path
+            )
+        if key in fixed:
+            raise InputError(f"key {key!r} is both fixed and in [grid]; keep one", path=path)
+        if not isinstance(listed, list) or not listed:
+            raise InputError(f"[grid] key {key!r} takes a list of values, e.g. [6, 8]", path=path)
+        checked = [config_value(ctx, options[key], key, v, path) for v in listed]
+        if len(set(map(repr, checked))) < len(checked):
+            raise InputError(f"[grid] key {key!r} lists a value twice", path=path)
+        values[key] = checked
+    return values
+
+
+def _check_combination(settings: dict[str, Any], path: Path) -> None:
+    """Refuse settings that cannot go together, as ``segloc localize`` does."""
+    from segloc_cli.commands.localize import check_modes
+    from segloc_cli.config import Config
+
+    try:
+        check_modes(Config.from_values(settings), bool(settings.get("global")), track=False)
+    except click.ClickException as exc:
+        raise InputError(exc.format_message(), path=path) from None
+
+
+@dataclass(frozen=True)
+class _Log:
+    label: str
+    path: Path
+    map_path: Path
+    survey_path: Path
+
+
+def _logs(document: dict, path: Path) -> list[_Log]:
+    """The logs, each with its map and survey (its own, or the spec's)."""
+    listed = document.get("logs")
+    if not isinstance(listed, list) or not listed:
+        raise InputError('key "logs" must list the logs: logs = ["run1.mcap", "run2.mcap"]', path)
+    logs = []
+    for entry in listed:
+        table = {"path": entry} if isinstance(entry, str) else entry
+        if not isinstance(table, dict) or not isinstance(table.get("path"), str):
+            raise InputError(
+                f"a log is a path or a table {{path = ..., map = ..., survey = ...}}, "
+                f"not {entry!r}",
+                path=path,
+            )
+        extra = sorted(set(table) - set(LOG_TABLE_KEYS))
+        if extra:
+            raise InputError(
+                f"a log's table takes {', '.join(LOG_TABLE_KEYS)}, not {extra[0]!r}", path
+            )
+        files = {}
+        for key in ("map", "survey"):
+            given = table.get(key, document.get(key))
+            if not isinstance(given, str) or not given:
+                raise InputError(
+                    f'log {table["path"]!r} has no {key}: give {key} = "FILE" at the top or '
+                    "in the log's table",
+                    path=path,
+                )
+            files[key] = path.parent / given
+        log_path = path.parent / table["path"]
+        for role, file in (("log", log_path), *files.items()):
+            if not file.is_file():
+                raise InputError(
+                    f"the {role} {file} does not exist (paths are relative to the spec)", path
+                )
+        logs.append(_Log(table["path"], log_path.resolve(), files["map"], files["survey"]))
+    return logs
+
+
+def _seeds(value: Any, path: Path) -> list[int]:
+    ok = isinstance(value, list) and value and all(type(v) is int for v in value)
+    if not ok or len(set(value)) < len(value):
+        raise InputError(f"key 'seeds' takes a list of distinct whole numbers, not {value!r}", path)
+    return value
+
+
+def _gate(value: Any, key: str, path: Path) -> float:
+    if isinstance(value, bool) or not isinstance(value, int | float) or not value >= 0:
+        raise InputError(f"key {key!r} takes a number of at least 0, not {value!r}", path=path)
+    return float(value)
+
+
+def _guesses(
+    document: dict, path: Path
+) -> tuple[tuple[str, float, float] | None, Path | None, str]:
+    """(init errors, guesses file, what identifies them) from ``init-errors`` or ``initial``."""
+    from segloc_cli.runfile import sha256
+    from segloc_cli.sim import parse_init_errors
+
+    if "init-errors" in document and "initial" in document:
+        raise InputError("give init-errors or initial, not both", path=path)
+    if "init-errors" in document:
+        text = document["init-errors"]
+        try:
+            return parse_init_errors(str(text)), None, f"init-errors {text}"
+        except ValueError as exc:
+            raise InputError(f"key 'init-errors': {exc}", path=path) from None
+    initial = document.get("initial", GUESSES_KEYWORD)
+    if not isinstance(initial, str) or not initial:
+        raise InputError(f"key 'initial' takes 'odom' or a path in quotes, not {initial!r}", path)
+    if initial == GUESSES_KEYWORD:
+        return None, None, GUESSES_KEYWORD
+    file = path.parent / initial
+    if not file.is_file():
+        raise InputError(f"the initial guesses {file} do not exist", path=path)
+    return None, file, f"initial {sha256(file)}"
+
+
+def _planned(
+    document: dict,
+    path: Path,
+    logs: list[_Log],
+    combinations: list[dict],
+    fixed: dict,
+    seeds: list[int],
+    gates: dict[str, float],
+    grid_keys: tuple[str, ...],
+) -> Plan:
+    """The tasks in order: by log, then combination, then seed."""
+    from segloc_cli.config import Config
+    from segloc_cli.io.maps import read_map
+    from segloc_cli.io.tables import PoseTable, read_pose_table
+    from segloc_cli.runfile import sha256
+    from segloc_cli.sim import initial_errors, initial_guesses
+
+    init_errors, guess_file, guesses_id = _guesses(document, path)
+    file_guesses = None if guess_file is None else read_pose_table(guess_file)
+    maps, surveys, digests = {}, {}, {}
+    inputs: list[tuple[str, Path]] = [] if guess_file is None else [("initial", guess_file)]
+    for log in logs:
+        for role, file in (("log", log.path), ("map", log.map_path), ("survey", log.survey_path)):
+            if file not in digests:
+                digests[file] = sha256(file)
+                inputs.append((role, file))
+        maps.setdefault(log.map_path, read_map(log.map_path))
+        surveys.setdefault(log.survey_path, read_pose_table(log.survey_path))
+    tasks = []
+    for log in logs:
+        survey = surveys[log.survey_path]
+        for combination, grid_settings in enumerate(combinations):
+            settings = {**fixed, **grid_settings}
+            mode = "global" if settings.get("global") else "guided"
+            for seed in seeds:
+                guesses = file_guesses
+                if init_errors is not None:
+                    # Drawn from the log's name, so that adding or reordering logs leaves
+                    # every other log's guesses (and finished tasks) as they were.
+                    rng = np.random.default_rng([seed, zlib.crc32(log.label.encode())])
+                    errors = initial_errors(len(survey), init_errors, rng)
+                    poses = initial_guesses(survey.poses, errors)
+                    guesses = PoseTable(survey.pose_id, survey.time_s, poses)
+                identity = {
+                    "log": digests[log.path],
+                    "map": digests[log.map_path],
+                    "survey": digests[log.survey_path],
+                    "guesses": None if mode == "global" else guesses_id,
+                    "draw": [seed, log.label] if init_errors is not None else None,
+                    "config": repr(Config.from_values(settings)),
+                    "mode": mode,
+                    "seed": seed,
+                }
+                tasks.append(
+                    Task(
+                        key=task_key(identity),
+                        log=log.label,
+                        log_path=log.path,
+                        combination=combination,
+                        params=tuple(grid_settings.items()),
+                        settings=tuple(settings.items()),
+                        seed=seed,
+                        segments_world=maps[log.map_path],
+                        survey=survey,
+                        survey_path=str(log.survey_path),
+                        guesses=guesses,
+                    )
+                )
+    return Plan(tasks, grid_keys, gates, inputs)
