@@ -173,12 +173,13 @@ def _survey_pairing(task: Task, log, tolerance_s: float):
     guesses (rows of poses, world frame; None for a global search) and the status of a row
     that lies within the log's time span but lacks a scan or a guess (None elsewhere)."""
     from segloc_cli import pipeline
+    from segloc_cli.io.tables import pair_by_time
 
     survey_s = task.survey.time_s
     # Each survey row takes the scan nearest its time: a dense log under a sparse survey
     # must not score two scans against one true pose.
-    scan = _paired(survey_s, log.scan_times_s, tolerance_s, task.survey_path, "row",
-                   task.log_path, "scan")  # fmt: skip
+    scan = pair_by_time(survey_s, log.scan_times_s, tolerance_s, query_path=task.survey_path,
+                        ref_path=task.log_path, query_label="row", ref_label="scan")  # fmt: skip
     times = log.scan_times_s
     spanned = (survey_s >= times.min() - tolerance_s) & (survey_s <= times.max() + tolerance_s)
     missing = np.full(survey_s.size, None, dtype=object)
@@ -190,37 +191,14 @@ def _survey_pairing(task: Task, log, tolerance_s: float):
         guess_of_row = np.where(scan >= 0, odom[scan], -1)
         guess_poses = log.odom_poses[guess_of_row]
     else:
-        guess_of_row = _paired(survey_s, task.guesses.time_s, tolerance_s, task.survey_path,
-                               "row", "the guesses", "guess")  # fmt: skip
+        guess_of_row = pair_by_time(survey_s, task.guesses.time_s, tolerance_s,
+                                    query_path=task.survey_path, ref_path="the guesses",
+                                    query_label="row", ref_label="guess")  # fmt: skip
         guess_poses = task.guesses.poses[guess_of_row]
     unguessed = (scan >= 0) & (guess_of_row < 0)
     missing[unguessed] = STATUS_NO_GUESS
     scan[unguessed] = -1
     return scan, guess_poses, missing
-
-
-def _paired(
-    times_s: np.ndarray,
-    ref_times_s: np.ndarray,
-    tolerance_s: float,
-    path: object,
-    label: str,
-    ref_path: object,
-    ref_label: str,
-) -> np.ndarray:
-    """For each of ``times_s``, the index of the one of ``ref_times_s`` nearest it within
-    ``tolerance_s`` (−1: none), refused if ambiguous (``pair_by_time``)."""
-    from segloc_cli.io.tables import pair_by_time
-
-    return pair_by_time(
-        times_s,
-        ref_times_s,
-        tolerance_s,
-        query_path=path,
-        ref_path=ref_path,
-        query_label=label,
-        ref_label=ref_label,
-    )
 
 
 def _framed(task: Task, scans: pd.DataFrame) -> pd.DataFrame:

@@ -404,3 +404,21 @@ def test_jobs_sets_the_local_cluster_only(tmp_path, capsys):
     result = run_cli(capsys, "sweep", spec, "--out", tmp_path / "r.parquet", "--jobs", "2",
                      "--scheduler", "tcp://127.0.0.1:8786")  # fmt: skip
     assert result.code == 2 and "--jobs sets the local cluster" in result.err
+
+
+@pytest.mark.parametrize(
+    ("out", "fragment"),
+    [("hall/log.mcap", "is an input of this command"),
+     ("sweep.toml", "is an input of this command"),
+     ("nowhere/results.parquet", "does not exist")],
+    ids=["log", "spec", "missing-folder"],
+)  # fmt: skip
+def test_an_output_that_cannot_be_written_is_refused_before_any_work(
+    tmp_path, capsys, out, fragment
+):
+    spec = _spec(tmp_path)
+    target = tmp_path / out
+    before = target.read_bytes() if target.exists() else None
+    result = run_cli(capsys, "sweep", spec, "--out", target, "--force")
+    assert_one_line_error(result, fragment)
+    assert (target.read_bytes() if target.exists() else None) == before

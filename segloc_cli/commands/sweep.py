@@ -8,6 +8,7 @@ from pathlib import Path
 
 import click
 
+from segloc_cli.commands.localize import EXIT_INTERRUPTED
 from segloc_cli.commands.options import (
     Invocation,
     config_option,
@@ -20,7 +21,6 @@ from segloc_cli.commands.options import (
 from segloc_cli.errors import InputError
 
 EXIT_TASKS_FAILED = 1
-EXIT_INTERRUPTED = 130
 
 
 @click.command()
@@ -99,12 +99,15 @@ def sweep(spec_path, out_path, scheduler, jobs, fmt, force):
     ):
         raise click.UsageError("--jobs sets the local cluster; with --scheduler, the cluster's "
                                "workers are those started with `dask worker`")  # fmt: skip
+    from segloc_cli.io.files import check_outputs
+    from segloc_cli.runfile import run_file_path
+
     run = Invocation.current()
-    if not out_path.parent.is_dir():
-        raise InputError("the folder does not exist", path=out_path.parent)
-    if out_path.is_dir():
-        raise InputError("is a folder; --out takes a Parquet file", path=out_path)
+    # An existing OUT is the sweep's to resume (force), but never one of its inputs.
+    outputs = {"--out": out_path, "--out (run file)": run_file_path(out_path)}
+    check_outputs(outputs, [spec_path], force=True)
     plan = read_spec(spec_path)
+    check_outputs(outputs, [path for _, path in plan.inputs], force=True)
     table, stops = _run(plan, out_path, scheduler, jobs, force)
     run.write_run_file(out_path, also_read=plan.inputs)
     _report(plan, table, out_path, fmt, stops)
@@ -129,14 +132,14 @@ def _run(plan, out_path: Path, scheduler: str | None, jobs: int, force: bool):
 
     store = ResultStore(out_path, fresh=force)
     planned = {t.key for t in plan.tasks}
-    foreign = store.done() - planned  # failures of other tasks hold nothing, and are dropped
+    done = store.done()
+    foreign = done - planned  # failures of other tasks hold nothing, and are dropped
     if foreign:
         raise InputError(
             f"holds {len(foreign)} task(s) this spec does not plan (another spec's results?); "
             "use another --out, or --force to replace it",
             path=out_path,
         )
-    done = store.done()
     todo = [t for t in plan.tasks if t.key not in done]
     workers = f"{jobs} worker{'s' if jobs > 1 else ''}"
     where = f"the cluster at {scheduler}" if scheduler else f"a local cluster of {workers}"

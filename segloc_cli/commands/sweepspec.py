@@ -228,9 +228,8 @@ def _planned(
     """The tasks in order: by log, then combination, then seed."""
     from segloc_cli.config import Config
     from segloc_cli.io.maps import read_map
-    from segloc_cli.io.tables import PoseTable, read_pose_table
+    from segloc_cli.io.tables import read_pose_table
     from segloc_cli.runfile import sha256
-    from segloc_cli.sim import initial_errors, initial_guesses
 
     init_errors, guess_file, guesses_id = _guesses(document, path)
     file_guesses = None if guess_file is None else read_pose_table(guess_file)
@@ -246,25 +245,22 @@ def _planned(
     tasks = []
     for log in logs:
         survey = surveys[log.survey_path]
+        # One draw per seed, which every combination shares.
+        guesses = {seed: file_guesses for seed in seeds}
+        if init_errors is not None:
+            guesses = {seed: _drawn(survey, init_errors, seed, log.label) for seed in seeds}
         for combination, grid_settings in enumerate(combinations):
             settings = {**fixed, **grid_settings}
             mode = "global" if settings.get("global") else "guided"
+            config = repr(Config.from_values(settings))
             for seed in seeds:
-                guesses = file_guesses
-                if init_errors is not None:
-                    # Drawn from the log's name, so that adding or reordering logs leaves
-                    # every other log's guesses (and finished tasks) as they were.
-                    rng = np.random.default_rng([seed, zlib.crc32(log.label.encode())])
-                    errors = initial_errors(len(survey), init_errors, rng)
-                    poses = initial_guesses(survey.poses, errors)
-                    guesses = PoseTable(survey.pose_id, survey.time_s, poses)
                 identity = {
                     "log": digests[log.path],
                     "map": digests[log.map_path],
                     "survey": digests[log.survey_path],
                     "guesses": None if mode == "global" else guesses_id,
                     "draw": [seed, log.label] if init_errors is not None else None,
-                    "config": repr(Config.from_values(settings)),
+                    "config": config,
                     "mode": mode,
                     "seed": seed,
                 }
@@ -280,7 +276,19 @@ def _planned(
                         segments_world=maps[log.map_path],
                         survey=survey,
                         survey_path=str(log.survey_path),
-                        guesses=guesses,
+                        guesses=guesses[seed],
                     )
                 )
     return Plan(tasks, grid_keys, gates, inputs)
+
+
+def _drawn(survey, init_errors: tuple[str, float, float], seed: int, label: str):
+    """The guesses of seed ``seed`` for the log named ``label``: the survey's poses less
+    errors drawn as ``init_errors`` says. Drawn from the log's name, so that adding or
+    reordering logs leaves every other log's guesses (and finished tasks) as they were."""
+    from segloc_cli.io.tables import PoseTable
+    from segloc_cli.sim import initial_errors, initial_guesses
+
+    rng = np.random.default_rng([seed, zlib.crc32(label.encode())])
+    poses = initial_guesses(survey.poses, initial_errors(len(survey), init_errors, rng))
+    return PoseTable(survey.pose_id, survey.time_s, poses)
