@@ -31,7 +31,7 @@ import pandas as pd
 from protocol import (
     DATASETS,
     DATASETS_DIR,
-    OWN_SCAN_ONLY,
+    HELD_OUT_ALONE,
     SUCCESS_DEG,
     SUCCESS_M,
     commands_section,
@@ -117,7 +117,7 @@ def run_dataset(name, log_path, map_path, truth, work: Path, trials: int, jobs: 
             for method, extra in METHODS.items():
                 out = work / f"est-{tag}-{method.split()[0]}{len(extra)}.csv"
                 run_segloc(
-                    commands, "localize", log_path, "--map", map_path, *OWN_SCAN_ONLY,
+                    commands, "localize", log_path, "--map", map_path, *HELD_OUT_ALONE,
                     "--initial", work / f"guesses-{tag}.csv", "--out", out, "--jobs", jobs, *extra,
                 )  # fmt: skip
                 est = read_estimates(out)

@@ -36,6 +36,7 @@ import pandas as pd
 from protocol import (
     DATASETS,
     DATASETS_DIR,
+    HELD_OUT_ALONE,
     OWN_SCAN_ONLY,
     PERTURB_SEED,
     PERTURB_THETA_DEG,
@@ -283,7 +284,7 @@ def precision(
     write_pose_table(guesses_path, perturbed_guesses(truth))
     t0 = time.perf_counter()
     run_segloc(
-        commands, "localize", split.log_path, "--map", split.map_path, *OWN_SCAN_ONLY,
+        commands, "localize", split.log_path, "--map", split.map_path, *HELD_OUT_ALONE,
         "--initial", guesses_path, "--out", estimates_path,
     )  # fmt: skip
     wall_s = time.perf_counter() - t0

@@ -55,6 +55,12 @@ scan against the held-out scan's reference; and when building the map, place the
 scan at its neighbour's pose."""
 
 
+HELD_OUT_ALONE = (*OWN_SCAN_ONLY, "--window-m", "0")
+"""How the held-out scans of a corrected log are localized: each from its own pose, and
+alone. The corrected logs' neighbours of a held-out scan are scans of the map, which a window
+(``segloc localize``'s default where a log has odometry) would add to its local map."""
+
+
 def is_right(pos_m, head_deg):
     """Whether each error (position in metres, heading in degrees, arrays) is a right answer:
     at most ``SUCCESS_M`` and ``SUCCESS_DEG``."""
@@ -315,6 +321,54 @@ def prepare_raw_log(name: str, datasets: Path, work: Path, commands: list[str]) 
         PoseTable(np.array([1]), np.array([scans[0].time_s]), np.zeros((1, 3))),
     )
     return RawLog(log_path, first_pose_path, len(scans))
+
+
+@dataclass(frozen=True)
+class RawHeldOut:
+    """The held-out scans of a split, found in the dataset's raw log (with its odometry).
+
+    ``log_path``: the raw log less every scan the split's map was built from (found by its
+    readings), so that no window around a held-out scan holds a scan of the map;
+    ``truth_path`` and ``truth``: the held-out scans' reference poses at their times in that
+    log, under the split's pose ids; ``missing``: held-out scans not found in the raw log.
+    """
+
+    log_path: Path
+    truth_path: Path
+    truth: PoseTable
+    missing: int
+
+
+def raw_held_out(split: HeldOutSplit, raw: RawLog, work: Path, commands: list[str]) -> RawHeldOut:
+    """Find the held-out scans of ``split`` in the raw log ``raw`` and write the raw log less
+    the map's scans (``RawHeldOut``) into ``work``."""
+    from segloc_cli.geometry import Pose2
+    from segloc_cli.io.mcap_log import LogWriter, read_log
+
+    corrected, raw_log = read_log(split.log_path), read_log(raw.log_path)
+    in_raw = same_scans(corrected.scans, raw_log.scans)
+    in_map = np.zeros(len(raw_log.scans), dtype=bool)
+    in_map[in_raw[~split.held_out & (in_raw >= 0)]] = True
+    log_path, truth_path = work / "raw-held-out.mcap", work / "raw-held-out.csv"
+    kept = [scan for scan, mapped in zip(raw_log.scans, in_map, strict=True) if not mapped]
+    odometry = zip(raw_log.odom_times_s, raw_log.odom_poses, strict=True)
+    events = [(float(t), 0, Pose2(*pose)) for t, pose in odometry]
+    events += [(scan.time_s, 1, scan) for scan in kept]
+    with LogWriter(log_path, raw_log.sensor) as out:
+        for t, kind, item in sorted(events, key=lambda event: event[:2]):
+            out.add_odom(t, item) if kind == 0 else out.add_scan(item)
+    held = split.held_out_reference()
+    found = in_raw[split.held_out]
+    times = np.array([raw_log.scans[i].time_s for i in found[found >= 0]])
+    truth = PoseTable(held.pose_id[found >= 0], times, held.poses[found >= 0])
+    write_pose_table(truth_path, truth)
+    commands.append(
+        f"# {log_path.name}: {raw.log_path.name} less the {int(in_map.sum())} scans of "
+        f"{split.map_path.name} (found by their readings); {truth_path.name}: the held-out "
+        "scans' reference poses at their times there; written by "
+        f"{Path(sys.argv[0]).name}"
+    )
+    return RawHeldOut(log_path, truth_path, truth, int(np.sum(found < 0)))
 
 
 # --- scoring --------------------------------------------------------------------

@@ -91,6 +91,7 @@ def spec_text(splits: dict[str, HeldOutSplit], folder: Path) -> str:
         [
             "# Written by benchmarks/sweep_real.py: the held-out scans of each log in its own map.",
             f"{option.removeprefix('--')} = {value}   # each pose pairs with its own scan only",
+            "window-m = 0   # alone: a held-out scan's neighbours are scans of the map",
             f'init-errors = "{INIT_ERRORS}"',
             f"seeds = [{', '.join(map(str, SEEDS))}]",
             "logs = [",

@@ -39,7 +39,7 @@ import pytest
 from protocol import (
     DATASETS,
     DATASETS_DIR,
-    OWN_SCAN_ONLY,
+    HELD_OUT_ALONE,
     PLACE_DEG,
     PLACE_M,
     SUCCESS_DEG,
@@ -236,7 +236,7 @@ def _localize_method(
     """Localize the guessed scans with ``method`` on one job and score the answers."""
     out = WORK / name / f"speed-{method}.csv"
     run = run_segloc_measured(
-        _commands_of(name), "localize", split.log_path, "--map", split.map_path, *OWN_SCAN_ONLY,
+        _commands_of(name), "localize", split.log_path, "--map", split.map_path, *HELD_OUT_ALONE,
         "--initial", guesses, "--jobs", 1, *METHODS[method], "--out", out,
     )  # fmt: skip
     est = read_estimates(out)
@@ -306,7 +306,7 @@ def _localize_globally(name: str, log_path: Path, map_path: Path, scans_path: Pa
     the search does not use) with ``--global`` and score the answers against those poses."""
     out = scans_path.with_name("speed-global.csv")
     run = run_segloc_measured(
-        _commands_of(name), "localize", log_path, "--map", map_path, "--global", *OWN_SCAN_ONLY,
+        _commands_of(name), "localize", log_path, "--map", map_path, "--global", *HELD_OUT_ALONE,
         "--initial", scans_path, "--jobs", 1, "--out", out,
     )  # fmt: skip
     est = read_estimates(out)

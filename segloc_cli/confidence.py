@@ -1,13 +1,14 @@
 """How far to trust an estimate: a confidence, and the status ``ok``, ``ambiguous`` or ``lost``.
 
 The confidence is the probability that the answer is the right place (within 30 cm and 3°
-of the truth), predicted from what the fit leaves behind (``Evidence``): how much of the
-scan lies on the map at the answer, how many of its beams would have passed through a wall,
-how firmly the points fix the position along their weakest direction, and how far the best
-distinct alternative falls behind. A logistic model
-(``ConfidenceModel``) maps them to the probability; its weights are fitted by
+of the truth), predicted from what the fit leaves behind (``Evidence``): how firmly the
+points fix the position along their weakest direction, and how far the best distinct
+alternative falls behind. A logistic model (``ConfidenceModel``) per kind of local map (a
+scan, or a window of scans) maps them to the probability; its weights are fitted by
 ``benchmarks/calibrate.py`` on simulated and real trials and shipped in
-``confidence_model.json`` beside this module, with the trials they were fitted on.
+``confidence_model.json`` beside this module, with the trials they were fitted on. It speaks
+of answers whose searched area holds the truth: a guess within the search's reach
+(``--search-half-width-m``), or none (``--global``).
 
 The status follows from it (``judge``): ``lost`` when too little of the scan lies on the map,
 ``ambiguous`` when the confidence is below ``min_confidence`` or nothing pins the position
@@ -33,19 +34,26 @@ or the scan cannot tell such places apart."""
 STATUS_LOST = "lost"
 """Too little of the scan lies on the map at the answer."""
 
+RIGHT_PLACE_M = 0.30
+RIGHT_PLACE_DEG = 3.0
+"""An answer within this distance (m) and heading (°) of the truth is the right place, which
+the confidence is the probability of; beyond either it is another place, not an imprecise fit."""
+
 MODEL_PATH = Path(__file__).with_name("confidence_model.json")
-FEATURES = (
-    "inlier_ratio",
-    "log_hold_points",
-    "inlier_margin",
-    "score_margin",
-    "tie",
-    "crossing_ratio",
-)
-"""The inputs of the model, the keys of ``Evidence.features``. The inliers' RMS distance and
-the counts of points and of local segments were tried too and left out: on sources left out
-of the fit they made its predictions worse, the counts standing for which scanner took the
-scan rather than for the fit."""
+FEATURES = ("log_hold_points", "log_margin_points", "tie")
+"""The inputs of the model, keys of ``Evidence.features``: how firmly the points fix the
+position, and two views of how far the best distinct rival falls behind (how many points on
+the map at the answer the rival leaves off it, and how near the two fit scores tie).
+
+Left out, though ``Evidence.features`` offers them: the share of the scan on the map
+(``inlier_ratio``), which made the fitted logs' clutter the measure of every other log's (on
+each shared log left out of the fit in turn it flagged up to a third of the right answers
+of the most cluttered one), and only sets ``lost`` below ``min_inlier_ratio``; the share of
+beams through walls, the inliers' RMS distance and the counts of points and of segments,
+which stood for the scanner and the map rather than for the fit."""
+MODES = ("single", "window")
+"""The local maps a confidence is fitted for: one scan, and a window of scans (``window.py``),
+whose margins over a rival are larger for the same doubt."""
 TIE_SCALE = 0.003
 """Score margin (the score runs 0–1) below which ``tie`` is near its largest, −log TIE_SCALE:
 the answer and its rival fit alike there to within the scatter of the score itself."""
@@ -61,7 +69,8 @@ class Evidence:
     score``, 0–1, which also rewards how close the points lie); ``hold_points``: how many
     points' worth fix the position along its weakest direction (``refine.support``);
     ``crossing_ratio``: the share of the beams that would have passed through a wall of the
-    map to reach their reading (``freespace.crossing_ratio``).
+    map to reach their reading (``freespace.crossing_ratio``); ``points``: how many points
+    the shares are of (a window's, ``window.py``, or the scan's).
     """
 
     inlier_ratio: float
@@ -70,9 +79,11 @@ class Evidence:
     runner_up_score: float
     hold_points: float
     crossing_ratio: float
+    points: int = 0
 
     def features(self) -> dict[str, float]:
-        """The model's inputs by name (``FEATURES``): plain numbers, none NaN.
+        """The model's inputs (``FEATURES``) and the other measures the calibration reports
+        beside them, by name: plain numbers, none NaN.
 
         ``tie`` = −log(score margin + ``TIE_SCALE``) rises steeply as the margin falls to 0: a
         linear weight on the margin alone cannot tell a clear lead of a few hundredths from
@@ -86,6 +97,9 @@ class Evidence:
             "score_margin": score_margin,
             "tie": -math.log(max(score_margin, 0.0) + TIE_SCALE),
             "crossing_ratio": self.crossing_ratio,
+            "log_margin_points": math.log1p(
+                max(self.inlier_ratio - self.runner_up_ratio, 0.0) * self.points
+            ),
         }
 
 
@@ -141,17 +155,18 @@ that what it fits never depends on an earlier fit."""
 
 
 @functools.cache
-def shipped_model() -> ConfidenceModel:
-    """The model fitted by ``benchmarks/calibrate.py``, read once from ``MODEL_PATH``."""
-    return ConfidenceModel.from_dict(json.loads(MODEL_PATH.read_text(encoding="utf-8"))["model"])
+def shipped_models() -> dict[str, ConfidenceModel]:
+    """The models fitted by ``benchmarks/calibrate.py``, one per mode of ``MODES``, read once
+    from ``MODEL_PATH``."""
+    data = json.loads(MODEL_PATH.read_text(encoding="utf-8"))["models"]
+    return {mode: ConfidenceModel.from_dict(data[mode]) for mode in MODES}
 
 
 def judge(
-    evidence: Evidence, params: ConfidenceParams, model: ConfidenceModel | None = None
+    evidence: Evidence, params: ConfidenceParams, model: ConfidenceModel
 ) -> tuple[str, float]:
-    """Status and confidence of an answer from its ``evidence``, by ``model`` (the shipped
-    one by default)."""
-    confidence = (model or shipped_model()).probability(evidence)
+    """Status and confidence of an answer from its ``evidence``, by ``model``."""
+    confidence = model.probability(evidence)
     status = points_status(evidence.inlier_ratio, evidence.hold_points, params)
     if status == STATUS_OK and confidence < params.min_confidence:
         status = STATUS_AMBIGUOUS

@@ -225,6 +225,29 @@ class TrackParams:
 
 
 @dataclass(frozen=True)
+class WindowParams:
+    """Which neighbours join a scan's local map when the log has odometry (``window.py``;
+    metres, degrees, seconds)."""
+
+    travel_m: float = 1.0
+    """Scans within this much odometry travel before and after the scan join its local map;
+    0 localizes each scan alone."""
+    max_time_s: float = 10.0
+    """...and within this many seconds of it (a robot standing still adds no view)."""
+    spacing_m: float = 0.2
+    """A neighbour is taken once the odometry moved this far since the last one taken..."""
+    spacing_deg: float = 10.0
+    """...or turned this far."""
+    max_scans: int = 9
+    """Most scans in a window, the scan included (half of the rest on each side)."""
+    thin_m: float = 0.1
+    """A neighbour adds its points only in cells of this size that hold none yet."""
+    max_correction_sigmas: float = 3.0
+    """A neighbour whose fit to the others moves it more than this many times the odometry's
+    spread (``TrackParams``) is left out: the odometry slipped, or the fit did."""
+
+
+@dataclass(frozen=True)
 class Config:
     """Every setting of a run: the stages' parameters and the choices around them."""
 
@@ -233,6 +256,8 @@ class Config:
     localize: LocalizeParams = field(default_factory=LocalizeParams)
     """Both stages, with refinement, the hypothesis search and the verdict inside."""
     track: TrackParams = field(default_factory=TrackParams)
+    window: WindowParams = field(default_factory=WindowParams)
+    """Neighbours placed by odometry into each scan's local map (guided and global runs)."""
     method: str = "two-stage"
     """One of ``METHODS``."""
     icp_variant: str = "gicp"
@@ -374,6 +399,11 @@ _TUNING_BOUNDS: dict[str, tuple[float, float, bool]] = {
     "track.max_widenings": (0, 30, False),
     "track.odom_sigma_per_m": (0.0, 1e4, False),
     "track.odom_sigma_per_deg": (0.0, 1e4, False),
+    "window.max_time_s": (0.0, 3600.0, True),
+    "window.spacing_m": (0.0, 100.0, False),
+    "window.spacing_deg": (0.0, 360.0, False),
+    "window.max_scans": (1, 64, False),
+    "window.thin_m": (0.001, 10.0, False),
 }
 """Bounds (low, high, low excluded) of tuning settings: by field path, else by type (a count
 of at least 1, a positive size). They keep a run clear of divisions by zero and of searches
@@ -497,6 +527,17 @@ MATCHER = (
     ),
 )
 
+WINDOW = Setting(
+    "window-m",
+    ("window", "travel_m"),
+    0,
+    100,
+    help="Localize each scan with the scans within this much odometry travel before and after "
+    "it, placed by the log's /odom and fitted to each other, as one local map: a rival place "
+    "that explains the scan but not its neighbours falls behind. Used when the log has "
+    "odometry (not --track, not the peers' methods); 0 localizes each scan alone.",
+)
+
 TOLERANCE = Setting(
     "tolerance-ms",
     ("tolerance_ms",),
@@ -531,11 +572,13 @@ LOCALIZE_TUNING = (
     *_tuning("search-", "localize.search", "region"),
     *_tuning("confidence-", "localize.confidence"),
     *_tuning("track-", "track"),
+    *_tuning("window-", "window", "travel_m"),
 )
 """Localization's tuning settings: config-file keys (and unlisted options)."""
 
 SETTINGS: dict[str, Setting] = {
-    s.key: s for s in (*STAGES, *MATCHER, TOLERANCE, *EXTRACT, POLISH, *FUSE, *LOCALIZE_TUNING)
+    s.key: s
+    for s in (*STAGES, WINDOW, *MATCHER, TOLERANCE, *EXTRACT, POLISH, *FUSE, *LOCALIZE_TUNING)
 }
 """Every setting by key."""
 
@@ -548,8 +591,8 @@ def settings_table() -> str:
     """Every setting as a Markdown table: key, default and meaning, by the stage it tunes."""
     sections = [
         ("Both stages (`localize`)", STAGES),
-        ("Matcher and pairing (`localize`; `tolerance-ms` also `map build`, `evaluate`)",
-         (*MATCHER, TOLERANCE)),
+        ("Matcher, window and pairing (`localize`; `tolerance-ms` also `map build`, "
+         "`evaluate`)", (*MATCHER, WINDOW, TOLERANCE)),
         ("Extraction (`localize`, `map build`)", EXTRACT),
         ("Fusion (`map build`)", (POLISH, *FUSE)),
         ("Checks, search, refinement, verdict and tracking (`localize`)", LOCALIZE_TUNING),

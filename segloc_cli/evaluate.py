@@ -20,6 +20,7 @@ import math
 import numpy as np
 import pandas as pd
 
+from segloc_cli.confidence import RIGHT_PLACE_DEG, RIGHT_PLACE_M
 from segloc_cli.config import TIME_TOLERANCE_MS
 from segloc_cli.errors import InputError
 from segloc_cli.geometry import wrap_angle
@@ -241,6 +242,7 @@ def summary(
     - ``n_failed``: matched poses whose status is not an accepted one;
     - ``status_counts``: poses per status (dict, most frequent first; surveyed
       poses without an estimate row as ``no_estimate``);
+    - ``verdict``: how the statuses bear out (``verdict_quality``);
     - ``fail_above_cm``, ``fail_above_deg``: the limits given; ``n_beyond``:
       poses whose final |X|, |Y| or |θ| exceeds a limit, and ``n_gate_failed``:
       the poses ``gate`` reports (beyond, or not accepted, or missing an error);
@@ -259,6 +261,7 @@ def summary(
     accepted = table["status"].isin(ESTIMATED).to_numpy()
     gated = fail_above_cm is not None or fail_above_deg is not None
     beyond, failing = gate_masks(table, fail_above_cm, fail_above_deg)
+    result.attrs["verdict"] = verdict_quality(table)
     result.attrs.update(
         {
             "n_surveyed": n_surveyed,
@@ -276,6 +279,30 @@ def summary(
         }
     )
     return result
+
+
+def verdict_quality(table: pd.DataFrame) -> dict[str, int]:
+    """How the statuses of a ``table1`` result bear out against the truth.
+
+    Right: within ``RIGHT_PLACE_M`` and ``RIGHT_PLACE_DEG`` of the surveyed pose, the place the
+    confidence speaks of; a pose without an estimate is wrong. Flagged: a status other than
+    an accepted one (``ok``, ``recovered``). Counts: ``accepted`` and ``accepted_right``,
+    ``right`` and ``right_flagged``, ``wrong`` and ``wrong_flagged``.
+    """
+    err_m = table["err_xy_cm"].to_numpy(dtype=float) / 100.0
+    err_deg = np.abs(table["err_theta_deg"].to_numpy(dtype=float))
+    with np.errstate(invalid="ignore"):
+        right = (err_m <= RIGHT_PLACE_M) & (err_deg <= RIGHT_PLACE_DEG)
+    flagged = ~table["status"].isin(ESTIMATED).to_numpy()
+    count = np.count_nonzero
+    return {
+        "accepted": int(count(~flagged)),
+        "accepted_right": int(count(~flagged & right)),
+        "right": int(count(right)),
+        "right_flagged": int(count(right & flagged)),
+        "wrong": int(count(~right)),
+        "wrong_flagged": int(count(~right & flagged)),
+    }
 
 
 def _exceeding_pair(value: float, limit: float, decimals: int) -> tuple[str, str]:
@@ -407,6 +434,13 @@ def summary_lines(stats: pd.DataFrame) -> list[str]:
         f"RMS and max of X, Y, θ cover {cover}{none if without else ''}. "
         "Errors are surveyed minus computed."
     )
+    v = attrs["verdict"]
+    lines.append(
+        f"Verdict (right = within {RIGHT_PLACE_M * 100:g} cm and {RIGHT_PLACE_DEG:g}° of the "
+        f"survey): {v['accepted_right']} of {v['accepted']} accepted answers right; "
+        f"{v['right_flagged']} of {v['right']} right answers flagged; {v['wrong_flagged']} of "
+        f"{v['wrong']} wrong answers flagged."
+    )
     if attrs["n_beyond"] is not None:
         with_estimate = attrs["n_surveyed"] - without
         line = f"{attrs['n_beyond']} of {with_estimate} poses beyond {_limits_text(stats)}"
@@ -509,6 +543,7 @@ def _format_json(table: pd.DataFrame, stats: pd.DataFrame) -> str:
         )
     }
     summary_out["status_counts"] = dict(attrs["status_counts"])
+    summary_out["verdict"] = dict(attrs["verdict"])
     summary_out["gate"] = (
         None
         if attrs["n_beyond"] is None

@@ -14,12 +14,13 @@ import numpy as np
 
 from segloc_cli.align import RTable, align
 from segloc_cli.confidence import (
+    MODES,
     STATUS_OK,
     ConfidenceModel,
     Evidence,
     judge,
     points_status,
-    shipped_model,
+    shipped_models,
 )
 from segloc_cli.config import ExtractParams, LocalizeParams, RefineParams, SearchParams
 from segloc_cli.extract import extract_segments
@@ -31,6 +32,7 @@ from segloc_cli.refine import Refinement, refine_pose, support
 from segloc_cli.scan import Scan
 from segloc_cli.search import HypothesisSearch, distinct
 from segloc_cli.spatial import NEAR_CELL_M, SegmentGrid
+from segloc_cli.window import Windows, scan_window_map
 
 STATUS_TOO_FEW_SEGMENTS = "too_few_segments"
 """The scan cannot pin a pose: too few local segments, too few points, or points spread along
@@ -143,11 +145,15 @@ class ScanMatcher(Protocol):
     False none are extracted for it (an empty (0, 4) array is passed).
     ``supports_global`` says whether ``localize_global`` can find a pose with no
     initial guess; a matcher without it raises ``ValueError`` there.
+    ``supports_window`` says whether it localizes a window of scans (``window.py``),
+    points from several origins, passing ``own_points`` to both calls; one without
+    it is given each scan alone.
     """
 
     segments_world: np.ndarray
     uses_segments: bool
     supports_global: bool
+    supports_window: bool
 
     def localize(
         self, segments_robot: np.ndarray, initial: Pose2, points_robot: np.ndarray
@@ -162,12 +168,13 @@ class Localizer:
     ``index``, ``near_index``, ``rtable`` and ``search`` let a localizer with
     other settings share what another built on the same map (see
     ``with_params``); by default they are built here (``near_index`` and the
-    search on first use). ``model`` gives the verdict's confidence (the shipped
-    model by default).
+    search on first use). ``model`` gives the verdict's confidence for every local
+    map (by default the shipped models, one for a scan and one for a window).
     """
 
     uses_segments = True
     supports_global = True
+    supports_window = True
 
     def __init__(
         self,
@@ -181,7 +188,8 @@ class Localizer:
         model: ConfidenceModel | None = None,
     ):
         self.params = params or LocalizeParams()
-        self.model = shipped_model() if model is None else model
+        self.model = model
+        self.models = shipped_models() if model is None else dict.fromkeys(MODES, model)
         self.segments_world = np.asarray(segments_world, dtype=float)
         if rtable is None:
             rtable = RTable.build(self.segments_world, self.params.bin_deg)
@@ -260,7 +268,11 @@ class Localizer:
         ).peaks_rad
 
     def localize(
-        self, segments_robot: np.ndarray, initial: Pose2, points_robot: np.ndarray | None = None
+        self,
+        segments_robot: np.ndarray,
+        initial: Pose2,
+        points_robot: np.ndarray | None = None,
+        own_points: int | None = None,
     ) -> Estimate:
         """Estimate the pose at which the local map (N, 4), robot frame, was seen.
 
@@ -272,7 +284,9 @@ class Localizer:
         holds it. ``points_robot`` (P, 2), the
         scan's valid readings in the robot frame, are what refinement fits and
         the hypothesis search scores; without them (or with refinement off)
-        the estimate is the stage-2 pose, the paper's answer.
+        the estimate is the stage-2 pose, the paper's answer. ``own_points``: of a
+        window's local map (``window.py``), how many of the first points are the
+        scan's own, whose beams left from the robot's origin (None: all of them).
         """
         p = self.params
         n_local = int(segments_robot.shape[0])
@@ -283,7 +297,9 @@ class Localizer:
         enough = n_local >= p.min_segments
         if not enough and not searching:
             return Estimate(pose=NAN_POSE, status=STATUS_TOO_FEW_SEGMENTS, n_local_segments=n_local)
-        est = self._localize(segments_robot, initial, points_robot, enough, robust, searching)
+        est = self._localize(
+            segments_robot, initial, points_robot, enough, robust, searching, own_points
+        )
         if degenerate or not enough:
             # Whatever was found stays in the row for the user to see, but is not trusted.
             est = replace(est, status=STATUS_TOO_FEW_SEGMENTS)
@@ -297,6 +313,7 @@ class Localizer:
         enough: bool,
         robust: bool,
         searching: bool,
+        own_points: int | None,
     ) -> Estimate:
         """``localize`` once the scan's size is known: the stages, the search, the verdict."""
         p = self.params
@@ -330,9 +347,11 @@ class Localizer:
             seeds += [h.pose for h in hyps]
         overlap = 0.0 if stage2 is None else stage2.overlap_m
         stage2_pose = None if stage2 is None else stage2.pose
-        return self._judged(seeds, points_robot, heading, overlap, n_local, stage2_pose)
+        return self._judged(seeds, points_robot, heading, overlap, n_local, stage2_pose, own_points)
 
-    def localize_global(self, segments_robot: np.ndarray, points_robot: np.ndarray) -> Estimate:
+    def localize_global(
+        self, segments_robot: np.ndarray, points_robot: np.ndarray, own_points: int | None = None
+    ) -> Estimate:
         """Estimate the pose with no initial guess: the whole map is searched.
 
         The hypothesis search scores the scan's points at every heading and
@@ -342,7 +361,7 @@ class Localizer:
         too few segments for the two stages is still searched and its best
         pose reported, but its status is ``too_few_segments`` (as for too few
         or collinear points); stage 1's whole-circle vote is reported as the
-        aligned heading when it can run.
+        aligned heading when it can run. ``own_points`` as for ``localize``.
         """
         n_local = int(segments_robot.shape[0])
         degenerate = scan_is_degenerate(points_robot, segments_robot, self.params)
@@ -353,7 +372,7 @@ class Localizer:
         if enough:
             peaks = self.headings(segments_robot, None)
             heading = float(peaks[0]) if peaks.size else heading
-        est = self._judged(seeds, points_robot, heading, 0.0, n_local, None)
+        est = self._judged(seeds, points_robot, heading, 0.0, n_local, None, own_points)
         if degenerate or not enough:
             est = replace(est, status=STATUS_TOO_FEW_SEGMENTS)
         return est
@@ -370,16 +389,24 @@ class Localizer:
         return replace(est, inlier_ratio=ratio, status=status)
 
     def _evidence(
-        self, points_robot: np.ndarray, best: Refinement, runner_up: Refinement | None
+        self,
+        points_robot: np.ndarray,
+        best: Refinement,
+        runner_up: Refinement | None,
+        own_points: int | None = None,
     ) -> Evidence:
-        """What the verdict weighs at ``best``, against its best distinct rival."""
+        """What the verdict weighs at ``best``, against its best distinct rival. Only the
+        first ``own_points`` points (all when None) are beams from the robot at ``best``,
+        whose crossings of walls count."""
+        own = points_robot[:own_points]
         return Evidence(
             inlier_ratio=best.inlier_ratio,
             runner_up_ratio=0.0 if runner_up is None else runner_up.inlier_ratio,
             score=best.score,
             runner_up_score=0.0 if runner_up is None else runner_up.score,
             hold_points=self.hold_points(points_robot, best.pose),
-            crossing_ratio=crossing_ratio(points_robot, best.pose, self.near_index),
+            crossing_ratio=crossing_ratio(own, best.pose, self.near_index),
+            points=int(points_robot.shape[0]),
         )
 
     @property
@@ -420,6 +447,7 @@ class Localizer:
         overlap_m: float,
         n_local: int,
         stage2_pose: Pose2 | None,
+        own_points: int | None = None,
     ) -> Estimate:
         """Refine every seed; the best fit score wins, judged against its best distinct rival,
         and every distinct fit is listed with its own confidence."""
@@ -439,11 +467,13 @@ class Localizer:
         kept = self._distinct(fits)
         best = kept[0]
         runner_up = kept[1] if len(kept) > 1 else None
-        evidence = self._evidence(points_robot, best, runner_up)
-        status, confidence = judge(evidence, p.confidence, self.model)
+        evidence = self._evidence(points_robot, best, runner_up, own_points)
+        windowed = own_points is not None and own_points < points_robot.shape[0]
+        model = self.models["window" if windowed else "single"]
+        status, confidence = judge(evidence, p.confidence, model)
         others = [
             Hypothesis(f.pose, f.inlier_ratio, f.score,
-                       self.model.probability(self._evidence(points_robot, f, best)))
+                       model.probability(self._evidence(points_robot, f, best, own_points)))
             for f in kept[1:]
         ]  # fmt: skip
         return Estimate(
@@ -472,9 +502,16 @@ class Localizer:
 
 
 def estimate_row(
-    pose_id: int, scan: Scan, initial: Pose2, est: Estimate, runtime_ms: float, status: str
+    pose_id: int,
+    scan: Scan,
+    initial: Pose2,
+    est: Estimate,
+    runtime_ms: float,
+    status: str,
+    window_scans: int = 1,
 ) -> EstimateRow:
-    """The estimates row of one scan: ``est`` in metres and degrees, under ``status``."""
+    """The estimates row of one scan: ``est`` in metres and degrees, under ``status``, from a
+    local map of ``window_scans`` scans."""
     stage2 = est.stage2_pose or NAN_POSE
     runner_up = est.runner_up or NAN_POSE
     return EstimateRow(
@@ -500,6 +537,7 @@ def estimate_row(
         runtime_ms=runtime_ms,
         confidence=est.confidence,
         status=status,
+        window_scans=int(window_scans),
         hypotheses=[
             HypothesisRow(
                 x_m=h.pose.x,
@@ -514,30 +552,58 @@ def estimate_row(
     )
 
 
+def localize_scan(
+    localizer: ScanMatcher,
+    scan: Scan,
+    initial: Pose2 | None,
+    extract_params: ExtractParams | None = None,
+    neighbours: Sequence[tuple[Scan, Pose2]] = (),
+    windows: Windows | None = None,
+) -> tuple[Estimate, int]:
+    """One scan localized from ``initial`` (None: globally), alone or with its
+    ``neighbours`` as one local map (``window.py``; ``windows`` says how); returns the
+    estimate and how many scans its local map held."""
+    local = extract_segments(scan, extract_params) if localizer.uses_segments else NO_SEGMENTS
+    points = scan.points()
+    if not neighbours or windows is None:
+        if initial is None:
+            return localizer.localize_global(local, points), 1
+        return localizer.localize(local, initial, points), 1
+    refine = getattr(localizer, "params", LocalizeParams()).refine
+    window = scan_window_map(points, local, neighbours, windows, extract_params, refine)
+    own = int(points.shape[0])
+    if initial is None:
+        return localizer.localize_global(
+            window.segments, window.points, own_points=own
+        ), window.scans
+    est = localizer.localize(window.segments, initial, window.points, own_points=own)
+    return est, window.scans
+
+
 def localize_scans(
     scans: Sequence[Scan],
     initial_poses: Sequence[Pose2] | None,
     pose_ids: Sequence[int],
     localizer: ScanMatcher,
     extract_params: ExtractParams | None = None,
+    windows: Windows | None = None,
 ) -> Iterator[EstimateRow]:
     """Localize each scan from its initial guess, yielding one estimates row per scan.
 
     With ``initial_poses`` None every scan is localized globally (the whole
     map searched, the initial-pose columns left empty); the localizer must
-    support that. Angles in degrees, positions in metres, ``runtime_ms``
-    covering extraction (for a matcher that uses segments) and the search.
-    Yielding row by row lets a caller keep what is done if the run is cut short.
+    support that. With ``windows`` (one per scan) each scan is localized with its
+    neighbours (``localize_scan``). Angles in degrees, positions in metres,
+    ``runtime_ms`` covering extraction (for a matcher that uses segments), the
+    window and the search. Yielding row by row lets a caller keep what is done if
+    the run is cut short.
     """
     if initial_poses is None and not localizer.supports_global:
         raise ValueError(f"{type(localizer).__name__} needs an initial guess for every scan")
     guesses = [None] * len(scans) if initial_poses is None else initial_poses
-    for scan, initial, pose_id in zip(scans, guesses, pose_ids, strict=True):
+    around = [()] * len(scans) if windows is None else windows.neighbours
+    for scan, initial, pose_id, neighbours in zip(scans, guesses, pose_ids, around, strict=True):
         t0 = time.perf_counter()
-        local = extract_segments(scan, extract_params) if localizer.uses_segments else NO_SEGMENTS
-        if initial is None:
-            est = localizer.localize_global(local, scan.points())
-        else:
-            est = localizer.localize(local, initial, scan.points())
+        est, held = localize_scan(localizer, scan, initial, extract_params, neighbours, windows)
         runtime_ms = (time.perf_counter() - t0) * 1e3
-        yield estimate_row(pose_id, scan, initial or NAN_POSE, est, runtime_ms, est.status)
+        yield estimate_row(pose_id, scan, initial or NAN_POSE, est, runtime_ms, est.status, held)

@@ -27,6 +27,7 @@ from segloc_cli.extract import ExtractParams
 from segloc_cli.geometry import Pose2
 from segloc_cli.localize import Localizer, ScanMatcher, localize_scans
 from segloc_cli.scan import Scan
+from segloc_cli.window import Windows
 
 BLOCK_SCANS = 4
 """Scans per task: small enough to keep both cores busy to the end of a short log."""
@@ -55,11 +56,17 @@ def _worker_signals() -> None:
 
 
 def _localize_block(bounds: tuple[int, int]) -> list[dict]:
-    scans, guesses, pose_ids, localizer, extract_params = _job
+    scans, guesses, pose_ids, localizer, extract_params, windows = _job
     start, stop = bounds
     block_guesses = None if guesses is None else guesses[start:stop]
+    block_windows = None if windows is None else windows.block(start, stop)
     rows = localize_scans(
-        scans[start:stop], block_guesses, pose_ids[start:stop], localizer, extract_params
+        scans[start:stop],
+        block_guesses,
+        pose_ids[start:stop],
+        localizer,
+        extract_params,
+        block_windows,
     )
     return list(rows)
 
@@ -90,8 +97,10 @@ def localize_scans_parallel(
     jobs: int,
     extract_params: ExtractParams | None = None,
     stop: Callable[[], bool] = lambda: False,
+    windows: Windows | None = None,
 ) -> Iterator[dict]:
-    """``localize_scans`` spread over ``jobs`` processes; rows are yielded in scan order.
+    """``localize_scans`` spread over ``jobs`` processes; rows are yielded in scan order
+    (``windows``: each scan's neighbours, as there).
 
     With ``jobs`` 1 (or a single scan) this is ``localize_scans`` itself. While
     waiting for a block the parent asks ``stop()`` every ``POLL_S``; when it
@@ -99,12 +108,14 @@ def localize_scans_parallel(
     and the workers are killed.
     """
     if jobs <= 1 or len(scans) <= 1:
-        yield from localize_scans(scans, initial_poses, pose_ids, localizer, extract_params)
+        yield from localize_scans(
+            scans, initial_poses, pose_ids, localizer, extract_params, windows
+        )
         return
     global _job
     prepare_localizer(localizer, scans, initial_poses, extract_params)
     blocks = [(i, min(i + BLOCK_SCANS, len(scans))) for i in range(0, len(scans), BLOCK_SCANS)]
-    _job = (list(scans), initial_poses, list(pose_ids), localizer, extract_params)
+    _job = (list(scans), initial_poses, list(pose_ids), localizer, extract_params, windows)
     context = multiprocessing.get_context("fork")
     pool = ProcessPoolExecutor(jobs, mp_context=context, initializer=_worker_signals)
     try:

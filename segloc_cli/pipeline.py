@@ -122,6 +122,8 @@ class LogRun:
     """Times (s) of the scans localized."""
     skipped: int
     """Scans of the log left out (no initial guess, or no odometry when tracking)."""
+    local_maps: str = ""
+    """How each scan's local map was made, in words (``window_note``); empty for a track."""
 
 
 def localize_log(
@@ -157,10 +159,59 @@ def localize_log(
         index = guesses.index
         poses = None if mode == "global" else guesses.poses
         scans = [log.scans[i] for i in index]
+        windows = scan_windows(log, log_path, index, localizer, config)
         rows = localize_scans_parallel(
-            scans, poses, guesses.pose_ids, localizer, config.jobs, config.extract, stop=stop
+            scans,
+            poses,
+            guesses.pose_ids,
+            localizer,
+            config.jobs,
+            config.extract,
+            stop=stop,
+            windows=windows,
         )
+        note = window_note(log, localizer, config, windows)
+        return LogRun(log_path, rows, log.scan_times_s[index], len(log.scans) - index.size, note)
     return LogRun(log_path, rows, log.scan_times_s[index], len(log.scans) - index.size)
+
+
+def scan_windows(log: Log, log_path: Path, index: np.ndarray, localizer, config: Config):
+    """The ``Windows`` of the scans ``index`` of ``log``: each one's neighbours placed by the
+    log's odometry (``window.py``); None when each scan is to be localized alone (the
+    window is off, the matcher takes single scans, or the log has no odometry)."""
+    from segloc_cli.window import Windows, neighbour_indices, relative_pose
+
+    if config.window.travel_m <= 0 or not localizer.supports_window or not log.has_odometry:
+        return None
+    rows = odometry_rows(log, log_path, config.tolerance_ms / 1e3, "")
+    odometry = np.full((len(log.scans), 3), np.nan)
+    odometry[rows >= 0] = log.odom_poses[rows[rows >= 0]]
+    times = log.scan_times_s
+    neighbours = [
+        [
+            (log.scans[j], relative_pose(odometry, i, j))
+            for j in neighbour_indices(odometry, times, i, config.window)
+        ]
+        for i in index
+    ]
+    return Windows(neighbours, config.window, config.track)
+
+
+def window_note(log: Log, localizer, config: Config, windows) -> str:
+    """How a guided or global run made each scan's local map, in words."""
+    if windows is not None:
+        held = [len(n) + 1 for n in windows.neighbours]
+        return (
+            f"each scan with its neighbours within {config.window.travel_m:g} m of odometry "
+            f"travel (window of {np.median(held) if held else 1:g} scans, median)"
+        )
+    if config.window.travel_m <= 0:
+        return "each scan alone (--window-m 0)"
+    if not localizer.supports_window:
+        return f"each scan alone (--method {config.method} takes single scans)"
+    if log.odom_times_s.size and not log.has_odometry:
+        return "each scan alone (the log's /odom holds simulated initial guesses, not odometry)"
+    return "each scan alone (the log has no /odom odometry)"
 
 
 def _track(log: Log, log_path: Path, localizer, guesses: Guesses, config: Config):

@@ -149,13 +149,10 @@ def run_task(task: Task) -> pd.DataFrame:
     scans = [log.scans[i] for i in scan[rows]]
     guesses = None if guess_poses is None else [Pose2(*guess_poses[r]) for r in rows]
     pose_ids = task.survey.pose_id[rows]
+    windows = pipeline.scan_windows(log, task.log_path, scan[rows], localizer, config)
     prepare_localizer(localizer, scans, guesses, config.extract)
-    estimates = pd.DataFrame(
-        [
-            {k: v for k, v in row.items() if k != "hypotheses"}
-            for row in localize_scans(scans, guesses, pose_ids, localizer, config.extract)
-        ]
-    )
+    made = localize_scans(scans, guesses, pose_ids, localizer, config.extract, windows)
+    estimates = pd.DataFrame([{k: v for k, v in row.items() if k != "hypotheses"} for row in made])
     final = (estimates[c].to_numpy(float) for c in ("x_m", "y_m", "theta_deg"))
     frame = estimates.assign(**final_errors(task.survey.poses[rows], *final), error=None)
     absent = np.flatnonzero(pd.notna(missing))

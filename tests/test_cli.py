@@ -37,7 +37,7 @@ ESTIMATE_HEADER = (
     "pose_id,time_s,init_x_m,init_y_m,init_theta_deg,align_theta_deg,"
     "stage2_x_m,stage2_y_m,stage2_theta_deg,x_m,y_m,theta_deg,overlap,inlier_ratio,"
     "runner_up_x_m,runner_up_y_m,runner_up_theta_deg,runner_up_ratio,"
-    "n_local_segments,runtime_ms,confidence,status"
+    "n_local_segments,runtime_ms,confidence,status,window_scans"
 )
 
 # Reina & Gonzalez (2000), Table 1: initial errors X (cm), Y (cm), θ (°) per pose,
@@ -737,7 +737,9 @@ def test_interrupted_localize_keeps_the_scans_already_done(small, tmp_path, caps
     result = run_cli(capsys, "localize", small.log, "--map", HALL_WORLD, "--out", out)
     assert result.code == 130
     assert result.err.strip().splitlines() == [
-        f"segloc: interrupted (Ctrl-C) after 2 of 3 scans; their estimates are in {out}"
+        f"{small.log}: each scan alone (the log's /odom holds simulated initial guesses, "
+        "not odometry)",
+        f"segloc: interrupted (Ctrl-C) after 2 of 3 scans; their estimates are in {out}",
     ]
     header, rows = read_csv_rows(out)
     assert ",".join(header) == ESTIMATE_HEADER
@@ -753,7 +755,7 @@ def _estimates_csv(path: Path, poses: list[tuple[float, float, float, float]], s
     lines = [ESTIMATE_HEADER]
     for k, (t, x, y, th) in enumerate(poses, 1):
         lines.append(
-            f"{k},{t},{x},{y},{th},{th},{x},{y},{th},{x},{y},{th},1.0,0.9,,,,0.0,10,1.0,0.99,{status}"
+            f"{k},{t},{x},{y},{th},{th},{x},{y},{th},{x},{y},{th},1.0,0.9,,,,0.0,10,1.0,0.99,{status},1"
         )
     return write_text(path, "\n".join(lines) + "\n")
 

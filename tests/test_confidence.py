@@ -11,6 +11,7 @@ import pytest
 from segloc_cli.confidence import (
     FEATURES,
     MODEL_PATH,
+    MODES,
     STATUS_AMBIGUOUS,
     STATUS_LOST,
     STATUS_OK,
@@ -20,7 +21,7 @@ from segloc_cli.confidence import (
     Evidence,
     judge,
     points_status,
-    shipped_model,
+    shipped_models,
 )
 from segloc_cli.config import ConfidenceParams
 from segloc_cli.extract import extract_segments
@@ -33,7 +34,7 @@ from segloc_cli.sim import NOISE_FREE, random_free_poses, random_world, simulate
 def _evidence(**changes) -> Evidence:
     values = dict(
         inlier_ratio=0.9, runner_up_ratio=0.2, score=0.8, runner_up_score=0.15, hold_points=40.0,
-        crossing_ratio=0.05,
+        crossing_ratio=0.05, points=200,
     )  # fmt: skip
     return Evidence(**{**values, **changes})
 
@@ -46,8 +47,11 @@ MARGIN_MODEL = ConfidenceModel(
 
 def test_features_are_the_listed_inputs_worked_out_by_hand():
     features = _evidence().features()
-    assert tuple(features) == FEATURES
+    assert set(FEATURES) <= set(features)
     assert features["inlier_ratio"] == 0.9
+    # 0.9 − 0.2 of 200 points: the rival leaves 140 of the answer's points off the map.
+    assert features["log_margin_points"] == pytest.approx(math.log(141.0))
+    assert _evidence(runner_up_ratio=0.95).features()["log_margin_points"] == 0.0
     assert features["inlier_margin"] == pytest.approx(0.7)
     assert features["score_margin"] == pytest.approx(0.65)
     assert features["log_hold_points"] == pytest.approx(math.log(41.0))
@@ -120,17 +124,21 @@ def test_points_status_asks_no_rival():
     assert points_status(float("nan"), 40.0, params) == STATUS_LOST
 
 
-def test_the_shipped_model_reads_known_features_and_trusts_a_clear_margin():
-    model = shipped_model()
+@pytest.mark.parametrize("mode", MODES)
+def test_the_shipped_models_read_known_features_and_trust_a_clear_margin(mode):
+    model = shipped_models()[mode]
     data = json.loads(MODEL_PATH.read_text(encoding="utf-8"))
-    assert ConfidenceModel.from_dict(data["model"]) == model
+    assert ConfidenceModel.from_dict(data["models"][mode]) == model
     assert set(model.features) <= set(FEATURES)
     assert len(model.mean) == len(model.scale) == len(model.weights) == len(model.features)
     assert all(s > 0 for s in model.scale)
-    assert data["provenance"]["trials"], "the model says what it was fitted on"
-    # A rival explaining the scan as well as the answer must cost confidence.
+    assert data["provenance"]["trials"][mode], "the model says what it was fitted on"
+    # A rival explaining the scan as well as the answer must cost confidence, and a wider
+    # lead over it must not.
     clear, tied = _evidence(), _evidence(runner_up_ratio=0.9, runner_up_score=0.8)
     assert model.probability(clear) > 0.9 > model.probability(tied)
+    leads = [_evidence(runner_up_ratio=r, runner_up_score=r) for r in (0.85, 0.7, 0.5, 0.2)]
+    assert np.all(np.diff([model.probability(e) for e in leads]) >= 0)
 
 
 def test_a_localized_scan_carries_its_evidence_and_confidence():
@@ -145,8 +153,9 @@ def test_a_localized_scan_carries_its_evidence_and_confidence():
     assert est.evidence.hold_points == Localizer(world.segments).hold_points(
         scan.points(), est.pose
     )
-    assert est.confidence == shipped_model().probability(est.evidence)
-    assert est.status == judge(est.evidence, ConfidenceParams())[0]
+    single = shipped_models()["single"]
+    assert est.confidence == single.probability(est.evidence)
+    assert est.status == judge(est.evidence, ConfidenceParams(), single)[0]
 
 
 def test_a_symmetric_room_is_not_trusted():

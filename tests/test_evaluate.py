@@ -42,6 +42,7 @@ def make_estimates(rows: list[dict]) -> pd.DataFrame:
         "n_local_segments": 20,
         "runtime_ms": 5.0,
         "status": "ok",
+        "window_scans": 1,
     }
     full = [{**defaults, "pose_id": i + 1, **row} for i, row in enumerate(rows)]
     return pd.DataFrame(full, columns=list(ESTIMATE_COLUMNS))
@@ -323,15 +324,27 @@ def test_summary_scores_every_pose_with_an_estimate_whatever_its_status():
     old = summary(table, only_ok=True)
     assert old.loc["RMS", "err_x_cm"] == pytest.approx(math.sqrt((3.0**2 + 4.0**2) / 2))
     assert old.attrs["n_scored"] == 2
+    # Right (within 30 cm and 3°): the two ok poses and the ambiguous one at 12 cm; wrong: the
+    # lost pose 1 m off and the one without a pose.
+    assert stats.attrs["verdict"] == {
+        "accepted": 2,
+        "accepted_right": 2,
+        "right": 3,
+        "right_flagged": 1,
+        "wrong": 2,
+        "wrong_flagged": 2,
+    }
     text = format_table(table, stats, "md")
-    assert text.splitlines()[-2:] == [
+    assert text.splitlines()[-3:] == [
         "6 surveyed poses: ok 2, ambiguous 1, lost 1, too_few_segments 1, no_estimate 1.",
         "RMS and max of X, Y, θ cover the 4 poses with an estimate, whatever their status; "
         "2 surveyed poses have no estimate. Errors are surveyed minus computed.",
+        "Verdict (right = within 30 cm and 3° of the survey): 2 of 2 accepted answers right; "
+        "1 of 3 right answers flagged; 2 of 2 wrong answers flagged.",
     ]
     assert (
         format_table(table, old, "md")
-        .splitlines()[-1]
+        .splitlines()[-2]
         .startswith("RMS and max of X, Y, θ cover the 2 poses with status ok; 2 surveyed poses")
     )
 

@@ -513,17 +513,19 @@ def estimates_frame() -> pd.DataFrame:
             "runtime_ms": [2.5, 3.75, 0.125],
             "confidence": [0.9987654321, 1.0 / 7.0, np.nan],
             "status": ["ok", "ok, weak", "no_segments"],
+            "window_scans": [1, 7, 1],
         }
     )
 
 
 def test_estimates_of_an_earlier_version_without_confidence_read_and_write(tmp_path):
-    earlier = estimates_frame().drop(columns=["confidence"])
+    earlier = estimates_frame().drop(columns=["confidence", "window_scans"])
     path = tmp_path / "old.csv"
     earlier.to_csv(path, index=False)
     back = read_estimates(path)
     assert list(back.columns) == ESTIMATE_COLUMNS
     assert back["confidence"].isna().all()
+    assert (back["window_scans"] == 0).all()  # not said: 0, never a made-up 1
     write_estimates(tmp_path / "again.csv", earlier)
     again = read_estimates(tmp_path / "again.csv")
     pd.testing.assert_frame_equal(again, back, check_exact=True)
@@ -567,7 +569,14 @@ def estimates_line(**fields: str) -> str:
     return ",".join(fields.get(c, "") for c in ESTIMATE_COLUMNS)
 
 
-GOOD = {"pose_id": "1", "time_s": "1", "n_local_segments": "3", "runtime_ms": "1", "status": "ok"}
+GOOD = {
+    "pose_id": "1",
+    "time_s": "1",
+    "n_local_segments": "3",
+    "runtime_ms": "1",
+    "status": "ok",
+    "window_scans": "1",
+}
 
 
 @pytest.mark.parametrize(

@@ -24,7 +24,7 @@ from segloc_cli.commands.options import (
     warn,
     with_options,
 )
-from segloc_cli.config import LOCALIZE_TUNING, MATCHER, STAGES
+from segloc_cli.config import LOCALIZE_TUNING, MATCHER, STAGES, WINDOW
 from segloc_cli.runfile import beside, run_file_path
 
 EXIT_INTERRUPTED = 130
@@ -90,6 +90,7 @@ LOCALIZE_OPTIONS = (
         "matches are retried wider and flagged (status recovered or lost).",
     ),
     *(setting_option(s.key) for s in MATCHER),
+    setting_option(WINDOW.key),
     setting_option("tolerance-ms", pairing="pairing scans with initial guesses or odometry"),
     config_option,
     force_option,
@@ -175,6 +176,9 @@ def localize(
     ]
     for message in pipeline.overlapping_logs(runs):
         warn(message)
+    for log_run in runs:
+        if log_run.local_maps:
+            info(f"{log_run.path}: {log_run.local_maps}")
     with ExitStack() as stack:
         rows = (row for run in runs for row in run.rows)
         if mcap_path is not None:

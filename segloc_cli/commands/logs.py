@@ -22,6 +22,7 @@ from segloc_cli.commands.options import (
 )
 from segloc_cli.errors import InputError
 from segloc_cli.geometry import Pose2
+from segloc_cli.io.log import SIMULATED_GUESSES_KEY
 from segloc_cli.runfile import run_file_path
 from segloc_cli.scan import AT_ROBOT_ORIGIN, MAX_RANGE_M
 from segloc_cli.sim import SensorModel
@@ -127,7 +128,7 @@ def simulate(world_path, poses_path, out_dir, readings, noise_cm, seed, init_err
     sensor = SensorModel(readings=int(readings), noise_cm=noise_cm)
     settings = {"device": "simulated Explorer", "readings": readings, "noise_cm": repr(noise_cm)}
     settings |= {"range_max_m": repr(sensor.range_max_m), "seed": str(seed)}
-    settings |= {"world": world.name, "init_errors": init_errors}
+    settings |= {"world": world.name, SIMULATED_GUESSES_KEY: init_errors}
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
     except OSError as exc:

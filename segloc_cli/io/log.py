@@ -30,6 +30,9 @@ SENSOR_METADATA_NAME = "segloc.sensor"
 LASER_OFFSET_KEYS = ("laser_x_m", "laser_y_m", "laser_theta_deg")
 """Sensor settings holding the scanner's pose in the robot frame: metres, metres, degrees."""
 LASER_OFFSET_SOURCE_KEY = "laser_offset_source"
+SIMULATED_GUESSES_KEY = "init_errors"
+"""The sensor setting ``segloc simulate`` records: its /odom holds initial guesses, not
+odometry."""
 """Sensor setting saying where the laser offset came from (``tf_static:base_link->laser``,
 ``--laser-offset``, ``none``)."""
 MAX_LASER_OFFSET_M = 10.0
@@ -139,6 +142,13 @@ class Log:
     def scan_times_s(self) -> np.ndarray:
         """Acquisition times (S,) of the scans, seconds."""
         return np.array([scan.time_s for scan in self.scans], dtype=float)
+
+    @property
+    def has_odometry(self) -> bool:
+        """Whether ``/odom`` is odometry, the robot's motion from scan to scan: the log has
+        some, and it is not what ``segloc simulate`` writes there, an initial guess per scan
+        drawn apart from the others (its sensor settings record ``init_errors``)."""
+        return self.odom_times_s.size > 0 and SIMULATED_GUESSES_KEY not in self.sensor
 
     @property
     def laser_offset(self) -> Pose2:

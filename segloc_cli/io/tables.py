@@ -53,7 +53,9 @@ class EstimateColumns(TypedDict):
     alternative found and its share (``runner_up_*``), the count of local
     segments, the time spent on the scan (ms), the probability that the answer is
     the right place (``confidence``, NaN where no verdict was made from the scan's
-    points) and the verdict (``status``).
+    points), the verdict (``status``) and how many scans the local map held
+    (``window_scans``: 1 for the scan alone, more with its neighbours placed by
+    odometry; 0 where a file of an earlier version does not say).
     The fields, in order, are the file's columns.
     """
 
@@ -79,6 +81,7 @@ class EstimateColumns(TypedDict):
     runtime_ms: float
     confidence: float
     status: str
+    window_scans: int
 
 
 class HypothesisRow(TypedDict):
@@ -109,8 +112,11 @@ HYPOTHESIS_COLUMNS = ["pose_id", "time_s", "rank", *HypothesisRow.__annotations_
 ``rank`` 1 the answer."""
 # Float columns that must hold a number in every row; the others may be empty (NaN).
 ESTIMATE_REQUIRED_FLOAT_COLUMNS = ["time_s"]
-ESTIMATE_LATER_COLUMNS = ["confidence"]
-"""Columns that files written by earlier versions lack; read as empty (NaN) there."""
+ESTIMATE_LATER_COLUMNS = ["confidence", "window_scans"]
+"""Columns that files written by earlier versions lack; read as empty (NaN) there, or as
+``UNSAID_COUNT`` for a count."""
+UNSAID_COUNT = 0
+"""``window_scans`` of a row made before the column was: the count was not kept."""
 
 
 @dataclass(frozen=True)
@@ -543,7 +549,7 @@ def estimate_cells(row: Mapping[str, object]) -> list[str]:
         raise ValueError(f"estimates row lacks columns {missing}")
     cells = []
     for c in ESTIMATE_COLUMNS:
-        value = row.get(c)
+        value = row.get(c, UNSAID_COUNT if c in ESTIMATE_LATER_COLUMNS else None)
         absent = value is None or bool(pd.isna(value))
         if absent and (c in ESTIMATE_INT_COLUMNS or c in ESTIMATE_REQUIRED_FLOAT_COLUMNS):
             raise ValueError(f"estimates column {c} must have a value in every row")
@@ -568,10 +574,13 @@ def write_estimates(path: str | Path, frame: pd.DataFrame) -> None:
     """
     _check_estimate_frame(frame)
     for column in [*ESTIMATE_INT_COLUMNS, *ESTIMATE_REQUIRED_FLOAT_COLUMNS]:
-        if frame[column].isna().any():
+        if column in frame and frame[column].isna().any():
             raise ValueError(f"estimates column {column} must have a value in every row")
-    absent = [None] * len(frame)
-    columns = {c: frame[c].tolist() if c in frame else absent for c in ESTIMATE_COLUMNS}
+    absent = [UNSAID_COUNT if c in ESTIMATE_INT_COLUMNS else None for c in ESTIMATE_COLUMNS]
+    columns = {
+        c: frame[c].tolist() if c in frame else [empty] * len(frame)
+        for c, empty in zip(ESTIMATE_COLUMNS, absent, strict=True)
+    }
     with atomic_write(path) as stream:
         writer = csv.writer(stream, lineterminator="\n")
         writer.writerow(ESTIMATE_COLUMNS)
@@ -689,7 +698,8 @@ def read_estimates(path: str | Path) -> pd.DataFrame:
         for c in ESTIMATE_COLUMNS:
             text = "" if col[c] is None else fields[col[c]]
             if c in ESTIMATE_INT_COLUMNS:
-                values[c].append(_parse_int(path, row, c, text))
+                unsaid = col[c] is None
+                values[c].append(UNSAID_COUNT if unsaid else _parse_int(path, row, c, text))
             elif c in ESTIMATE_TEXT_COLUMNS:
                 values[c].append(text)
             else:

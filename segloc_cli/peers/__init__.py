@@ -66,6 +66,9 @@ class GuidedMatcher:
 
     uses_segments = False
     supports_global = False
+    supports_window = False
+    """The correlative matcher bins points by their beam from one origin, ICP weighs them as
+    one sensor's: both take each scan alone."""
 
     def localize_global(self, segments_robot: np.ndarray, points_robot: np.ndarray) -> Estimate:
         """Refused: a peer searches around an initial guess, never the whole map."""
