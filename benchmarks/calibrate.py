@@ -216,7 +216,7 @@ def group_of(source: str) -> str:
 def fitted_rows(trials: pd.DataFrame) -> np.ndarray:
     """(N,) bool: the trials a model is fitted on: ``FITTED_KINDS`` and not lost (a lost
     answer's status does not depend on its confidence)."""
-    lost = trials["inlier_ratio"] < ConfidenceParams().min_inlier_ratio
+    lost = trials["own_inlier_ratio"] < ConfidenceParams().min_inlier_ratio
     return (trials["kind"].isin(FITTED_KINDS) & ~lost).to_numpy()
 
 
@@ -256,7 +256,7 @@ def flagged(trials: pd.DataFrame, confidence: np.ndarray, threshold: float) -> n
     """(N,) bool: the trials whose status would not be ok: lost, too loosely held, or below
     ``threshold``."""
     params = ConfidenceParams()
-    lost = (trials["inlier_ratio"] < params.min_inlier_ratio).to_numpy()
+    lost = (trials["own_inlier_ratio"] < params.min_inlier_ratio).to_numpy()
     loose = (np.expm1(trials["log_hold_points"]) < params.min_hold_points).to_numpy()
     return lost | loose | (confidence < threshold)
 
@@ -297,6 +297,44 @@ def threshold_rows(trials: pd.DataFrame, confidence: np.ndarray) -> list[list[st
                      f"{worst_silent[0]:.1%} ({worst_silent[2]})",
                      f"{worst_flagged[1]:.1%} ({worst_flagged[2]})"])  # fmt: skip
     return rows
+
+
+CURVE_FIGURE = Path("benchmarks/figures/threshold-curve.png")
+
+
+def threshold_figure(trials: pd.DataFrame, left_out: np.ndarray) -> None:
+    """Silent failures against flagged right answers as the threshold runs from 0.05 to 0.995,
+    per mode, from the left-out predictions of the ``FITTED_KINDS`` trials: pooled (line) and
+    per left-out group (thin lines); the default threshold marked."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    thresholds = np.concatenate([np.linspace(0.05, 0.95, 19), [0.97, 0.98, 0.99, 0.995]])
+    default = ConfidenceParams().min_confidence
+    fig, axes = plt.subplots(1, len(MODES), figsize=(5.5 * len(MODES), 4.5), squeeze=False)
+    for ax, mode in zip(axes[0], MODES, strict=True):
+        mine = (trials["mode"] == mode).to_numpy() & trials["kind"].isin(FITTED_KINDS).to_numpy()
+        chosen = trials[mine]
+        groups = chosen["source"].map(group_of)
+        for name, rows in [("pooled", chosen), *chosen.groupby(groups)]:
+            right = rows["right"].to_numpy()
+            p = left_out[rows.index.to_numpy()]
+            points = [flagged(rows, p, t) for t in (*thresholds, default)]
+            silent = [100 * np.mean(~f & ~right) for f in points]
+            right_flagged = [100 * np.mean(f[right]) for f in points]
+            style = {"lw": 2.0, "color": "k"} if name == "pooled" else {"lw": 0.8, "alpha": 0.7}
+            (line,) = ax.plot(right_flagged[:-1], silent[:-1], label=name, **style)
+            ax.plot(right_flagged[-1], silent[-1], "o", color=line.get_color())
+        ax.set_xlabel("right answers flagged (%)")
+        ax.set_ylabel("silent failures: wrong yet ok (%)")
+        ax.set_title(f"{mode}: threshold 0.05–0.995, dots at {default:g}")
+        ax.legend(fontsize=8)
+    fig.tight_layout()
+    CURVE_FIGURE.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(CURVE_FIGURE, dpi=80)
+    plt.close(fig)
 
 
 def _weight_rows(model: ConfidenceModel) -> list[list[str]]:
@@ -345,7 +383,8 @@ def mode_section(mode: str, trials: pd.DataFrame, model: ConfidenceModel, left_o
         ),
         "",
         "**Silent against right flagged by threshold** (fitted kinds, left-out predictions): "
-        "pooled, and the worst left-out group:",
+        f"pooled, and the worst left-out group; figure: [{CURVE_FIGURE.name}]"
+        f"(figures/{CURVE_FIGURE.name}):",
         "",
         *_table(
             ["threshold", "silent", "right flagged", "worst silent", "worst right flagged"],
@@ -444,6 +483,7 @@ def write_models(trials: pd.DataFrame, out: Path, work: Path) -> None:
         json.dumps(document | {"provenance": provenance}, indent=2) + "\n", encoding="utf-8"
     )
     out.write_text(report(trials, models, left_out), encoding="utf-8")
+    threshold_figure(trials, left_out)
     work.mkdir(parents=True, exist_ok=True)
     trials.assign(left_out=left_out).to_csv(work / "trials.csv", index=False)
     print(f"wrote {MODEL_PATH} and {out}")

@@ -190,7 +190,7 @@ def odometry_protocol(
         for protocol, out in (("perturbation", perturb), ("global", globally)):
             est = read_estimates(out)
             figures = convergence(est, held.truth, segments, scans)
-            trials.append(verdict_trials(name, f"{protocol}, {local}", est, held.truth))
+            trials.append(verdict_trials(name, f"{protocol}, raw log", local, est, held.truth))
             if protocol == "global":
                 figures["truth_listed"] = truth_listed(out, est, held.truth)
             results[protocol][local] = figures
@@ -668,13 +668,17 @@ def convergence_section(results: dict) -> list[str]:
     return lines
 
 
-def verdict_trials(name: str, protocol: str, est: pd.DataFrame, truth: PoseTable) -> pd.DataFrame:
-    """Each estimate row's confidence and whether it found the right place."""
+def verdict_trials(
+    name: str, protocol: str, mode: str, est: pd.DataFrame, truth: PoseTable
+) -> pd.DataFrame:
+    """Each estimate row's confidence and whether it found the right place, under its
+    dataset, protocol and mode (``single scan`` or ``window``)."""
     pos, head = errors_against_truth(est, truth)
     return pd.DataFrame(
         {
             "dataset": name,
             "protocol": protocol,
+            "mode": mode,
             "confidence": est["confidence"].to_numpy(dtype=float),
             "right": is_right_place(pos, head),
         }
@@ -692,19 +696,21 @@ def reliability_figure(trials: pd.DataFrame) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(5.5, 5))
-    ax.plot([0, 1], [0, 1], color="0.6", lw=1, label="calibrated")
-    for (protocol, group), marker in zip(trials.groupby("protocol"), "os", strict=False):
-        rows = reliability_rows(group["confidence"].to_numpy(), group["right"].to_numpy())
-        shown = [(float(r[2]), float(r[3]), int(r[1])) for r in rows if r[2] != "—"]
-        x, y, n = (np.array(v) for v in zip(*shown, strict=True))
-        ax.scatter(x, y, s=20 + 200 * n / n.max(), marker=marker, alpha=0.7, label=protocol)
-    ax.set_xlabel("confidence (mean of the bin)")
-    ax.set_ylabel(f"share right (within {PLACE_M * 100:.0f} cm and {PLACE_DEG:g}°)")
-    ax.set_xlim(0, 1.02)
-    ax.set_ylim(0, 1.02)
-    ax.legend(loc="lower right")
-    ax.set_title("Reliability on the benchmark's trials (marker area: trials)")
+    modes = list(dict.fromkeys(trials["mode"]))
+    fig, axes = plt.subplots(1, len(modes), figsize=(5.5 * len(modes), 5), squeeze=False)
+    for ax, (mode, of_mode) in zip(axes[0], trials.groupby("mode", sort=False), strict=True):
+        ax.plot([0, 1], [0, 1], color="0.6", lw=1, label="calibrated")
+        for (protocol, group), marker in zip(of_mode.groupby("protocol"), "osD^", strict=False):
+            rows = reliability_rows(group["confidence"].to_numpy(), group["right"].to_numpy())
+            shown = [(float(r[2]), float(r[3]), int(r[1])) for r in rows if r[2] != "—"]
+            x, y, n = (np.array(v) for v in zip(*shown, strict=True))
+            ax.scatter(x, y, s=20 + 200 * n / n.max(), marker=marker, alpha=0.7, label=protocol)
+        ax.set_xlabel("confidence (mean of the bin)")
+        ax.set_ylabel(f"share right (within {PLACE_M * 100:.0f} cm and {PLACE_DEG:g}°)")
+        ax.set_xlim(0, 1.02)
+        ax.set_ylim(0, 1.02)
+        ax.legend(loc="lower right", fontsize=8)
+        ax.set_title(f"{mode}: reliability (marker area: trials)")
     fig.tight_layout()
     FIGURES.mkdir(parents=True, exist_ok=True)
     fig.savefig(RELIABILITY_FIGURE, dpi=80)
@@ -726,11 +732,11 @@ def verdict_section(trials: pd.DataFrame) -> list[str]:
         f"below it, rash. Right: within {PLACE_M * 100:.0f} cm and {PLACE_DEG:g}° of the "
         f"reference. Figure: [reliability](figures/{RELIABILITY_FIGURE.name}).",
     ]
-    for protocol, group in trials.groupby("protocol", sort=False):
+    for (mode, protocol), group in trials.groupby(["mode", "protocol"], sort=False):
         rows = reliability_rows(group["confidence"].to_numpy(), group["right"].to_numpy())
         lines += [
             "",
-            f"**{protocol}** ({len(group)} trials, {group['right'].mean():.1%} right)",
+            f"**{mode}, {protocol}** ({len(group)} trials, {group['right'].mean():.1%} right)",
             "",
             "| confidence | trials | mean confidence | share right |",
             "|---|---:|---:|---:|",
@@ -753,7 +759,9 @@ def report(results: dict, commands: dict, trials: pd.DataFrame | None = None) ->
         f"Map from the corrected log's scans at their poses, leaving out every "
         f"{HOLD_OUT_EVERY}th; each left-out scan localized from its reference pose plus uniform "
         f"errors in ±{PERTURB_XY_M} m, ±{PERTURB_XY_M} m, ±{PERTURB_THETA_DEG:g}° "
-        f"(seed {PERTURB_SEED}). "
+        f"(seed {PERTURB_SEED}), alone (`--window-m 0`: in the corrected log a held-out "
+        "scan's neighbours are scans of the map; the windows are in *Single scan and window* "
+        "below). "
         f"Right: within {SUCCESS_M * 100:.0f} cm and {SUCCESS_DEG:g}° of the reference pose, "
         "whatever the status. Silent: wrong but status ok. Flagged: status not ok (ambiguous, "
         "lost, too few segments). Gross: beyond 30 cm or 3°. Stage 2: the stage-2 pose of "
@@ -918,7 +926,9 @@ def main() -> None:
         truth = split.held_out_reference()
         for protocol, table in (("perturbation", "perturb.csv"), ("global", "global.csv")):
             est = read_estimates(work / table)
-            trials.append(verdict_trials(name, f"{protocol}, corrected log", est, truth))
+            trials.append(
+                verdict_trials(name, f"{protocol}, corrected log", "single scan", est, truth)
+            )
         raw = prepare_raw_log(name, args.datasets, work, log)
         print(f"{name}: single scan and window on the raw log", flush=True)
         results[name]["odometry"] = odometry_protocol(name, split, raw, work, log, trials)

@@ -70,7 +70,11 @@ class Evidence:
     points' worth fix the position along its weakest direction (``refine.support``);
     ``crossing_ratio``: the share of the beams that would have passed through a wall of the
     map to reach their reading (``freespace.crossing_ratio``); ``points``: how many points
-    the shares are of (a window's, ``window.py``, or the scan's).
+    the shares are of (a window's, ``window.py``, or the scan's); ``scan_inlier_ratio``: of
+    a window, the share of the scan's own points on the map at the answer (None: the scan
+    alone, whose share is ``inlier_ratio``). A window's neighbours add points only where the
+    scan saw none, more of them clutter than of walls the scan already covers, so it is the
+    scan's own share that says whether the answer is ``lost``.
     """
 
     inlier_ratio: float
@@ -80,6 +84,12 @@ class Evidence:
     hold_points: float
     crossing_ratio: float
     points: int = 0
+    scan_inlier_ratio: float | None = None
+
+    @property
+    def own_inlier_ratio(self) -> float:
+        """The share of the scan's own points on the map at the answer (0–1)."""
+        return self.inlier_ratio if self.scan_inlier_ratio is None else self.scan_inlier_ratio
 
     def features(self) -> dict[str, float]:
         """The model's inputs (``FEATURES``) and the other measures the calibration reports
@@ -92,6 +102,7 @@ class Evidence:
         score_margin = self.score - self.runner_up_score
         return {
             "inlier_ratio": self.inlier_ratio,
+            "own_inlier_ratio": self.own_inlier_ratio,
             "log_hold_points": math.log1p(max(self.hold_points, 0.0)),
             "inlier_margin": self.inlier_ratio - self.runner_up_ratio,
             "score_margin": score_margin,
@@ -167,7 +178,7 @@ def judge(
 ) -> tuple[str, float]:
     """Status and confidence of an answer from its ``evidence``, by ``model``."""
     confidence = model.probability(evidence)
-    status = points_status(evidence.inlier_ratio, evidence.hold_points, params)
+    status = points_status(evidence.own_inlier_ratio, evidence.hold_points, params)
     if status == STATUS_OK and confidence < params.min_confidence:
         status = STATUS_AMBIGUOUS
     return status, confidence

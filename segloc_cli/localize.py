@@ -399,6 +399,7 @@ class Localizer:
         first ``own_points`` points (all when None) are beams from the robot at ``best``,
         whose crossings of walls count."""
         own = points_robot[:own_points]
+        windowed = own.shape[0] < points_robot.shape[0]
         return Evidence(
             inlier_ratio=best.inlier_ratio,
             runner_up_ratio=0.0 if runner_up is None else runner_up.inlier_ratio,
@@ -407,6 +408,11 @@ class Localizer:
             hold_points=self.hold_points(points_robot, best.pose),
             crossing_ratio=crossing_ratio(own, best.pose, self.near_index),
             points=int(points_robot.shape[0]),
+            scan_inlier_ratio=(
+                support(own, self.segments_world, best.pose, self._band_m, index=self.near_index)[0]
+                if windowed
+                else None
+            ),
         )
 
     @property

@@ -178,10 +178,12 @@ def localize_log(
 def scan_windows(log: Log, log_path: Path, index: np.ndarray, localizer, config: Config):
     """The ``Windows`` of the scans ``index`` of ``log``: each one's neighbours placed by the
     log's odometry (``window.py``); None when each scan is to be localized alone (the
-    window is off, the matcher takes single scans, or the log has no odometry)."""
+    window is off, the matcher takes single scans, ``--no-refine`` asks for the paper's
+    method, or the log has no odometry)."""
     from segloc_cli.window import Windows, neighbour_indices, relative_pose
 
-    if config.window.travel_m <= 0 or not localizer.supports_window or not log.has_odometry:
+    alone = config.window.travel_m <= 0 or config.localize.refine is None
+    if alone or not localizer.supports_window or not log.has_odometry:
         return None
     rows = odometry_rows(log, log_path, config.tolerance_ms / 1e3, "")
     odometry = np.full((len(log.scans), 3), np.nan)
@@ -209,6 +211,8 @@ def window_note(log: Log, localizer, config: Config, windows) -> str:
         return "each scan alone (--window-m 0)"
     if not localizer.supports_window:
         return f"each scan alone (--method {config.method} takes single scans)"
+    if config.localize.refine is None:
+        return "each scan alone (--no-refine: the paper's method, one scan a local map)"
     if log.odom_times_s.size and not log.has_odometry:
         return "each scan alone (the log's /odom holds simulated initial guesses, not odometry)"
     return "each scan alone (the log has no /odom odometry)"

@@ -97,6 +97,10 @@ def test_a_window_fixes_the_place_along_a_corridor_that_the_scan_alone_cannot():
     together, held = localize_scan(localizer, scan, guess, None, neighbours, windows)
     assert held == 9
     assert together.evidence.hold_points > 5 * MIN_HOLD_POINTS
+    # The verdict's shares are of the window; whether it is lost, of the scan's own points.
+    assert together.evidence.points > scan.points().shape[0]
+    assert together.evidence.scan_inlier_ratio == pytest.approx(1.0)
+    assert alone.evidence.scan_inlier_ratio is None
     assert np.hypot(together.pose.x - TRUTH.x, together.pose.y - TRUTH.y) < 0.02
     assert abs(together.pose.theta - TRUTH.theta) < np.deg2rad(0.2)
 
@@ -145,3 +149,51 @@ def test_a_noise_free_window_in_open_space_changes_nothing_but_the_evidence():
     assert held == 2
     assert est.evidence.points > scan.points().shape[0]
     assert np.hypot(est.pose.x - truth.x, est.pose.y - truth.y) < 1e-6
+
+
+def test_localize_uses_windows_where_the_log_has_odometry_and_says_so(tmp_path, capsys):
+    from test_cli import run_cli
+
+    from segloc_cli.io.maps import write_map
+    from segloc_cli.io.mcap_log import write_log
+    from segloc_cli.io.tables import PoseTable, read_estimates, write_pose_table
+
+    # A robot driving down the corridor, 0.25 m per scan, its odometry exact.
+    rng = np.random.default_rng(5)
+    poses = [Pose2(3.0 + 0.25 * k, 1.0, 0.0) for k in range(17)]
+    scans = [simulate_scan(CORRIDOR, p, SHORT_RANGE, rng, 0.5 * k) for k, p in enumerate(poses)]
+    log = tmp_path / "log.mcap"
+    write_log(
+        log, scans, [(s.time_s, p) for s, p in zip(scans, poses, strict=True)],
+        {"range_max_m": "3.0"},
+    )  # fmt: skip
+    map_path = tmp_path / "map.json"
+    write_map(map_path, CORRIDOR.segments)
+    # Guesses for the scan at x = 5: 0.4 m off along the corridor.
+    guesses = tmp_path / "guesses.csv"
+    write_pose_table(
+        guesses, PoseTable(np.array([9]), np.array([4.0]), np.array([[5.4, 1.0, 0.0]]))
+    )
+    runs = {}
+    for name, extra in (
+        ("window", ()),
+        ("alone", ("--window-m", "0")),
+        ("paper", ("--no-refine",)),
+    ):
+        out = tmp_path / f"{name}.csv"
+        result = run_cli(
+            capsys, "localize", log, "--map", map_path, "--initial", guesses, "--out", out, *extra
+        )
+        assert result.code == 0, result.err
+        runs[name] = (result.err.splitlines()[0], read_estimates(out).iloc[0])
+    note, row = runs["window"]
+    window_note = "each scan with its neighbours within 1 m of odometry travel (window of 9 scans"
+    assert note == f"{log}: {window_note}, median)"
+    assert row["window_scans"] == 9 and row["status"] == "ok"
+    assert abs(row["x_m"] - 5.0) < 0.02
+    note, row = runs["alone"]
+    assert note == f"{log}: each scan alone (--window-m 0)"
+    assert row["window_scans"] == 1 and row["status"] != "ok"
+    note, row = runs["paper"]
+    assert note == f"{log}: each scan alone (--no-refine: the paper's method, one scan a local map)"
+    assert row["window_scans"] == 1
