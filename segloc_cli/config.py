@@ -232,8 +232,8 @@ class WindowParams:
     travel_m: float = 1.0
     """Scans within this much odometry travel before and after the scan join its local map;
     0 localizes each scan alone."""
-    max_time_s: float = 10.0
-    """...and within this many seconds of it (a robot standing still adds no view)."""
+    max_time_s: float = 3.0
+    """...and within this many seconds of it: odometry drifts with time as well as travel."""
     spacing_m: float = 0.2
     """A neighbour is taken once the odometry moved this far since the last one taken..."""
     spacing_deg: float = 10.0
@@ -242,9 +242,11 @@ class WindowParams:
     """Most scans in a window, the scan included (half of the rest on each side)."""
     thin_m: float = 0.1
     """A neighbour adds its points only in cells of this size that hold none yet."""
-    max_correction_sigmas: float = 3.0
-    """A neighbour whose fit to the others moves it more than this many times the odometry's
-    spread (``TrackParams``) is left out: the odometry slipped, or the fit did."""
+    max_correction_m: float = 0.3
+    """A neighbour whose fit to the others moves it farther than this from where the
+    odometry put it is left out: over a metre odometry slips less, so the fit slipped."""
+    max_correction_deg: float = 5.0
+    """...or turns it more than this."""
 
 
 @dataclass(frozen=True)

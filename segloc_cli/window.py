@@ -11,7 +11,10 @@ Odometry slips, so no neighbour is trusted as placed: each is fitted to the
 segments of the scans already placed, nearest in the log first, with the
 odometry as a prior whose spread grows with the distance from the scan
 (``TrackParams.prior``), and a neighbour whose fit moves it farther than
-``max_correction_sigmas`` of that spread is left out. Their points then join
+``max_correction_m`` or turns it more than ``max_correction_deg`` is left out:
+a window spans a metre and a few seconds, over which odometry slips less, so
+a larger correction is the fit's slip (a few segments can hold a scan at a
+wrong angle), not the odometry's. Their points then join
 the scan's own wherever they fall in a cell (``thin_m``) the scan and the
 neighbours before them left empty: what the window adds is what the scan did
 not see, so a window costs what it adds, not what it repeats.
@@ -174,8 +177,9 @@ def _fitted(
     refine: RefineParams,
     track: TrackParams,
 ) -> Pose2 | None:
-    """The neighbour's pose fitted to the ``reference`` segments from its odometry pose, or
-    None when the fit corrects the odometry by more than it could have slipped."""
+    """The neighbour's pose fitted to the ``reference`` segments from its odometry pose (the
+    odometry a prior of ``track``'s spread for that motion), or None when the fit corrects
+    the odometry by more than it could have slipped (``max_correction_m``, ``_deg``)."""
     sigma_m, sigma_deg = track.prior(neighbour.odometry)
     if reference.shape[0] == 0 or neighbour.points.shape[0] == 0:
         return neighbour.odometry
@@ -187,8 +191,7 @@ def _fitted(
     )
     shift = np.hypot(fit.pose.x - neighbour.odometry.x, fit.pose.y - neighbour.odometry.y)
     turn = abs(np.rad2deg(np.angle(np.exp(1j * (fit.pose.theta - neighbour.odometry.theta)))))
-    limit = params.max_correction_sigmas
-    if shift > limit * sigma_m or turn > limit * sigma_deg:
+    if shift > params.max_correction_m or turn > params.max_correction_deg:
         return None
     return fit.pose
 
