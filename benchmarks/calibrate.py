@@ -15,7 +15,8 @@ kinds, none of which the benchmarks score:
 
 The real held-out scans are found in each log's raw log (by their readings) and localized
 there, alone and with their windows (``window.py``: the neighbours the raw odometry places
-around them, the map's own scans stripped from the raw log first); a simulated scan's window
+around them), in a map built without them and without the scans of their windows, the map's
+own scans stripped from the raw log (``protocol.raw_held_out``); a simulated scan's window
 holds scans along its line of travel placed by the true motion plus odometry noise. Each
 held-out scan is localized from two guesses drawn as in the perturbation protocol
 (±1.5 m, ±20°), one from a wider draw (±3 m, ±45°) and, for up to ``GLOBAL_PER_LOG`` scans per
@@ -144,7 +145,7 @@ def real_trials(name: str, datasets: Path, work: Path, rng: np.random.Generator)
     log = read_log(raw.log_path)
     # The held-out scans' times are the raw log's own, as written to the CSV.
     index = nearest_by_time(raw.truth.time_s, log.scan_times_s, SAME_TIME_S)
-    localizer = Localizer(read_map(split.map_path), model=UNINFORMED)
+    localizer = Localizer(read_map(raw.map_path), model=UNINFORMED)
     windows = scan_windows(log, raw.log_path, index, localizer, Config())
     scans = [log.scans[i] for i in index]
     return localize_trials(name, localizer, scans, raw.truth.poses, rng, windows)

@@ -325,50 +325,78 @@ def prepare_raw_log(name: str, datasets: Path, work: Path, commands: list[str]) 
 
 @dataclass(frozen=True)
 class RawHeldOut:
-    """The held-out scans of a split, found in the dataset's raw log (with its odometry).
+    """The held-out scans of a split, found in the dataset's raw log (with its odometry), and a
+    map that none of their windows meets.
 
-    ``log_path``: the raw log less every scan the split's map was built from (found by its
-    readings), so that no window around a held-out scan holds a scan of the map;
-    ``truth_path`` and ``truth``: the held-out scans' reference poses at their times in that
-    log, under the split's pose ids; ``missing``: held-out scans not found in the raw log.
+    ``map_path``: the corrected log's map without the held-out scans and without every scan
+    in the window of one (``left_out_near`` of them); ``log_path``: the raw log less every scan
+    that map was built from (found by its readings), so that a window holds no scan of the
+    map yet every neighbour it would hold in a log of its own; ``truth_path`` and ``truth``:
+    the held-out scans' reference poses at their times in that log, under the split's pose
+    ids; ``missing``: held-out scans not found in the raw log.
     """
 
     log_path: Path
     truth_path: Path
     truth: PoseTable
     missing: int
+    map_path: Path
+    left_out_near: int
 
 
 def raw_held_out(split: HeldOutSplit, raw: RawLog, work: Path, commands: list[str]) -> RawHeldOut:
-    """Find the held-out scans of ``split`` in the raw log ``raw`` and write the raw log less
-    the map's scans (``RawHeldOut``) into ``work``."""
+    """Find the held-out scans of ``split`` in the raw log ``raw``, build their map without
+    their windows' scans in ``work/odometry`` and write the raw log less the map's scans
+    there (``RawHeldOut``); windows as ``segloc localize`` makes them by default."""
+    from segloc_cli.config import WindowParams
     from segloc_cli.geometry import Pose2
     from segloc_cli.io.mcap_log import LogWriter, read_log
+    from segloc_cli.pipeline import odometry_rows
+    from segloc_cli.window import neighbour_indices
 
     corrected, raw_log = read_log(split.log_path), read_log(raw.log_path)
     in_raw = same_scans(corrected.scans, raw_log.scans)
+    rows = odometry_rows(raw_log, raw.log_path, 1e-6, "")
+    odometry = np.full((len(raw_log.scans), 3), np.nan)
+    odometry[rows >= 0] = raw_log.odom_poses[rows[rows >= 0]]
+    times = raw_log.scan_times_s
+    windows: set[int] = set()
+    for i in in_raw[split.held_out & (in_raw >= 0)]:
+        windows.update(neighbour_indices(odometry, times, int(i), WindowParams()))
+    near = np.isin(in_raw, sorted(windows)) & ~split.held_out
+    folder = work / "odometry"
+    folder.mkdir(parents=True, exist_ok=True)
+    commands.append(
+        f"# odometry/: {split.log_path.name}'s map without the held-out scans and the "
+        f"{int(near.sum())} scans in their windows in {raw.log_path.name} (1 m of odometry "
+        f"travel, 3 s), written by {Path(sys.argv[0]).name}"
+    )
+    map_path, _ = map_without(split.log_path, split.reference, split.held_out | near, folder,
+                              commands)  # fmt: skip
     in_map = np.zeros(len(raw_log.scans), dtype=bool)
-    in_map[in_raw[~split.held_out & (in_raw >= 0)]] = True
-    log_path, truth_path = work / "raw-held-out.mcap", work / "raw-held-out.csv"
+    in_map[in_raw[~(split.held_out | near) & (in_raw >= 0)]] = True
+    log_path, truth_path = folder / "raw-held-out.mcap", folder / "raw-held-out.csv"
     kept = [scan for scan, mapped in zip(raw_log.scans, in_map, strict=True) if not mapped]
-    odometry = zip(raw_log.odom_times_s, raw_log.odom_poses, strict=True)
-    events = [(float(t), 0, Pose2(*pose)) for t, pose in odometry]
+    odometry_messages = zip(raw_log.odom_times_s, raw_log.odom_poses, strict=True)
+    events = [(float(t), 0, Pose2(*pose)) for t, pose in odometry_messages]
     events += [(scan.time_s, 1, scan) for scan in kept]
     with LogWriter(log_path, raw_log.sensor) as out:
         for t, kind, item in sorted(events, key=lambda event: event[:2]):
             out.add_odom(t, item) if kind == 0 else out.add_scan(item)
     held = split.held_out_reference()
     found = in_raw[split.held_out]
-    times = np.array([raw_log.scans[i].time_s for i in found[found >= 0]])
-    truth = PoseTable(held.pose_id[found >= 0], times, held.poses[found >= 0])
+    times_found = np.array([raw_log.scans[i].time_s for i in found[found >= 0]])
+    truth = PoseTable(held.pose_id[found >= 0], times_found, held.poses[found >= 0])
     write_pose_table(truth_path, truth)
     commands.append(
         f"# {log_path.name}: {raw.log_path.name} less the {int(in_map.sum())} scans of "
-        f"{split.map_path.name} (found by their readings); {truth_path.name}: the held-out "
+        f"{map_path.name} (found by their readings); {truth_path.name}: the held-out "
         "scans' reference poses at their times there; written by "
         f"{Path(sys.argv[0]).name}"
     )
-    return RawHeldOut(log_path, truth_path, truth, int(np.sum(found < 0)))
+    return RawHeldOut(
+        log_path, truth_path, truth, int(np.sum(found < 0)), map_path, int(near.sum())
+    )
 
 
 # --- scoring --------------------------------------------------------------------

@@ -172,19 +172,20 @@ def odometry_protocol(
     ``verdict_trials`` to ``trials``."""
     held = raw_held_out(split, raw, work, log)
     log.append(f"# raw-guesses.csv: {held.truth_path.name} + uniform errors, seed {PERTURB_SEED}")
-    guesses = work / "raw-guesses.csv"
+    guesses = held.log_path.with_name("raw-guesses.csv")
     write_pose_table(guesses, perturbed_guesses(held.truth))
-    segments = read_map(split.map_path)
+    segments = read_map(held.map_path)
     from segloc_cli.io.mcap_log import read_log
 
     scans = _held_out_scans(held.log_path, held.truth, read_log(held.log_path))
     results: dict[str, dict[str, dict]] = {"perturbation": {}, "global": {}}
     for local, options in LOCAL_MAPS.items():
         tag = local.split()[0]
-        perturb, globally = work / f"raw-perturb-{tag}.csv", work / f"raw-global-{tag}.csv"
-        localize_held_out_raw(held, split, log, "--initial", guesses, *options, out=perturb)
+        folder = held.log_path.parent
+        perturb, globally = folder / f"perturb-{tag}.csv", folder / f"global-{tag}.csv"
+        localize_held_out_raw(held, log, "--initial", guesses, *options, out=perturb)
         localize_held_out_raw(
-            held, split, log, "--global", "--hypotheses", LISTED, "--initial", held.truth_path,
+            held, log, "--global", "--hypotheses", LISTED, "--initial", held.truth_path,
             *options, out=globally,
         )  # fmt: skip
         for protocol, out in (("perturbation", perturb), ("global", globally)):
@@ -193,7 +194,7 @@ def odometry_protocol(
             trials.append(verdict_trials(name, f"{protocol}, raw log", local, est, held.truth))
             if protocol == "global":
                 figures["truth_listed"] = truth_listed(out, est, held.truth)
-            results[protocol][local] = figures
+            results[protocol][local] = figures | {"map_left_out": held.left_out_near}
     return results
 
 
@@ -202,11 +203,11 @@ RAW_OWN_SCAN_ONLY = ("--tolerance-ms", "0.01")
 stamp scans in bursts a millisecond apart, so 1 ms would pair a pose with its neighbours."""
 
 
-def localize_held_out_raw(held, split: HeldOutSplit, log: list[str], *options, out: Path):
-    """``segloc localize`` of the raw held-out log in the map of ``split``, each pose of
-    ``options``' --initial file seeding only its own scan."""
+def localize_held_out_raw(held, log: list[str], *options, out: Path):
+    """``segloc localize`` of the raw held-out log in its map (``protocol.RawHeldOut``), each
+    pose of ``options``' --initial file seeding only its own scan."""
     run_segloc(
-        log, "localize", held.log_path, "--map", split.map_path, *RAW_OWN_SCAN_ONLY, *options,
+        log, "localize", held.log_path, "--map", held.map_path, *RAW_OWN_SCAN_ONLY, *options,
         "--out", out,
     )  # fmt: skip
 
@@ -300,8 +301,10 @@ def odometry_section(results: dict) -> list[str]:
         "localized there from the same perturbed guesses as (a), and with `--global`: alone "
         "(`--window-m 0`), and with its window, the scans within 1 m of odometry travel before "
         "and after it placed by the raw log's odometry and fitted to each other (the default "
-        "where a log has odometry). The raw log is first stripped of every scan the map was "
-        "built from, so no window holds a scan of the map. Right: within "
+        "where a log has odometry). So that no window meets the map, the map is built anew "
+        "for this protocol without the held-out scans and without every corrected scan in "
+        "one's window (*left out near*), and the raw log is stripped of every scan that map "
+        "was built from. Right: within "
         f"{PLACE_M * 100:.0f} cm and {PLACE_DEG:g}° of the reference. Reference disagrees: "
         "answers beyond that bound where the scan alone, fitted to the map from its reference "
         f"pose, lands within {REFERENCE_AGREES_M * 100:g} cm and {REFERENCE_AGREES_DEG:g}° of the "
@@ -312,12 +315,12 @@ def odometry_section(results: dict) -> list[str]:
         "reference, every answer counted (the raw bags' beam angles follow the bag, the maps "
         "the corrected logs' CARMEN rule, which fits these scans up to half a degree better).",
         "",
-        "| dataset | protocol | local map | scans | right | silent | right flagged "
-        "| wrong flagged | reference disagrees | truth listed | within 10 cm / 1° "
-        "| median pos (cm) | scans per window | ms/scan |",
-        "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
-        "| target (window) | | | | ≥ 99 % (global ≥ 97 %) | ≤ 1 % | ≤ 5 % | ≥ 90 % | | all "
-        "| | | | |",
+        "| dataset | protocol | local map | scans | left out near | right | silent "
+        "| right flagged | wrong flagged | reference disagrees | truth listed "
+        "| within 10 cm / 1° | median pos (cm) | scans per window | ms/scan |",
+        "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+        "| target (window) | | | | | ≥ 99 % (global ≥ 97 %) | ≤ 1 % | ≤ 5 % | ≥ 90 % | "
+        "| all | | | | |",
     ]
     for name, r in results.items():
         for protocol, by_map in (r.get("odometry") or {}).items():
@@ -325,7 +328,8 @@ def odometry_section(results: dict) -> list[str]:
                 listed = f.get("truth_listed")
                 shown = "" if listed is None else f"{listed['listed']} of {listed['ambiguous']}"
                 lines.append(
-                    f"| {name} | {protocol} | {local} | {f['scans']} | {percent(f['right'])} | "
+                    f"| {name} | {protocol} | {local} | {f['scans']} | {f['map_left_out']} | "
+                    f"{percent(f['right'])} | "
                     f"{percent(f['silent'])} | {percent(f['right_flagged'])} | "
                     f"{percent(f['wrong_flagged'])} ({f['wrong']}) | "
                     f"{f['reference_disagrees']} | {shown} | {percent(f['within_10cm_1deg'])} | "

@@ -3,8 +3,8 @@
 The confidence is the probability that the answer is the right place (within 30 cm and 3°
 of the truth), predicted from what the fit leaves behind (``Evidence``): how firmly the
 points fix the position along their weakest direction, and how far the best distinct
-alternative falls behind. A logistic model (``ConfidenceModel``) per kind of local map (a
-scan, or a window of scans) maps them to the probability; its weights are fitted by
+alternative falls behind, in points. A logistic model (``ConfidenceModel``) per kind of
+local map (a scan, or a window of scans) maps them to the probability; its weights are fitted by
 ``benchmarks/calibrate.py`` on simulated and real trials and shipped in
 ``confidence_model.json`` beside this module, with the trials they were fitted on. It speaks
 of answers whose searched area holds the truth: a guess within the search's reach
@@ -40,17 +40,20 @@ RIGHT_PLACE_DEG = 3.0
 the confidence is the probability of; beyond either it is another place, not an imprecise fit."""
 
 MODEL_PATH = Path(__file__).with_name("confidence_model.json")
-FEATURES = ("log_hold_points", "log_margin_points", "tie")
+FEATURES = ("log_hold_points", "log_margin_points")
 """The inputs of the model, keys of ``Evidence.features``: how firmly the points fix the
-position, and two views of how far the best distinct rival falls behind (how many points on
-the map at the answer the rival leaves off it, and how near the two fit scores tie).
+position, and how far the best distinct rival falls behind, counted in points: how many of
+the points on the map at the answer the rival leaves off it (none at an exact twin).
 
-Left out, though ``Evidence.features`` offers them: the share of the scan on the map
-(``inlier_ratio``), which made the fitted logs' clutter the measure of every other log's (on
-each shared log left out of the fit in turn it flagged up to a third of the right answers
-of the most cluttered one), and only sets ``lost`` below ``min_inlier_ratio``; the share of
-beams through walls, the inliers' RMS distance and the counts of points and of segments,
-which stood for the scanner and the map rather than for the fit."""
+Left out, though ``Evidence.features`` offers them: how near the fit scores of the answer and
+the rival tie (``tie``), which says nearly what the margin in points says; fitted with it on
+the real logs alone, the model gave it the wrong sign and let the simulated twins through.
+The share of the scan on the map (``inlier_ratio``), which made the fitted logs' clutter the
+measure of every other log's (on each shared log left out of the fit in turn it flagged up
+to a third of the right answers of the most cluttered one), and only sets ``lost`` below
+``min_inlier_ratio``. The share of beams through walls, the inliers' RMS distance and the
+counts of points and of segments, which stood for the scanner and the map rather than for
+the fit."""
 MODES = ("single", "window")
 """The local maps a confidence is fitted for: one scan, and a window of scans (``window.py``),
 whose margins over a rival are larger for the same doubt."""

@@ -247,6 +247,10 @@ class WindowParams:
     odometry put it is left out: over a metre odometry slips less, so the fit slipped."""
     max_correction_deg: float = 5.0
     """...or turns it more than this."""
+    min_agreement: float = 0.5
+    """A neighbour with fewer than this share of its points on the scans placed before it,
+    once fitted, is left out: a neighbour a metre away sees mostly the same walls, and one
+    the odometry put in the wrong place (wheels slip in a turn) sees them elsewhere."""
 
 
 @dataclass(frozen=True)
@@ -406,6 +410,7 @@ _TUNING_BOUNDS: dict[str, tuple[float, float, bool]] = {
     "window.spacing_deg": (0.0, 360.0, False),
     "window.max_scans": (1, 64, False),
     "window.thin_m": (0.001, 10.0, False),
+    "window.min_agreement": (0.0, 1.0, False),
 }
 """Bounds (low, high, low excluded) of tuning settings: by field path, else by type (a count
 of at least 1, a positive size). They keep a run clear of divisions by zero and of searches

@@ -14,7 +14,9 @@ odometry as a prior whose spread grows with the distance from the scan
 ``max_correction_m`` or turns it more than ``max_correction_deg`` is left out:
 a window spans a metre and a few seconds, over which odometry slips less, so
 a larger correction is the fit's slip (a few segments can hold a scan at a
-wrong angle), not the odometry's. Their points then join
+wrong angle), not the odometry's; so is a neighbour that, fitted, leaves less
+than ``min_agreement`` of its points off the scans placed before it, since a
+scan a metre away sees mostly the same walls. Their points then join
 the scan's own wherever they fall in a cell (``thin_m``) the scan and the
 neighbours before them left empty: what the window adds is what the scan did
 not see, so a window costs what it adds, not what it repeats.
@@ -179,9 +181,12 @@ def _fitted(
 ) -> Pose2 | None:
     """The neighbour's pose fitted to the ``reference`` segments from its odometry pose (the
     odometry a prior of ``track``'s spread for that motion), or None when the fit corrects
-    the odometry by more than it could have slipped (``max_correction_m``, ``_deg``)."""
+    the odometry by more than it could have slipped (``max_correction_m``, ``_deg``) or
+    leaves too few of its points on them (``min_agreement``)."""
     sigma_m, sigma_deg = track.prior(neighbour.odometry)
-    if reference.shape[0] == 0 or neighbour.points.shape[0] == 0:
+    if neighbour.points.shape[0] == 0:
+        return None  # it would add nothing
+    if reference.shape[0] == 0:
         return neighbour.odometry
     fit = refine_pose(
         neighbour.points,
@@ -192,6 +197,8 @@ def _fitted(
     shift = np.hypot(fit.pose.x - neighbour.odometry.x, fit.pose.y - neighbour.odometry.y)
     turn = abs(np.rad2deg(np.angle(np.exp(1j * (fit.pose.theta - neighbour.odometry.theta)))))
     if shift > params.max_correction_m or turn > params.max_correction_deg:
+        return None
+    if fit.inlier_ratio < params.min_agreement:
         return None
     return fit.pose
 

@@ -106,15 +106,30 @@ def test_a_window_fixes_the_place_along_a_corridor_that_the_scan_alone_cannot():
 
 
 def test_a_neighbour_whose_odometry_slipped_is_refitted_or_left_out():
-    localizer_free = WindowParams()
+    params = WindowParams()
     for slip, kept in ((Pose2(0.0, 0.03, np.deg2rad(1.5)), 9), (Pose2(0.0, 0.6, 0.4), 8)):
         scan, neighbours = _corridor_window(slip)
         placed = [Neighbour(s.points(), extract_segments(s), pose) for s, pose in neighbours]
-        window = window_map(scan.points(), extract_segments(scan), placed, localizer_free)
+        window = window_map(scan.points(), extract_segments(scan), placed, params)
         assert window.scans == kept
         # Every point of the window, placed at the scan's true pose, lies on the corridor.
         _, dist = nearest_segments(transform_points(window.points, TRUTH), CORRIDOR.segments)
         assert np.max(dist) < 0.01
+
+
+def test_a_neighbour_that_sees_other_walls_than_the_scan_is_left_out():
+    """Placed 0.25 m ahead, a scan of a 4 m × 4 m room holds little the corridor's walls
+    explain; the fit cannot move it far, so only its disagreement gives it away."""
+    scan, neighbours = _corridor_window()
+    room = World(np.array([[0, 0, 4, 0], [4, 0, 4, 4], [4, 4, 0, 4], [0, 4, 0, 0.0]]))
+    stranger = simulate_scan(room, Pose2(2.0, 2.0, 0.0), SHORT_RANGE, np.random.default_rng(8), 0.1)
+    placed = [Neighbour(s.points(), extract_segments(s), pose) for s, pose in neighbours[:2]]
+    odd = Neighbour(stranger.points(), extract_segments(stranger), Pose2(0.25, 0.0, 0.0))
+    segments = extract_segments(scan)
+    assert window_map(scan.points(), segments, placed, WindowParams()).scans == 3
+    assert window_map(scan.points(), segments, [odd, *placed], WindowParams()).scans == 3
+    agreeing = WindowParams(min_agreement=0.0)
+    assert window_map(scan.points(), segments, [odd, *placed], agreeing).scans == 4
 
 
 def test_windowed_rows_say_how_many_scans_they_hold_and_match_on_two_processes():
