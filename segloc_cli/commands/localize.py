@@ -127,12 +127,18 @@ def localize(
     how many of the scan's points fall on the map, are refined too, and the
     fit that explains the scan best wins.
 
+    Where the log has odometry (an imported ROS bag or CARMEN log), each scan
+    is localized with its window: the scans within --window-m (1 m) of
+    odometry travel before and after it, placed by the odometry and fitted to
+    each other, as one local map, so that a place that explains the scan but
+    not its neighbours falls behind. A line per log says which way it ran;
+    the window_scans column says how many scans each local map held.
+
     Each row's confidence is the probability that its answer is the right
     place (within 30 cm and 3°), fitted on simulated and real trials from
-    how much of the scan lies on the map, how many of its beams would have
-    passed through a wall, how far the best distinct pose (the runner_up
-    columns) falls behind, and how firmly the points fix the position. The
-    status follows: ok at a confidence of 0.9 or more
+    how many of the points on the map at the answer the best distinct pose
+    (the runner_up columns) leaves off it, and how firmly the points fix the
+    position. The status follows: ok at a confidence of 0.9 or more
     (--confidence-min-confidence); ambiguous below it, or where nothing fixes
     the position along one direction (a featureless corridor); lost (under
     half the scan lies on the map). A scan that yields too few segments gets
