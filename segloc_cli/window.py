@@ -35,7 +35,7 @@ import numpy as np
 
 from segloc_cli.config import ExtractParams, RefineParams, TrackParams, WindowParams
 from segloc_cli.extract import extract_segments
-from segloc_cli.geometry import Pose2, transform_points, transform_segments
+from segloc_cli.geometry import Pose2, transform_points, transform_segments, wrap_angle
 from segloc_cli.refine import refine_pose
 from segloc_cli.scan import Scan
 
@@ -125,7 +125,7 @@ def neighbour_indices(
             travelled += float(np.hypot(*(here[:2] - odometry[j - step][:2])))
             if travelled > params.travel_m:
                 break
-            turned = abs(float(np.angle(np.exp(1j * (here[2] - last[2])))))
+            turned = abs(float(wrap_angle(here[2] - last[2])))
             if np.hypot(*(here[:2] - last[:2])) >= params.spacing_m or turned >= spacing_rad:
                 taken.append(j)
                 last = here
@@ -183,11 +183,11 @@ def _fitted(
     odometry a prior of ``track``'s spread for that motion), or None when the fit corrects
     the odometry by more than it could have slipped (``max_correction_m``, ``_deg``) or
     leaves too few of its points on them (``min_agreement``)."""
-    sigma_m, sigma_deg = track.prior(neighbour.odometry)
     if neighbour.points.shape[0] == 0:
         return None  # it would add nothing
     if reference.shape[0] == 0:
         return neighbour.odometry
+    sigma_m, sigma_deg = track.prior(neighbour.odometry)
     fit = refine_pose(
         neighbour.points,
         reference,
@@ -195,7 +195,7 @@ def _fitted(
         replace(refine, prior_sigma_m=sigma_m, prior_sigma_deg=sigma_deg),
     )
     shift = np.hypot(fit.pose.x - neighbour.odometry.x, fit.pose.y - neighbour.odometry.y)
-    turn = abs(np.rad2deg(np.angle(np.exp(1j * (fit.pose.theta - neighbour.odometry.theta)))))
+    turn = abs(np.rad2deg(wrap_angle(fit.pose.theta - neighbour.odometry.theta)))
     if shift > params.max_correction_m or turn > params.max_correction_deg:
         return None
     if fit.inlier_ratio < params.min_agreement:
