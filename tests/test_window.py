@@ -167,6 +167,7 @@ def test_a_noise_free_window_in_open_space_changes_nothing_but_the_evidence():
 
 
 def test_localize_uses_windows_where_the_log_has_odometry_and_says_so(tmp_path, capsys):
+    from conftest import HALL
     from test_cli import run_cli
 
     from segloc_cli.io.maps import write_map
@@ -201,6 +202,10 @@ def test_localize_uses_windows_where_the_log_has_odometry_and_says_so(tmp_path, 
         )
         assert result.code == 0, result.err
         runs[name] = (result.err.splitlines()[0], read_estimates(out).iloc[0])
+    info = run_cli(capsys, "info", log).out
+    assert "windows:  yes; localize places each scan's neighbours by /odom (--window-m)" in info
+    simulated = run_cli(capsys, "info", HALL / "log.mcap").out
+    assert "windows:  no; /odom holds simulated initial guesses, not odometry" in simulated
     note, row = runs["window"]
     window_note = "each scan with its neighbours within 1 m of odometry travel (window of 9 scans"
     assert note == f"{log}: {window_note}, median)"

@@ -151,6 +151,15 @@ def laser_offset_line(log) -> str:
     )
 
 
+def windows_line(log) -> str:
+    """One line on whether ``localize`` gives the log's scans windows (``window.py``)."""
+    if log.has_odometry:
+        return "windows:  yes; localize places each scan's neighbours by /odom (--window-m)"
+    if log.odom_times_s.size:
+        return "windows:  no; /odom holds simulated initial guesses, not odometry"
+    return "windows:  no; the log has no /odom odometry"
+
+
 @click.group("import")
 def import_group() -> None:
     """Convert public laser logs into segloc's MCAP log."""
@@ -316,6 +325,7 @@ def info_command(log_path):
         f"{time_range(log.scan_times_s)}"
     )
     click.echo(f"/odom:     {log.odom_times_s.size} poses, {time_range(log.odom_times_s)}")
+    click.echo(windows_line(log))
     click.echo(laser_offset_line(log))
     for topic, count in sorted(log.message_counts.items()):
         if topic not in ("/scan", "/odom"):
