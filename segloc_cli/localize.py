@@ -399,7 +399,6 @@ class Localizer:
         first ``own_points`` points (all when None) are beams from the robot at ``best``,
         whose crossings of walls count."""
         own = points_robot[:own_points]
-        windowed = own.shape[0] < points_robot.shape[0]
         return Evidence(
             inlier_ratio=best.inlier_ratio,
             runner_up_ratio=0.0 if runner_up is None else runner_up.inlier_ratio,
@@ -408,11 +407,6 @@ class Localizer:
             hold_points=self.hold_points(points_robot, best.pose),
             crossing_ratio=crossing_ratio(own, best.pose, self.near_index),
             points=int(points_robot.shape[0]),
-            scan_inlier_ratio=(
-                support(own, self.segments_world, best.pose, self._band_m, index=self.near_index)[0]
-                if windowed
-                else None
-            ),
         )
 
     @property
@@ -475,6 +469,10 @@ class Localizer:
         runner_up = kept[1] if len(kept) > 1 else None
         evidence = self._evidence(points_robot, best, runner_up, own_points)
         windowed = own_points is not None and own_points < points_robot.shape[0]
+        if windowed:  # whether the answer is lost is for the scan's own points to say
+            own = support(points_robot[:own_points], self.segments_world, best.pose,
+                          self._band_m, index=self.near_index)[0]  # fmt: skip
+            evidence = replace(evidence, scan_inlier_ratio=own)
         model = self.models["window" if windowed else "single"]
         status, confidence = judge(evidence, p.confidence, model)
         others = [
@@ -575,7 +573,7 @@ def localize_scan(
         if initial is None:
             return localizer.localize_global(local, points), 1
         return localizer.localize(local, initial, points), 1
-    refine = getattr(localizer, "params", LocalizeParams()).refine
+    refine = localizer.params.refine  # a matcher that supports windows is a Localizer
     window = scan_window_map(points, local, neighbours, windows, extract_params, refine)
     own = int(points.shape[0])
     if initial is None:

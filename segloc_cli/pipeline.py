@@ -182,8 +182,7 @@ def scan_windows(log: Log, log_path: Path, index: np.ndarray, localizer, config:
     method, or the log has no odometry)."""
     from segloc_cli.window import Windows, neighbour_indices, relative_pose
 
-    alone = config.window.travel_m <= 0 or config.localize.refine is None
-    if alone or not localizer.supports_window or not log.has_odometry:
+    if alone_because(log, localizer, config) is not None:
         return None
     rows = odometry_rows(log, log_path, config.tolerance_ms / 1e3, "")
     odometry = np.full((len(log.scans), 3), np.nan)
@@ -199,23 +198,36 @@ def scan_windows(log: Log, log_path: Path, index: np.ndarray, localizer, config:
     return Windows(neighbours, config.window, config.track)
 
 
+def no_odometry(log: Log) -> str | None:
+    """Why ``log`` has no odometry to place windows by, or None when it has."""
+    if log.has_odometry:
+        return None
+    if log.odom_times_s.size:
+        return "the log's /odom holds simulated initial guesses, not odometry"
+    return "the log has no /odom odometry"
+
+
+def alone_because(log: Log, localizer, config: Config) -> str | None:
+    """Why a guided or global run localizes each scan of ``log`` alone, or None when it gives
+    them windows."""
+    if config.window.travel_m <= 0:
+        return "--window-m 0"
+    if not localizer.supports_window:
+        return f"--method {config.method} takes single scans"
+    if config.localize.refine is None:
+        return "--no-refine: the paper's method, one scan a local map"
+    return no_odometry(log)
+
+
 def window_note(log: Log, localizer, config: Config, windows) -> str:
     """How a guided or global run made each scan's local map, in words."""
-    if windows is not None:
-        held = [len(n) + 1 for n in windows.neighbours]
-        return (
-            f"each scan with its neighbours within {config.window.travel_m:g} m of odometry "
-            f"travel (window of {np.median(held) if held else 1:g} scans, median)"
-        )
-    if config.window.travel_m <= 0:
-        return "each scan alone (--window-m 0)"
-    if not localizer.supports_window:
-        return f"each scan alone (--method {config.method} takes single scans)"
-    if config.localize.refine is None:
-        return "each scan alone (--no-refine: the paper's method, one scan a local map)"
-    if log.odom_times_s.size and not log.has_odometry:
-        return "each scan alone (the log's /odom holds simulated initial guesses, not odometry)"
-    return "each scan alone (the log has no /odom odometry)"
+    if windows is None:
+        return f"each scan alone ({alone_because(log, localizer, config)})"
+    held = [len(n) + 1 for n in windows.neighbours]
+    return (
+        f"each scan with its neighbours within {config.window.travel_m:g} m of odometry "
+        f"travel (window of {np.median(held) if held else 1:g} scans, median)"
+    )
 
 
 def _track(log: Log, log_path: Path, localizer, guesses: Guesses, config: Config):

@@ -634,6 +634,17 @@ def frame_rows(frame: pd.DataFrame) -> list[dict]:
     return [dict(zip(frame.columns, values, strict=True)) for values in frame.to_numpy(object)]
 
 
+def test_a_row_without_the_later_columns_leaves_confidence_empty_and_counts_zero_scans(tmp_path):
+    row = {k: v for k, v in frame_rows(estimates_frame())[0].items()
+           if k not in ("confidence", "window_scans")}  # fmt: skip
+    path = tmp_path / "est.csv"
+    with EstimatesWriter(path) as writer:
+        writer.write_row(row)
+    back = read_estimates(path)
+    assert np.isnan(back["confidence"].iloc[0])
+    assert back["window_scans"].iloc[0] == 0
+
+
 def test_estimates_writer_writes_what_write_estimates_writes(tmp_path):
     frame = estimates_frame()
     whole, streamed = tmp_path / "whole.csv", tmp_path / "streamed.csv"

@@ -205,7 +205,9 @@ def test_localize_uses_windows_where_the_log_has_odometry_and_says_so(tmp_path, 
     info = run_cli(capsys, "info", log).out
     assert "windows:  yes; localize places each scan's neighbours by /odom (--window-m)" in info
     simulated = run_cli(capsys, "info", HALL / "log.mcap").out
-    assert "windows:  no; /odom holds simulated initial guesses, not odometry" in simulated
+    assert "windows:  no; the log's /odom holds simulated initial guesses, not odometry" in (
+        simulated
+    )
     note, row = runs["window"]
     window_note = "each scan with its neighbours within 1 m of odometry travel (window of 9 scans"
     assert note == f"{log}: {window_note}, median)"

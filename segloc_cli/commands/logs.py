@@ -153,11 +153,12 @@ def laser_offset_line(log) -> str:
 
 def windows_line(log) -> str:
     """One line on whether ``localize`` gives the log's scans windows (``window.py``)."""
-    if log.has_odometry:
+    from segloc_cli.pipeline import no_odometry
+
+    reason = no_odometry(log)
+    if reason is None:
         return "windows:  yes; localize places each scan's neighbours by /odom (--window-m)"
-    if log.odom_times_s.size:
-        return "windows:  no; /odom holds simulated initial guesses, not odometry"
-    return "windows:  no; the log has no /odom odometry"
+    return f"windows:  no; {reason}"
 
 
 @click.group("import")

@@ -30,11 +30,11 @@ SENSOR_METADATA_NAME = "segloc.sensor"
 LASER_OFFSET_KEYS = ("laser_x_m", "laser_y_m", "laser_theta_deg")
 """Sensor settings holding the scanner's pose in the robot frame: metres, metres, degrees."""
 LASER_OFFSET_SOURCE_KEY = "laser_offset_source"
+"""Sensor setting saying where the laser offset came from (``tf_static:base_link->laser``,
+``--laser-offset``, ``none``)."""
 SIMULATED_GUESSES_KEY = "init_errors"
 """The sensor setting ``segloc simulate`` records: its /odom holds initial guesses, not
 odometry."""
-"""Sensor setting saying where the laser offset came from (``tf_static:base_link->laser``,
-``--laser-offset``, ``none``)."""
 MAX_LASER_OFFSET_M = 10.0
 """Largest distance (m) of a scanner from the robot's origin along either axis taken as a
 mounting; more is a corrupt or mistaken setting."""

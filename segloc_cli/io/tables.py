@@ -117,6 +117,8 @@ ESTIMATE_LATER_COLUMNS = ["confidence", "window_scans"]
 ``UNSAID_COUNT`` for a count."""
 UNSAID_COUNT = 0
 """``window_scans`` of a row made before the column was: the count was not kept."""
+ESTIMATE_LATER_COUNTS = [c for c in ESTIMATE_LATER_COLUMNS if c in ESTIMATE_INT_COLUMNS]
+"""The later columns that are counts, ``UNSAID_COUNT`` where a row lacks them."""
 
 
 @dataclass(frozen=True)
@@ -549,7 +551,7 @@ def estimate_cells(row: Mapping[str, object]) -> list[str]:
         raise ValueError(f"estimates row lacks columns {missing}")
     cells = []
     for c in ESTIMATE_COLUMNS:
-        value = row.get(c, UNSAID_COUNT if c in ESTIMATE_LATER_COLUMNS else None)
+        value = row.get(c, UNSAID_COUNT if c in ESTIMATE_LATER_COUNTS else None)
         absent = value is None or bool(pd.isna(value))
         if absent and (c in ESTIMATE_INT_COLUMNS or c in ESTIMATE_REQUIRED_FLOAT_COLUMNS):
             raise ValueError(f"estimates column {c} must have a value in every row")
