@@ -351,14 +351,12 @@ def raw_held_out(split: HeldOutSplit, raw: RawLog, work: Path, commands: list[st
     from segloc_cli.config import WindowParams
     from segloc_cli.geometry import Pose2
     from segloc_cli.io.mcap_log import LogWriter, read_log
-    from segloc_cli.pipeline import odometry_rows
+    from segloc_cli.pipeline import scan_odometry
     from segloc_cli.window import neighbour_indices
 
     corrected, raw_log = read_log(split.log_path), read_log(raw.log_path)
     in_raw = same_scans(corrected.scans, raw_log.scans)
-    rows = odometry_rows(raw_log, raw.log_path, 1e-6, "")
-    odometry = np.full((len(raw_log.scans), 3), np.nan)
-    odometry[rows >= 0] = raw_log.odom_poses[rows[rows >= 0]]
+    odometry = scan_odometry(raw_log, raw.log_path, 1e-6)
     times = raw_log.scan_times_s
     windows: set[int] = set()
     for i in in_raw[split.held_out & (in_raw >= 0)]:

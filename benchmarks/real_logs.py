@@ -141,16 +141,12 @@ def global_localization(split: HeldOutSplit, work: Path, log: list[str]) -> dict
     est = read_estimates(out)
     # The poses as the command read them (the file holds headings in degrees).
     truth = read_pose_table(split.held_out_path)
-    listed = pd.read_csv(out.with_name("global.hypotheses.csv"))
-    ambiguous = est[est["status"] == "ambiguous"]
-    found = [
-        bool(np.any(is_right_place(*errors_against_truth(listed[listed["pose_id"] == pid], truth))))
-        for pid in ambiguous["pose_id"]
-    ]
+    listed = truth_listed(out, est, truth)
+    found = listed["listed"] / listed["ambiguous"] if listed["ambiguous"] else float("nan")
     return {
         **_scored(est, truth)["summary"],
-        "truth_listed": float(np.mean(found)) if found else float("nan"),
-        "ambiguous": len(found),
+        "truth_listed": found,
+        "ambiguous": listed["ambiguous"],
         "median_ms": float(est["runtime_ms"].median()),
     }
 

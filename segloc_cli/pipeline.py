@@ -175,6 +175,15 @@ def localize_log(
     return LogRun(log_path, rows, log.scan_times_s[index], len(log.scans) - index.size)
 
 
+def scan_odometry(log: Log, log_path: Path, tolerance_s: float) -> np.ndarray:
+    """The odometry pose (S, 3: x m, y m, θ rad) at each scan of ``log``, the /odom message
+    nearest in time within ``tolerance_s``; NaN where there is none."""
+    rows = odometry_rows(log, log_path, tolerance_s, "")
+    odometry = np.full((len(log.scans), 3), np.nan)
+    odometry[rows >= 0] = log.odom_poses[rows[rows >= 0]]
+    return odometry
+
+
 def scan_windows(log: Log, log_path: Path, index: np.ndarray, localizer, config: Config):
     """The ``Windows`` of the scans ``index`` of ``log``: each one's neighbours placed by the
     log's odometry (``window.py``); None when each scan is to be localized alone (the
@@ -184,9 +193,7 @@ def scan_windows(log: Log, log_path: Path, index: np.ndarray, localizer, config:
 
     if alone_because(log, localizer, config) is not None:
         return None
-    rows = odometry_rows(log, log_path, config.tolerance_ms / 1e3, "")
-    odometry = np.full((len(log.scans), 3), np.nan)
-    odometry[rows >= 0] = log.odom_poses[rows[rows >= 0]]
+    odometry = scan_odometry(log, log_path, config.tolerance_ms / 1e3)
     times = log.scan_times_s
     neighbours = [
         [
