@@ -249,8 +249,10 @@ class WindowParams:
     """...or turns it more than this."""
     min_agreement: float = 0.5
     """A neighbour with fewer than this share of its points on the scans placed before it,
-    once fitted, is left out: a neighbour a metre away sees mostly the same walls, and one
-    the odometry put in the wrong place (wheels slip in a turn) sees them elsewhere."""
+    once fitted, is left out (of the points within ``max_correction_m`` of them: the rest see
+    what the window has not): where they overlap, a neighbour a metre away sees the same
+    walls, and one the odometry put in the wrong place (wheels slip in a turn) sees them
+    elsewhere."""
 
 
 @dataclass(frozen=True)

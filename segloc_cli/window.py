@@ -14,9 +14,11 @@ odometry as a prior whose spread grows with the distance from the scan
 ``max_correction_m`` or turns it more than ``max_correction_deg`` is left out:
 a window spans a metre and a few seconds, over which odometry slips less, so
 a larger correction is the fit's slip (a few segments can hold a scan at a
-wrong angle), not the odometry's; so is a neighbour that, fitted, leaves less
-than ``min_agreement`` of its points off the scans placed before it, since a
-scan a metre away sees mostly the same walls. Their points then join
+wrong angle), not the odometry's. So is a neighbour that, fitted, puts less than
+``min_agreement`` of its points on the scans placed before it, counting only the
+points within ``max_correction_m`` of them: where the two overlap, a scan a
+metre away sees the same walls, and what lies farther off is what the window has
+not seen yet, which says nothing either way. Their points then join
 the scan's own wherever they fall in a cell (``thin_m``) the scan and the
 neighbours before them left empty: what the window adds is what the scan did
 not see, so a window costs what it adds, not what it repeats.
@@ -36,7 +38,7 @@ import numpy as np
 from segloc_cli.config import ExtractParams, RefineParams, TrackParams, WindowParams
 from segloc_cli.extract import extract_segments
 from segloc_cli.geometry import Pose2, transform_points, transform_segments, wrap_angle
-from segloc_cli.refine import refine_pose
+from segloc_cli.refine import refine_pose, support
 from segloc_cli.scan import Scan
 
 
@@ -198,7 +200,13 @@ def _fitted(
     turn = abs(np.rad2deg(wrap_angle(fit.pose.theta - neighbour.odometry.theta)))
     if shift > params.max_correction_m or turn > params.max_correction_deg:
         return None
-    if fit.inlier_ratio < params.min_agreement:
+    # Agreement is judged where the neighbour overlaps the window: its points farther than
+    # any allowed correction from the placed walls see what the window has not, and say
+    # nothing either way.
+    near, _ = support(neighbour.points, reference, fit.pose, params.max_correction_m)
+    if near * neighbour.points.shape[0] < refine.min_points:
+        return None
+    if fit.inlier_ratio < params.min_agreement * near:
         return None
     return fit.pose
 

@@ -132,6 +132,20 @@ def test_a_neighbour_that_sees_other_walls_than_the_scan_is_left_out():
     assert window_map(scan.points(), segments, [odd, *placed], agreeing).scans == 4
 
 
+def test_a_neighbour_that_mostly_sees_what_the_scan_did_not_is_kept():
+    """Agreement is judged where the neighbour overlaps the window: points it sees beyond
+    every wall the window holds (here a wall 3 m past the corridor's end, twice as many
+    points as it has on the corridor) neither keep it nor leave it out."""
+    scan, neighbours = _corridor_window()
+    other, pose = neighbours[0]
+    beyond = np.column_stack([np.full(800, 6.5), np.linspace(-2.0, 4.0, 800)])  # x = 11.5 m
+    points = np.vstack([other.points(), transform_points(beyond, pose.inverse())])
+    seeing_more = Neighbour(points, extract_segments(other), pose)
+    window = window_map(scan.points(), extract_segments(scan), [seeing_more], WindowParams())
+    assert window.scans == 2
+    assert window.points.shape[0] > scan.points().shape[0] + 600
+
+
 def test_windowed_rows_say_how_many_scans_they_hold_and_match_on_two_processes():
     from segloc_cli.parallel import localize_scans_parallel
 
