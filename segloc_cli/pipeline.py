@@ -65,9 +65,9 @@ def paired_guesses(log: Log, log_path: Path, initial: Path | None, tolerance_ms:
     """Initial guesses for the scans of ``log``: from its /odom (``initial`` None) or from a
     pose table, nearest in time within ``tolerance_ms``.
 
-    Pose ids come from the table's rows, or are the scans' indices in the log (from 1) for
-    /odom guesses. A guess shared by two rows of equal time, or two scans at one time, is
-    refused rather than paired silently.
+    Pose ids come from the table's rows, or are the scans' own numbers
+    (``Log.scan_numbers``) for /odom guesses. A guess shared by two rows of equal time, or
+    two scans at one time, is refused rather than paired silently.
     """
     from segloc_cli.io.tables import read_pose_table
 
@@ -89,7 +89,7 @@ def paired_guesses(log: Log, log_path: Path, initial: Path | None, tolerance_ms:
         )
     index = np.flatnonzero(rows >= 0)
     poses = [Pose2(*ref_poses[r]) for r in rows[index]]
-    ids = index + 1 if ref_ids is None else ref_ids[rows[index]]
+    ids = log.scan_numbers[index] if ref_ids is None else ref_ids[rows[index]]
     if index.size == 0:
         raise InputError(
             f"no scan has an initial guess within {tolerance_ms:g} ms "
@@ -148,7 +148,7 @@ def localize_log(
         localizer.hypothesis_search  # noqa: B018 (built now, so no scan's time includes it)
     if mode == "global" and initial is None:
         index = np.arange(len(log.scans))
-        guesses = Guesses(index, [], index + 1)
+        guesses = Guesses(index, [], log.scan_numbers)
     else:
         guesses = paired_guesses(log, log_path, initial, config.tolerance_ms)
     if mode == "track":
@@ -255,7 +255,13 @@ def _track(log: Log, log_path: Path, localizer, guesses: Guesses, config: Config
     odometry = [Pose2(*log.odom_poses[r]) for r in odom_rows[index]]
     scans = [log.scans[i] for i in index]
     rows = track_scans(
-        scans, odometry, guesses.poses[0], index + 1, localizer, config.extract, config.track
+        scans,
+        odometry,
+        guesses.poses[0],
+        log.scan_numbers[index],
+        localizer,
+        config.extract,
+        config.track,
     )
     return index, rows
 

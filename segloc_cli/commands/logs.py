@@ -182,7 +182,10 @@ def _write_imported(log, out_path: Path) -> None:
         atomic_path(out_path) as partial,
         Progress("writing the log", len(log.scans), "scan") as shown,
     ):
-        write_log(partial, log.scans, odometry, log.sensor, log.original_times_s, shown)
+        write_log(
+            partial, log.scans, odometry, log.sensor, log.original_times_s, shown,
+            log.scan_numbers,
+        )  # fmt: skip
     Invocation.current().write_run_file(out_path)
     info(f"{out_path}: {len(log.scans)} scans, {len(log.odom_times_s)} odometry poses")
 
@@ -230,7 +233,6 @@ def import_carmen(log_path, out_path, survey_out, laser, range_max_m, force):
     --survey-out alike; their original times are kept as each message's MCAP
     publish time and in the survey's original_time_s column.
     """
-    import numpy as np
 
     from segloc_cli.io.carmen import read_carmen
     from segloc_cli.io.files import check_outputs
@@ -243,7 +245,7 @@ def import_carmen(log_path, out_path, survey_out, laser, range_max_m, force):
     _write_imported(log, out_path)
     if survey_out is not None:
         n = len(log.scans)
-        reference = PoseTable(np.arange(1, n + 1), log.odom_times_s, log.laser_poses)
+        reference = PoseTable(log.scan_numbers, log.odom_times_s, log.laser_poses)
         if survey_out.suffix.lower() == ".tum":
             write_pose_table_tum(survey_out, reference)  # TUM has no column for original times
         else:

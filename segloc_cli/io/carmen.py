@@ -527,9 +527,12 @@ def _shift(poses: np.ndarray, offset_m: float) -> np.ndarray:
 class _Parsed:
     """What the lines of a log hold: the chosen laser's records, how many records of each
     type there are, the first value and line of each PARAM, the line numbers of skipped
-    records per (type, reason), the lines holding NUL bytes and the count of non-empty lines."""
+    records per (type, reason), the lines holding NUL bytes and the count of non-empty lines.
+    ``numbers``: each kept record's place among the chosen laser's records, from 1, those
+    skipped included."""
 
     records: list[_LaserRecord] = field(default_factory=list)
+    numbers: list[int] = field(default_factory=list)
     counts: Counter = field(default_factory=Counter)
     params: dict[str, tuple[bytes, int]] = field(default_factory=dict)
     skipped: dict[tuple[str, str], list[int]] = field(default_factory=dict)
@@ -586,6 +589,7 @@ def read_carmen(
         sensor=_sensor(path, records, scans, laser, per_record, rule, offset_m),
         laser_poses=laser_poses,
         warnings=warnings,
+        numbers=np.array(parsed.numbers, dtype=np.int64),
     )
 
 
@@ -610,6 +614,7 @@ def _parse_lines(lines: list[bytes], wanted: tuple[str, ...], progress: Progress
         try:
             if kind in wanted:
                 parsed.records.append(PARSERS[kind](kind, fields))
+                parsed.numbers.append(sum(parsed.counts[k] for k in wanted))
             elif kind == "ODOM":
                 _check_odom(fields)
             elif kind == "PARAM" and len(fields) >= 3:

@@ -126,6 +126,11 @@ class Log:
 
     ``warnings``: human-readable notes on what was skipped, damaged or
     adjusted, one line each.
+
+    ``numbers`` (S,) int: each scan's own number in its source, from 1 (its place among
+    the source's scans, those that could not be read included, or the sequence number
+    the source gave it), so that a scan keeps its number when one before it is skipped;
+    None: the scans are numbered 1 to S in order (``scan_numbers``).
     """
 
     scans: list[Scan]
@@ -137,6 +142,18 @@ class Log:
     finished: bool = True
     message_counts: dict[str, int] = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
+    numbers: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if self.numbers is not None and np.shape(self.numbers) != (len(self.scans),):
+            raise ValueError(f"{np.size(self.numbers)} scan numbers for {len(self.scans)} scans")
+
+    @property
+    def scan_numbers(self) -> np.ndarray:
+        """Each scan's number (S,) int64 in its source, from 1: the pose id of its row."""
+        if self.numbers is None:
+            return np.arange(1, len(self.scans) + 1, dtype=np.int64)
+        return np.asarray(self.numbers, dtype=np.int64)
 
     @property
     def scan_times_s(self) -> np.ndarray:

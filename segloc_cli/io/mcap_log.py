@@ -350,15 +350,22 @@ class LogWriter:
             raise writing_error(self.path, exc) from None
         self._pending_since = None
 
-    def add_scan(self, scan: Scan, original_time_s: float | None = None) -> None:
+    def add_scan(
+        self, scan: Scan, original_time_s: float | None = None, number: int | None = None
+    ) -> None:
         """Append a scan. Its angles must be evenly spaced and its time finite and >= 0
         (``ValueError`` otherwise, nothing written).
 
         ``original_time_s`` (seconds), when given, is the time the scan had in its source
         before an importer made colliding times distinct; it becomes the record's publish
-        time, and ``read_log`` returns it in ``Log.original_times_s``.
+        time, and ``read_log`` returns it in ``Log.original_times_s``. ``number``, when
+        given, is the scan's number in its source (``Log.numbers``; give every scan one,
+        no two alike, or none); by default the scan after the last one. It is kept as the
+        record's sequence number (``number`` − 1) and ``read_log`` returns it.
         """
         start, end, time_ns, publish_ns = _check_scan(scan, original_time_s)
+        if number is not None and not 1 <= number <= 2**32:
+            raise ValueError(f"scan number {number} is not in 1 to 2**32")
         if scan.mount != self.laser_offset:
             raise ValueError(
                 f"scan at t={scan.time_s} s is mounted at {scan.mount}, but the log's sensor "
@@ -372,6 +379,8 @@ class LogWriter:
         ranges_out = np.where(keep, ranges, 0.0)
         intensities = np.asarray(scan.intensities, dtype=float).reshape(-1)
         intensities = np.where(np.isfinite(intensities), intensities, 0.0)
+        if number is not None:
+            self._sequence[self._scan_channel] = int(number) - 1
         self._add(
             self._scan_channel,
             time_ns,
@@ -429,13 +438,15 @@ def write_log(
     sensor: dict[str, str] | None = None,
     original_times_s: Iterable[float] | None = None,
     progress: Progress = SILENT,
+    numbers: Iterable[int] | None = None,
 ) -> None:
     """Write scans and ``(time_s, Pose2)`` odometry to a new log; each scan written is a
     step of ``progress``.
 
     Without ``range_max_m`` in ``sensor``, the first scan's ``range_max_m`` is used.
     ``original_times_s`` (one per scan, seconds) are the scans' times in their source
-    when they differ from ``Scan.time_s`` (see ``LogWriter.add_scan``). Every argument
+    when they differ from ``Scan.time_s``, and ``numbers`` (one per scan, distinct, from 1)
+    their numbers there (``Log.numbers``; see ``LogWriter.add_scan``). Every argument
     is checked (``ValueError``) before the file is created.
     """
     scans = list(scans)
@@ -443,6 +454,9 @@ def write_log(
     originals = None if original_times_s is None else [float(t) for t in original_times_s]
     if originals is not None and len(originals) != len(scans):
         raise ValueError(f"{len(originals)} original times for {len(scans)} scans")
+    given = None if numbers is None else [int(n) for n in numbers]
+    if given is not None and not len(set(given)) == len(given) == len(scans):
+        raise ValueError(f"{len(given)} scan numbers for {len(scans)} scans, or some alike")
     for k, scan in enumerate(scans):
         _check_scan(scan, None if originals is None else originals[k])
     for time_s, pose in odom:
@@ -454,7 +468,11 @@ def write_log(
         settings["range_max_m"] = str(scans[0].range_max_m if scans else math.inf)
     with LogWriter(path, settings) as writer:
         for k, scan in enumerate(scans):
-            writer.add_scan(scan, None if originals is None else originals[k])
+            writer.add_scan(
+                scan,
+                None if originals is None else originals[k],
+                None if given is None else given[k],
+            )
             progress.advance()
         for time_s, pose in odom:
             writer.add_odom(time_s, pose)
@@ -641,9 +659,11 @@ def _first_non_number(value: object) -> str:
 
 @dataclass(frozen=True)
 class _ScanRecord:
-    """A usable ``/scan`` message: times in ns, fan in rad, readings as in the file."""
+    """A usable ``/scan`` message: its place among the file's ``/scan`` messages (from 1) and
+    the record's sequence number, times in ns, fan in rad, readings as in the file."""
 
     number: int
+    sequence: int
     time_ns: int
     original_ns: int
     start_rad: float
@@ -678,7 +698,9 @@ def _parse_scan(number: int, record: Message, dropped: _Faults) -> _ScanRecord:
     # The publish time holds the original time only in files that follow segloc's own
     # layout, where the log time is the scan's timestamp.
     original_ns = record.publish_time if record.log_time == time_ns else time_ns
-    return _ScanRecord(number, time_ns, original_ns, start, end, ranges, intensities)
+    return _ScanRecord(
+        number, record.sequence, time_ns, original_ns, start, end, ranges, intensities
+    )
 
 
 def _parse_odom(data: bytes) -> tuple[int, list[float]]:
@@ -828,7 +850,18 @@ def read_log(path: str | Path) -> Log:
         finished=found.finished,
         message_counts={c.topic: found.counts.get(c.topic, 0) for c in found.channels.values()},
         warnings=_read_warnings(path.name, found, len(scans)),
+        numbers=_scan_numbers(found.scan_records),
     )
+
+
+def _scan_numbers(records: list[_ScanRecord]) -> np.ndarray:
+    """Each scan's number from 1: its record's sequence number + 1 where no two scans share
+    one (segloc writes a scan's number − 1 there, MCAP counting from 0), else its place
+    among the file's ``/scan`` messages, unreadable ones included."""
+    sequences = np.array([r.sequence for r in records], dtype=np.int64)
+    if np.unique(sequences).size == sequences.size:
+        return sequences + 1
+    return np.array([r.number for r in records], dtype=np.int64)
 
 
 ROS1_BAG_MAGIC = b"#ROSBAG V"

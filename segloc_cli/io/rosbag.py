@@ -110,6 +110,9 @@ class _RawScan(NamedTuple):
     range_max: float
     ranges: np.ndarray
     intensities: np.ndarray
+    number: int = 0
+    """Its place among the scan topic's messages in bag order, from 1, undecodable ones
+    included."""
 
 
 # Stamp (ns), x, y, and the orientation quaternion qx, qy, qz, qw.
@@ -290,8 +293,10 @@ def _decoded(
     ``progress``."""
     decoded = _Messages([], [], [], "", {})
     robot_frame = ""
+    n_scan_messages = 0
     for topic, msgtype, data in messages:
         progress.advance()
+        n_scan_messages += topic == scan_topic
         if topic == scan_topic:
             wanted = (SCAN_TYPE,)
         else:
@@ -301,7 +306,7 @@ def _decoded(
                 raise ValueError(f"type {msgtype}, expected {wanted[0]}")
             message = deserialize(data, msgtype)
             if topic == scan_topic:
-                decoded.scans.append(_raw_scan(message))
+                decoded.scans.append(_raw_scan(message)._replace(number=n_scan_messages))
             elif topic in TF_TOPICS:
                 decoded.transforms.extend(_raw_transforms(topic, message))
             else:
@@ -395,6 +400,7 @@ def read_rosbag(
         odom_poses=odom_poses,
         sensor=_sensor(path, raw_scans, scan_topic, odom_topic) | offset_settings,
         warnings=warnings,
+        numbers=np.array([raw.number for raw in raw_scans], dtype=np.int64),
     )
 
 
