@@ -107,9 +107,11 @@ def fan_defect(n: int, start_rad: float, end_rad: float) -> str | None:
     """Why ``n`` beams evenly spaced from ``start_rad`` to ``end_rad`` (inclusive) are not a
     usable scan, or ``None`` when they are.
 
-    Refused: non-finite angles, angles beyond ±``MAX_ABS_ANGLE_RAD``, a degenerate fan (more
-    than one beam and ``start_rad == end_rad``: every beam on one ray), and a fan wider than
-    a full turn (2π + ``FAN_TOLERANCE_RAD``), whose beams would overlap.
+    Refused: non-finite angles, angles beyond ±``MAX_ABS_ANGLE_RAD``, a fan whose angles
+    decrease (``end_rad < start_rad``: segloc's beams turn counter-clockwise, and a fan
+    given the other way round puts every wall on the wrong side), a degenerate fan (more
+    than one beam and ``start_rad == end_rad``: every beam on one ray), and a fan wider
+    than a full turn (2π + ``FAN_TOLERANCE_RAD``), whose beams would overlap.
     """
     if not (math.isfinite(start_rad) and math.isfinite(end_rad)):
         return f"non-finite fan angles ({start_rad!r} to {end_rad!r} rad)"
@@ -118,8 +120,10 @@ def fan_defect(n: int, start_rad: float, end_rad: float) -> str | None:
             f"fan angles {start_rad:.6g} to {end_rad:.6g} rad lie beyond ±4π "
             "(corrupt, or not radians)"
         )
+    if end_rad < start_rad:
+        return f"fan angles decrease, from {start_rad:.6g} to {end_rad:.6g} rad"
     if n > 1 and start_rad == end_rad:
         return f"degenerate fan: all {n} beams at {start_rad:.6g} rad"
-    if abs(end_rad - start_rad) > 2.0 * math.pi + FAN_TOLERANCE_RAD:
-        return f"fan spans {abs(end_rad - start_rad):.6g} rad, more than a full turn"
+    if end_rad - start_rad > 2.0 * math.pi + FAN_TOLERANCE_RAD:
+        return f"fan spans {end_rad - start_rad:.6g} rad, more than a full turn"
     return None

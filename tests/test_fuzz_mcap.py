@@ -160,7 +160,7 @@ def _hand_log(
 
 
 def assert_trustworthy(contents: Log) -> None:
-    """Every scan a finite, evenly spaced, non-degenerate fan of at most a turn, with finite
+    """Every scan a finite, evenly spaced, rising, non-degenerate fan of at most a turn, with finite
     readings whose valid ones lie in (0, MAX_RANGE_M); odometry and times finite."""
     assert len(contents.original_times_s) == len(contents.scans)
     assert np.all(np.isfinite(contents.original_times_s))
@@ -172,8 +172,7 @@ def assert_trustworthy(contents: Log) -> None:
         assert np.all(np.isfinite(angles)) and np.all(np.isfinite(ranges))
         if len(scan) > 1:
             span = angles[-1] - angles[0]
-            assert span != 0.0
-            assert abs(span) <= 2 * math.pi + FAN_TOLERANCE_RAD
+            assert 0.0 < span <= 2 * math.pi + FAN_TOLERANCE_RAD  # counter-clockwise
             steps = np.diff(angles)
             assert np.max(np.abs(steps - span / (len(scan) - 1))) <= 1e-9
         valid = ranges[scan.valid]

@@ -209,6 +209,27 @@ ROBOTLASER_NO_REMISSIONS = (
 )
 
 
+@pytest.mark.parametrize(
+    "config",
+    ["-1.5 -3.0 -1.0", "1.5 -3.0 1.0", "-1.5 3.0 0.5", "-1.5 3.0 2.5"],
+    ids=["field of view turning clockwise", "field of view negative", "step too fine",
+         "step too coarse"],
+)  # fmt: skip
+def test_robotlaser1_whose_geometry_contradicts_itself_is_skipped(tmp_path, config):
+    """Start angle, field of view and angular resolution of a 4-beam record: the step must
+    be the field of view over 3 beams, to within one beam, and the fan must turn
+    counter-clockwise."""
+    bad = ROBOTLASER.replace("-1.5 3.0 1.0", config, 1).replace("7.25", "7.5")
+    path = write(tmp_path / "robot.log", [ROBOTLASER, bad])
+    log = read_carmen(path)
+    assert [s.time_s for s in log.scans] == [7.25]
+    assert log.numbers.tolist() == [1]
+    assert (
+        f"{path}: skipped 1 ROBOTLASER1 record with a beam fan that decreases" in (log.warnings[0])
+    )
+    assert log.warnings[0].endswith("(line 2)")
+
+
 def test_robotlaser1_records(tmp_path):
     path = write(
         tmp_path / "robot.log",
@@ -801,8 +822,9 @@ def test_odd_bytes_and_numbers_are_skipped_and_counted(tmp_path):
         "(lines 4, 7, 8, 10)",
         f"{path}: skipped 1 FLASER record with a negative, non-finite or too large timestamp "
         "(at most 4294967296 s) (line 5)",
-        f"{path}: skipped 1 ROBOTLASER1 record with a beam fan that is degenerate, wider than "
-        "a full turn or beyond ±4π rad (line 12)",
+        f"{path}: skipped 1 ROBOTLASER1 record with a beam fan that decreases, is degenerate, "
+        "is wider than a full turn, lies beyond ±4π rad, or whose angular resolution disagrees "
+        "with its field of view (line 12)",
         f"{path}: 2 of 3 {COLLIDING}",
     ]
 

@@ -460,6 +460,8 @@ def test_non_finite_and_huge_angles_are_skipped(tmp_path):
         (0.5, 0.5, 2, "degenerate fan: all 2 beams at 0.5 rad"),
         (-4.0, 4.0, 3, "fan spans 8 rad, more than a full turn"),
         (0.0, 20.0, 3, "fan angles 0 to 20 rad lie beyond ±4π (corrupt, or not radians)"),
+        (1.0, -1.0, 3, "fan angles decrease, from 1 to -1 rad"),
+        (0.5, 0.25, 1, "fan angles decrease, from 0.5 to 0.25 rad"),
     ],
 )
 def test_fans_that_are_not_fans_are_skipped(tmp_path, start, end, n, why):
@@ -468,8 +470,8 @@ def test_fans_that_are_not_fans_are_skipped(tmp_path, start, end, n, why):
     contents = read_log(path)
     assert len(contents.scans) == 1
     assert contents.warnings == [
-        "fan.mcap: skipped 1 /scan message [not a fan: all beams on one ray, over a full turn, "
-        f"or angles beyond ±4π]: message 2 ({why})"
+        "fan.mcap: skipped 1 /scan message [not a fan: angles that decrease, all beams on one "
+        f"ray, over a full turn, or angles beyond ±4π]: message 2 ({why})"
     ]
 
 
@@ -480,14 +482,12 @@ def test_full_turn_and_single_beam_fans_are_kept(tmp_path):
         [
             scan_payload(sec=1, start=-math.pi, end=math.pi, ranges=[1.0] * 5),
             scan_payload(sec=2, start=0.25, end=0.25, ranges=[1.0]),
-            scan_payload(sec=3, start=1.0, end=-1.0, ranges=[1.0] * 3),
         ],
     )
     contents = read_log(path)
     assert contents.warnings == []
     np.testing.assert_allclose(contents.scans[0].angles_rad, np.linspace(-np.pi, np.pi, 5))
     assert contents.scans[1].angles_rad.tolist() == [0.25]
-    assert contents.scans[2].angles_rad.tolist() == [1.0, 0.0, -1.0]
 
 
 def test_absurd_ranges_are_no_returns(tmp_path):
@@ -760,7 +760,8 @@ def test_scan_valid_ignores_readings_beyond_the_physical_bound():
         (0, 0.0, 0.0, None),
         (1, 3.0, 3.0, None),
         (3, 0.0, 2 * math.pi, None),
-        (3, 4 * math.pi - 1.0, 2 * math.pi, None),
+        (3, 2 * math.pi, 4 * math.pi - 1.0, None),
+        (3, 4 * math.pi - 1.0, 2 * math.pi, "fan angles decrease, from 11.5664 to 6.28319 rad"),
         (2, 1.0, 1.0, "degenerate fan: all 2 beams at 1 rad"),
         (3, 0.0, 2 * math.pi + 0.01, "fan spans 6.29319 rad, more than a full turn"),
         (3, math.nan, 1.0, "non-finite fan angles (nan to 1.0 rad)"),

@@ -1,4 +1,5 @@
-"""A row names the scan it came from: a scan that cannot be read shifts no other row's id.
+"""A row names the scan it came from: a scan that cannot be read (or whose beams contradict
+themselves) is skipped, and shifts no other row's id.
 
 For every reader (MCAP, CARMEN, ROS 1, ROS 2), a log of five scans with the first, the
 third or the last one unreadable is imported where it must be and localized; each row's
@@ -33,8 +34,9 @@ from test_io_rosbag import (
 )
 
 from segloc_cli.geometry import Pose2
-from segloc_cli.io.maps import write_map
+from segloc_cli.io.maps import read_map, write_map
 from segloc_cli.io.mcap_log import read_log, write_log
+from segloc_cli.io.tables import PoseTable, write_pose_table
 from segloc_cli.scan import Scan
 
 # A 6 m × 4 m room; five scans 0.1 m apart along it, 1 s apart from t = 1 s.
@@ -148,3 +150,25 @@ def test_numbers_round_trip_through_segloc_logs(tmp_path):
     assert read_log(path).scan_numbers.tolist() == [1, 2, 3, 4, 5]
     with pytest.raises(ValueError, match="some alike"):
         write_log(path, scans, numbers=[1, 2, 2, 3, 4])
+
+
+def test_map_build_and_localize_skip_a_scan_turning_the_wrong_way(tmp_path, capsys):
+    """A scan whose angles decrease would draw the room's walls mirrored; the map and the
+    rows come from the other scans, and both commands say one was skipped."""
+    scans = [Scan(t, ANGLES, room_ranges(p), 30.0) for p, t in zip(POSES, TIMES_S, strict=True)]
+    scans[2] = Scan(TIMES_S[2], ANGLES[::-1].copy(), room_ranges(POSES[2]), 30.0)
+    log = tmp_path / "log.mcap"
+    write_log(log, scans, [(t, p) for t, p in zip(TIMES_S, POSES, strict=True)])
+    survey = tmp_path / "survey.csv"
+    write_pose_table(survey, PoseTable(np.arange(1, 6), np.array(TIMES_S),
+                                       np.array([[p.x, p.y, p.theta] for p in POSES])))  # fmt: skip
+    built = tmp_path / "map.json"
+    result = run_cli(capsys, "map", "build", log, "--survey", survey, "--out", built)
+    assert result.code == 0 and "skipped 1 /scan message" in result.err, result.err
+    segments = read_map(built)
+    assert np.all((segments[:, 0::2] > -0.05) & (segments[:, 0::2] < 6.05))
+    assert np.all((segments[:, 1::2] > -0.05) & (segments[:, 1::2] < 4.05))
+    out = tmp_path / "estimates.csv"
+    result = run_cli(capsys, "localize", log, "--map", built, "--out", out)
+    assert result.code == 0 and "skipped 1 /scan message" in result.err, result.err
+    assert pd.read_csv(out)["pose_id"].tolist() == [1, 2, 4, 5]

@@ -140,7 +140,10 @@ REASONS = {
     "n": f"a missing, invalid or too large reading count (at most {MAX_READINGS:,})",
     "value": "non-numeric or non-finite values",
     "time": f"a negative, non-finite or too large timestamp (at most {MAX_TIME_S:.0f} s)",
-    "geometry": "a beam fan that is degenerate, wider than a full turn or beyond ±4π rad",
+    "geometry": (
+        "a beam fan that decreases, is degenerate, is wider than a full turn, lies beyond ±4π "
+        "rad, or whose angular resolution disagrees with its field of view"
+    ),
 }
 
 
@@ -366,9 +369,11 @@ def _parse_robotlaser(kind: str, fields: list[bytes]) -> _LaserRecord:
     remissions = _numbers(fields[k_field + 1 : k_field + 1 + k])
     poses = _numbers(fields[k_field + 1 + k : k_field + 1 + k + 11])
     time_s = _time(fields)
-    _, start, fov, _, maximum_range = config[:5]
+    _, start, fov, resolution, maximum_range = config[:5]
     if fan_defect(n, float(start), float(start + fov)) is not None:
         raise _Skip("geometry")
+    if n > 1 and abs(fov / (n - 1) - resolution) * (n - 1) > abs(resolution):
+        raise _Skip("geometry")  # the step and the field of view disagree by over a beam
     return _LaserRecord(
         kind=kind,
         time_s=time_s,

@@ -39,9 +39,9 @@ is kept. Skipped ``/scan`` messages: not a JSON object (malformed, nested too
 deep, numbers too long to read); larger than ``MAX_MESSAGE_BYTES`` or with more
 than ``MAX_READINGS`` readings; a timestamp that is not whole ``sec``/``nsec``
 within 0 to ``MAX_TIME_NS``; ``start_angle``/``end_angle`` missing, not numbers
-or not finite; a fan that is not one (``segloc_cli.scan.fan_defect``: more than
-one reading with ``start_angle == end_angle``, a span over a full turn, angles
-beyond ±4π); ``ranges`` missing or not a list of numbers. Skipped ``/odom``
+or not finite; a fan that is not one (``segloc_cli.scan.fan_defect``: angles that
+decrease, more than one reading with ``start_angle == end_angle``, a span over a
+full turn, angles beyond ±4π); ``ranges`` missing or not a list of numbers. Skipped ``/odom``
 messages: not a JSON object, too large, a bad timestamp, a position or
 orientation missing, not numbers or not finite, an all-zero quaternion.
 Intensities that are not one number per reading are dropped (the scan is kept).
@@ -501,7 +501,10 @@ _SCAN_FAULTS = {
     "size": f"over {MAX_MESSAGE_BYTES} bytes or over {MAX_READINGS} readings",
     "time": _BAD_TIME,
     "angles": "start_angle or end_angle missing, not a number or not finite",
-    "fan": "not a fan: all beams on one ray, over a full turn, or angles beyond ±4π",
+    "fan": (
+        "not a fan: angles that decrease, all beams on one ray, over a full turn, or angles "
+        "beyond ±4π"
+    ),
     "ranges": "ranges missing or not a list of numbers",
 }
 _ODOM_FAULTS = {

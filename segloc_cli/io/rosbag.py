@@ -586,6 +586,15 @@ def _usable(raw_scans: list[_RawScan]) -> tuple[list[_RawScan], list[tuple[str, 
             dropped.setdefault(f"with more than {MAX_READINGS:,} readings", []).append("")
         elif (defect := fan_defect(n, raw.angle_min, last_rad)) is not None:
             dropped.setdefault("with an unusable beam fan", []).append(defect)
+        elif abs(_spanned_count(raw) - n) > 1:
+            dropped.setdefault("whose angle_increment disagrees with their ranges", []).append(
+                f"angle_min {raw.angle_min:.6g} to angle_max {raw.angle_max:.6g} rad at "
+                f"{raw.angle_increment:.6g} rad spans {_spanned_count(raw)} beams, not {n}"
+            )
+        elif raw.range_min > raw.range_max > 0.0:
+            dropped.setdefault("whose range_max is below their range_min", []).append(
+                f"range_min {raw.range_min:g} m, range_max {raw.range_max:g} m"
+            )
         else:
             kept.append(raw)
     return kept, [
@@ -635,10 +644,12 @@ def _scans(
 
 
 def _spanned_count(raw: _RawScan) -> int:
-    """How many beams ``angle_min`` to ``angle_max`` at ``angle_increment`` span."""
-    if raw.angle_increment == 0.0:
-        return 1
-    return round((raw.angle_max - raw.angle_min) / raw.angle_increment) + 1
+    """How many beams ``angle_min`` to ``angle_max`` at ``angle_increment`` span (-1 when
+    that is no count: a step of 0, or values that are not finite)."""
+    span = (raw.angle_max - raw.angle_min) / raw.angle_increment if raw.angle_increment else 0
+    if not math.isfinite(span) or abs(span) > 2**31:
+        return -1 if raw.angle_max != raw.angle_min else 1
+    return round(span) + 1
 
 
 def _scan(raw: _RawScan, time_s: float, mount: Pose2) -> Scan:
