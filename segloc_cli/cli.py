@@ -14,8 +14,9 @@ import click
 from segloc_cli import __version__
 from segloc_cli.commands.devices import emulate, record
 from segloc_cli.commands.evaluate import EXIT_GATE_FAILED, evaluate
+from segloc_cli.commands.info import info_command
 from segloc_cli.commands.localize import EXIT_INTERRUPTED, localize
-from segloc_cli.commands.logs import import_group, info_command, simulate
+from segloc_cli.commands.logs import import_group, simulate
 from segloc_cli.commands.maps import map_group
 from segloc_cli.commands.sweep import sweep
 from segloc_cli.errors import SeglocError

@@ -13,8 +13,10 @@ import csv
 import importlib
 import json
 import math
+import tomllib
 from collections import Counter, defaultdict
 from datetime import UTC, datetime, timedelta
+from importlib import resources
 from pathlib import Path
 
 import numpy as np
@@ -30,6 +32,7 @@ from segloc_cli.io.maps import read_map
 from segloc_cli.io.mcap_log import read_log, write_log
 from segloc_cli.io.runview import (
     LASER_FRAME,
+    LAYOUT_FILE,
     ROBOT_FRAME,
     TOPICS,
     WORLD_FRAME,
@@ -299,13 +302,69 @@ def test_map_build_shows_the_built_map_over_the_scans_that_made_it(tmp_path, cap
 
 
 def test_the_shipped_layout_shows_every_topic_of_the_run_view():
-    shipped = (Path(__file__).resolve().parents[1] / "docs" / "foxglove-layout.json").read_text(
-        encoding="utf-8"
-    )
-    assert shipped == foxglove_layout(), "docs/foxglove-layout.json is not foxglove_layout()"
+    shipped = (resources.files("segloc_cli") / LAYOUT_FILE).read_text(encoding="utf-8")
+    assert shipped == foxglove_layout(), f"segloc_cli/{LAYOUT_FILE} is not foxglove_layout()"
     layout = json.loads(shipped)
     scene, side = (item["content"] for item in layout["content"]["items"])
     shown = set(scene["config"]["topics"])
     shown |= {panel["content"]["config"].get("topicToRender") for panel in side["items"]}
     assert set(TOPICS) - {"/tf"} <= shown
     assert scene["config"]["followTf"] == WORLD_FRAME
+
+
+# --------------------------------------------------------------------------- segloc info
+
+
+def test_info_describes_a_run_view_instead_of_refusing_it(tmp_path, capsys):
+    """Three scans simulated in the hall, localized with --mcap: info says what the view
+    shows, counted from the file itself and from the run's estimates."""
+    poses = tmp_path / "poses.csv"
+    lines = (HALL / "poses.csv").read_text(encoding="utf-8").splitlines(keepends=True)
+    poses.write_text("".join(lines[:4]), encoding="utf-8")
+    sim, est, view = tmp_path / "sim", tmp_path / "est.csv", tmp_path / "run.mcap"
+    world = HALL / "world.json"
+    made = run_cli(capsys, "simulate", world, "--poses", poses, "--out", sim, "--seed", 7)
+    assert made.code == 0, made.err
+    args = ("localize", sim / "log.mcap", "--map", world, "--out", est, "--mcap", view)
+    assert run_cli(capsys, *args).code == 0
+    result = run_cli(capsys, "info", view)
+    assert result.code == 0, result.err
+
+    times_s = read_log(sim / "log.mcap").scan_times_s
+    rows = list(csv.DictReader(est.open(encoding="utf-8")))
+    statuses = Counter(row["status"] for row in rows)
+    placed = sum(row["x_m"] != "" for row in rows)
+    with open(view, "rb") as stream:
+        counts = Counter(channel.topic for _, channel, _ in make_reader(stream).iter_messages())
+    assert counts["/scan"] == len(times_s) == 3 and counts["/tf"] == placed
+    assert result.out.splitlines() == [
+        f"file:      {view}",
+        "kind:      run view of segloc localize, to open in Foxglove (not a log)",
+        f"/scan:     3 scans, {times_s.min():.3f}–{times_s.max():.3f} s",
+        f"/tf:       {placed} scans placed in world, {3 - placed} without a pose",
+        f"/map:      {len(read_map(world))} segments",
+        "statuses:  " + ", ".join(f"{n} {status}" for status, n in sorted(statuses.items())),
+        "messages:  " + ", ".join(f"{topic} {n}" for topic, n in sorted(counts.items())),
+        "run.command: localize",
+        f"run.logs: {sim / 'log.mcap'}",
+        f"run.map: {world}",
+        "run.mode: guided",
+        f"layout:    {resources.files('segloc_cli') / LAYOUT_FILE} (in Foxglove: Layouts → "
+        "Import from file)",
+    ]
+
+
+def test_the_layout_is_package_data_that_info_names(capsys):
+    """The layout travels in the package (declared for a non-editable install), is valid
+    JSON, and ``segloc info --foxglove-layout`` prints its path, needing no log."""
+    layout = resources.files("segloc_cli") / LAYOUT_FILE
+    assert layout.is_file()
+    assert json.loads(layout.read_text(encoding="utf-8"))["content"]["direction"] == "row"
+    pyproject = Path(__file__).resolve().parents[1] / "pyproject.toml"
+    declared = tomllib.loads(pyproject.read_text(encoding="utf-8"))["tool"]["setuptools"]
+    assert LAYOUT_FILE in declared["package-data"]["segloc_cli"]
+    result = run_cli(capsys, "info", "--foxglove-layout")
+    assert result.code == 0 and result.err == ""
+    assert result.out == f"{layout}\n"
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text(encoding="utf-8")
+    assert f"(segloc_cli/{LAYOUT_FILE})" in readme

@@ -44,8 +44,7 @@ LOCALIZE_OPTIONS = (
         "mcap_path",
         help="Also write the run view to open in Foxglove: the map, each scan placed at its "
         "estimate, the guesses, runner-ups and other hypotheses, local segments and statuses "
-        "(layout: "
-        "docs/foxglove-layout.json).",
+        "(the layout to open it with: segloc info --foxglove-layout prints its path).",
     ),
     click.option(
         "--hypotheses",

@@ -156,8 +156,9 @@ def map_import(plan_path, out_path, layers, units, scale_m, origin_m, force):
     """Make a segment map from a building plan (DXF or SVG) or a nav2 grid.
 
     \b
-    DXF: every LINE, LWPOLYLINE and 2D POLYLINE of the model space (or of
-      --layer), block references included; $INSUNITS gives the unit, or --units.
+    DXF: every LINE, LWPOLYLINE, 2D POLYLINE, ARC, CIRCLE, ELLIPSE and SPLINE
+      of the model space (or of --layer), block references included; $INSUNITS
+      gives the unit, or --units.
     SVG: every line, polyline, polygon, rect and path, group and element
       transforms applied; a point (u, v) lands at (X + s*u, Y - s*v) m for
       --scale s and --origin X,Y (the drawing's y points down, the map's up).
@@ -166,8 +167,9 @@ def map_import(plan_path, out_path, layers, units, scale_m, origin_m, force):
       resolution; walls are traced along the occupied cells and fitted as scans
       are, a wall one cell thick as one segment, a thicker one as its faces.
 
-    Arcs and curves are taken as their straight chords (a warning counts them).
-    Beside OUT goes its run file.
+    Curves are taken as straight chords (a warning counts them): in a DXF as
+    few as keep each within 1 cm of its curve (polyline bulges too), in an SVG
+    one per curved piece. Beside OUT goes its run file.
 
     \b
     Examples:
@@ -203,8 +205,8 @@ def map_import(plan_path, out_path, layers, units, scale_m, origin_m, force):
         raise InputError(f"the map read would be refused: {problem}", path=plan_path)
     write_map(out_path, plan.segments, source=plan.source)
     Invocation.current().write_run_file(out_path, [("image", p) for p in plan.also_read])
-    if plan.chords:
-        warn(f"{plan_path}: {plan.chords} arc or curve pieces taken as straight chords")
+    for warning in plan.warnings:
+        warn(f"{plan_path}: {warning}")
     info(f"{out_path}: {len(plan.segments)} segments {plan.summary}")
 
 

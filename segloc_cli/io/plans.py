@@ -1,13 +1,16 @@
 """Building plans as segment maps: DXF drawings in and out, through ezdxf; the plan type
 every plan reader returns (``Plan``; SVG drawings are in ``svg``, nav2 grids in ``grids``).
 
-A plan's walls are its straight lines. Reading a DXF takes, from the model space (or the
+A plan's walls are its lines and curves. Reading a DXF takes, from the model space (or the
 layers asked for), every ``LINE``, every piece of a ``LWPOLYLINE`` or 2D ``POLYLINE``
-(closed ones back to their first vertex; an arc piece, drawn with a bulge, as its straight
-chord) and the same inside block references (``INSERT``, placed as drawn). Coordinates are
-scaled to metres by the drawing's ``$INSUNITS``, or by the units the caller gives when the
-drawing does not say (``$INSUNITS`` missing or 0). The plan's x and y are the map's; z is
-dropped. Pieces shorter than ``MIN_SEGMENT_LENGTH_M`` are left out.
+(closed ones back to their first vertex), every ``ARC``, ``CIRCLE``, ``ELLIPSE`` and
+``SPLINE``, and the same inside block references (``INSERT``, placed as drawn). A curve (an
+arc piece of a polyline, drawn with a bulge, included) becomes straight chords, as few as
+keep each within ``CHORD_SAGITTA_M`` of it once in metres, through ezdxf's flattening.
+Coordinates are scaled to metres by the drawing's ``$INSUNITS``, or by the units the caller
+gives when the drawing does not say (``$INSUNITS`` missing or 0). The plan's x and y are
+the map's (world coordinates, the entities' own planes applied); z is dropped. Pieces
+shorter than ``MIN_SEGMENT_LENGTH_M`` are left out.
 
 Writing puts each map segment as a ``LINE`` on layer ``SEGLOC_LAYER``, in metres
 (``$INSUNITS`` 6), so that a CAD program shows the map at its true size and reading the
@@ -18,6 +21,7 @@ from __future__ import annotations
 
 import itertools
 import math
+from collections import Counter
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -42,6 +46,17 @@ SEGLOC_LAYER = "segloc-map"
 MAX_INSERT_DEPTH = 16
 """Block references nested deeper than this are not followed (a block that holds itself)."""
 
+CHORD_SAGITTA_M = 0.01
+"""Largest distance (m) between a DXF curve and the chords that stand for it (their sagitta):
+below a scanner's range noise (1.2 cm in ``segloc simulate``), so a wall drawn as an arc is
+no farther from its chords than a scan's points are from the wall."""
+
+CURVES = ("ARC", "CIRCLE", "ELLIPSE", "SPLINE")
+"""DXF curves read as chords (a polyline's bulged pieces come as ARCs)."""
+
+DXF_ENTITIES = "LINE, LWPOLYLINE, POLYLINE, ARC, CIRCLE, ELLIPSE or SPLINE"
+"""What a DXF plan's walls are read from, as the messages name it."""
+
 
 @dataclass(frozen=True)
 class Plan:
@@ -49,9 +64,10 @@ class Plan:
 
     ``segments`` (M, 4) metres, world frame; ``source`` the record of what was read, for
     the map file's ``source`` (JSON-serialisable, its ``format`` first); ``chords`` how
-    many curved pieces were taken as straight chords; ``summary`` a phrase saying where
-    the segments came from ("from layer(s) WALLS (1 drawing unit = 0.001 m)");
-    ``also_read`` the other files it was read from (a grid's image), for the run file.
+    many of the segments are straight chords standing for curves; ``summary`` a phrase
+    saying where the segments came from ("from layer(s) WALLS (1 drawing unit = 0.001 m)");
+    ``also_read`` the other files it was read from (a grid's image), for the run file;
+    ``warnings`` lines for the user on what was approximated or not found.
     """
 
     segments: np.ndarray
@@ -59,6 +75,7 @@ class Plan:
     chords: int = 0
     summary: str = ""
     also_read: tuple[Path, ...] = ()
+    warnings: tuple[str, ...] = ()
 
 
 def checked_plan_segments(path: Path, pieces_m: np.ndarray, hint: str) -> np.ndarray:
@@ -79,10 +96,12 @@ def read_dxf(path: str | Path, layers: Sequence[str] = (), units: str | None = N
     """Read the walls of a DXF plan as segments (M, 4) in metres (see the module docstring).
 
     ``layers`` limits the reading to those layers (all by default); ``units`` (a key of
-    ``UNITS_M``) is the drawing's unit when ``$INSUNITS`` does not give one. Raises
-    ``InputError`` naming the file when it is not a readable DXF, gives no units and none
-    were given, asks for a layer it lacks, holds no straight line on the layers read, or
-    places a point beyond ``MAX_COORDINATE_M``.
+    ``UNITS_M``) is the drawing's unit when ``$INSUNITS`` does not give one. The plan's
+    ``warnings`` count the curves taken as chords and name the layers asked for that gave
+    nothing. Raises ``InputError`` naming the file when it is not a readable DXF, gives no
+    units and none were given, asks for a layer it lacks, holds nothing ``DXF_ENTITIES``
+    names on the layers read, holds a curve that cannot be followed, or places a point
+    beyond ``MAX_COORDINATE_M``.
     """
     import ezdxf
     from ezdxf import recover
@@ -103,30 +122,23 @@ def read_dxf(path: str | Path, layers: Sequence[str] = (), units: str | None = N
             path=path,
         )
     wanted = set(layers)
-    pieces: list[tuple[float, float, float, float]] = []
-    chords = 0
-    found_layers: set[str] = set()
+    read = _DxfReading(path, scale)
     for entity in _flattened(doc.modelspace(), 0):
-        layer = entity.dxf.layer
-        if wanted and layer not in wanted:
-            continue
-        drawn, arcs = _entity_pieces(entity)
-        pieces.extend(drawn)
-        chords += arcs
-        if drawn:
-            found_layers.add(layer)
-    pieces_m = np.array(pieces, dtype=float).reshape(-1, 4) * scale
+        if not wanted or entity.dxf.layer in wanted:
+            read.add(entity)
+    pieces_m = np.array(read.pieces, dtype=float).reshape(-1, 4) * scale
     segments = checked_plan_segments(path, pieces_m, f" (×{scale:g}); check --units")
     if len(segments) == 0:
         where = f"on layer(s) {', '.join(layers)}" if layers else "in its model space"
-        raise InputError(
-            f"no LINE, LWPOLYLINE or POLYLINE {where}; its layers are {', '.join(known)}",
-            path=path,
-        )
-    read_layers = sorted(found_layers)
+        raise InputError(f"no {DXF_ENTITIES} {where}; its layers are {', '.join(known)}", path=path)
+    read_layers = sorted(read.layers)
     source = {"format": "dxf", "plan": str(path), "layers": read_layers, "metres_per_unit": scale}
     summary = f"from layer(s) {', '.join(read_layers)} (1 drawing unit = {scale:g} m)"
-    return Plan(segments, source, chords, summary)
+    empty = [name for name in layers if name not in read.layers]
+    warnings = [read.chords_warning()] if read.chords else []
+    if empty:
+        warnings.append(f"nothing read from layer(s) {', '.join(empty)}: no {DXF_ENTITIES} there")
+    return Plan(segments, source, read.chords, summary, warnings=tuple(warnings))
 
 
 def write_dxf(path: str | Path, segments_world: np.ndarray) -> None:
@@ -165,25 +177,64 @@ def _flattened(entities: Iterable, depth: int) -> Iterable:
             yield entity
 
 
-def _entity_pieces(entity) -> tuple[list[tuple[float, float, float, float]], int]:
-    """The straight pieces (x1, y1, x2, y2), drawing units, of a LINE or a 2D polyline, and
-    how many of them stand for arcs (bulged pieces, taken as chords)."""
-    kind = entity.dxftype()
-    if kind == "LINE":
-        start, end = entity.dxf.start, entity.dxf.end
-        return [(start.x, start.y, end.x, end.y)], 0
-    if kind == "LWPOLYLINE":
-        points = [(x, y, bulge) for x, y, _, _, bulge in entity.get_points("xyseb")]
-        closed = entity.closed
-    elif kind == "POLYLINE" and entity.is_2d_polyline:
-        points = [
-            (v.dxf.location.x, v.dxf.location.y, v.dxf.get("bulge", 0.0)) for v in entity.vertices
-        ]
-        closed = entity.is_closed
-    else:
-        return [], 0
-    if closed and len(points) > 2:
-        points = [*points, points[0]]
-    pairs = list(itertools.pairwise(points))
-    pieces = [(x1, y1, x2, y2) for (x1, y1, _), (x2, y2, _) in pairs]
-    return pieces, sum(1 for (_, _, bulge), _ in pairs if bulge)
+class _DxfReading:
+    """The straight pieces (x1, y1, x2, y2), drawing units, of the entities read so far; how
+    many of them are chords of curves, the curves by kind, and the layers that gave any."""
+
+    def __init__(self, path: Path, metres_per_unit: float):
+        self.path = path
+        self.metres_per_unit = metres_per_unit
+        self.pieces: list[tuple[float, float, float, float]] = []
+        self.chords = 0
+        self.curves: Counter[str] = Counter()
+        self.layers: set[str] = set()
+
+    def add(self, entity) -> None:
+        """Add a LINE, a 2D polyline (as its LINE and ARC pieces) or a curve; skip others."""
+        kind = entity.dxftype()
+        polyline = kind == "LWPOLYLINE" or (kind == "POLYLINE" and entity.is_2d_polyline)
+        before = len(self.pieces)
+        for part in entity.virtual_entities() if polyline else (entity,):
+            if part.dxftype() == "LINE":
+                start, end = part.dxf.start, part.dxf.end
+                self.pieces.append((start.x, start.y, end.x, end.y))
+            elif part.dxftype() in CURVES:
+                chords = self._chords(part)
+                self.pieces.extend(chords)
+                self.chords += len(chords)
+                self.curves[f"{kind} bulge" if polyline else kind] += bool(chords)
+        if len(self.pieces) > before:
+            self.layers.add(entity.dxf.layer)
+
+    def chords_warning(self) -> str:
+        """One line on the curves taken as chords: how many of each kind, how many chords."""
+        total = sum(self.curves.values())
+        kinds = ", ".join(f"{kind} {n}" for kind, n in sorted(self.curves.items()))
+        return (
+            f"{total} curve{'s' if total > 1 else ''} ({kinds}) taken as {self.chords} straight "
+            f"chords, each within {CHORD_SAGITTA_M * 100:g} cm of its curve"
+        )
+
+    def _chords(self, curve) -> list[tuple[float, float, float, float]]:
+        """The chords (drawing units) of an ARC, CIRCLE, ELLIPSE or SPLINE, each within
+        ``CHORD_SAGITTA_M`` of it in metres; ``InputError`` for one that cannot be followed
+        or reaches beyond ``MAX_COORDINATE_M``."""
+        import ezdxf
+        from ezdxf import bbox
+
+        name = f"{curve.dxftype()} {curve.dxf.handle} on layer {curve.dxf.layer}"
+        try:
+            extent = bbox.extents([curve], fast=True)
+            reach = max(map(abs, (*extent.extmin, *extent.extmax))) if extent.has_data else 0.0
+            # Checked before flattening: a curve larger than any map would be cut into more
+            # chords than memory holds. (InputError is none of the errors caught below.)
+            if not (math.isfinite(reach) and reach * self.metres_per_unit <= MAX_COORDINATE_M):
+                raise InputError(
+                    f"the {name} lies beyond ±{MAX_COORDINATE_M:g} m once in metres "
+                    f"(×{self.metres_per_unit:g}); check --units",
+                    path=self.path,
+                )
+            points = list(curve.flattening(CHORD_SAGITTA_M / self.metres_per_unit))
+        except (ValueError, ArithmeticError, ezdxf.DXFError) as exc:
+            raise InputError(f"cannot follow the {name} ({exc})", path=self.path) from None
+        return [(a.x, a.y, b.x, b.y) for a, b in itertools.pairwise(points)]

@@ -21,14 +21,20 @@ schema (the schema travels in the file) and the file is chunked, indexed and com
 - ``/status``: ``foxglove.Log``, one line per scan at the level the caller gives (a run:
   info when the estimate is accepted, warning when ambiguous, error otherwise).
 
-Every message's log time is its scan's time (ns), and metadata record ``segloc.run`` says
-what the file shows. The file is written beside the target and renamed into place when it
-is closed, like every other output.
+Every message's log time is its scan's time (ns). Metadata record ``segloc.run`` says what
+the file shows (the caller's words: command, logs, map...), and ``segloc.view``, written when
+the file is closed, what was drawn: ``map_segments`` and, for each status, ``status.NAME``
+the number of scans with it. The file is written beside the target and renamed into place
+when it is closed, like every other output. ``read_run_view`` tells a run view from a log
+and says what it holds without decoding a message; ``layout_path`` is where the package
+keeps the Foxglove layout for it (``foxglove_layout``, as a file).
 """
 
 from __future__ import annotations
 
 import json
+from collections import Counter
+from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
 
@@ -42,6 +48,9 @@ WORLD_FRAME = "world"
 ROBOT_FRAME = "base_link"
 LASER_FRAME = "laser"
 RUN_METADATA_NAME = "segloc.run"
+VIEW_METADATA_NAME = "segloc.view"
+LAYOUT_FILE = "foxglove-layout.json"
+"""The layout (``foxglove_layout``) as the package ships it, beside this package's modules."""
 
 POSE_TOPICS = ("/estimate", "/guess", "/runner_up")
 """The poses of each scan, in ``world``."""
@@ -82,6 +91,7 @@ class RunViewWriter:
         self.path = Path(path)
         self._map = np.asarray(map_segments, dtype=float).reshape(-1, 4)
         self._map_written = False
+        self._statuses: Counter[str] = Counter()
         self._atomic = atomic_path(self.path)
         temporary = self._atomic.__enter__()
         self._context = foxglove.Context()
@@ -155,6 +165,7 @@ class RunViewWriter:
         entity = _lines_entity(stamp, "local_segments", ROBOT_FRAME, local_segments, status)
         self._log("/local_segments", _scene_update(entity), time_ns)
         self._log("/status", _log_line(stamp, status, level, text), time_ns)
+        self._statuses[status] += 1
 
     def close(self) -> None:
         """Finish the file (with the map even if no scan came) and rename it into place."""
@@ -163,7 +174,10 @@ class RunViewWriter:
         self._open = False
         if not self._map_written:
             self._write_map(0)
+        drawn = {"map_segments": str(len(self._map))}
+        drawn |= {f"status.{name}": str(n) for name, n in sorted(self._statuses.items())}
         try:
+            self._writer.write_metadata(VIEW_METADATA_NAME, drawn)
             self._writer.close()
         except (OSError, RuntimeError) as exc:
             self._atomic.__exit__(type(exc), exc, None)
@@ -185,6 +199,60 @@ class RunViewWriter:
         entity = _lines_entity(_timestamp(time_ns), "map", WORLD_FRAME, self._map, None)
         self._log("/map", _scene_update(entity), time_ns)
         self._map_written = True
+
+
+@dataclass(frozen=True)
+class RunViewContents:
+    """What a run view holds, from its summary and metadata alone.
+
+    ``run`` the ``segloc.run`` record (what the file shows, in its writer's words);
+    ``drawn`` the ``segloc.view`` record (``map_segments``, ``status.NAME`` counts; empty
+    in a view written before it); ``message_counts`` topic → messages; ``span_s`` the first
+    and last message's log time, seconds (None: no message).
+    """
+
+    run: dict[str, str]
+    drawn: dict[str, str]
+    message_counts: dict[str, int]
+    span_s: tuple[float, float] | None
+
+
+def read_run_view(path: str | Path) -> RunViewContents | None:
+    """What the run view at ``path`` holds; None when the file is not one (an MCAP file
+    with a summary and a ``segloc.run`` record) or cannot be read, for the log reader to
+    judge and explain."""
+    from mcap.reader import make_reader
+
+    try:
+        with open(path, "rb") as stream:
+            reader = make_reader(stream)
+            summary = reader.get_summary()
+            if summary is None or not any(
+                index.name == RUN_METADATA_NAME for index in summary.metadata_indexes
+            ):
+                return None
+            records = {m.name: dict(m.metadata) for m in reader.iter_metadata()}
+    except Exception:  # the mcap parser's many ways to fail on bytes that are not a run view
+        return None
+    statistics = summary.statistics
+    counts = {} if statistics is None else statistics.channel_message_counts
+    by_topic: Counter[str] = Counter()
+    for channel_id, channel in summary.channels.items():
+        by_topic[channel.topic] += counts.get(channel_id, 0)
+    span_s = None
+    if statistics is not None and statistics.message_count > 0:
+        span_s = (statistics.message_start_time / 1e9, statistics.message_end_time / 1e9)
+    return RunViewContents(
+        records[RUN_METADATA_NAME], records.get(VIEW_METADATA_NAME, {}), dict(by_topic), span_s
+    )
+
+
+def layout_path() -> Path:
+    """The Foxglove layout file (JSON) the installed package holds: the one to import in
+    Foxglove (Layouts → Import from file) to see a run view."""
+    from importlib.resources import files
+
+    return Path(str(files("segloc_cli") / LAYOUT_FILE))
 
 
 def _transforms(stamp, robot: Pose2, mount: Pose2):

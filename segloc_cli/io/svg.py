@@ -115,7 +115,8 @@ def read_svg(
         "elements": shapes,
     }
     summary = f"from {shapes} elements (1 SVG unit = {scale_m:g} m, origin at {x0:g}, {y0:g})"
-    return Plan(segments, source, chords, summary)
+    warnings = (f"{chords} arc or curve pieces taken as straight chords",) if chords else ()
+    return Plan(segments, source, chords, summary, warnings=warnings)
 
 
 def write_svg(path: str | Path, segments_world: np.ndarray) -> None:
