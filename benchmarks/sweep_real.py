@@ -40,8 +40,8 @@ from protocol import (
     run_segloc_measured,
 )
 
+from segloc_cli.confidence import ESTIMATED
 from segloc_cli.evaluate import gate_masks
-from segloc_cli.localize import ESTIMATED
 
 GRID_KEY = "search-half-width-m"
 HALF_WIDTHS_M = (1.0, 2.0, 3.0)

@@ -15,10 +15,10 @@ from dataclasses import dataclass
 from functools import cached_property
 
 import numpy as np
-from numba import njit
 
 from segloc_cli.config import VOTE_SCHEMES
 from segloc_cli.geometry import segment_lengths, segment_orientations, wrap_angle
+from segloc_cli.jit import njit
 
 
 def scheme_index(scheme: str) -> int:

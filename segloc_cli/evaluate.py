@@ -20,12 +20,11 @@ import math
 import numpy as np
 import pandas as pd
 
-from segloc_cli.confidence import RIGHT_PLACE_DEG, RIGHT_PLACE_M
+from segloc_cli.confidence import ESTIMATED, RIGHT_PLACE_DEG, RIGHT_PLACE_M
 from segloc_cli.config import TIME_TOLERANCE_MS
 from segloc_cli.errors import InputError
 from segloc_cli.geometry import wrap_angle
 from segloc_cli.io.tables import ESTIMATE_COLUMNS, PoseTable, pair_by_time
-from segloc_cli.localize import ESTIMATED
 
 ERROR_COLUMNS = (
     "ae_deg",

@@ -22,9 +22,9 @@ rounds a few results the other way.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
 
 from segloc_cli.config import ExtractParams
+from segloc_cli.jit import njit
 from segloc_cli.scan import Scan
 
 _DEGENERATE_CHORD_M = 1e-12

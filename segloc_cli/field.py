@@ -17,9 +17,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
 
 from segloc_cli.geometry import as_segments
+from segloc_cli.jit import njit
 from segloc_cli.kernels import point_segment_distance
 
 INDEX_LIMIT = 2**40

@@ -16,9 +16,9 @@ by a few centimetres stays well inside that.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
 
 from segloc_cli.geometry import Pose2
+from segloc_cli.jit import njit
 from segloc_cli.spatial import SegmentGrid
 
 SHORTEN_M = 0.3

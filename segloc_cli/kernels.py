@@ -15,7 +15,8 @@ running the old code.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+
+from segloc_cli.jit import njit
 
 
 @njit(cache=True)

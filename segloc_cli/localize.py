@@ -15,7 +15,9 @@ import numpy as np
 from segloc_cli.align import RTable, align
 from segloc_cli.confidence import (
     MODES,
+    STATUS_NO_OVERLAP,
     STATUS_OK,
+    STATUS_TOO_FEW_SEGMENTS,
     ConfidenceModel,
     Evidence,
     judge,
@@ -33,16 +35,6 @@ from segloc_cli.scan import Scan
 from segloc_cli.search import HypothesisSearch, distinct
 from segloc_cli.spatial import NEAR_CELL_M, SegmentGrid
 from segloc_cli.window import Windows, scan_window_map
-
-STATUS_TOO_FEW_SEGMENTS = "too_few_segments"
-"""The scan cannot pin a pose: too few local segments, too few points, or points spread along
-one line (``scan_is_degenerate``). A pose found anyway is kept in the row, but not trusted."""
-STATUS_NO_OVERLAP = "no_overlap"
-STATUS_RECOVERED = "recovered"
-"""Tracking: the first match failed its checks, a wider search passed them."""
-ESTIMATED = (STATUS_OK, STATUS_RECOVERED)
-"""Statuses of rows that hold an accepted estimate; every other status marks a failure.
-(``ambiguous`` and ``lost`` rows hold a pose too, the best found, but it is not trusted.)"""
 
 
 @dataclass(frozen=True)

@@ -44,9 +44,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
 
 from segloc_cli.geometry import Pose2
+from segloc_cli.jit import njit
 from segloc_cli.kernels import (
     angular_interval,
     out_of_frame,

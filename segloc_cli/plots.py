@@ -31,12 +31,12 @@ from matplotlib.collections import LineCollection
 from matplotlib.figure import Figure
 
 from segloc_cli.align import VOTE_SCHEMES, RTable, accumulate, align, candidate_headings
-from segloc_cli.config import TIME_TOLERANCE_MS
+from segloc_cli.confidence import ESTIMATED
+from segloc_cli.config import TIME_TOLERANCE_MS, LocalizeParams
 from segloc_cli.extract import ExtractParams, extract_segments
 from segloc_cli.geometry import Pose2, transform_points, transform_segments, wrap_angle
 from segloc_cli.io.files import atomic_path
 from segloc_cli.io.tables import PoseTable, pair_by_time
-from segloc_cli.localize import ESTIMATED, LocalizeParams
 from segloc_cli.overlap import coarse_to_fine
 from segloc_cli.progress import ProgressFactory, silent
 from segloc_cli.scan import Scan

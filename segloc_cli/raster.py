@@ -34,8 +34,6 @@ import numpy as np
 
 from segloc_cli.config import ExtractParams, FuseParams
 from segloc_cli.geometry import segment_lengths
-from segloc_cli.mapping import fuse_segments
-from segloc_cli.spatial import SegmentGrid
 
 SPLIT_CELLS = 1.0
 """Split tolerance in cells: the cells of a digital straight line stray up to half a cell
@@ -76,6 +74,8 @@ def line_cells(segments_grid: np.ndarray, resolution_m: float) -> tuple[np.ndarr
 def trace_walls(occupied: np.ndarray, resolution_m: float) -> np.ndarray:
     """Segments (K, 4), metres, grid frame, along the occupied cells of a mask (rows,
     columns) of cells ``resolution_m`` wide (see the module docstring)."""
+    from segloc_cli.mapping import fuse_segments  # kernels: loaded to trace, not to draw
+
     params = ExtractParams(split_m=SPLIT_CELLS * resolution_m)
     cells, chains = _chains(*_surface_rings(occupied))
     pieces = _chain_segments(cells, chains, resolution_m, params)
@@ -87,6 +87,8 @@ def _covered(segments: np.ndarray, within_m: float) -> np.ndarray:
     """Mask (M,) of the segments (M, 4) both of whose ends lie within ``within_m`` of one
     longer segment (of equal length: one listed before): a short piece of a face that fusion
     could not join, its direction too uncertain to pass the test both ways."""
+    from segloc_cli.spatial import SegmentGrid
+
     lengths = segment_lengths(segments)
     offsets, near = SegmentGrid(segments).within(segments.reshape(-1, 2), within_m)
     point = np.repeat(np.arange(offsets.size - 1), np.diff(offsets))

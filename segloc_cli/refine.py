@@ -21,10 +21,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
 
 from segloc_cli.config import RefineParams
 from segloc_cli.geometry import Pose2
+from segloc_cli.jit import njit
 from segloc_cli.kernels import point_segment_distance, wrap_remainder
 from segloc_cli.spatial import SegmentGrid, filed_within, near_mask, nearest_filed
 

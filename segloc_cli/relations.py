@@ -37,13 +37,13 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from segloc_cli.confidence import ESTIMATED
 from segloc_cli.config import TIME_TOLERANCE_MS
 from segloc_cli.errors import InputError
 from segloc_cli.evaluate import FORMATS
 from segloc_cli.geometry import wrap_angle
 from segloc_cli.io.files import reading
 from segloc_cli.io.tables import ESTIMATE_COLUMNS, pair_by_time
-from segloc_cli.localize import ESTIMATED
 
 PUBLISHED_SOURCE = (
     "Graph Mapping results of Kümmerle et al., On measuring the accuracy of SLAM algorithms, "

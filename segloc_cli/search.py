@@ -16,7 +16,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
 
 from segloc_cli.config import SearchParams
 from segloc_cli.field import (
@@ -29,6 +28,7 @@ from segloc_cli.field import (
     score_raster,
 )
 from segloc_cli.geometry import Pose2, wrap_angle
+from segloc_cli.jit import njit
 from segloc_cli.kernels import wrap
 
 

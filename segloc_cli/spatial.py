@@ -16,9 +16,9 @@ Their answers are exact: the cells only spare the segments that are too far.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
 
 from segloc_cli.geometry import as_segments, point_segment_distances
+from segloc_cli.jit import njit
 from segloc_cli.kernels import point_segment_distance
 
 DEFAULT_CELL_M = 4.0

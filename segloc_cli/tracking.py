@@ -14,22 +14,20 @@ from dataclasses import replace
 
 import numpy as np
 
-from segloc_cli.confidence import STATUS_AMBIGUOUS, STATUS_LOST, STATUS_OK
+from segloc_cli.confidence import (
+    ESTIMATED,
+    STATUS_AMBIGUOUS,
+    STATUS_LOST,
+    STATUS_NO_OVERLAP,
+    STATUS_OK,
+    STATUS_RECOVERED,
+    STATUS_TOO_FEW_SEGMENTS,
+)
 from segloc_cli.config import ExtractParams, RefineParams, TrackParams
 from segloc_cli.extract import extract_segments
 from segloc_cli.geometry import Pose2, wrap_angle
 from segloc_cli.io.tables import EstimateRow
-from segloc_cli.localize import (
-    ESTIMATED,
-    STATUS_NO_OVERLAP,
-    STATUS_RECOVERED,
-    STATUS_TOO_FEW_SEGMENTS,
-    Estimate,
-    Localizer,
-    estimate_row,
-    scan_is_degenerate,
-    usable_points,
-)
+from segloc_cli.localize import Estimate, Localizer, estimate_row, scan_is_degenerate, usable_points
 from segloc_cli.refine import inlier_ratio, refine_pose
 from segloc_cli.scan import Scan
 

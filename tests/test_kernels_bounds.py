@@ -17,8 +17,14 @@ import subprocess
 import sys
 import textwrap
 
-from segloc_cli.confidence import STATUS_AMBIGUOUS, STATUS_LOST, STATUS_OK
-from segloc_cli.localize import STATUS_NO_OVERLAP, STATUS_RECOVERED, STATUS_TOO_FEW_SEGMENTS
+from segloc_cli.confidence import (
+    STATUS_AMBIGUOUS,
+    STATUS_LOST,
+    STATUS_NO_OVERLAP,
+    STATUS_OK,
+    STATUS_RECOVERED,
+    STATUS_TOO_FEW_SEGMENTS,
+)
 
 STATUSES = {
     STATUS_OK,

@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from segloc_cli.confidence import STATUS_AMBIGUOUS, STATUS_OK
+from segloc_cli.confidence import STATUS_AMBIGUOUS, STATUS_OK, STATUS_TOO_FEW_SEGMENTS
 from segloc_cli.config import SearchParams
 from segloc_cli.extract import extract_segments
 from segloc_cli.field import (
@@ -22,7 +22,7 @@ from segloc_cli.field import (
 )
 from segloc_cli.geometry import Pose2, point_segment_distances, rotation, wrap_angle
 from segloc_cli.io.maps import World
-from segloc_cli.localize import STATUS_TOO_FEW_SEGMENTS, LocalizeParams, Localizer
+from segloc_cli.localize import LocalizeParams, Localizer
 from segloc_cli.search import (
     MIN_TOP_LEVEL,
     HypothesisSearch,

@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 from conftest import HALL
 
-from segloc_cli.confidence import STATUS_LOST, STATUS_OK
+from segloc_cli.confidence import STATUS_LOST, STATUS_OK, STATUS_RECOVERED
 from segloc_cli.geometry import Pose2, wrap_angle
 from segloc_cli.io.maps import read_world
-from segloc_cli.localize import STATUS_RECOVERED, Localizer
+from segloc_cli.localize import Localizer
 from segloc_cli.sim import SensorModel, free_space_mask, random_world, simulate_scan
 from segloc_cli.spatial import SegmentGrid
 from segloc_cli.tracking import track_scans

@@ -266,8 +266,7 @@ def _row_pose(row, prefix: str):
 def _level(status: str) -> str:
     """The run view's log level of a status: info when the estimate is accepted, warning when
     a distinct pose fits nearly as well, error otherwise."""
-    from segloc_cli.confidence import STATUS_AMBIGUOUS
-    from segloc_cli.localize import ESTIMATED
+    from segloc_cli.confidence import ESTIMATED, STATUS_AMBIGUOUS
 
     return "info" if status in ESTIMATED else "warning" if status == STATUS_AMBIGUOUS else "error"
 

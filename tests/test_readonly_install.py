@@ -1,0 +1,115 @@
+"""An install nobody can write to: the checkout (its venv and package included) and the home
+folder mounted read-only in a private mount namespace, where numba can cache no kernel.
+
+``map build``, ``localize`` and ``evaluate`` there give what they give in a writable
+install, byte for byte (but the run times), and those that compile kernels say once that
+they do so uncached. Skipped where the system allows no mount namespace (``unshare -rm``).
+"""
+
+from __future__ import annotations
+
+import os
+import shlex
+import shutil
+import subprocess
+from pathlib import Path
+
+import pandas as pd
+import pytest
+from conftest import HALL, SEGLOC
+
+from segloc_cli.io.tables import ESTIMATE_COLUMNS
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def _namespaced(script: str, home: Path) -> list[str]:
+    """A command running ``script`` (bash) with ``REPO`` and ``home`` read-only."""
+    mounts = " && ".join(
+        f"mount --bind {shlex.quote(str(p))} {shlex.quote(str(p))} && "
+        f"mount -o remount,ro,bind {shlex.quote(str(p))}"
+        for p in (REPO, home)
+    )
+    return ["unshare", "-rm", "bash", "-c", f"{mounts} && {script}"]
+
+
+def _can_unshare() -> bool:
+    if shutil.which("unshare") is None:
+        return False
+    probe = subprocess.run(["unshare", "-rm", "true"], capture_output=True, check=False)
+    return probe.returncode == 0
+
+
+def _commands(out: Path) -> str:
+    """map build, localize and evaluate of the shipped hall, writing into ``out``."""
+    segloc, q = shlex.quote(str(SEGLOC)), shlex.quote
+    return " && ".join(
+        [
+            f"{segloc} map build {q(str(HALL / 'mapping/log.mcap'))} "
+            f"--survey {q(str(HALL / 'mapping/survey.csv'))} --out {q(str(out / 'map.json'))}",
+            f"{segloc} localize {q(str(HALL / 'log.mcap'))} --map {q(str(out / 'map.json'))} "
+            f"--out {q(str(out / 'estimates.csv'))}",
+            f"{segloc} evaluate {q(str(out / 'estimates.csv'))} "
+            f"--survey {q(str(HALL / 'survey.csv'))} > {q(str(out / 'table.txt'))}",
+        ]
+    )
+
+
+@pytest.mark.skipif(not _can_unshare(), reason="no private mount namespace (unshare -rm)")
+def test_a_read_only_install_runs_uncached_with_the_same_results(tmp_path):
+    home, locked, free = tmp_path / "home", tmp_path / "locked", tmp_path / "free"
+    for folder in (home, locked, free):
+        folder.mkdir()
+    env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
+    env |= {"HOME": str(home), "XDG_CACHE_HOME": str(home / ".cache")}
+    script = f"cd {shlex.quote(str(REPO))} && {_commands(locked)}"
+    run = subprocess.run(
+        _namespaced(script, home), capture_output=True, text=True, env=env, check=False
+    )
+    assert run.returncode == 0, run.stderr
+    # Said once by each run that compiles: map build and localize; evaluate loads no kernel.
+    assert run.stderr.count("numba can write no cache") == 2
+    assert not any(home.iterdir())
+    subprocess.run(["bash", "-c", _commands(free)], check=True, capture_output=True)
+    assert (locked / "map.json").read_bytes() == (free / "map.json").read_bytes()
+    assert (locked / "table.txt").read_text() == (free / "table.txt").read_text()
+    answers = [pd.read_csv(f / "estimates.csv").drop(columns="runtime_ms") for f in (locked, free)]
+    pd.testing.assert_frame_equal(*answers)
+
+
+NO_KERNEL_COMMANDS = """
+import sys
+from segloc_cli.cli import main
+for argv in sys.argv[1:]:
+    try:
+        main(argv.split("|"))
+    except SystemExit as exc:
+        assert not exc.code, (argv, exc.code)
+assert "numba" not in sys.modules, sorted(m for m in sys.modules if "segloc_cli" in m)
+"""
+
+
+def test_commands_that_need_no_kernel_load_none(tmp_path):
+    """Scoring, inspecting, importing and exporting never import numba, so they start fast
+    and cannot meet a kernel cache problem."""
+    carmen = tmp_path / "two.clf"
+    carmen.write_text(
+        "".join(f"FLASER 181 {' '.join(['2.0'] * 181)} 0 0 0 0 0 0 {t} host {t}\n" for t in (1, 2))
+    )
+    # The survey's poses as a run's answers, every other column empty.
+    survey = pd.read_csv(HALL / "survey.csv")
+    answers = survey.reindex(columns=ESTIMATE_COLUMNS).assign(
+        status="ok", n_local_segments=9, window_scans=1
+    )
+    answers.to_csv(tmp_path / "estimates.csv", index=False)
+    commands = [
+        f"evaluate|{tmp_path / 'estimates.csv'}|--survey|{HALL / 'survey.csv'}",
+        f"info|{HALL / 'log.mcap'}",
+        f"import|carmen|{carmen}|--out|{tmp_path / 'two.mcap'}",
+        f"map|export|{HALL / 'map.json'}|--out|{tmp_path / 'map.yaml'}",
+    ]
+    run = subprocess.run(
+        [str(Path(SEGLOC).parent / "python"), "-c", NO_KERNEL_COMMANDS, *commands],
+        capture_output=True, text=True, check=False, cwd=tmp_path,
+    )  # fmt: skip
+    assert run.returncode == 0, run.stderr
