@@ -352,6 +352,13 @@ def test_info_describes_a_run_view_instead_of_refusing_it(tmp_path, capsys):
         f"layout:    {resources.files('segloc_cli') / LAYOUT_FILE} (in Foxglove: Layouts → "
         "Import from file)",
     ]
+    # Given where a log belongs, the view is named for what it is.
+    again = run_cli(capsys, "localize", view, "--map", world, "--out", tmp_path / "again.csv")
+    assert again.code == 2
+    assert again.err.strip() == (
+        f"segloc: error: {view}: a run view (written by --mcap), not a log: it shows a run's "
+        f"answers; `segloc info {view}` names the log it shows"
+    )
 
 
 def test_the_layout_is_package_data_that_info_names(capsys):

@@ -77,6 +77,7 @@ from segloc_cli.geometry import Pose2, heading_to_quaternion, quaternion_to_head
 from segloc_cli.io.files import reading, writing_error
 from segloc_cli.io.log import SENSOR_METADATA_NAME, Log, laser_offset_of
 from segloc_cli.io.maps import MAX_COORDINATE_M
+from segloc_cli.io.runview import RUN_METADATA_NAME
 from segloc_cli.progress import SILENT, Progress
 from segloc_cli.scan import MAX_READINGS, Scan, evenly_spaced_angles, fan_defect
 
@@ -812,6 +813,7 @@ class _Found:
     counts: dict[str, int] = field(default_factory=dict)
     finished: bool = False
     broken: str | None = None
+    run_view: bool = False
 
 
 def read_log(path: str | Path) -> Log:
@@ -931,6 +933,8 @@ def _take_record(found: _Found, record: object) -> None:
         found.channels[record.id] = record
     elif isinstance(record, Metadata) and record.name == SENSOR_METADATA_NAME:
         found.sensor = dict(record.metadata)
+    elif isinstance(record, Metadata) and record.name == RUN_METADATA_NAME:
+        found.run_view = True
     elif isinstance(record, Footer):
         found.finished = True
 
@@ -955,8 +959,14 @@ def _take_message(found: _Found, record: Message) -> None:
 
 
 def _check_channels(path: Path, found: _Found) -> None:
-    """Refuse a log without a ``/scan`` channel, with a ``/scan`` or ``/odom`` channel
-    that is not JSON, or whose ``/scan`` messages are all unusable."""
+    """Refuse a run view, a log without a ``/scan`` channel, with a ``/scan`` or ``/odom``
+    channel that is not JSON, or whose ``/scan`` messages are all unusable."""
+    if found.run_view:
+        raise InputError(
+            "a run view (written by --mcap), not a log: it shows a run's answers; "
+            f"`segloc info {path}` names the log it shows",
+            path=path,
+        )
     channels = found.channels.values()
     # A ROS 2 bag stored as MCAP is an MCAP file too, but of ROS messages.
     ros = any(c.message_encoding in ROS_ENCODINGS for c in channels)
