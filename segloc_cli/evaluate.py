@@ -138,7 +138,8 @@ def table1(
         raise InputError(
             f"no estimate lies within {tolerance_s:g} s of any survey time: "
             f"estimates span {_time_span(est_times_s)}, "
-            f"survey spans {_time_span(survey_times_s)}"
+            f"survey spans {_time_span(survey_times_s)}; are they of the same log? "
+            "(--tolerance-ms widens the pairing)"
         )
     est = estimates.iloc[match[matched]]
     truth = survey_poses[matched]

@@ -93,6 +93,37 @@ def _check_tables(path: Path, document: dict, commands: set[tuple[str, ...]]) ->
                 raise InputError(f"table [{name}.{sub}] names no segloc command", path=path)
 
 
+def run_record(path: Path) -> dict:
+    """The ``[run]`` table of the TOML file ``path``: {} for a configuration written by hand."""
+    record = load_toml(path).get(RUN_TABLE, {})
+    return record if isinstance(record, dict) else {}
+
+
+def check_run_command(path: Path, record: Mapping[str, Any], command: Sequence[str]) -> None:
+    """Refuse the run file ``path`` (its ``[run]`` table ``record``) as the configuration of
+    ``command`` when another command wrote it: it holds no setting for this one, and running
+    on defaults while meaning to repeat a run is the mistake it would hide."""
+    made_by = record.get("command")
+    this = "segloc " + " ".join(command)
+    if isinstance(made_by, str) and made_by != this:
+        raise InputError(
+            f"is the run file of `{made_by}`, not of `{this}`; give it to `{made_by}`, or give "
+            f"--config a file with a [{'.'.join(command)}] table",
+            path=path,
+        )
+
+
+def recorded_inputs(record: Mapping[str, Any]) -> set[tuple[str, str]]:
+    """The inputs a run file's ``[run]`` table ``record`` lists, as (role, sha256) pairs."""
+    inputs = record.get("inputs")
+    listed = inputs if isinstance(inputs, list) else []
+    return {
+        (str(entry.get("role")), str(entry.get("sha256")))
+        for entry in listed
+        if isinstance(entry, dict)
+    }
+
+
 def version_note(path: Path) -> str | None:
     """A warning when the run file ``path`` was written by another segloc version."""
     try:
@@ -133,10 +164,10 @@ def write_run_file(
     command: Sequence[str],
     options: Mapping[str, Any],
     inputs: Sequence[tuple[str, Path]],
-) -> None:
+) -> list[str]:
     """Write the run file ``path``: ``options`` (key → value; None left out, paths made
     relative to the file's folder) as the table of ``command``, and the ``[run]`` table
-    with the version and each input (role, path, sha256)."""
+    with the version and each input (role, path, sha256). Returns the inputs' sha256s."""
     folder = path.parent
     table = {k: portable(v, folder) for k, v in options.items() if v is not None}
     document: dict[str, Any] = {}
@@ -144,11 +175,13 @@ def write_run_file(
     for name in command[:-1]:
         holder = holder.setdefault(name, {})
     holder[command[-1]] = table
+    hashes = [sha256(p) for _, p in inputs]
     document[RUN_TABLE] = {
         "segloc": __version__,
         "command": "segloc " + " ".join(command),
         "inputs": [
-            {"role": role, "path": portable(p, folder), "sha256": sha256(p)} for role, p in inputs
+            {"role": role, "path": portable(p, folder), "sha256": digest}
+            for (role, p), digest in zip(inputs, hashes, strict=True)
         ],
     }
     name = " ".join(command)
@@ -157,3 +190,4 @@ def write_run_file(
         f"# Run it again with: segloc {name} ... --config {path.name}\n\n"
     )
     write_text_atomic(path, header + tomli_w.dumps(document))
+    return hashes

@@ -281,13 +281,21 @@ def test_run_file_of_another_version_warns(hall, capsys):
     assert _rows(hall / "o.csv") == _rows(hall / "est.csv")
 
 
-def test_a_run_file_of_another_command_sets_nothing_and_says_so(hall, capsys):
+def test_a_run_file_of_another_command_is_refused(hall, capsys):
     build = ["map", "build", "log.mcap", "--survey", "survey.csv", "--out", "m.json"]
     assert run_cli(capsys, *build).code == 0
     args = ["localize", "log.mcap", "--map", "map.json", "--config", "m.run.toml"]
     result = run_cli(capsys, *args, "--out", "e.csv")
+    assert_one_line_error(result, "m.run.toml: is the run file of `segloc map build`")
+    assert not (hall / "e.csv").exists()
+
+
+def test_a_configuration_without_the_commands_table_sets_nothing_and_says_so(hall, capsys):
+    (hall / "build.toml").write_text("[map.build]\nfuse-gap-m = 0.2\n", encoding="utf-8")
+    args = ["localize", "log.mcap", "--map", "map.json", "--config", "build.toml"]
+    result = run_cli(capsys, *args, "--out", "e.csv")
     assert result.code == 0
-    assert "m.run.toml has no [localize] table" in result.err
+    assert "build.toml has no [localize] table" in result.err
 
 
 def test_simulate_run_file_repeats_the_log(hall, capsys):

@@ -404,7 +404,7 @@ def test_bad_grid_files_are_one_line_naming_them(tmp_path, capsys):
     )
     blank = write_grid(tmp_path, np.full((20, 20), 254), name="blank")
     result = run_cli(capsys, "map", "import", blank, "--out", out)
-    assert_one_line_error(result, f"{blank}: no occupied cells in blank.png (20 × 20)")
+    assert_one_line_error(result, f"{blank}: no occupied cells in blank.png (20 × 20 cells of 0.1")
     specks = np.full((20, 20), 254)
     specks[5, 5] = specks[9, 12] = 0
     sparse = write_grid(tmp_path, specks, name="sparse")

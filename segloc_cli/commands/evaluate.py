@@ -19,6 +19,7 @@ from segloc_cli.commands.options import (
     load_log,
     path_option,
     setting_option,
+    warn,
     with_options,
 )
 from segloc_cli.errors import InputError
@@ -130,6 +131,7 @@ def evaluate(estimates_path, **a):
     from segloc_cli.io.files import check_outputs
     from segloc_cli.io.tables import read_estimates
 
+    _unused_figure_inputs(a)
     _check_usage(a)
     # Outputs are checked before any input is read, so a refusal costs no work.
     inputs = [estimates_path, a["survey_path"], a["relations_path"], a["map_path"], a["log_path"]]
@@ -141,10 +143,35 @@ def evaluate(estimates_path, **a):
         with_map = a["map_path"] is not None and a["log_path"] is not None
         _check_plots(a["plots_dir"], with_map=with_map, force=a["force"])
     estimates = read_estimates(estimates_path)
+    if estimates.empty:
+        raise InputError(
+            "has a header but no rows: no estimate to score (did `segloc localize` stop "
+            "before its first scan?)",
+            path=estimates_path,
+        )
     if a["relations_path"] is not None:
         _evaluate_relations(estimates, estimates_path, a)
     else:
         _evaluate_survey(estimates, estimates_path, a)
+
+
+def _unused_figure_inputs(a: dict) -> None:
+    """Leave out ``--map`` and ``--log`` set by a ``--config`` file when ``--plots`` is not
+    given, saying so: they serve the figures alone, and the run file of a run with figures
+    holds them but not its output folder. Given on the command line they stay, and are
+    refused by ``_check_usage``."""
+    if a["plots_dir"] is not None:
+        return
+    ctx = click.get_current_context()
+    from_file = [
+        name
+        for name in ("map_path", "log_path")
+        if a[name] is not None
+        and ctx.get_parameter_source(name) is click.core.ParameterSource.DEFAULT_MAP
+    ]
+    for name in from_file:
+        warn(f"--config sets --{name.removesuffix('_path')}, which serves --plots alone: not read")
+        a[name] = None
 
 
 def _check_usage(a: dict) -> None:

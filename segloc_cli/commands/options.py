@@ -23,9 +23,14 @@ import click
 from segloc_cli.config import SETTINGS, Config, Setting
 from segloc_cli.errors import InputError
 
-OUTPUT_KEYS = frozenset({"out", "tum", "survey-out", "plots", "config", "force"})
+OUTPUT_KEYS = frozenset({"out", "tum", "mcap", "survey-out", "plots", "config", "force"})
 """Options that name what a run writes (or how), not what it computes: no run file holds
-them, and they are no inputs."""
+them, and they are no inputs (a run file that named ``--mcap`` would have its repetition
+write over the first run's view)."""
+
+COMMAND_LINE_ONLY = frozenset({"force"})
+"""Options a configuration file may not set: ``--force`` must be seen where it is given, or
+a file kept for its settings would overwrite outputs unasked."""
 
 GUESSES_KEYWORD = "odom"
 """``--initial`` value that takes the guesses from the log itself rather than a file."""
@@ -216,6 +221,8 @@ def _apply_config(ctx: click.Context, value: Path | None) -> None:
         return
     command = command_path(ctx)
     table = runfile.read_table(value, command, set(_command_paths(ctx.find_root().command)))
+    record = runfile.run_record(value)
+    runfile.check_run_command(value, record, command)
     note = runfile.version_note(value)
     if note is not None:
         warn(note)
@@ -227,8 +234,14 @@ def _apply_config(ctx: click.Context, value: Path | None) -> None:
         option = options.get(key)
         if option is None:
             raise InputError(_unknown_key(key, command, options), path=value)
+        if key in COMMAND_LINE_ONLY:
+            raise InputError(
+                f"key {key!r} is not read from a file; give --{key} on the command line",
+                path=value,
+            )
         defaults[option.name] = config_value(ctx, option, key, raw, value)
     ctx.default_map = {**(ctx.default_map or {}), **defaults}
+    ctx.meta[RECORDED_INPUTS] = (value, runfile.recorded_inputs(record))
 
 
 def _unknown_key(key: str, command: tuple[str, ...], options: dict) -> str:
@@ -246,6 +259,7 @@ def config_value(ctx: click.Context, option: click.Option, key: str, raw: Any, p
         raise InputError(f"key {key!r} takes one value, not a {type(raw).__name__}", path=path)
     if not option.is_flag and isinstance(raw, bool):
         raise InputError(f"key {key!r} takes a value, not {str(raw).lower()}", path=path)
+    _check_kind(option, key, raw, path)
     if isinstance(option.type, click.types.IntParamType) and isinstance(raw, float):
         if not raw.is_integer():
             raise InputError(f"key {key!r} takes a whole number, not {raw!r}", path=path)
@@ -260,6 +274,24 @@ def config_value(ctx: click.Context, option: click.Option, key: str, raw: Any, p
         return option.type_cast_value(ctx, raw)
     except click.BadParameter as exc:
         raise InputError(f"key {key!r}: {exc.format_message()}", path=path) from None
+
+
+def _check_kind(option: click.Option, key: str, raw: Any, path: Path) -> None:
+    """Refuse a TOML value of the wrong kind for ``option``: text for a number (``"1.5"``), a
+    number for text (a layer named 0 is written ``"0"``); a choice takes either, as its
+    values may be numbers (``readings = 1024``)."""
+    numeric = isinstance(option.type, click.types.IntParamType | click.types.FloatParamType)
+    if option.is_flag or holds_path(option) or isinstance(option.type, click.Choice):
+        return
+    if numeric and isinstance(raw, str):
+        raise InputError(f"key {key!r} takes a number, not the text {raw!r}", path=path)
+    if not numeric and not isinstance(raw, str):
+        raise InputError(f"key {key!r} takes text in quotes, not {raw!r}", path=path)
+
+
+RECORDED_INPUTS = "segloc.recorded_inputs"
+"""Key of the click context's ``meta`` holding the ``--config`` file and the inputs it
+records, (role, sha256) pairs, when it is a run file."""
 
 
 @dataclass(frozen=True)
@@ -303,8 +335,22 @@ class Invocation:
         from segloc_cli.runfile import run_file_path, write_run_file
 
         path = run_file_path(output)
-        write_run_file(path, self.command, self.options, [*self.inputs(), *also_read])
+        inputs = [*self.inputs(), *also_read]
+        hashes = write_run_file(path, self.command, self.options, inputs)
+        _warn_unrepeated(inputs, hashes)
         return path
+
+
+def _warn_unrepeated(inputs: list[tuple[str, Path]], hashes: list[str]) -> None:
+    """Warn for each input (role, path) whose sha256 (``hashes``, in order) is not among those
+    the ``--config`` run file records for that role: the run does not repeat the recorded one."""
+    config, recorded = click.get_current_context().meta.get(RECORDED_INPUTS, (None, set()))
+    for (role, source), digest in zip(inputs, hashes, strict=True):
+        if recorded and (role, digest) not in recorded:
+            warn(
+                f"{source} is not the {role} that {config} records (its sha256 differs): "
+                "this run does not repeat that one"
+            )
 
 
 def _as_path(option: click.Parameter, value: Any) -> Any:

@@ -39,9 +39,10 @@ reads the image back as written.
 
 from __future__ import annotations
 
-import io
+import contextlib
 import math
-import warnings
+import reprlib
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -51,7 +52,7 @@ from segloc_cli.config import ExtractParams
 from segloc_cli.errors import InputError
 from segloc_cli.geometry import Pose2, transform_segments
 from segloc_cli.io.files import atomic_path, reading, write_text_atomic
-from segloc_cli.io.maps import shown_value
+from segloc_cli.io.maps import MAX_COORDINATE_M
 from segloc_cli.io.plans import Plan, checked_plan_segments
 from segloc_cli.raster import SPLIT_CELLS, line_cells, trace_walls
 
@@ -62,8 +63,20 @@ OCCUPIED = 100
 """The value map_server gives an occupied cell (nav_msgs/OccupancyGrid)."""
 
 MAX_GRID_CELLS = 100_000_000
-"""Most cells read or written (10,000 × 10,000: 500 m square at 5 cm); larger grids take
-gigabytes to trace."""
+"""Most cells read or written (10,000 × 10,000: 500 m square at 5 cm): such a grid takes
+about 25 s and 1.5 GB to trace, and a larger one is refused by its image's header, before
+any pixel is read."""
+
+MAX_YAML_BYTES = 1 << 20
+"""Largest nav2 map YAML read (1 MiB): a handful of keys, not data."""
+
+MAX_YAW_RAD = 4.0 * math.pi
+"""Largest |yaw| of a grid's origin: radians, as map_server takes them (90 is degrees)."""
+
+IMAGE_FORMATS = ("PNG", "PPM")
+"""Pillow's formats a grid's image may be in: PNG, and PGM (Pillow's PPM reads PGM, PBM and
+PPM). No other decoder is tried, so a file that only names itself an image runs no
+decoder beyond these two (Pillow's EPS reader, for one, would start Ghostscript)."""
 
 MARGIN_CELLS = 10
 """Unknown cells written around the map's bounding box."""
@@ -115,10 +128,13 @@ def read_nav2(path: str | Path) -> Plan:
     """Read a nav2 map (YAML and image) as segments (M, 4) in metres, world frame.
 
     See the module docstring for the rules. Raises ``InputError`` naming the file at fault
-    when the YAML is not valid YAML, lacks a key or holds a bad value (a threshold outside
-    [0, 1], free_thresh not below occupied_thresh, a resolution ≤ 0, an origin that is
-    not three numbers, an unknown mode), when the image is missing, unreadable or larger
-    than ``MAX_GRID_CELLS``, or when no occupied cells make a segment.
+    when the YAML is over ``MAX_YAML_BYTES``, not valid YAML, lacks a key or holds a bad
+    value (a threshold outside [0, 1], free_thresh not below occupied_thresh, a resolution
+    ≤ 0, an origin that is not three finite numbers or whose yaw exceeds ``MAX_YAW_RAD``,
+    an unknown mode), when the image is missing, not a regular file, not a PNG or PGM, larger
+    than ``MAX_GRID_CELLS`` or reaching beyond ``MAX_COORDINATE_M``, or when no occupied
+    cells make a segment. The image may lie anywhere (an absolute path, or ``..``), as
+    map_server allows; the map's ``source`` and the run file name it.
     """
     path = Path(path)
     header = read_header(path)
@@ -135,8 +151,9 @@ def read_nav2(path: str | Path) -> Plan:
     if len(segments) == 0:
         found = f"{n_occupied} occupied cells" if n_occupied else "no occupied cells"
         raise InputError(
-            f"{found} in {header.image.name} ({columns} × {rows}) make no wall of "
-            f"{kept.min_length_m:g} m or more; check negate and occupied_thresh",
+            f"{found} in {header.image.name} ({columns} × {rows} cells of {res:g} m) make no "
+            f"wall of {kept.min_length_m:g} m or more; check resolution, negate and "
+            "occupied_thresh",
             path=path,
         )
     source = {
@@ -166,9 +183,13 @@ def read_header(path: Path) -> GridHeader:
     import yaml
 
     with reading(path, "a nav2 map YAML"):
+        if path.stat().st_size > MAX_YAML_BYTES:
+            raise InputError(f"is over {MAX_YAML_BYTES:,} bytes; not a nav2 map YAML", path=path)
         text = path.read_text(encoding="utf-8")
     try:
         document = yaml.safe_load(text)
+    except RecursionError:
+        raise InputError("not a nav2 map YAML: nested too deep to read", path=path) from None
     except yaml.MarkedYAMLError as exc:
         mark = exc.problem_mark
         where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
@@ -192,6 +213,12 @@ def read_header(path: Path) -> GridHeader:
     if not (isinstance(origin, list) and len(origin) == 3):
         raise InputError(f"`origin` must be [x, y, yaw], got {_shown(origin)}", path=path)
     origin_values = tuple(_number(path, {"origin": v}, "origin") for v in origin)
+    if abs(origin_values[2]) > MAX_YAW_RAD:
+        raise InputError(
+            f"`origin` yaw must lie within ±{MAX_YAW_RAD:.2f} rad, got {origin_values[2]:g}; "
+            "map_server takes radians, not degrees",
+            path=path,
+        )
     occupied = _number(path, document, "occupied_thresh")
     free = _number(path, document, "free_thresh")
     for key, value in (("occupied_thresh", occupied), ("free_thresh", free)):
@@ -221,47 +248,81 @@ def read_header(path: Path) -> GridHeader:
 def occupied_cells(header: GridHeader, yaml_path: Path) -> np.ndarray:
     """Boolean (rows, columns), True where map_server would publish 100 (occupied); row 0 is
     the image's top row (largest y)."""
-    shade, top, opaque = _load_image(header.image, yaml_path)
+    shade, top, opaque = _load_image(header, yaml_path)
+    level = np.arange(top + 1)
     if header.mode == "raw":
         # The percent as map_server takes it: the grey value on an 8-bit scale.
-        return np.rint(shade.astype(float) * (255.0 / top)) == OCCUPIED
+        return (np.rint(level * (255.0 / top)) == OCCUPIED)[shade]
     # One lookup per grey level: the comparison made as map_server makes it, in doubles.
-    level = np.arange(top + 1) / top
-    occupancy = level if header.negate else 1.0 - level
+    occupancy = level / top if header.negate else 1.0 - level / top
     occupied = (occupancy > header.occupied_thresh)[shade]
     return occupied if opaque is None else occupied & opaque
 
 
-def _load_image(image: Path, yaml_path: Path) -> tuple[np.ndarray, int, np.ndarray | None]:
-    """The image's grey levels (rows, columns) as integers 0..top, that top, and where it
-    is fully opaque (None when it has no alpha). Colour images give R + G + B (top 765):
-    map_server averages the channels."""
-    from PIL import Image
+def _load_image(header: GridHeader, yaml_path: Path) -> tuple[np.ndarray, int, np.ndarray | None]:
+    """The image's grey levels (rows, columns) as unsigned integers 0..top, that top, and
+    where it is fully opaque (None when it has no alpha). Colour images give R + G + B (top
+    765): map_server averages the channels. The image's size is checked from its header
+    (``_check_size``) before any pixel is read."""
+    from PIL import Image, UnidentifiedImageError
 
+    image = header.image
     if not image.exists():
         raise InputError(f"its image {image} is not there; check `image`", path=yaml_path)
     named = f"named by {yaml_path.name}"
-    with reading(image, "a PGM or PNG image"):
-        data = image.read_bytes()
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("error", Image.DecompressionBombWarning)
-            with Image.open(io.BytesIO(data)) as picture:
-                columns, rows = picture.size
-                if columns * rows > MAX_GRID_CELLS:
-                    raise InputError(
-                        f"image is {columns} × {rows} pixels, more than {MAX_GRID_CELLS:,} "
-                        f"cells ({named})",
-                        path=image,
-                    )
+    with reading(image, "a PGM or PNG image"), image.open("rb") as stream:
+        try:
+            with _no_pillow_size_limit():
+                picture = Image.open(stream, formats=IMAGE_FORMATS)  # reads the header alone
+            with picture:
+                _check_size(header, picture.size, yaml_path)
                 picture.load()
                 return _grey_levels(picture)
-    except (OSError, SyntaxError, ValueError, Image.DecompressionBombError) as exc:
-        # Pillow's UnidentifiedImageError and truncated data are OSErrors of the decoder.
-        text = " ".join(str(exc).split()) or type(exc).__name__
-        raise InputError(f"not a readable PGM or PNG image ({text}; {named})", path=image) from None
-    except Image.DecompressionBombWarning:
-        raise InputError(f"image is too large to read ({named})", path=image) from None
+        except UnidentifiedImageError:
+            raise InputError(
+                f"not a readable PGM or PNG image (its bytes are neither; {named})", path=image
+            ) from None
+        except (OSError, SyntaxError, ValueError) as exc:
+            # Truncated or corrupt data: OSErrors and ValueErrors of the decoder.
+            text = " ".join(str(exc).split()) or type(exc).__name__
+            raise InputError(
+                f"not a readable PGM or PNG image ({text}; {named})", path=image
+            ) from None
+
+
+@contextlib.contextmanager
+def _no_pillow_size_limit() -> Iterator[None]:
+    """Pillow's own limit on pixels lifted while an image is opened (which reads its header
+    alone), ``_check_size`` taking its place before the pixels are loaded: Pillow's (89
+    million pixels, refusing outright at twice that) neither matches ``MAX_GRID_CELLS`` nor
+    says the size."""
+    from PIL import Image
+
+    limit, Image.MAX_IMAGE_PIXELS = Image.MAX_IMAGE_PIXELS, None
+    try:
+        yield
+    finally:
+        Image.MAX_IMAGE_PIXELS = limit
+
+
+def _check_size(header: GridHeader, size: tuple[int, int], yaml_path: Path) -> None:
+    """Refuse an image (columns, rows) of more than ``MAX_GRID_CELLS`` cells, or whose cells,
+    placed by the YAML's origin and resolution, reach beyond ``MAX_COORDINATE_M``."""
+    columns, rows = size
+    if columns * rows > MAX_GRID_CELLS:
+        raise InputError(
+            f"image is {columns} × {rows} pixels, more than {MAX_GRID_CELLS:,} cells (named "
+            f"by {yaml_path.name}); crop or coarsen the grid",
+            path=header.image,
+        )
+    x, y, _ = header.origin
+    reach_m = max(abs(x), abs(y)) + math.hypot(columns, rows) * header.resolution_m
+    if not reach_m <= MAX_COORDINATE_M:
+        raise InputError(
+            f"its {columns} × {rows} cells of {header.resolution_m:g} m from origin ({x:g}, "
+            f"{y:g}) reach beyond ±{MAX_COORDINATE_M:g} m; check `resolution` and `origin`",
+            path=yaml_path,
+        )
 
 
 def _grey_levels(picture) -> tuple[np.ndarray, int, np.ndarray | None]:
@@ -271,20 +332,20 @@ def _grey_levels(picture) -> tuple[np.ndarray, int, np.ndarray | None]:
         picture = picture.convert("RGBA" if "transparency" in picture.info else "RGB")
         mode = picture.mode
     if mode in ("1", "L"):
-        return np.asarray(picture.convert("L"), dtype=np.int64), 255, None
+        return np.asarray(picture.convert("L"), dtype=np.uint8), 255, None
     if mode in ("I;16", "I;16B", "I;16L", "I"):
-        levels = np.asarray(picture, dtype=np.int64)
+        levels = np.asarray(picture)
         if levels.size and (levels.min() < 0 or levels.max() > 65535):
             raise ValueError(f"grey values outside 0..65535 in a {mode} image")
-        return levels, 65535, None
+        return levels.astype(np.uint16), 65535, None
     if mode == "LA":
-        grey, alpha = (np.asarray(band, dtype=np.int64) for band in picture.split())
+        grey, alpha = (np.asarray(band, dtype=np.uint8) for band in picture.split())
         return grey, 255, alpha == 255
     if mode not in ("RGB", "RGBA"):
         picture = picture.convert("RGB")
-    channels = np.asarray(picture, dtype=np.int64)
+    channels = np.asarray(picture, dtype=np.uint8)
     opaque = channels[..., 3] == 255 if picture.mode == "RGBA" else None
-    return channels[..., :3].sum(axis=2), 765, opaque
+    return channels[..., :3].sum(axis=2, dtype=np.uint16), 765, opaque
 
 
 def _number(path: Path, document: dict, key: str) -> float:
@@ -301,7 +362,14 @@ def _number(path: Path, document: dict, key: str) -> float:
 
 
 def _shown(value) -> str:
-    return shown_value(value, limit=60)
+    """A value of the YAML as an error message quotes it, on one line, at most 60 characters:
+    a few items, two levels deep, so that a document whose aliases nest a billion items (the
+    YAML "billion laughs") is never spelt out."""
+    quoting = reprlib.Repr()
+    quoting.maxlevel, quoting.maxlist, quoting.maxdict = 2, 4, 4
+    quoting.maxstring = quoting.maxother = 40
+    text = " ".join(quoting.repr(value).split())
+    return text if len(text) <= 60 else text[:57] + "..."
 
 
 # --- writing ------------------------------------------------------------------------------

@@ -4,9 +4,12 @@ every plan reader returns (``Plan``; SVG drawings are in ``svg``, nav2 grids in 
 A plan's walls are its lines and curves. Reading a DXF takes, from the model space (or the
 layers asked for), every ``LINE``, every piece of a ``LWPOLYLINE`` or 2D ``POLYLINE``
 (closed ones back to their first vertex), every ``ARC``, ``CIRCLE``, ``ELLIPSE`` and
-``SPLINE``, and the same inside block references (``INSERT``, placed as drawn). A curve (an
-arc piece of a polyline, drawn with a bulge, included) becomes straight chords, as few as
-keep each within ``CHORD_SAGITTA_M`` of it once in metres, through ezdxf's flattening.
+``SPLINE``, and the same inside block references (``INSERT``, placed as drawn, every copy of
+a ``MINSERT`` array). References are counted before any is placed: a block that holds a
+reference to itself, references nested more than ``MAX_INSERT_DEPTH`` deep or placing more
+than ``MAX_PLACED_ENTITIES`` entities refuse the drawing. A curve (an arc piece of a
+polyline, drawn with a bulge, included) becomes straight chords, as few as keep each within
+``CHORD_SAGITTA_M`` of it once in metres, through ezdxf's flattening.
 Coordinates are scaled to metres by the drawing's ``$INSUNITS``, or by the units the caller
 gives when the drawing does not say (``$INSUNITS`` missing or 0). The plan's x and y are
 the map's (world coordinates, the entities' own planes applied); z is dropped. Pieces
@@ -44,7 +47,13 @@ SEGLOC_LAYER = "segloc-map"
 """The layer ``write_dxf`` draws the map on."""
 
 MAX_INSERT_DEPTH = 16
-"""Block references nested deeper than this are not followed (a block that holds itself)."""
+"""Most levels of block references inside one another; a drawing nesting them deeper is
+refused, as is a block that holds a reference to itself (directly or through others)."""
+
+MAX_PLACED_ENTITIES = 250_000
+"""Most entities the block references of a drawing may place, every copy of a ``MINSERT``
+array counted: each costs ezdxf about 0.1 ms to place, so this bounds the reading to about
+half a minute, where nested references could otherwise multiply a small file into billions."""
 
 CHORD_SAGITTA_M = 0.01
 """Largest distance (m) between a DXF curve and the chords that stand for it (their sagitta):
@@ -121,9 +130,10 @@ def read_dxf(path: str | Path, layers: Sequence[str] = (), units: str | None = N
             f"{', '.join(known)}",
             path=path,
         )
+    _BlockCensus(path, doc).check(doc.modelspace())
     wanted = set(layers)
     read = _DxfReading(path, scale)
-    for entity in _flattened(doc.modelspace(), 0):
+    for entity in _flattened(doc.modelspace()):
         if not wanted or entity.dxf.layer in wanted:
             read.add(entity)
     pieces_m = np.array(read.pieces, dtype=float).reshape(-1, 4) * scale
@@ -167,14 +177,92 @@ def _metres_per_unit(path: Path, insunits: object, units: str | None) -> float:
     )
 
 
-def _flattened(entities: Iterable, depth: int) -> Iterable:
-    """The entities, with each block reference replaced by what it draws, where it draws it."""
+def _flattened(entities: Iterable) -> Iterable:
+    """The entities, with each block reference replaced by what it draws, where it draws it
+    (every copy of a ``MINSERT`` array). ``_BlockCensus.count`` must have passed them."""
     for entity in entities:
-        if entity.dxftype() == "INSERT":
-            if depth < MAX_INSERT_DEPTH:
-                yield from _flattened(entity.virtual_entities(), depth + 1)
-        else:
+        if entity.dxftype() != "INSERT":
             yield entity
+            continue
+        for placed in entity.multi_insert() if entity.mcount > 1 else (entity,):
+            yield from _flattened(placed.virtual_entities())
+
+
+class _BlockCensus:
+    """How many entities the block references of a drawing place, found before any is placed;
+    ``InputError`` for references that cannot be followed (see ``count``). A reference to a
+    block the drawing lacks places nothing (ezdxf's recovery drops such references)."""
+
+    def __init__(self, path: Path, doc):
+        self.path = path
+        self.doc = doc
+        self._blocks: dict[str, tuple[int, int]] = {}  # by upper-case name: placed, levels
+
+    def check(self, layout: Iterable) -> None:
+        """Raise ``InputError`` naming the file when the references of ``layout`` (the model
+        space) reach a block that holds a reference to itself, nest deeper than
+        ``MAX_INSERT_DEPTH`` or place more than ``MAX_PLACED_ENTITIES`` entities in all."""
+        self._contents(layout, ())
+
+    def _contents(self, entities: Iterable, chain: tuple[str, ...]) -> tuple[int, int]:
+        """Entities placed by ``entities`` inside the blocks ``chain`` (outermost first), and
+        the levels of references they nest (0: none)."""
+        placed = levels = 0
+        for entity in entities:
+            if entity.dxftype() != "INSERT":
+                placed += bool(chain)  # the model space's own entities are not placed
+                continue
+            inner, depth = self._block(str(entity.dxf.get("name", "")), chain)
+            placed += max(entity.mcount, 1) * inner
+            levels = max(levels, depth)
+            if placed > MAX_PLACED_ENTITIES:
+                raise self._refusal(
+                    f"its block references place more than {MAX_PLACED_ENTITIES:,} entities "
+                    f"(block {self._path_text((*chain, entity.dxf.get('name', '')))}); "
+                    "explode or purge the repeated blocks in the CAD program"
+                )
+        return placed, levels
+
+    def _block(self, name: str, chain: tuple[str, ...]) -> tuple[int, int]:
+        """Entities one reference to block ``name`` places from inside ``chain``, and the
+        levels of references it nests, itself included."""
+        key = name.upper()
+        above = [c.upper() for c in chain]
+        if key in above:
+            cycle = self._path_text((*chain[above.index(key) :], name))
+            raise self._refusal(
+                f"block {name} holds a reference to itself ({cycle}), so it has no end; fix "
+                "the block in the CAD program"
+            )
+        if key not in self._blocks:
+            if len(chain) >= MAX_INSERT_DEPTH:
+                raise self._refusal(
+                    f"block references nest more than {MAX_INSERT_DEPTH} levels deep "
+                    f"({self._path_text((*chain, name))}); explode the outer blocks in the "
+                    "CAD program"
+                )
+            block = self.doc.blocks.get(name)
+            inner, levels = (0, 0) if block is None else self._contents(block, (*chain, name))
+            self._blocks[key] = (inner, levels + 1)
+        placed, levels = self._blocks[key]
+        if len(chain) + levels > MAX_INSERT_DEPTH:
+            raise self._refusal(
+                f"block references nest more than {MAX_INSERT_DEPTH} levels deep "
+                f"({self._path_text((*chain, name))} and {levels - 1} more inside it); "
+                "explode the outer blocks in the CAD program"
+            )
+        return placed, levels
+
+    @staticmethod
+    def _path_text(chain: Sequence[str]) -> str:
+        """Block names joined by arrows, the middle of a long chain left out."""
+        names = list(chain)
+        if len(names) > 6:
+            names = [*names[:3], "…", *names[-2:]]
+        return " → ".join(names)
+
+    def _refusal(self, message: str) -> InputError:
+        return InputError(message, path=self.path)
 
 
 class _DxfReading:

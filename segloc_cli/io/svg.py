@@ -14,6 +14,13 @@ upwards. ``s`` is given, or follows from the drawing's own size when its ``width
 ``height`` carry an absolute unit (mm, cm, in, pt, pc, Q or px at 96 per inch) that its
 ``viewBox`` divides evenly; ``100%`` or unitless sizes say nothing physical.
 
+The drawing is vetted before svgelements sees it, so that no file can make the reading
+touch another file or swell without bound: the XML is parsed by defusedxml, which refuses
+any entity declared in a DOCTYPE (nested entities, the "billion laughs", expand a few lines
+into gigabytes; an external one names another file to read), and elements nested deeper than
+``MAX_SVG_DEPTH``, a ``use`` that places an element inside itself, or more than
+``MAX_SVG_ELEMENTS`` elements once every ``use`` is expanded refuse the drawing.
+
 Writing draws each segment as a ``line`` in millimetre user units (``width`` and
 ``height`` in mm matching the ``viewBox``), the map's y flipped: reading the file back with
 no options gives the map again, to within the rounding of the millimetre-to-metre
@@ -22,10 +29,11 @@ conversion (a few parts in 10¹⁶).
 
 from __future__ import annotations
 
+import io
 import math
 import re
 from pathlib import Path
-from xml.etree.ElementTree import ParseError
+from xml.etree.ElementTree import Element, ParseError
 
 import numpy as np
 
@@ -49,6 +57,18 @@ MARGIN_MM = 500.0
 
 STROKE_MM = 20.0
 """Width of the lines written (2 cm on the floor): visible at a plan's usual zoom."""
+
+MAX_SVG_DEPTH = 256
+"""Most levels of elements inside one another, those a ``use`` places counted where it places
+them: svgelements follows them by recursion, which Python stops near 1,000."""
+
+MAX_SVG_ELEMENTS = 250_000
+"""Most elements in a drawing once every ``use`` is expanded: each costs svgelements about
+60 µs, so this bounds the reading to about 15 s, where ``use`` elements placing groups of
+``use`` elements could otherwise multiply a small file into billions."""
+
+_HREFS = ("href", "{http://www.w3.org/1999/xlink}href")
+"""Attributes through which a ``use`` names what it places (svgelements prefers ``href``)."""
 
 _SVG_ERRORS = (ArithmeticError, AttributeError, LookupError, TypeError, ValueError)
 """What svgelements raises on attribute values it cannot make sense of."""
@@ -78,14 +98,12 @@ def read_svg(
     if not all(math.isfinite(v) for v in origin_m):
         raise InputError(f"--origin must be two finite numbers, got {origin_m}", path=path)
     with reading(path, "an SVG drawing"):
-        try:
-            drawing = se.SVG.parse(str(path), reify=True)
-        except ParseError as exc:
-            raise InputError(
-                f"not an SVG drawing: not well-formed XML ({exc})", path=path
-            ) from None
-        except _SVG_ERRORS as exc:
-            raise _unreadable(path, exc) from None
+        data = path.read_bytes()
+    _check_structure(path, _vetted_xml(path, data))
+    try:
+        drawing = se.SVG.parse(io.BytesIO(data), reify=True)
+    except _SVG_ERRORS as exc:
+        raise _unreadable(path, exc) from None
     if not isinstance(drawing, se.SVG):
         raise InputError("not an SVG drawing: its outermost element is not <svg>", path=path)
     to_user = _to_user_units(path, drawing, se)
@@ -141,6 +159,104 @@ def write_svg(path: str | Path, segments_world: np.ndarray) -> None:
         f"{lines}</g>\n</svg>\n"
     )
     write_text_atomic(path, text)
+
+
+def _vetted_xml(path: Path, data: bytes) -> Element:
+    """The root element of the drawing's XML, parsed by defusedxml; ``InputError`` naming the
+    file when it is not well-formed or declares an entity (which is neither expanded nor,
+    for an external one, read)."""
+    from defusedxml import DefusedXmlException, EntitiesForbidden
+    from defusedxml.ElementTree import fromstring
+
+    try:
+        return fromstring(data)
+    except ParseError as exc:
+        raise InputError(f"not an SVG drawing: not well-formed XML ({exc})", path=path) from None
+    except EntitiesForbidden as exc:
+        if exc.sysid is not None or exc.pubid is not None:
+            raise InputError(
+                f"declares the external entity {exc.name} ({exc.sysid or exc.pubid}), a "
+                "reference to another file, which segloc does not read; remove the entity",
+                path=path,
+            ) from None
+        raise InputError(
+            f"declares the entity {exc.name} in its DOCTYPE; segloc expands no XML entities "
+            "(nested ones can swell a small file to gigabytes): save the drawing without them",
+            path=path,
+        ) from None
+    except DefusedXmlException as exc:
+        raise InputError(
+            f"not an SVG drawing segloc reads: {exc}; save it as plain SVG", path=path
+        ) from None
+
+
+def _check_structure(path: Path, root: Element) -> None:
+    """Refuse a drawing nested deeper than ``MAX_SVG_DEPTH``, holding a ``use`` that places an
+    element inside itself, or expanding to more than ``MAX_SVG_ELEMENTS`` elements."""
+    _Expansion(path, root).placed(root, 1)
+
+
+class _Expansion:
+    """The elements of a drawing as svgelements expands them, every ``use`` replaced by what it
+    places (the element whose id is its href less the first character), counted depth first
+    with each element's count kept, so that a clone of a clone costs one look-up."""
+
+    def __init__(self, path: Path, root: Element):
+        self.path = path
+        self.by_id = {element.get("id"): element for element in root.iter() if element.get("id")}
+        self.counted: dict[int, tuple[int, int]] = {}  # by id(element): elements, levels
+        self.open_ids: list[str] = []  # ids of the elements being counted, outermost first
+
+    def placed(self, element: Element, depth: int) -> tuple[int, int]:
+        """Elements ``element`` places, itself included, and the levels they span, for the
+        element ``depth`` levels down from the root (1); ``InputError`` past the bounds."""
+        key = id(element)
+        if key not in self.counted:
+            if depth > MAX_SVG_DEPTH:
+                raise self._too_deep()
+            self.open_ids.append(element.get("id") or "")
+            count, levels = 1, 0
+            for inner in [*element, *self._used(element)]:
+                inner_count, inner_levels = self.placed(inner, depth + 1)
+                count, levels = count + inner_count, max(levels, inner_levels)
+                if count > MAX_SVG_ELEMENTS:
+                    raise InputError(
+                        f"the drawing places more than {MAX_SVG_ELEMENTS:,} elements once "
+                        "every <use> is expanded; unlink the repeated clones",
+                        path=self.path,
+                    )
+            self.open_ids.pop()
+            self.counted[key] = (count, levels + 1)
+        count, levels = self.counted[key]
+        if depth + levels - 1 > MAX_SVG_DEPTH:
+            raise self._too_deep()
+        return count, levels
+
+    def _used(self, element: Element) -> list[Element]:
+        """What a ``use`` element places ([] for any other element, or a ``use`` of nothing);
+        ``InputError`` when that is an element being counted, placed inside itself."""
+        if element.tag.rsplit("}", 1)[-1] != "use":
+            return []
+        href = next((element.get(name) for name in _HREFS if element.get(name)), "")
+        target = self.by_id.get(href[1:])
+        if target is None:
+            return []
+        if href[1:] in self.open_ids:
+            cycle = self.open_ids[self.open_ids.index(href[1:]) :]
+            chain = " → ".join(f"#{i}" for i in cycle if i)
+            raise InputError(
+                f"a <use> of {href} places #{href[1:]} inside itself ({chain} → {href}), "
+                "without end; point the <use> elsewhere",
+                path=self.path,
+            )
+        return [target]
+
+    def _too_deep(self) -> InputError:
+        return InputError(
+            f"elements nest more than {MAX_SVG_DEPTH} levels deep (what a <use> places "
+            "counted where it is placed); flatten the drawing's groups",
+            path=self.path,
+        )
 
 
 def _unreadable(path: Path, exc: Exception) -> InputError:

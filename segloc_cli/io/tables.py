@@ -112,6 +112,8 @@ HYPOTHESIS_COLUMNS = ["pose_id", "time_s", "rank", *HypothesisRow.__annotations_
 ``rank`` 1 the answer."""
 # Float columns that must hold a number in every row; the others may be empty (NaN).
 ESTIMATE_REQUIRED_FLOAT_COLUMNS = ["time_s"]
+ESTIMATE_POSITION_COLUMNS = [c for c in ESTIMATE_COLUMNS if c.endswith(("x_m", "y_m"))]
+"""Columns holding a position (m), within ±``MAX_COORDINATE_M`` where not empty."""
 ESTIMATE_LATER_COLUMNS = ["confidence", "window_scans"]
 """Columns that files written by earlier versions lack; read as empty (NaN) there, or as
 ``UNSAID_COUNT`` for a count."""
@@ -353,6 +355,16 @@ def _check_coordinates(path, poses: np.ndarray) -> None:
             "expected coordinates in metres",
             path=path,
             row=row + 1,
+        )
+
+
+def _check_position(path, row: int, column: str, value: float) -> None:
+    """Refuse a position (m) beyond ``MAX_COORDINATE_M``; NaN (an empty field) passes."""
+    if abs(value) > MAX_COORDINATE_M:
+        raise InputError(
+            f"column {column} is {value:g}, beyond ±{MAX_COORDINATE_M:g} m; expected metres",
+            path=path,
+            row=row,
         )
 
 
@@ -683,7 +695,7 @@ def read_estimates(path: str | Path) -> pd.DataFrame:
     Types: ``pose_id`` and ``n_local_segments`` int64, ``status`` str, all
     others float64 (empty → NaN, except ``time_s`` which is required). Raises
     ``InputError`` naming the file and 1-based data row on a missing column or
-    a bad value.
+    a bad value (a position beyond ±``MAX_COORDINATE_M`` among them).
     """
     path = Path(path)
     header, data = _read_csv_rows(path, _read_text(path))
@@ -707,6 +719,8 @@ def read_estimates(path: str | Path) -> pd.DataFrame:
             else:
                 optional = c not in ESTIMATE_REQUIRED_FLOAT_COLUMNS
                 values[c].append(_parse_float(path, row, c, text, allow_empty=optional))
+                if c in ESTIMATE_POSITION_COLUMNS:
+                    _check_position(path, row, c, values[c][-1])
     frame = pd.DataFrame(
         {
             c: pd.Series(
