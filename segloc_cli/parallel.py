@@ -6,6 +6,11 @@ back in scan order. The workers are forked after the localizer has built
 what it shares (R-table, score raster) and compiled its kernels, so each
 starts with them rather than building them again. Every row equals the one
 a single process gives except ``runtime_ms``, a measured time.
+
+No more workers are started than there are blocks of scans, nor (``usable_cores``, which
+the command warns of) than cores to run them. Where the system lets fewer processes start
+than asked (the limit of ``ulimit -u``, a container's), the run goes on with those that
+started, and with none on this process alone; a line on stderr says so.
 """
 
 from __future__ import annotations
@@ -13,9 +18,12 @@ from __future__ import annotations
 import contextlib
 import ctypes
 import ctypes.util
+import errno
 import multiprocessing
 import os
 import signal
+import sys
+import threading
 import time
 import weakref
 from collections import deque
@@ -35,9 +43,22 @@ POLL_S = 0.25
 """How often (s) the parent, waiting for a block, checks whether it was asked to stop."""
 PR_SET_PDEATHSIG = 1
 """Linux prctl option: the signal a process gets when its parent dies."""
+START_TIMEOUT_S = 30.0
+"""Longest wait (s) for a new pool's first worker to answer: a pool that could not start a
+thread of its own never does."""
+LIMIT_HINT = ": the system's limit on processes (ulimit -u) may be reached"
+"""What the warning of a pool smaller than asked suggests."""
 
 _job: tuple | None = None
 """The work of the current run, set before the workers are forked (they inherit it)."""
+
+
+def usable_cores() -> int:
+    """How many cores this process may run on (its CPU affinity, where the system tells)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        return os.cpu_count() or 1
 
 
 def _worker_signals() -> None:
@@ -116,8 +137,14 @@ def localize_scans_parallel(
     prepare_localizer(localizer, scans, initial_poses, extract_params)
     blocks = [(i, min(i + BLOCK_SCANS, len(scans))) for i in range(0, len(scans), BLOCK_SCANS)]
     _job = (list(scans), initial_poses, list(pose_ids), localizer, extract_params, windows)
-    context = multiprocessing.get_context("fork")
-    pool = ProcessPoolExecutor(jobs, mp_context=context, initializer=_worker_signals)
+    pool, jobs = _started_pool(min(jobs, len(blocks)), stop) if len(blocks) > 1 else (None, 1)
+    if pool is None:
+        _job = None
+        if not stop():
+            yield from localize_scans(
+                scans, initial_poses, pose_ids, localizer, extract_params, windows
+            )
+        return
     try:
         # A few blocks ahead per worker keep both busy; the rest are sent as rows come back.
         pending = deque(pool.submit(_localize_block, b) for b in blocks[: 2 * jobs])
@@ -131,6 +158,91 @@ def localize_scans_parallel(
     finally:
         _job = None
         _shut_down(pool)
+
+
+def _started_pool(jobs: int, stop: Callable[[], bool]) -> tuple[ProcessPoolExecutor | None, int]:
+    """A pool of ``jobs`` worker processes, forked now, and its size; where the system lets
+    fewer start (``_lacks_room``), a pool of as many as did, said on stderr, and (None, 0)
+    when not even one starts, or when ``stop()`` asks the run to end meanwhile."""
+    asked, why = jobs, ""
+    while jobs >= 1:
+        pool = ProcessPoolExecutor(
+            jobs, mp_context=multiprocessing.get_context("fork"), initializer=_worker_signals
+        )
+        try:
+            _start(pool)
+        except (OSError, RuntimeError, FutureTimeout) as exc:
+            if not _lacks_room(exc):
+                _shut_down(pool)
+                time.sleep(POLL_S)  # a worker ended by the signal that stops the run
+                if stop():
+                    return None, 0
+                raise
+            started = len(getattr(pool, "_processes", {}))
+            _shut_down(pool)
+            why, jobs = _why(exc), min(jobs - 1, started)
+            continue
+        if jobs < asked:
+            _say(
+                f"could start {jobs} of {asked} worker processes ({why}{LIMIT_HINT}); "
+                f"localizing on {jobs}"
+            )
+        return pool, jobs
+    _say(f"could start no worker process ({why}{LIMIT_HINT}); localizing on this one alone")
+    return None, 0
+
+
+def _start(pool: ProcessPoolExecutor) -> None:
+    """Fork the pool's workers and start its threads, by running a task that does nothing;
+    raise what stopped them, a thread's failure included (which would else be printed and
+    leave the task waiting forever), or ``FutureTimeout`` after ``START_TIMEOUT_S``."""
+    failed: list[BaseException] = []
+    previous = threading.excepthook
+
+    def note(args: threading.ExceptHookArgs) -> None:
+        if args.exc_value is not None and _lacks_room(args.exc_value):
+            failed.append(args.exc_value)
+        else:
+            previous(args)
+
+    threading.excepthook = note
+    try:
+        started = pool.submit(_nothing)
+        deadline = time.monotonic() + START_TIMEOUT_S
+        while not started.done() and not failed and time.monotonic() < deadline:
+            time.sleep(0.01)
+        if failed:
+            raise failed[0]
+        started.result(timeout=0)
+    finally:
+        threading.excepthook = previous
+
+
+def _nothing() -> None:
+    """A task that does nothing: the first one, which starts the pool."""
+
+
+def _lacks_room(exc: BaseException) -> bool:
+    """Whether ``exc`` says the system would start no more processes or threads (fork's
+    EAGAIN or ENOMEM, a thread that could not start, a pool that never answered), not that
+    something is wrong."""
+    if isinstance(exc, FutureTimeout):
+        return True
+    if isinstance(exc, OSError):
+        return exc.errno in (errno.EAGAIN, errno.ENOMEM)
+    return "can't start new thread" in str(exc)
+
+
+def _why(exc: BaseException) -> str:
+    """What stopped a pool from starting, in a few words."""
+    if isinstance(exc, FutureTimeout):
+        return f"its first worker did not answer within {START_TIMEOUT_S:g} s"
+    return exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
+
+
+def _say(message: str) -> None:
+    """A warning on stderr, in the command line's words."""
+    print(f"segloc: warning: {message}", file=sys.stderr)
 
 
 def _result(future: Future, stop: Callable[[], bool]) -> list[dict] | None:

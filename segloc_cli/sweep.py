@@ -20,6 +20,7 @@ import contextlib
 import functools
 import hashlib
 import json
+import os
 import shutil
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
@@ -236,6 +237,12 @@ class ResultStore:
         self.out = out
         self.parts = out.with_name(out.name + ".parts")
         self._frames: dict[str, pd.DataFrame] = {}
+        if self.parts.exists() and not self.parts.is_dir():
+            raise InputError(
+                "is not a folder, and segloc sweep keeps each finished task there until it "
+                "ends; move it away, or use another --out",
+                path=self.parts,
+            )
         if fresh:
             shutil.rmtree(self.parts, ignore_errors=True)
             return
@@ -302,36 +309,209 @@ def _read_results(path: Path) -> pd.DataFrame:
 # --------------------------------------------------------------------------- on the cluster
 
 
-@contextlib.contextmanager
-def connect(scheduler: str | None, workers: int) -> Iterator[Any]:
-    """A Dask client: of the scheduler at ``scheduler`` (e.g. tcp://10.0.0.5:8786), or of a
-    local cluster of ``workers`` single-threaded worker processes, shut down on leaving."""
-    import logging
+SCHEDULER_TIMEOUT_S = 15.0
+"""Longest wait (s) for a scheduler to connect and greet: an address where nothing answers,
+or something that is not a scheduler, is refused after it, never waited on."""
+HOST_PORT_SCHEMES = ("tcp", "tls", "ws", "wss", "ucx")
+"""Address schemes whose location is HOST:PORT."""
+PROCESS_LIMIT_HINT = "the system's limit on processes (ulimit -u) may be reached"
 
-    from distributed import Client, LocalCluster
+
+def address_problem(address: str) -> str | None:
+    """What is wrong with a scheduler address, in a few words, or None when it can name
+    one: a known scheme (tcp when none is given) and, for the network ones, a host and a
+    port from 1 to 65535."""
+    from distributed.comm.addressing import parse_address, parse_host_port
+    from distributed.comm.registry import backends
+
+    scheme, location = parse_address(address.strip())
+    if scheme not in backends:
+        return f"unknown scheme {scheme!r} (known: {', '.join(sorted(backends))})"
+    if scheme not in HOST_PORT_SCHEMES:
+        return None
+    try:
+        host, port = parse_host_port(location)
+    except ValueError:
+        host, port = "", 0
+    if not host or not 1 <= int(port) <= 65535:
+        return f"{location!r} is not HOST:PORT with a port from 1 to 65535"
+    return None
+
+
+@contextlib.contextmanager
+def connect(
+    scheduler: str | None, workers: int, warn: Callable[[str], None] = lambda _: None
+) -> Iterator[Any]:
+    """A Dask client: of the scheduler at ``scheduler`` (e.g. tcp://10.0.0.5:8786), which
+    must greet within ``SCHEDULER_TIMEOUT_S`` (``InputError`` else), or of a local cluster
+    of ``workers`` single-threaded worker processes (fewer where the system lets fewer
+    start, said through ``warn``), shut down on leaving."""
+    from distributed import Client
 
     if scheduler is not None:
+        _greet(scheduler)
         try:
-            client = Client(scheduler, timeout="15s")
-        except (OSError, TimeoutError, ValueError) as exc:
-            raise InputError(
-                f"cannot reach the Dask scheduler at {scheduler} ({' '.join(str(exc).split())}); "
-                "start one with `dask scheduler` and workers with `dask worker ADDRESS`"
-            ) from None
+            client = Client(scheduler, timeout=f"{SCHEDULER_TIMEOUT_S}s")
+        except Exception as exc:  # Dask fails to connect in many ways
+            raise _unreachable(scheduler, exc) from None
         with client:
+            if not client.scheduler_info().get("workers"):
+                warn(
+                    f"the cluster at {scheduler} has no worker yet; the tasks wait for one "
+                    f"(start one with `dask worker {scheduler}`)"
+                )
             yield client
         return
-    with _terminal_signals_ignored():  # by the workers, which inherit it
-        cluster = LocalCluster(
-            n_workers=workers,
-            threads_per_worker=1,
-            processes=True,
-            dashboard_address=None,
-            scheduler_kwargs={"dashboard_address": ":0"},  # its HTTP server on a free port
-            silence_logs=logging.CRITICAL,  # a failed task is kept with its error, not logged
-        )
+    cluster = _local_cluster(workers, warn)
     with cluster, Client(cluster) as client:
         yield client
+
+
+def _greet(address: str) -> None:
+    """Connect to the scheduler at ``address`` and exchange greetings, within
+    ``SCHEDULER_TIMEOUT_S`` (Dask's own client can wait forever on a server that accepts
+    and stays silent); ``InputError`` saying why not."""
+    import asyncio
+
+    from distributed.comm import connect as open_comm
+    from distributed.security import Security
+
+    problem = address_problem(address)
+    if problem is not None:
+        raise InputError(f"--scheduler {address!r}: {problem}; e.g. tcp://10.0.0.5:8786")
+    arguments = Security().get_connection_args("client")
+
+    async def greet() -> None:
+        comm = await open_comm(address, timeout=SCHEDULER_TIMEOUT_S, **arguments)
+        await comm.close()
+
+    try:
+        asyncio.run(asyncio.wait_for(greet(), SCHEDULER_TIMEOUT_S))
+    except (OSError, TimeoutError) as exc:
+        raise _unreachable(address, exc) from None
+    except Exception as exc:  # bytes that are no greeting fail the parser in many ways
+        raise InputError(
+            f"what answers at {address} is not a Dask scheduler ({_short(exc)}); give the "
+            "address `dask scheduler` prints"
+        ) from None
+
+
+def _unreachable(address: str, exc: BaseException) -> InputError:
+    """The error of a scheduler that did not answer (``exc`` says how)."""
+    why = _short(exc) if str(exc).strip() else "no answer"
+    return InputError(
+        f"cannot reach the Dask scheduler at {address} within {SCHEDULER_TIMEOUT_S:g} s "
+        f"({why}); start one with `dask scheduler` and workers with `dask worker ADDRESS`"
+    )
+
+
+def _short(exc: BaseException) -> str:
+    """An exception as a phrase of one line."""
+    return " ".join(str(exc).split())[:200] or type(exc).__name__
+
+
+CLUSTER_THREADS = 8
+"""Threads a local cluster adds to this process (its scheduler, the client, the writers of
+the results), which count against the limit on processes as processes do."""
+WORKER_THREADS = 12
+"""Processes and threads one local worker takes (its process and threads, its nanny's in
+this process), with room to spare: a worker short of threads hangs rather than fails."""
+
+
+def room_for_processes() -> int | None:
+    """How many more processes and threads (the kernel counts both) this user may start
+    under the limit on processes (``ulimit -u``); None where none holds (no limit, root)."""
+    import resource
+
+    limit, _ = resource.getrlimit(resource.RLIMIT_NPROC)
+    if limit == resource.RLIM_INFINITY or os.getuid() == 0:
+        return None
+    used = 0
+    for status in Path("/proc").glob("[0-9]*/status"):
+        with contextlib.suppress(OSError, ValueError, IndexError):
+            fields = dict(line.split(":", 1) for line in status.read_text().splitlines())
+            if int(fields["Uid"].split()[0]) == os.getuid():
+                used += int(fields["Threads"])
+    return limit - used
+
+
+def _workers_with_room(workers: int, warn: Callable[[str], None]) -> int:
+    """``workers``, or as many as the limit on processes leaves room for (said through
+    ``warn``); ``InputError`` when it leaves room for none."""
+    room = room_for_processes()
+    if room is None:
+        return workers
+    fit = (room - CLUSTER_THREADS) // WORKER_THREADS
+    if fit < 1:
+        raise InputError(
+            f"the system's limit on processes (ulimit -u) leaves room for {max(room, 0)} more "
+            f"processes and threads, and a local Dask worker takes about "
+            f"{CLUSTER_THREADS + WORKER_THREADS}; raise the limit, or run the tasks on a "
+            "cluster with --scheduler"
+        )
+    if fit < workers:
+        warn(
+            f"the system's limit on processes (ulimit -u) leaves room for {room} more processes "
+            f"and threads: a local cluster of {fit} worker(s), not {workers}"
+        )
+    return min(workers, fit)
+
+
+def _local_cluster(workers: int, warn: Callable[[str], None]):
+    """A local cluster of ``workers`` worker processes, or of as many as the limit on
+    processes leaves room for (``_workers_with_room``), or where fewer start still, of half
+    as many in turn down to one, said through ``warn``; ``InputError`` when not even one
+    starts."""
+    import logging
+
+    from distributed import LocalCluster
+
+    # Dask's own lines (a worker that failed to start, one reaped at exit) are said better
+    # here, and a failed task is kept with its error.
+    logging.getLogger("distributed").setLevel(logging.CRITICAL)
+    workers = asked = _workers_with_room(workers, warn)
+    while True:
+        try:
+            with _terminal_signals_ignored():  # by the workers, which inherit it
+                cluster = LocalCluster(
+                    n_workers=workers,
+                    threads_per_worker=1,
+                    processes=True,
+                    dashboard_address=None,
+                    scheduler_kwargs={"dashboard_address": ":0"},  # its HTTP server on a free port
+                    silence_logs=logging.CRITICAL,
+                )
+        except (OSError, RuntimeError) as exc:
+            if not _lacks_room(exc):
+                raise
+            if workers == 1:
+                raise InputError(
+                    f"could start no local Dask worker ({_short(exc)}): {PROCESS_LIMIT_HINT}; "
+                    "raise it, or run the tasks on a cluster with --scheduler"
+                ) from None
+            workers, why = workers // 2, _short(exc)
+            continue
+        if workers < asked:
+            warn(
+                f"could start {workers} of {asked} local Dask workers ({why}: "
+                f"{PROCESS_LIMIT_HINT}); running on {workers}"
+            )
+        return cluster
+
+
+def _lacks_room(exc: BaseException) -> bool:
+    """Whether ``exc``, or an error behind it, says the system would start no more
+    processes or threads."""
+    import errno
+
+    seen: BaseException | None = exc
+    while seen is not None:
+        if isinstance(seen, OSError) and seen.errno in (errno.EAGAIN, errno.ENOMEM):
+            return True
+        if "can't start new thread" in str(seen) or "Nanny failed to start" in str(seen):
+            return True
+        seen = seen.__cause__ or seen.__context__
+    return False
 
 
 @contextlib.contextmanager
@@ -366,10 +546,12 @@ def run_tasks(
     """
     from distributed import wait
 
-    futures = {
-        client.submit(work, task, key=f"segloc-sweep-{task.key}", retries=1, pure=False): task
-        for task in tasks
-    }
+    futures = {}
+    for task in tasks:  # thousands take seconds to submit: a stop is heard meanwhile
+        if stop():
+            break
+        key = f"segloc-sweep-{task.key}"
+        futures[client.submit(work, task, key=key, retries=1, pure=False)] = task
     pending = set(futures)
     try:
         while pending and not stop():

@@ -136,6 +136,24 @@ def validated_messages(path: Path) -> dict[str, list]:
     return by_topic
 
 
+def messages_before_the_cut(path: Path) -> dict[str, list]:
+    """Every whole message of an MCAP file that may be cut short (no summary: a killed
+    run's view), validated and decoded, by topic in file order, up to the cut."""
+    from mcap.reader import NonSeekingReader
+
+    by_topic: dict[str, list] = defaultdict(list)
+    with open(path, "rb") as stream:
+        messages = NonSeekingReader(stream).iter_messages(log_time_order=False)
+        while True:
+            try:
+                schema, channel, record = next(messages)
+            except Exception:  # the end, or the cut: a record that ends early
+                break
+            message = validate_protobuf(schema.name, schema.data, record.data)
+            by_topic[channel.topic].append((record.log_time, message))
+    return by_topic
+
+
 def _pose(message) -> Pose2:
     p, q = message.position, message.orientation
     return Pose2(p.x, p.y, quaternion_to_heading(q.x, q.y, q.z, q.w))
@@ -251,11 +269,14 @@ def test_a_scan_without_a_pose_is_shown_without_a_transform(tmp_path):
     assert messages["/status"][1][1].message == "lost: 3 points"
 
 
-def test_a_run_view_cut_short_leaves_no_file(tmp_path):
+def test_a_run_view_cut_short_is_finished_with_the_scans_added(tmp_path):
     path = tmp_path / "view.mcap"
-    with pytest.raises(RuntimeError), RunViewWriter(path, np.zeros((0, 4))):
+    scan = Scan(time_s=1.0, angles_rad=np.linspace(-1.0, 1.0, 5), ranges_m=np.full(5, 2.0))
+    with pytest.raises(RuntimeError), RunViewWriter(path, np.zeros((0, 4))) as view:
+        view.add(scan, np.zeros((0, 4)), Pose2(1.0, 2.0, 0.25))
         raise RuntimeError("interrupted")
-    assert list(tmp_path.iterdir()) == []
+    assert [p.name for p in tmp_path.iterdir()] == ["view.mcap"]
+    assert len(validated_messages(path)["/scan"]) == 1
 
 
 # --------------------------------------------------------------------------- logs

@@ -64,6 +64,8 @@ def run_view_lines(path: Path, view) -> list[str]:
         f"/scan:     {scans} scans, {time_range(view.span_s if scans else [])}",
         f"/tf:       {placed} scans placed in world, {scans - placed} without a pose",
     ]
+    if not view.finished:
+        lines.insert(2, "finished:  no (its run was killed; it shows the scans written before)")
     if "map_segments" in view.drawn:
         lines.append(f"/map:      {view.drawn['map_segments']} segments")
     statuses = [

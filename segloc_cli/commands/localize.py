@@ -158,6 +158,7 @@ def localize(
     run = Invocation.current()
     config = _with_region(run.config, _parse_region(region, global_search))
     check_modes(config, global_search, track)
+    config = _within_cores(config)
     mode = "global" if global_search else "track" if track else "guided"
     guess_file = None if initial == GUESSES_KEYWORD else Path(initial)
     listed = None if hypotheses is None else (beside(out_path, ".hypotheses.csv"), hypotheses)
@@ -222,6 +223,23 @@ def check_modes(config, global_search: bool, track: bool) -> None:
             f"--global cannot be combined with {other}: it searches every scan afresh and "
             "ranks its candidates by refining them"
         )
+
+
+def _within_cores(config):
+    """``config`` with ``--jobs`` no more than the cores this process may run on (more
+    processes would only share them), with a warning when that is fewer than asked."""
+    from dataclasses import replace
+
+    from segloc_cli.parallel import usable_cores
+
+    cores = usable_cores()
+    if config.jobs <= cores:
+        return config
+    warn(
+        f"--jobs {config.jobs} is more than the {cores} core(s) segloc may use here; "
+        f"localizing on {cores} processes"
+    )
+    return replace(config, jobs=cores)
 
 
 def _run_view(mcap_path: Path, segments_world, log_paths, map_path: Path, mode: str):

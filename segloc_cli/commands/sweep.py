@@ -99,6 +99,7 @@ def sweep(spec_path, out_path, scheduler, jobs, fmt, force):
     ):
         raise click.UsageError("--jobs sets the local cluster; with --scheduler, the cluster's "
                                "workers are those started with `dask worker`")  # fmt: skip
+    _check_scheduler(scheduler)
     from segloc_cli.io.files import check_outputs
     from segloc_cli.runfile import run_file_path
 
@@ -124,6 +125,33 @@ def _check_extra() -> None:
         )
 
 
+def _check_scheduler(scheduler: str | None) -> None:
+    """Refuse a ``--scheduler`` that names no scheduler (before the spec is read)."""
+    from segloc_cli.sweep import address_problem
+
+    problem = None if scheduler is None else address_problem(scheduler)
+    if problem is not None:
+        raise click.BadParameter(
+            f"{scheduler!r}: {problem}; e.g. tcp://10.0.0.5:8786", param_hint="--scheduler"
+        )
+
+
+def _local_workers(jobs: int, n_tasks: int) -> int:
+    """The local cluster's size: ``jobs``, but no more than the tasks to run, nor than the
+    cores segloc may use (more workers would only share them; a warning says so when
+    ``--jobs`` asked for more)."""
+    from segloc_cli.parallel import usable_cores
+
+    cores = usable_cores()
+    source = click.get_current_context().get_parameter_source("jobs")
+    if jobs > cores and source != click.core.ParameterSource.DEFAULT:
+        warn(
+            f"--jobs {jobs} is more than the {cores} core(s) segloc may use here; "
+            f"a local cluster of at most {cores} workers"
+        )
+    return max(1, min(jobs, cores, n_tasks))
+
+
 def _run(plan, out_path: Path, scheduler: str | None, jobs: int, force: bool):
     """Run the plan's tasks not yet in ``out_path``; (the table written, stop signals)."""
     from segloc_cli.progress import Progress
@@ -141,20 +169,28 @@ def _run(plan, out_path: Path, scheduler: str | None, jobs: int, force: bool):
             path=out_path,
         )
     todo = [t for t in plan.tasks if t.key not in done]
-    workers = f"{jobs} worker{'s' if jobs > 1 else ''}"
-    where = f"the cluster at {scheduler}" if scheduler else f"a local cluster of {workers}"
-    info(
-        f"segloc sweep: {len(plan.tasks)} tasks"
-        + (f", {len(plan.tasks) - len(todo)} done before" if len(todo) < len(plan.tasks) else "")
-        + (f"; running {len(todo)} on {where}" if todo else "; nothing to run")
-    )
+    planned = f"segloc sweep: {len(plan.tasks)} tasks"
+    if len(todo) < len(plan.tasks):
+        planned += f", {len(plan.tasks) - len(todo)} done before"
     stops: list[str] = []
-    if todo:
-        with stop_requests(stops), connect(scheduler, jobs) as client:
+    if not todo:
+        info(f"{planned}; nothing to run")
+    else:
+        workers = jobs if scheduler else _local_workers(jobs, len(todo))
+        with connect(scheduler, workers, warn) as client, stop_requests(stops):
+            info(f"{planned}; running {len(todo)} on {_where(client, scheduler)}")
             with Progress("sweeping", len(todo), "task") as progress:
                 run_tasks(client, todo, store, progress.advance, lambda: bool(stops))
     table = store.finish([t.key for t in plan.tasks])
     return table, stops
+
+
+def _where(client, scheduler: str | None) -> str:
+    """Where the tasks run: the cluster at the scheduler's address, or the local one."""
+    if scheduler:
+        return f"the cluster at {scheduler}"
+    n = len(client.scheduler_info().get("workers", {}))
+    return f"a local cluster of {n} worker{'s' if n > 1 else ''}"
 
 
 def _report(plan, table, out_path: Path, fmt: str, stops: list[str]) -> None:

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import difflib
 import itertools
+import math
 import zlib
 from dataclasses import dataclass
 from pathlib import Path
@@ -43,6 +44,10 @@ NOT_SWEPT = {"map", "out", "tum", "mcap", "hypotheses", "initial", "track", "job
 keys), tracking (whose scans follow one another, not one task's guesses) and the worker
 count (the sweep's --jobs)."""
 LOG_TABLE_KEYS = ("path", "map", "survey")
+MAX_TASKS = 10_000
+"""Most tasks (logs × combinations × seeds) a spec may plan: planning, submitting and
+keeping each task's rows cost time and files before any runs (a million take minutes to
+plan and hours to submit), and a sweep larger than this is several sweeps."""
 
 
 @dataclass(frozen=True)
@@ -78,16 +83,46 @@ def read_spec(path: Path) -> Plan:
         if key in options
     }
     grid_values = _grid(grid, options, fixed, ctx, path)
+    logs = _logs(document, path)
+    seeds = _seeds(document.get("seeds", [0]), path)
+    _check_size(len(logs), [len(v) for v in grid_values.values()], len(seeds), path)
     combinations = [
         dict(zip(grid_values, values, strict=True))
         for values in itertools.product(*grid_values.values())
     ]
     for combination in combinations:
         _check_combination({**fixed, **combination}, path)
-    logs = _logs(document, path)
-    seeds = _seeds(document.get("seeds", [0]), path)
     gates = {k: _gate(document.get(k, v), k, path) for k, v in DEFAULT_GATES.items()}
-    return _planned(document, path, logs, combinations, fixed, seeds, gates, tuple(grid_values))
+    plan = _planned(document, path, logs, combinations, fixed, seeds, gates, tuple(grid_values))
+    _check_distinct(plan.tasks, path)
+    return plan
+
+
+def _check_size(n_logs: int, grid_lengths: list[int], n_seeds: int, path: Path) -> None:
+    """Refuse, before any combination is made, a spec that plans more than ``MAX_TASKS``
+    tasks (logs × combinations × seeds)."""
+    n_tasks = n_logs * math.prod(grid_lengths) * n_seeds
+    if n_tasks > MAX_TASKS:
+        sizes = " × ".join(map(str, [n_logs, *grid_lengths, n_seeds]))
+        raise InputError(
+            f"plans {n_tasks:,} tasks (logs × [grid] values × seeds: {sizes}), more than the "
+            f"{MAX_TASKS:,} a sweep takes; list fewer values, or split it into several specs",
+            path=path,
+        )
+
+
+def _check_distinct(tasks: list[Task], path: Path) -> None:
+    """Refuse two tasks of one key: the same log (by its bytes) listed twice with the same
+    map, survey and guesses, whose rows would be counted twice."""
+    first: dict[str, Task] = {}
+    for task in tasks:
+        twin = first.setdefault(task.key, task)
+        if twin is not task:
+            raise InputError(
+                f"logs {twin.log!r} and {task.log!r} are the same log (the same bytes, map, "
+                "survey and guesses): their rows would be counted twice; list it once",
+                path=path,
+            )
 
 
 def _unknown(key: str, options: dict) -> str:
@@ -169,9 +204,8 @@ def _logs(document: dict, path: Path) -> list[_Log]:
         log_path = path.parent / table["path"]
         for role, file in (("log", log_path), *files.items()):
             if not file.is_file():
-                raise InputError(
-                    f"the {role} {file} does not exist (paths are relative to the spec)", path
-                )
+                what = "is a folder, not a file" if file.is_dir() else "does not exist"
+                raise InputError(f"the {role} {file} {what} (paths are relative to the spec)", path)
         logs.append(_Log(table["path"], log_path.resolve(), files["map"], files["survey"]))
     return logs
 

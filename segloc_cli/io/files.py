@@ -71,6 +71,8 @@ def check_output(path: str | Path, force: bool, option: str = "--out") -> Path:
     if path.exists() and not force:
         raise OutputError(f"file exists; choose another {option} or pass --force", path=path)
     folder = path.parent if str(path.parent) else Path(".")
+    if folder.exists() and not folder.is_dir():
+        raise OutputError(f"{folder} is a file, not a folder; choose another {option}", path=path)
     if not folder.is_dir():
         raise OutputError(
             f"folder {folder} does not exist; create it or choose another {option}", path=path
@@ -90,6 +92,12 @@ def check_outputs(
     destroy: ``--force`` overwrites results, never the data they are made from.
     """
     named = {option: Path(path) for option, path in outputs.items() if path is not None}
+    # An input first: "pass --force" would be the wrong advice for one.
+    by_file = {_identity(path): option for option, path in reversed(named.items())}
+    for source in (Path(s) for s in inputs if s is not None):
+        option = by_file.get(_identity(source))
+        if option is not None:
+            raise OutputError(f"is an input of this command; choose another {option}", path=source)
     seen: dict[str, str] = {}
     for option, path in named.items():
         check_output(path, force, option)
@@ -97,10 +105,6 @@ def check_outputs(
         if key in seen:
             raise OutputError(f"{seen[key]} and {option} name the same file", path=path)
         seen[key] = option
-    for source in (Path(s) for s in inputs if s is not None):
-        option = seen.get(_identity(source))
-        if option is not None:
-            raise OutputError(f"is an input of this command; choose another {option}", path=source)
 
 
 def _identity(path: Path) -> str:

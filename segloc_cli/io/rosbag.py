@@ -23,8 +23,12 @@ What comes out, in segloc's units and frames:
   transforms (and ``/tf`` ones that never change) from the odometry's child frame
   (without odometry, the top of the scanner's tree) to the scans' ``header.frame_id``,
   composed and projected onto the floor plane (``segloc_cli.io.tf``), or the
-  ``laser_offset`` given instead. It becomes the sensor settings ``laser_x_m``,
-  ``laser_y_m``, ``laser_theta_deg`` and ``laser_offset_source`` and every scan's
+  ``laser_offset`` given instead, which wins (a warning says so when the bag's chain
+  places the scanner elsewhere). A frame of the chain given two different poses takes
+  tf2's choice (the latest ``/tf_static`` one, ``/tf_static`` over ``/tf``) with a
+  warning; transforms that form a loop on the way up from the robot or the scanner are
+  refused, unless ``laser_offset`` is given. The mounting becomes the sensor settings
+  ``laser_x_m``, ``laser_y_m``, ``laser_theta_deg`` and ``laser_offset_source`` and every scan's
   ``Scan.mount``, so that the scans' points, local maps and every pose are the
   robot's. With no chain the scanner is at the robot's origin (source ``none``, a
   warning). A scan plane tilted more than ``MAX_TILT_DEG`` is read as level with a
@@ -75,9 +79,12 @@ from segloc_cli.io.tf import (
     TF_TYPES,
     Mounting,
     Transform,
+    ancestors,
     bare,
+    disagreements,
     find_mounting,
     fixed_links,
+    loop_above,
     root_of,
     transform_matrix,
 )
@@ -98,6 +105,10 @@ MAX_PLANAR_TILT_DEG = 45.0
 a scanner nearer vertical than level does not scan the floor plan."""
 NO_OFFSET = "none"
 """The laser offset's source when neither the bag nor ``--laser-offset`` gives one."""
+OFFSET_TOLERANCE_M = 1e-3
+OFFSET_TOLERANCE_DEG = 0.01
+"""How far (m, degrees) ``--laser-offset`` may lie from the bag's own mounting unremarked:
+the rounding of a value copied from the bag."""
 
 
 class _RawScan(NamedTuple):
@@ -370,8 +381,7 @@ def read_rosbag(
     odometry's time span.
     """
     path = Path(path)
-    tf_topics = set() if laser_offset is not None else set(TF_TOPICS)
-    decoded, warnings = _bag_messages(path, scan_topic, odom_topic, tf_topics, progress)
+    decoded, warnings = _bag_messages(path, scan_topic, odom_topic, set(TF_TOPICS), progress)
     warnings += [
         f"{path.name}: skipped {len(errors)} message(s) on {topic} that could not be decoded "
         f"(first: {errors[0]})"
@@ -447,12 +457,16 @@ def _laser_offset(
 ) -> tuple[dict[str, str], bool]:
     """The laser-offset sensor settings (``segloc_cli.io.log.laser_offset_settings``) and
     whether the beams are to be mirrored (an upside-down scanner): ``given`` when it is
-    there, else the chain from the robot's frame to ``scan_frame`` in the bag's transforms
-    (a warning when there is none)."""
+    there (a warning when the bag's transforms place the scanner elsewhere), else the chain
+    from the robot's frame to ``scan_frame`` in the bag's transforms (a warning when there
+    is none, or when a frame of it is given two poses; ``InputError`` when the transforms
+    form a loop on the way)."""
     if given is not None:
+        warnings += _overridden(path, decoded, scan_frame, given)
         return laser_offset_settings(*given, "--laser-offset"), False
     scanner = bare(scan_frame)
     links = fixed_links(decoded.transforms)
+    _refuse_loops(path, links, [scanner, decoded.robot_frame])
     robot = decoded.robot_frame or root_of(links, scanner)
     mounting = None
     if robot == scanner and decoded.robot_frame:
@@ -466,6 +480,8 @@ def _laser_offset(
         )
     else:
         why = _unusable(path, mounting, scanner)
+    on_chain = {*ancestors(links, robot), *ancestors(links, scanner)}
+    warnings += _contradictions(path, decoded.transforms, on_chain)
     if why is not None or mounting is None:
         warnings.append(
             f"{path.name}: {why}; the scanner is taken to be at the robot's origin "
@@ -486,6 +502,72 @@ def _laser_offset(
     settings = laser_offset_settings(mounting.x_m, mounting.y_m, theta_deg, mounting.source)
     flipped = {"laser_upside_down": "yes"} if mounting.upside_down else {}
     return settings | flipped, mounting.upside_down
+
+
+def _refuse_loops(path: Path, links: dict, frames: list[str]) -> None:
+    """``InputError`` when the way up from one of ``frames`` (the scanner's, the robot's)
+    runs into a loop: no pose can be read from transforms that contradict themselves."""
+    for frame in filter(None, frames):
+        loop = loop_above(links, frame)
+        if loop is not None:
+            raise InputError(
+                f"the bag's transforms form a loop ({' -> '.join(loop)}): a frame is its own "
+                f"ancestor, so they place {bare(frame)} nowhere; --laser-offset X,Y,THETA_DEG "
+                "gives the scanner's pose on the robot instead",
+                path=path,
+            )
+
+
+def _contradictions(path: Path, transforms: list[Transform], frames: set[str]) -> list[str]:
+    """A warning per frame of ``frames`` that the bag gives two different fixed poses."""
+    return [
+        f"{path.name}: the bag gives {child} two poses, {_link_text(aside)} and "
+        f"{_link_text(used)}; the latter is used ({_rule(aside, used)}; --laser-offset "
+        "X,Y,THETA_DEG sets the scanner's pose instead)"
+        for child, (aside, used) in disagreements(transforms).items()
+        if child in frames
+    ]
+
+
+def _rule(aside: Transform, used: Transform) -> str:
+    """Why ``used`` wins over ``aside``, in tf2's words."""
+    if aside.topic == used.topic:
+        return f"the latest on {used.topic}, as tf2 takes it"
+    return f"{TF_STATIC_TOPIC} over an unchanging {TF_TOPIC}"
+
+
+def _link_text(tf: Transform) -> str:
+    """A transform as ``in PARENT at (x, y, z) m, yaw θ° (TOPIC)``."""
+    x, y, z = tf.translation
+    rotation = transform_matrix(tf.translation, tf.rotation)
+    yaw = math.degrees(math.atan2(rotation[1, 0], rotation[0, 0]))
+    return f"in {bare(tf.parent)} at ({x:.4g}, {y:.4g}, {z:.4g}) m, yaw {yaw:.4g}° ({tf.topic})"
+
+
+def _overridden(
+    path: Path, decoded: _Messages, scan_frame: str, given: tuple[float, float, float]
+) -> list[str]:
+    """A warning when the bag's own transforms place the scanner otherwise than ``given``
+    (x m, y m, θ degrees), which wins; none when they place it nowhere usable."""
+    scanner = bare(scan_frame)
+    links = fixed_links(decoded.transforms)
+    if any(loop_above(links, f) for f in filter(None, [scanner, decoded.robot_frame])):
+        return []
+    robot = decoded.robot_frame or root_of(links, scanner)
+    mounting = None if robot == scanner else find_mounting(links, robot, scanner)
+    if mounting is None or not np.all(np.isfinite([mounting.x_m, mounting.y_m])):
+        return []
+    theta_deg = math.degrees(mounting.theta_rad)
+    turned = abs((theta_deg - given[2] + 180.0) % 360.0 - 180.0)
+    moved = math.hypot(mounting.x_m - given[0], mounting.y_m - given[1])
+    if moved <= OFFSET_TOLERANCE_M and turned <= OFFSET_TOLERANCE_DEG and not mounting.upside_down:
+        return []
+    flipped = ", upside down" if mounting.upside_down else ""
+    return [
+        f"{path.name}: --laser-offset {given[0]:g},{given[1]:g},{given[2]:g} is used; the bag's "
+        f"transforms place {scanner} at x {mounting.x_m:.6g} m, y {mounting.y_m:.6g} m, theta "
+        f"{theta_deg:.6g}°{flipped} ({mounting.source})"
+    ]
 
 
 def _unusable(path: Path, mounting: Mounting, scanner: str) -> str | None:

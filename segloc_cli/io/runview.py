@@ -24,24 +24,33 @@ schema (the schema travels in the file) and the file is chunked, indexed and com
 Every message's log time is its scan's time (ns). Metadata record ``segloc.run`` says what
 the file shows (the caller's words: command, logs, map...), and ``segloc.view``, written when
 the file is closed, what was drawn: ``map_segments`` and, for each status, ``status.NAME``
-the number of scans with it. The file is written beside the target and renamed into place
-when it is closed, like every other output. ``read_run_view`` tells a run view from a log
-and says what it holds without decoding a message; ``layout_path`` is where the package
-keeps the Foxglove layout for it (``foxglove_layout``, as a file).
+the number of scans with it.
+
+The file is streamed in place, like the estimates beside it: the scans added are handed to
+the operating system as a chunk at least every ``FLUSH_INTERVAL_S`` (the first at once), so
+a run that is killed leaves a view that an MCAP reader reads, without the summary that comes
+last, up to the last whole scan of its last chunk. Leaving the writer's block finishes the
+file, whatever ended the run. ``read_run_view`` tells a run view from a log and says what
+it holds, from its summary or, in a view cut short, from its records; ``layout_path`` is
+where the package keeps the Foxglove layout for it (``foxglove_layout``, as a file).
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
+import math
+import time
 from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
+from typing import IO
 
 import numpy as np
 
 from segloc_cli.geometry import Pose2, heading_to_quaternion
-from segloc_cli.io.files import atomic_path, writing_error
+from segloc_cli.io.files import OutputError, writing_error
 from segloc_cli.scan import Scan
 
 WORLD_FRAME = "world"
@@ -58,7 +67,10 @@ TOPICS = ("/map", "/tf", "/scan", *POSE_TOPICS, "/hypotheses", "/local_segments"
 """Every topic of a run view, in the order its channels are made."""
 
 CHUNK_BYTES = 4 * 2**20
-"""Uncompressed chunk size (bytes) of the run view."""
+"""Largest uncompressed chunk (bytes) of the run view."""
+FLUSH_INTERVAL_S = 0.5
+"""Longest time (s) the scans added stay in memory before they go to disk as a chunk: what
+a killed run can lose of its view (a chunk per scan would make the file half as large again)."""
 LINE_WIDTH_PX = {"map": 2.0, "local_segments": 3.0}
 """Line thickness (screen pixels, so that it stays readable at any zoom)."""
 RGBA = {"map": (0.85, 0.85, 0.85, 1.0), "local_segments": (1.0, 0.55, 0.0, 1.0)}
@@ -69,13 +81,48 @@ LEVELS = ("info", "warning", "error")
 """Levels of the ``/status`` lines."""
 
 
+class _Sink:
+    """The run view's file, as the Foxglove SDK's writer takes one (``write``, ``seek``,
+    ``flush``), keeping the first OS error met, which the SDK's own error leaves out."""
+
+    def __init__(self, path: Path):
+        self.error: OSError | None = None
+        try:
+            self._file: IO[bytes] = open(path, "wb")
+        except OSError as exc:
+            raise writing_error(path, exc) from None
+
+    def write(self, data: bytes) -> int:
+        return self._noted(self._file.write, data)
+
+    def seek(self, offset: int, whence: int = 0) -> int:
+        return self._noted(self._file.seek, offset, whence)
+
+    def flush(self) -> None:
+        self._noted(self._file.flush)
+
+    def close(self) -> None:
+        with contextlib.suppress(OSError):
+            self._file.close()
+
+    def _noted(self, call, *args):
+        try:
+            return call(*args)
+        except OSError as exc:
+            self.error = self.error or exc
+            raise
+
+
 class RunViewWriter:
     """Writes a run view (see the module docstring); use as a context manager.
 
     ``map_segments`` (M, 4) ``x1 y1 x2 y2`` metres in ``world``; ``metadata`` str → str,
     stored as ``segloc.run``. Each scan's ``mount`` gives its ``base_link → laser``.
-    An OS error raises ``OutputError`` naming ``path``; a run cut short by an exception
-    leaves no file.
+    The file is written in place (truncated first; whether it may be is the caller's
+    question), the scans added on disk every ``FLUSH_INTERVAL_S``. Leaving the block
+    finishes it with every scan added, an exception or not. An OS error (a full disk)
+    raises ``OutputError`` naming ``path`` and why; the file then keeps the scans written
+    before it.
     """
 
     def __init__(
@@ -92,19 +139,16 @@ class RunViewWriter:
         self._map = np.asarray(map_segments, dtype=float).reshape(-1, 4)
         self._map_written = False
         self._statuses: Counter[str] = Counter()
-        self._atomic = atomic_path(self.path)
-        temporary = self._atomic.__enter__()
+        self._flushed_at = -math.inf  # time.monotonic() of the last chunk handed on
+        self._sink = _Sink(self.path)
         self._context = foxglove.Context()
         options = MCAPWriteOptions(compression=MCAPCompression.Zstd, chunk_size=CHUNK_BYTES)
-        try:
+        self._writer = None
+        with self._failing_writes():
             self._writer = foxglove.open_mcap(
-                temporary, allow_overwrite=True, context=self._context, writer_options=options
+                self._sink, allow_overwrite=True, context=self._context, writer_options=options
             )
-        except (OSError, RuntimeError) as exc:
-            self._atomic.__exit__(type(exc), exc, None)
-            raise writing_error(self.path, OSError(str(exc))) from None
-        self._open = True
-        self._writer.write_metadata(RUN_METADATA_NAME, dict(metadata or {}))
+            self._writer.write_metadata(RUN_METADATA_NAME, dict(metadata or {}))
         made = {
             "/map": channels.SceneUpdateChannel,
             "/tf": channels.FrameTransformsChannel,
@@ -127,8 +171,9 @@ class RunViewWriter:
     ) -> None:
         if exc_type is None:
             self.close()
-        else:
-            self._abandon(exc_type, exc, traceback)
+            return
+        with contextlib.suppress(OutputError):  # the run's own error is the one to report
+            self.close()
 
     def add(
         self,
@@ -147,7 +192,7 @@ class RunViewWriter:
         pose in ``world`` (None or NaN: none was found), the guess and runner-up where they
         exist, the other distinct poses found (``hypotheses``, best first, the answer not
         among them), its status, and a line of text for the log at ``level`` (one of
-        ``LEVELS``)."""
+        ``LEVELS``). The scans added go to disk, whole, at least every ``FLUSH_INTERVAL_S``."""
         time_ns = _time_ns(scan.time_s)
         if not self._map_written:
             self._write_map(time_ns)
@@ -166,31 +211,44 @@ class RunViewWriter:
         self._log("/local_segments", _scene_update(entity), time_ns)
         self._log("/status", _log_line(stamp, status, level, text), time_ns)
         self._statuses[status] += 1
+        if time.monotonic() - self._flushed_at >= FLUSH_INTERVAL_S:
+            with self._failing_writes():
+                self._writer.flush()  # the chunk of the scans since the last, to the OS
+            self._flushed_at = time.monotonic()
 
     def close(self) -> None:
-        """Finish the file (with the map even if no scan came) and rename it into place."""
-        if not self._open:
+        """Finish the file (with the map even if no scan came): what was drawn, the summary.
+        Closing again does nothing."""
+        if self._writer is None:
             return
-        self._open = False
         if not self._map_written:
             self._write_map(0)
         drawn = {"map_segments": str(len(self._map))}
         drawn |= {f"status.{name}": str(n) for name, n in sorted(self._statuses.items())}
-        try:
+        with self._failing_writes():
             self._writer.write_metadata(VIEW_METADATA_NAME, drawn)
             self._writer.close()
-        except (OSError, RuntimeError) as exc:
-            self._atomic.__exit__(type(exc), exc, None)
-            raise writing_error(self.path, OSError(str(exc))) from None
-        self._atomic.__exit__(None, None, None)
+        self._release()
 
-    def _abandon(self, exc_type, exc, traceback) -> None:
-        """Close the writer and remove the unfinished file: the run failed."""
-        if not self._open:
-            return
-        self._open = False
-        self._writer.close()
-        self._atomic.__exit__(exc_type, exc, traceback)
+    @contextlib.contextmanager
+    def _failing_writes(self):
+        """Turn the SDK's failure to write into ``OutputError`` naming the file and the OS
+        error behind it; the writer is let go (it takes no more writes)."""
+        try:
+            yield
+        except (OSError, RuntimeError) as exc:
+            self._release()
+            reason = self._sink.error or (exc if isinstance(exc, OSError) else OSError(str(exc)))
+            raise writing_error(self.path, reason) from None
+
+    def _release(self) -> None:
+        """Let the SDK's writer go while Python runs (one that failed, closed once more, so
+        that it has nothing to report when it is dropped), and close the file."""
+        writer, self._writer = self._writer, None
+        if writer is not None:
+            with contextlib.suppress(RuntimeError):
+                writer.close()
+        self._sink.close()
 
     def _log(self, topic: str, message, time_ns: int) -> None:
         self._channels[topic].log(message, log_time=time_ns)
@@ -203,33 +261,41 @@ class RunViewWriter:
 
 @dataclass(frozen=True)
 class RunViewContents:
-    """What a run view holds, from its summary and metadata alone.
+    """What a run view holds, from its summary and metadata (or, cut short, its records).
 
     ``run`` the ``segloc.run`` record (what the file shows, in its writer's words);
     ``drawn`` the ``segloc.view`` record (``map_segments``, ``status.NAME`` counts; empty
-    in a view written before it); ``message_counts`` topic → messages; ``span_s`` the first
-    and last message's log time, seconds (None: no message).
+    in a view written before it or cut short); ``message_counts`` topic → messages;
+    ``span_s`` the first and last message's log time, seconds (None: no message);
+    ``finished`` False for a view whose run was killed before it finished the file: it
+    holds the whole scans written before that.
     """
 
     run: dict[str, str]
     drawn: dict[str, str]
     message_counts: dict[str, int]
     span_s: tuple[float, float] | None
+    finished: bool = True
 
 
 def read_run_view(path: str | Path) -> RunViewContents | None:
     """What the run view at ``path`` holds; None when the file is not one (an MCAP file
-    with a summary and a ``segloc.run`` record) or cannot be read, for the log reader to
-    judge and explain."""
+    with a ``segloc.run`` record) or cannot be read, for the log reader to judge and
+    explain (a pipe or device too, which opening could wait on forever)."""
     from mcap.reader import make_reader
 
+    if not Path(path).is_file():
+        return None
     try:
         with open(path, "rb") as stream:
             reader = make_reader(stream)
-            summary = reader.get_summary()
-            if summary is None or not any(
-                index.name == RUN_METADATA_NAME for index in summary.metadata_indexes
-            ):
+            try:
+                summary = reader.get_summary()
+            except Exception:  # no footer: a file cut short
+                summary = None
+            if summary is None:
+                return _read_cut_view(stream)
+            if not any(index.name == RUN_METADATA_NAME for index in summary.metadata_indexes):
                 return None
             records = {m.name: dict(m.metadata) for m in reader.iter_metadata()}
     except Exception:  # the mcap parser's many ways to fail on bytes that are not a run view
@@ -245,6 +311,34 @@ def read_run_view(path: str | Path) -> RunViewContents | None:
     return RunViewContents(
         records[RUN_METADATA_NAME], records.get(VIEW_METADATA_NAME, {}), dict(by_topic), span_s
     )
+
+
+def _read_cut_view(stream) -> RunViewContents | None:
+    """What a file without a summary holds, read record by record up to the first one cut
+    short: a run view killed mid-run (None when it has no ``segloc.run`` record)."""
+    from mcap.records import Channel, Message, Metadata
+    from mcap.stream_reader import StreamReader
+
+    stream.seek(0)
+    records: dict[str, dict[str, str]] = {}
+    topics: dict[int, str] = {}
+    counts: Counter[str] = Counter()
+    span_ns: list[int] = []  # the first and last log time
+    with contextlib.suppress(Exception):  # the cut: a record that ends early
+        for record in StreamReader(stream, emit_chunks=False).records:
+            if isinstance(record, Metadata):
+                records[record.name] = dict(record.metadata)
+            elif isinstance(record, Channel):
+                topics[record.id] = record.topic
+            elif isinstance(record, Message):
+                counts[topics.get(record.channel_id, "?")] += 1
+                times = [*span_ns, record.log_time]
+                span_ns = [min(times), max(times)]
+    if RUN_METADATA_NAME not in records:
+        return None
+    span_s = (span_ns[0] / 1e9, span_ns[1] / 1e9) if span_ns else None
+    drawn = records.get(VIEW_METADATA_NAME, {})
+    return RunViewContents(records[RUN_METADATA_NAME], drawn, dict(counts), span_s, False)
 
 
 def layout_path() -> Path:

@@ -12,6 +12,12 @@ each child frame has one parent. Which of them describe the robot's build:
 
 Frame names are compared without a leading "/" (ROS 1's tf wrote "/base_link").
 
+Transforms that contradict each other: a child that ``/tf_static`` gives twice with
+different poses (or parents) takes the latest, as tf2 does, and one that ``/tf_static`` and
+an unchanging ``/tf`` give differently takes ``/tf_static``'s (``disagreements`` lists
+them, for a warning). Transforms that form a loop (a frame its own ancestor) place nothing:
+``loop_above`` finds one, which the importer refuses.
+
 ``find_mounting`` composes the transforms along the tree from the robot's frame to the
 scanner's (through their nearest common ancestor, so neither need be above the other)
 and projects the result onto the robot's floor plane: the scanner's position x, y and
@@ -34,6 +40,8 @@ TF_STATIC_TOPIC = "/tf_static"
 TF_TOPIC = "/tf"
 TF_TYPES = ("tf2_msgs/msg/TFMessage", "tf/msg/tfMessage")
 """Message types of the transform topics (ROS 1 before tf2 wrote ``tf/tfMessage``)."""
+SAME_LINK_TOLERANCE = 1e-6
+"""Largest difference (metres; quaternion components) of two transforms taken as the same."""
 
 
 class Transform(NamedTuple):
@@ -113,6 +121,57 @@ def fixed_links(transforms: Iterable[Transform]) -> dict[str, tuple[str, np.ndar
     }
 
 
+def disagreements(transforms: Iterable[Transform]) -> dict[str, tuple[Transform, Transform]]:
+    """Per child frame given two fixed poses that differ (beyond ``SAME_LINK_TOLERANCE``):
+    (the one set aside, the one ``fixed_links`` uses), from transforms in bag order."""
+    static: dict[str, Transform] = {}
+    unchanging: dict[str, Transform | None] = {}
+    found: dict[str, tuple[Transform, Transform]] = {}
+    for tf in transforms:
+        child = bare(tf.child)
+        if tf.topic == TF_STATIC_TOPIC:
+            if child in static and not same_link(static[child], tf):
+                found[child] = (static[child], tf)
+            static[child] = tf
+        elif child not in unchanging:
+            unchanging[child] = tf
+        elif (seen := unchanging[child]) is not None and seen[1:] != tf[1:]:
+            unchanging[child] = None  # motion, not a mounting
+    for child, tf in unchanging.items():
+        if tf is not None and child in static and not same_link(tf, static[child]):
+            found.setdefault(child, (tf, static[child]))
+    return found
+
+
+def same_link(a: Transform, b: Transform) -> bool:
+    """Whether two transforms give their child the same pose in the same parent."""
+    if bare(a.parent) != bare(b.parent):
+        return False
+    q_a, q_b = np.asarray(a.rotation, float), np.asarray(b.rotation, float)
+    q_a, q_b = q_a / np.linalg.norm(q_a), q_b / np.linalg.norm(q_b)
+    turned = min(np.abs(q_a - q_b).max(), np.abs(q_a + q_b).max())  # q and −q: one rotation
+    moved = np.abs(np.subtract(a.translation, b.translation)).max()
+    return bool(moved <= SAME_LINK_TOLERANCE and turned <= SAME_LINK_TOLERANCE)
+
+
+def loop_above(links: dict[str, tuple[str, np.ndarray, str]], frame: str) -> list[str] | None:
+    """The frames of a loop met going up from ``frame`` through ``links`` (each the parent
+    of the one before, ending with the first again), or None when the way up ends at a
+    root."""
+    path = [bare(frame)]
+    while path[-1] in links:
+        parent = links[path[-1]][0]
+        if parent in path:
+            return [*path[path.index(parent) :], parent]
+        path.append(parent)
+    return None
+
+
+def ancestors(links: dict[str, tuple[str, np.ndarray, str]], frame: str) -> list[str]:
+    """``frame`` and the frames above it through ``links``, nearest first."""
+    return [ancestor for ancestor, _, _ in _up(links, bare(frame))]
+
+
 def _up(links: dict[str, tuple[str, np.ndarray, str]], frame: str):
     """From ``frame`` up to the root of its tree: (ancestor, ``frame``'s pose in it (4, 4),
     the topics of the links between), ``frame`` itself first. Stops at a loop."""
@@ -128,7 +187,7 @@ def _up(links: dict[str, tuple[str, np.ndarray, str]], frame: str):
 
 def root_of(links: dict[str, tuple[str, np.ndarray, str]], frame: str) -> str:
     """The top frame of ``frame``'s tree (``frame`` itself when it has no parent)."""
-    return [ancestor for ancestor, _, _ in _up(links, frame)][-1]
+    return ancestors(links, frame)[-1]
 
 
 def find_mounting(

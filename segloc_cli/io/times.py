@@ -22,6 +22,11 @@ raised to the next representable value.
 
 Times are seconds; the rule does not depend on the time base (relative or
 absolute). The original times are kept by the importers beside the new ones.
+
+A log keeps each time in whole nanoseconds, so the importers' times are the ones a log
+gives back (``logged_times``): each rounded to the nanosecond as the log writer rounds it,
+and later than the one before. A survey or trajectory written with them pairs with the
+log's scans exactly, even at a tolerance of 0 ms.
 """
 
 from __future__ import annotations
@@ -35,6 +40,10 @@ from segloc_cli.errors import InputError
 LAST_GROUP_STEP_S = 1.0
 """Largest spacing (s) of the records of the last group (and the spacing when all times
 are equal)."""
+
+NS_PER_S = 1_000_000_000
+SETTLE_STEPS = 8
+"""Most rounds of writing and reading back a time before it is taken as kept."""
 
 MAX_TIME_S = float(2**32)
 """Largest record time (s) an importer accepts, before and after making times distinct:
@@ -100,17 +109,49 @@ def distinct_times(times_s: np.ndarray) -> np.ndarray:
     return out
 
 
+def logged_times(times_s: np.ndarray) -> np.ndarray:
+    """Increasing times (S,) in seconds as a log keeps them: each a whole number of
+    nanoseconds that the log writer's rounding (``round(t·10⁹)``) keeps and the reader gives
+    back (ns / 10⁹), and each at least a nanosecond after the one before."""
+    kept = np.empty(len(times_s))
+    last_ns = -1
+    for i, time_s in enumerate(np.asarray(times_s, dtype=float).tolist()):
+        last_ns = _logged_ns(time_s, last_ns)
+        kept[i] = last_ns / NS_PER_S
+    return kept
+
+
+def _logged_ns(time_s: float, after_ns: int) -> int:
+    """The nanoseconds a log keeps for ``time_s``, raised past ``after_ns`` where needed."""
+    ns, step = max(round(time_s * 1e9), after_ns + 1), 1
+    while (kept := _settled_ns(ns)) <= after_ns:
+        ns, step = after_ns + 1 + step, 2 * step  # past a float's spacing at large times
+    return kept
+
+
+def _settled_ns(ns: int) -> int:
+    """``ns`` as the log ends up keeping it: past 2^53 ns (104 days), the time ns / 10⁹
+    can round to other nanoseconds when written again; these settle in a step or two."""
+    for _ in range(SETTLE_STEPS):
+        again = round(ns / NS_PER_S * 1e9)
+        if again == ns:
+            break
+        ns = again
+    return ns
+
+
 def importer_times(
     original_times_s: np.ndarray, path: Path, records: str, order: str, where: str
 ) -> tuple[np.ndarray, str | None]:
-    """An importer's distinct times (S,) for its records, and the warning to give, if any.
+    """An importer's distinct times (S,) for its records, as a log keeps them
+    (``logged_times``), and the warning to give, if any.
 
     ``original_times_s`` (S,) seconds, in the order ``order`` names ("file order");
     ``records`` names them in messages ("laser records"), ``where`` is how the
     warning names the file. Raises ``InputError`` naming ``path`` when the
     distinct times run past ``MAX_TIME_S``.
     """
-    times_s = distinct_times(original_times_s)
+    times_s = logged_times(distinct_times(original_times_s))
     if times_s.size and times_s[-1] > MAX_TIME_S:
         raise InputError(
             f"the times of the {records}, made distinct, run past {MAX_TIME_S:.0f} s "
