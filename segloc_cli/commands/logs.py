@@ -1,4 +1,5 @@
-"""Commands that make and read logs: ``simulate``, ``import carmen|rosbag`` and ``info``."""
+"""Commands that make and read logs: ``simulate``, ``import carmen|rosbag``, and the log part
+of ``info`` (``info_command``; ``commands/info.py`` is the command, and describes run views)."""
 
 from __future__ import annotations
 
