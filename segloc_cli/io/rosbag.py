@@ -461,12 +461,22 @@ def _laser_offset(
     from the robot's frame to ``scan_frame`` in the bag's transforms (a warning when there
     is none, or when a frame of it is given two poses; ``InputError`` when the transforms
     form a loop on the way)."""
-    if given is not None:
-        warnings += _overridden(path, decoded, scan_frame, given)
-        return laser_offset_settings(*given, "--laser-offset"), False
     scanner = bare(scan_frame)
     links = fixed_links(decoded.transforms)
-    _refuse_loops(path, links, [scanner, decoded.robot_frame])
+    loop = _loop(links, [scanner, decoded.robot_frame])
+    if given is not None:
+        if loop is None:  # a loop places the scanner nowhere to compare with
+            robot = decoded.robot_frame or root_of(links, scanner)
+            warnings += _overridden(path, links, robot, scanner, given)
+        return laser_offset_settings(*given, "--laser-offset"), False
+    if loop is not None:
+        frame, frames = loop
+        raise InputError(
+            f"the bag's transforms form a loop ({' -> '.join(frames)}): a frame is its own "
+            f"ancestor, so they place {frame} nowhere; --laser-offset X,Y,THETA_DEG "
+            "gives the scanner's pose on the robot instead",
+            path=path,
+        )
     robot = decoded.robot_frame or root_of(links, scanner)
     mounting = None
     if robot == scanner and decoded.robot_frame:
@@ -504,18 +514,15 @@ def _laser_offset(
     return settings | flipped, mounting.upside_down
 
 
-def _refuse_loops(path: Path, links: dict, frames: list[str]) -> None:
-    """``InputError`` when the way up from one of ``frames`` (the scanner's, the robot's)
-    runs into a loop: no pose can be read from transforms that contradict themselves."""
+def _loop(links: dict, frames: list[str]) -> tuple[str, list[str]] | None:
+    """The first of ``frames`` (the scanner's, the robot's; empty names skipped) whose way
+    up runs into a loop, and that loop; None when none does. No pose can be read from
+    transforms that contradict themselves."""
     for frame in filter(None, frames):
         loop = loop_above(links, frame)
         if loop is not None:
-            raise InputError(
-                f"the bag's transforms form a loop ({' -> '.join(loop)}): a frame is its own "
-                f"ancestor, so they place {bare(frame)} nowhere; --laser-offset X,Y,THETA_DEG "
-                "gives the scanner's pose on the robot instead",
-                path=path,
-            )
+            return bare(frame), loop
+    return None
 
 
 def _contradictions(path: Path, transforms: list[Transform], frames: set[str]) -> list[str]:
@@ -545,15 +552,10 @@ def _link_text(tf: Transform) -> str:
 
 
 def _overridden(
-    path: Path, decoded: _Messages, scan_frame: str, given: tuple[float, float, float]
+    path: Path, links: dict, robot: str, scanner: str, given: tuple[float, float, float]
 ) -> list[str]:
-    """A warning when the bag's own transforms place the scanner otherwise than ``given``
-    (x m, y m, θ degrees), which wins; none when they place it nowhere usable."""
-    scanner = bare(scan_frame)
-    links = fixed_links(decoded.transforms)
-    if any(loop_above(links, f) for f in filter(None, [scanner, decoded.robot_frame])):
-        return []
-    robot = decoded.robot_frame or root_of(links, scanner)
+    """A warning when the bag's fixed ``links`` place ``scanner`` on ``robot`` otherwise
+    than ``given`` (x m, y m, θ degrees), which wins; none when they place it nowhere usable."""
     mounting = None if robot == scanner else find_mounting(links, robot, scanner)
     if mounting is None or not np.all(np.isfinite([mounting.x_m, mounting.y_m])):
         return []
