@@ -31,10 +31,10 @@ from conftest import HALL, HALL_WORLD, SEGLOC
 from test_cli import Result, assert_one_line_error, run_cli, setup_cli
 from test_foxglove import messages_before_the_cut, validated_messages
 from test_io_rosbag import mounted_bag, quaternion
+from test_outputs import write_long_log
 
 from segloc_cli.geometry import Pose2
-from segloc_cli.io.mcap_log import read_log, write_log
-from segloc_cli.scan import Scan
+from segloc_cli.io.mcap_log import read_log
 
 HALL_LOG, HALL_MAP, HALL_SURVEY = HALL / "log.mcap", HALL / "map.json", HALL / "survey.csv"
 
@@ -267,24 +267,9 @@ def test_a_full_tmpfs_is_one_line_naming_the_file(tiny, tmp_path, full):
         assert len(estimate_rows(out)) == 3
 
 
-def _long_log(path: Path, copies: int) -> Path:
-    """The hall's scans repeated ``copies`` times at distinct times, with their guesses."""
-    hall = read_log(HALL_LOG)
-    period_s = hall.scan_times_s.max() + 1.0
-    scans, odometry = [], []
-    for k in range(copies):
-        for scan, t, pose in zip(hall.scans, hall.odom_times_s, hall.odom_poses, strict=True):
-            shift = k * period_s
-            moved = Scan(scan.time_s + shift, scan.angles_rad, scan.ranges_m, scan.range_max_m)
-            scans.append(moved)
-            odometry.append((t + shift, Pose2(*pose)))
-    write_log(path, scans, odometry, hall.sensor)
-    return path
-
-
 @pytest.fixture(scope="module")
 def long_log(tmp_path_factory) -> Path:
-    return _long_log(tmp_path_factory.mktemp("long") / "long.mcap", copies=40)
+    return write_long_log(tmp_path_factory.mktemp("long") / "long.mcap", copies=40)
 
 
 @pytest.mark.parametrize("how", [signal.SIGTERM, signal.SIGINT, signal.SIGKILL],

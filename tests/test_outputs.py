@@ -156,7 +156,7 @@ def test_too_deep_input_is_one_line_exit_2(capsys, monkeypatch, tmp_path):
 # --------------------------------------------------------------------------- streamed rows
 
 
-def _long_log(path: Path, copies: int) -> None:
+def write_long_log(path: Path, copies: int) -> Path:
     """The hall's scans repeated ``copies`` times at distinct times, with their guesses."""
     hall = read_log(LOG)
     period_s = hall.scan_times_s.max() + 1.0
@@ -169,6 +169,7 @@ def _long_log(path: Path, copies: int) -> None:
             )
             odometry.append((t + shift, Pose2(*pose)))
     write_log(path, scans, odometry, hall.sensor)
+    return path
 
 
 def _rows_when(path: Path, n: int, proc: subprocess.Popen, timeout_s: float = 120.0) -> None:
@@ -195,7 +196,7 @@ def _complete_rows(path: Path) -> list[dict]:
 @pytest.mark.parametrize("how", [signal.SIGKILL, signal.SIGTERM], ids=["SIGKILL", "SIGTERM"])
 def test_a_stopped_localize_keeps_every_finished_row(tmp_path, how):
     log = tmp_path / "long.mcap"
-    _long_log(log, copies=60)
+    write_long_log(log, copies=60)
     out, view = tmp_path / "est.csv", tmp_path / "run.mcap"
     argv = ["localize", log, "--map", MAP, "--out", out, "--mcap", view]
     proc = subprocess.Popen(
@@ -331,7 +332,7 @@ def test_sigterm_mid_command_is_one_line_and_leaves_no_fragment(capsys, tmp_path
 
 def test_stopping_parallel_workers_ends_every_process(tmp_path):
     log = tmp_path / "long.mcap"
-    _long_log(log, copies=60)
+    write_long_log(log, copies=60)
     out = tmp_path / "est.csv"
     command = ["localize", log, "--map", MAP, "--out", out, "--jobs", "2"]
     proc = _started(command, start_new_session=True)
