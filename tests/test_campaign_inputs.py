@@ -26,6 +26,7 @@ import yaml
 from conftest import HALL
 from PIL import Image
 from test_cli import ESTIMATE_HEADER, SURVEY_HEADER, assert_one_line_error, run_cli
+from test_grids import GOOD
 
 from segloc_cli.io.maps import read_map
 
@@ -348,14 +349,7 @@ def test_a_dxf_array_places_every_copy_where_it_is_drawn(tmp_path, capsys):
 
 # --- nav2 grids ----------------------------------------------------------------------------
 
-GOOD_HEADER = {
-    "image": "grid.png",
-    "resolution": 0.1,
-    "origin": [0.0, 0.0, 0.0],
-    "negate": 0,
-    "occupied_thresh": 0.65,
-    "free_thresh": 0.196,
-}
+GOOD_HEADER = {**GOOD, "resolution": 0.1}  # test_grids' header, at 10 cm cells
 
 ROOM = np.full((40, 40), 254, dtype=np.uint8)
 ROOM[5, 5:35] = ROOM[34, 5:35] = ROOM[5:35, 5] = ROOM[5:35, 34] = 0
