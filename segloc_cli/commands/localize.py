@@ -6,6 +6,7 @@ import sys
 import time
 from collections import Counter
 from contextlib import ExitStack
+from dataclasses import replace
 from pathlib import Path
 
 import click
@@ -23,6 +24,7 @@ from segloc_cli.commands.options import (
     tuning_options,
     warn,
     with_options,
+    within_cores,
 )
 from segloc_cli.config import LOCALIZE_TUNING, MATCHER, STAGES, WINDOW
 from segloc_cli.runfile import beside, run_file_path
@@ -158,7 +160,7 @@ def localize(
     run = Invocation.current()
     config = _with_region(run.config, _parse_region(region, global_search))
     check_modes(config, global_search, track)
-    config = _within_cores(config)
+    config = replace(config, jobs=within_cores(config.jobs, "localizing on {cores} processes"))
     mode = "global" if global_search else "track" if track else "guided"
     guess_file = None if initial == GUESSES_KEYWORD else Path(initial)
     listed = None if hypotheses is None else (beside(out_path, ".hypotheses.csv"), hypotheses)
@@ -223,23 +225,6 @@ def check_modes(config, global_search: bool, track: bool) -> None:
             f"--global cannot be combined with {other}: it searches every scan afresh and "
             "ranks its candidates by refining them"
         )
-
-
-def _within_cores(config):
-    """``config`` with ``--jobs`` no more than the cores this process may run on (more
-    processes would only share them), with a warning when that is fewer than asked."""
-    from dataclasses import replace
-
-    from segloc_cli.parallel import usable_cores
-
-    cores = usable_cores()
-    if config.jobs <= cores:
-        return config
-    warn(
-        f"--jobs {config.jobs} is more than the {cores} core(s) segloc may use here; "
-        f"localizing on {cores} processes"
-    )
-    return replace(config, jobs=cores)
 
 
 def _run_view(mcap_path: Path, segments_world, log_paths, map_path: Path, mode: str):
@@ -379,8 +364,6 @@ def _parse_region(value: str | None, global_search: bool) -> tuple[float, ...] |
 
 def _with_region(config, region: tuple[float, ...] | None):
     """``config`` with the global search limited to ``region`` (if any)."""
-    from dataclasses import replace
-
     if region is None:
         return config
     search = replace(config.localize.search, region=region)

@@ -41,6 +41,20 @@ def warn(message: str) -> None:
     click.echo(f"segloc: warning: {message}", err=True)
 
 
+def within_cores(jobs: int, running: str) -> int:
+    """``--jobs`` no more than the cores segloc may use here (more processes would only share
+    them), with a warning that ends in ``running`` (its ``{cores}`` filled in) when it asked
+    for more."""
+    from segloc_cli.parallel import usable_cores
+
+    cores = usable_cores()
+    if jobs <= cores:
+        return jobs
+    running = running.format(cores=cores)
+    warn(f"--jobs {jobs} is more than the {cores} core(s) segloc may use here; {running}")
+    return cores
+
+
 def info(message: str) -> None:
     """Print a progress or summary line on standard error."""
     click.echo(message, err=True)

@@ -17,6 +17,7 @@ from segloc_cli.commands.options import (
     info,
     path_option,
     warn,
+    within_cores,
 )
 from segloc_cli.errors import InputError
 
@@ -138,18 +139,15 @@ def _check_scheduler(scheduler: str | None) -> None:
 
 def _local_workers(jobs: int, n_tasks: int) -> int:
     """The local cluster's size: ``jobs``, but no more than the tasks to run, nor than the
-    cores segloc may use (more workers would only share them; a warning says so when
-    ``--jobs`` asked for more)."""
+    cores segloc may use (``within_cores``, which warns only when ``--jobs`` was given)."""
     from segloc_cli.parallel import usable_cores
 
-    cores = usable_cores()
     source = click.get_current_context().get_parameter_source("jobs")
-    if jobs > cores and source != click.core.ParameterSource.DEFAULT:
-        warn(
-            f"--jobs {jobs} is more than the {cores} core(s) segloc may use here; "
-            f"a local cluster of at most {cores} workers"
-        )
-    return max(1, min(jobs, cores, n_tasks))
+    if source == click.core.ParameterSource.DEFAULT:
+        jobs = min(jobs, usable_cores())
+    else:
+        jobs = within_cores(jobs, "a local cluster of at most {cores} workers")
+    return max(1, min(jobs, n_tasks))
 
 
 def _run(plan, out_path: Path, scheduler: str | None, jobs: int, force: bool):
