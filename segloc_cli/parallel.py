@@ -46,8 +46,8 @@ PR_SET_PDEATHSIG = 1
 START_TIMEOUT_S = 30.0
 """Longest wait (s) for a new pool's first worker to answer: a pool that could not start a
 thread of its own never does."""
-LIMIT_HINT = ": the system's limit on processes (ulimit -u) may be reached"
-"""What the warning of a pool smaller than asked suggests."""
+PROCESS_LIMIT_HINT = "the system's limit on processes (ulimit -u) may be reached"
+"""What the warning of a pool (or a sweep's cluster) smaller than asked suggests."""
 
 _job: tuple | None = None
 """The work of the current run, set before the workers are forked (they inherit it)."""
@@ -162,8 +162,9 @@ def localize_scans_parallel(
 
 def _started_pool(jobs: int, stop: Callable[[], bool]) -> tuple[ProcessPoolExecutor | None, int]:
     """A pool of ``jobs`` worker processes, forked now, and its size; where the system lets
-    fewer start (``_lacks_room``), a pool of as many as did, said on stderr, and (None, 0)
-    when not even one starts, or when ``stop()`` asks the run to end meanwhile."""
+    fewer start (``lacks_room``, or a pool that never answered), a pool of as many as did,
+    said on stderr, and (None, 0) when not even one starts, or when ``stop()`` asks the run
+    to end meanwhile."""
     asked, why = jobs, ""
     while jobs >= 1:
         pool = ProcessPoolExecutor(
@@ -172,7 +173,7 @@ def _started_pool(jobs: int, stop: Callable[[], bool]) -> tuple[ProcessPoolExecu
         try:
             _start(pool)
         except (OSError, RuntimeError, FutureTimeout) as exc:
-            if not _lacks_room(exc):
+            if not (isinstance(exc, FutureTimeout) or lacks_room(exc)):
                 _shut_down(pool)
                 time.sleep(POLL_S)  # a worker ended by the signal that stops the run
                 if stop():
@@ -184,11 +185,13 @@ def _started_pool(jobs: int, stop: Callable[[], bool]) -> tuple[ProcessPoolExecu
             continue
         if jobs < asked:
             _say(
-                f"could start {jobs} of {asked} worker processes ({why}{LIMIT_HINT}); "
+                f"could start {jobs} of {asked} worker processes ({why}: {PROCESS_LIMIT_HINT}); "
                 f"localizing on {jobs}"
             )
         return pool, jobs
-    _say(f"could start no worker process ({why}{LIMIT_HINT}); localizing on this one alone")
+    _say(
+        f"could start no worker process ({why}: {PROCESS_LIMIT_HINT}); localizing on this one alone"
+    )
     return None, 0
 
 
@@ -200,7 +203,7 @@ def _start(pool: ProcessPoolExecutor) -> None:
     previous = threading.excepthook
 
     def note(args: threading.ExceptHookArgs) -> None:
-        if args.exc_value is not None and _lacks_room(args.exc_value):
+        if args.exc_value is not None and lacks_room(args.exc_value):
             failed.append(args.exc_value)
         else:
             previous(args)
@@ -222,15 +225,18 @@ def _nothing() -> None:
     """A task that does nothing: the first one, which starts the pool."""
 
 
-def _lacks_room(exc: BaseException) -> bool:
-    """Whether ``exc`` says the system would start no more processes or threads (fork's
-    EAGAIN or ENOMEM, a thread that could not start, a pool that never answered), not that
-    something is wrong."""
-    if isinstance(exc, FutureTimeout):
-        return True
-    if isinstance(exc, OSError):
-        return exc.errno in (errno.EAGAIN, errno.ENOMEM)
-    return "can't start new thread" in str(exc)
+def lacks_room(exc: BaseException) -> bool:
+    """Whether ``exc``, or an error behind it, says the system would start no more processes
+    or threads (fork's EAGAIN or ENOMEM, a thread or a Dask nanny that could not start), not
+    that something is wrong."""
+    seen: BaseException | None = exc
+    while seen is not None:
+        if isinstance(seen, OSError) and seen.errno in (errno.EAGAIN, errno.ENOMEM):
+            return True
+        if "can't start new thread" in str(seen) or "Nanny failed to start" in str(seen):
+            return True
+        seen = seen.__cause__ or seen.__context__
+    return False
 
 
 def _why(exc: BaseException) -> str:

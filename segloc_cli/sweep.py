@@ -314,7 +314,6 @@ SCHEDULER_TIMEOUT_S = 15.0
 or something that is not a scheduler, is refused after it, never waited on."""
 HOST_PORT_SCHEMES = ("tcp", "tls", "ws", "wss", "ucx")
 """Address schemes whose location is HOST:PORT."""
-PROCESS_LIMIT_HINT = "the system's limit on processes (ulimit -u) may be reached"
 
 
 def address_problem(address: str) -> str | None:
@@ -466,6 +465,8 @@ def _local_cluster(workers: int, warn: Callable[[str], None]):
 
     from distributed import LocalCluster
 
+    from segloc_cli.parallel import PROCESS_LIMIT_HINT, lacks_room
+
     # Dask's own lines (a worker that failed to start, one reaped at exit) are said better
     # here, and a failed task is kept with its error.
     logging.getLogger("distributed").setLevel(logging.CRITICAL)
@@ -482,7 +483,7 @@ def _local_cluster(workers: int, warn: Callable[[str], None]):
                     silence_logs=logging.CRITICAL,
                 )
         except (OSError, RuntimeError) as exc:
-            if not _lacks_room(exc):
+            if not lacks_room(exc):
                 raise
             if workers == 1:
                 raise InputError(
@@ -497,21 +498,6 @@ def _local_cluster(workers: int, warn: Callable[[str], None]):
                 f"{PROCESS_LIMIT_HINT}); running on {workers}"
             )
         return cluster
-
-
-def _lacks_room(exc: BaseException) -> bool:
-    """Whether ``exc``, or an error behind it, says the system would start no more
-    processes or threads."""
-    import errno
-
-    seen: BaseException | None = exc
-    while seen is not None:
-        if isinstance(seen, OSError) and seen.errno in (errno.EAGAIN, errno.ENOMEM):
-            return True
-        if "can't start new thread" in str(seen) or "Nanny failed to start" in str(seen):
-            return True
-        seen = seen.__cause__ or seen.__context__
-    return False
 
 
 @contextlib.contextmanager
