@@ -58,9 +58,8 @@ from sklearn.preprocessing import StandardScaler
 from segloc_cli.confidence import FEATURES, MODEL_PATH, MODES, UNINFORMED, ConfidenceModel
 from segloc_cli.config import ConfidenceParams, Config, TrackParams, WindowParams
 from segloc_cli.geometry import Pose2
-from segloc_cli.io.maps import World, read_map
+from segloc_cli.io.maps import read_map
 from segloc_cli.io.mcap_log import read_log
-from segloc_cli.io.tables import nearest_by_time
 from segloc_cli.localize import Localizer, localize_scan
 from segloc_cli.pipeline import scan_windows
 from segloc_cli.sim import (
@@ -72,7 +71,9 @@ from segloc_cli.sim import (
     simulate_scan,
     symmetric_room,
 )
+from segloc_cli.timing import nearest_by_time
 from segloc_cli.window import Windows
+from segloc_cli.world import World
 
 CALIBRATION_FIRST = 5
 """The calibration split holds out every 10th scan from this one (0-based)."""

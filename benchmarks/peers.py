@@ -44,7 +44,8 @@ from protocol import (
     truth_rows,
 )
 
-from segloc_cli.io.tables import PoseTable, read_estimates, read_pose_table, write_pose_table
+from segloc_cli.estimates import PoseTable
+from segloc_cli.io.tables import read_estimates, read_pose_table, write_pose_table
 
 SEED = 2010
 POSITION_BINS_M = ((0.0, 0.5), (0.5, 1.0), (1.0, 1.5), (1.5, 2.0))

@@ -52,16 +52,13 @@ from protocol import (
     subset_poses,
 )
 
+from segloc_cli.estimates import PoseTable, Relations
 from segloc_cli.io.maps import read_map
 from segloc_cli.io.mcap_log import read_log
-from segloc_cli.io.tables import (
-    PoseTable,
-    nearest_by_time,
-    read_estimates,
-    read_pose_table,
-    write_pose_table,
-)
-from segloc_cli.relations import PUBLISHED, Relations, published_json, read_relations
+from segloc_cli.io.relations import read_relations
+from segloc_cli.io.tables import read_estimates, read_pose_table, write_pose_table
+from segloc_cli.relations import PUBLISHED, published_json
+from segloc_cli.timing import nearest_by_time
 
 SAME_TIME_S = 1e-3
 """A relation's time names the raw-log scan nearest it within this (seconds). The relations'

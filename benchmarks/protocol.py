@@ -24,8 +24,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from segloc_cli.estimates import PoseTable
 from segloc_cli.geometry import wrap_angle
-from segloc_cli.io.tables import PoseTable, read_pose_table, write_pose_table
+from segloc_cli.io.tables import read_pose_table, write_pose_table
 
 SEGLOC = str(Path(sys.executable).parent / "segloc")
 """The segloc executable installed beside the running interpreter."""

@@ -69,9 +69,10 @@ from protocol import (
     truth_rows,
 )
 
+from segloc_cli.estimates import PoseTable
 from segloc_cli.geometry import Pose2
 from segloc_cli.io.maps import read_map
-from segloc_cli.io.tables import PoseTable, read_estimates, read_pose_table, write_pose_table
+from segloc_cli.io.tables import read_estimates, read_pose_table, write_pose_table
 
 TRACK_LIMIT_M = 1.0
 
@@ -387,7 +388,7 @@ def _held_out_scans(log_path: Path, truth: PoseTable, log=None) -> list:
     """The scan of the log at ``log_path`` (read there unless ``log`` is given) at each
     reference time (None where there is none)."""
     from segloc_cli.io.mcap_log import read_log
-    from segloc_cli.io.tables import nearest_by_time
+    from segloc_cli.timing import nearest_by_time
 
     scans = (log or read_log(log_path)).scans
     rows = nearest_by_time(truth.time_s, np.array([s.time_s for s in scans]), 1e-3)
@@ -591,7 +592,8 @@ def reference_check(relations_path: Path, times_s: np.ndarray, poses: np.ndarray
     the same scans) on the relations both of them reach tells how far a 1°
     success bound against the reference can be trusted.
     """
-    from segloc_cli.relations import read_relations, relation_errors, trajectory_from_estimates
+    from segloc_cli.io.relations import read_relations
+    from segloc_cli.relations import relation_errors, trajectory_from_estimates
 
     relations = read_relations(relations_path)
     reference = relation_errors(times_s, poses, relations)

@@ -40,7 +40,7 @@ from protocol import (
     run_segloc_measured,
 )
 
-from segloc_cli.confidence import ESTIMATED
+from segloc_cli.estimates import ESTIMATED
 from segloc_cli.evaluate import gate_masks
 
 GRID_KEY = "search-half-width-m"
@@ -53,7 +53,7 @@ JOBS = (1, 2)
 """Worker processes of the local cluster, one sweep each."""
 SPEC_NAME = "sweep.toml"
 TASK_FAILED = "task failed"
-"""The status of a failed task's one row (``segloc_cli.sweep.STATUS_TASK_FAILED``)."""
+"""The status of a failed task's one row (``segloc_cli.estimates.STATUS_TASK_FAILED``)."""
 
 
 @dataclass(frozen=True)

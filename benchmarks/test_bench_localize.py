@@ -29,7 +29,7 @@ from protocol import pose_errors
 
 from segloc_cli.extract import extract_segments
 from segloc_cli.geometry import Pose2, wrap_angle
-from segloc_cli.io.maps import World, read_map, read_world
+from segloc_cli.io.maps import read_map, read_world
 from segloc_cli.localize import LocalizeParams, Localizer
 from segloc_cli.parallel import localize_scans_parallel
 from segloc_cli.sim import (
@@ -39,6 +39,7 @@ from segloc_cli.sim import (
     simulate_scan,
     uniform_initial_errors,
 )
+from segloc_cli.world import World
 
 HALL = Path(__file__).resolve().parents[1] / "datasets" / "hall"
 PAPER_MAP_SEGMENTS = (48, 56)

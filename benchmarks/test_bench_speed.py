@@ -59,9 +59,11 @@ from protocol import (
 )
 from tabulate import tabulate
 
-from segloc_cli.io.maps import World, read_map, write_world
-from segloc_cli.io.tables import PoseTable, read_estimates, read_pose_table, write_pose_table
+from segloc_cli.estimates import PoseTable
+from segloc_cli.io.maps import read_map, write_world
+from segloc_cli.io.tables import read_estimates, read_pose_table, write_pose_table
 from segloc_cli.sim import random_free_poses, random_world
+from segloc_cli.world import World
 
 SCANS_PER_LOG = 40
 """Held-out scans per shared log localized by each method in section 1."""

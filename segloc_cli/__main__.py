@@ -12,7 +12,7 @@ from __future__ import annotations
 import signal
 import sys
 
-EXIT_INTERRUPTED = 130
+from segloc_cli.errors import EXIT_INTERRUPTED
 
 
 def main() -> None:

@@ -13,20 +13,23 @@ import click
 
 from segloc_cli import __version__
 from segloc_cli.commands.devices import emulate, record
-from segloc_cli.commands.evaluate import EXIT_GATE_FAILED, evaluate
+from segloc_cli.commands.evaluate import evaluate
 from segloc_cli.commands.info import info_command
-from segloc_cli.commands.localize import EXIT_INTERRUPTED, localize
+from segloc_cli.commands.localize import localize
 from segloc_cli.commands.logs import import_group, simulate
 from segloc_cli.commands.maps import map_group
 from segloc_cli.commands.sweep import sweep
-from segloc_cli.errors import SeglocError
+from segloc_cli.errors import (
+    EXIT_BAD_INPUT,
+    EXIT_INTERNAL_ERROR,
+    EXIT_INTERRUPTED,
+    SeglocError,
+)
 
-EXIT_BAD_INPUT = 2
-EXIT_INTERNAL_ERROR = 70
 """An unexpected error (a bug): one line, and the traceback in a file it names (sysexits'
 EX_SOFTWARE)."""
 
-__all__ = ["EXIT_GATE_FAILED", "EXIT_INTERRUPTED", "cli", "main"]
+__all__ = ["cli", "main"]
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})

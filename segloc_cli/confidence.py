@@ -26,24 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from segloc_cli.config import ConfidenceParams
-
-STATUS_OK = "ok"
-STATUS_AMBIGUOUS = "ambiguous"
-"""The answer may well be the wrong place: a distinct pose explains the scan nearly as well,
-or the scan cannot tell such places apart."""
-STATUS_LOST = "lost"
-"""Too little of the scan lies on the map at the answer."""
-STATUS_TOO_FEW_SEGMENTS = "too_few_segments"
-"""The scan cannot pin a pose: too few local segments, too few points, or points spread along
-one line (``localize.scan_is_degenerate``). A pose found anyway is kept in the row, but not
-trusted."""
-STATUS_NO_OVERLAP = "no_overlap"
-STATUS_RECOVERED = "recovered"
-"""Tracking: the first match failed its checks, a wider search passed them."""
-ESTIMATED = (STATUS_OK, STATUS_RECOVERED)
-"""Statuses of rows that hold an accepted estimate; every other status marks a failure.
-(``ambiguous`` and ``lost`` rows hold a pose too, the best found, but it is not trusted.)
-Here, with the verdict's other statuses, so that scoring a table loads no kernel."""
+from segloc_cli.estimates import STATUS_AMBIGUOUS, STATUS_LOST, STATUS_OK
 
 RIGHT_PLACE_M = 0.30
 RIGHT_PLACE_DEG = 3.0

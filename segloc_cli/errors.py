@@ -22,3 +22,16 @@ class InputError(SeglocError):
         super().__init__(where + message)
         self.path = path
         self.row = row
+
+
+# The exit statuses of every command: 0 is success; these are the rest.
+EXIT_GATE_FAILED = 1
+"""``evaluate``: a pose's error is above ``--fail-above-cm`` or ``--fail-above-deg``."""
+EXIT_TASKS_FAILED = 1
+"""``sweep``: some tasks failed; their rows say why."""
+EXIT_BAD_INPUT = 2
+"""Bad input or usage: one line names what was wrong."""
+EXIT_INTERNAL_ERROR = 70
+"""A defect in segloc itself (EX_SOFTWARE)."""
+EXIT_INTERRUPTED = 130
+"""Stopped by Ctrl-C, SIGTERM or SIGHUP (128 + SIGINT)."""

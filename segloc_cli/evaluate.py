@@ -20,11 +20,12 @@ import math
 import numpy as np
 import pandas as pd
 
-from segloc_cli.confidence import ESTIMATED, RIGHT_PLACE_DEG, RIGHT_PLACE_M
+from segloc_cli.confidence import RIGHT_PLACE_DEG, RIGHT_PLACE_M
 from segloc_cli.config import TIME_TOLERANCE_MS
 from segloc_cli.errors import InputError
+from segloc_cli.estimates import ESTIMATE_COLUMNS, ESTIMATED, PoseTable
 from segloc_cli.geometry import wrap_angle
-from segloc_cli.io.tables import ESTIMATE_COLUMNS, PoseTable, pair_by_time
+from segloc_cli.timing import pair_by_time
 
 ERROR_COLUMNS = (
     "ae_deg",
@@ -95,7 +96,7 @@ def table1(
     """Per-pose errors of ``estimates`` against ``survey``, one row per matched survey pose.
 
     Each survey row is paired with the estimate nearest in time within
-    ``tolerance_s`` seconds (``io.tables.pair_by_time``: two estimates with the
+    ``tolerance_s`` seconds (``timing.pair_by_time``: two estimates with the
     time nearest a survey row, or two survey rows with one time, are refused
     with an ``InputError`` naming ``estimates_path`` or ``survey_path`` and the
     rows). Unmatched survey rows are left out and the rest keep survey order.

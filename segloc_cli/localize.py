@@ -15,9 +15,6 @@ import numpy as np
 from segloc_cli.align import RTable, align
 from segloc_cli.confidence import (
     MODES,
-    STATUS_NO_OVERLAP,
-    STATUS_OK,
-    STATUS_TOO_FEW_SEGMENTS,
     ConfidenceModel,
     Evidence,
     judge,
@@ -25,10 +22,16 @@ from segloc_cli.confidence import (
     shipped_models,
 )
 from segloc_cli.config import ExtractParams, LocalizeParams, RefineParams, SearchParams
+from segloc_cli.estimates import (
+    STATUS_NO_OVERLAP,
+    STATUS_OK,
+    STATUS_TOO_FEW_SEGMENTS,
+    EstimateRow,
+    HypothesisRow,
+)
 from segloc_cli.extract import extract_segments
 from segloc_cli.freespace import crossing_ratio
 from segloc_cli.geometry import Pose2
-from segloc_cli.io.tables import EstimateRow, HypothesisRow
 from segloc_cli.overlap import coarse_to_fine
 from segloc_cli.refine import Refinement, refine_pose, support
 from segloc_cli.scan import Scan

@@ -22,11 +22,11 @@ import numpy as np
 
 from segloc_cli.config import Config
 from segloc_cli.errors import InputError
+from segloc_cli.estimates import EstimateRow, PoseTable
 from segloc_cli.geometry import Pose2
 from segloc_cli.io.log import Log
-from segloc_cli.io.tables import EstimateRow, PoseTable, pair_by_time
-from segloc_cli.io.times import time_range
 from segloc_cli.progress import ProgressFactory, silent
+from segloc_cli.timing import pair_by_time, time_range
 
 MODES = ("guided", "global", "track")
 """How a log is localized: each scan from its own guess, each with none, or along a track."""

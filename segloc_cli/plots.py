@@ -2,7 +2,7 @@
 
 Each figure has a pure data function (arrays and tables in, arrays or a
 DataFrame out) and a drawing function that turns that data into a
-``matplotlib.figure.Figure``; ``save_figure`` writes it as PNG and PDF. Figures
+``matplotlib.figure.Figure``; ``io/figures.save_figure`` writes it as PNG and PDF. Figures
 are built on their own Agg canvas, never through pyplot, so drawing leaves no
 global state behind. World frame, metres and degrees on every axis.
 
@@ -20,9 +20,8 @@ Figure names (files ``NAME.png`` and ``NAME.pdf``):
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -31,18 +30,13 @@ from matplotlib.collections import LineCollection
 from matplotlib.figure import Figure
 
 from segloc_cli.align import VOTE_SCHEMES, RTable, accumulate, align, candidate_headings
-from segloc_cli.confidence import ESTIMATED
 from segloc_cli.config import TIME_TOLERANCE_MS, LocalizeParams
+from segloc_cli.estimates import ESTIMATED, PoseTable
 from segloc_cli.extract import ExtractParams, extract_segments
 from segloc_cli.geometry import Pose2, transform_points, transform_segments, wrap_angle
-from segloc_cli.io.files import atomic_path
-from segloc_cli.io.tables import PoseTable, pair_by_time
 from segloc_cli.overlap import coarse_to_fine
-from segloc_cli.progress import ProgressFactory, silent
 from segloc_cli.scan import Scan
-
-FIGURE_DPI = 150
-"""Resolution of the PNG files; the PDF files are vector graphics."""
+from segloc_cli.timing import pair_by_time
 
 OVERLAY = "overlay"
 HEADING_BY_VOTE = "heading_by_vote"
@@ -119,7 +113,7 @@ def surveyed_scans(
     takes the estimate nearest in time within ``tolerance_s`` seconds, as
     ``evaluate.table1`` does, and that estimate the scan nearest its time.
     Rows missing either are left out; the rest keep survey order. An ambiguous
-    pairing (``io.tables.pair_by_time``) raises ``InputError`` naming the file
+    pairing (``timing.pair_by_time``) raises ``InputError`` naming the file
     among ``paths`` (survey, estimates, log) at fault. Local maps are
     extracted with ``extract_params`` (default: as ``segloc localize``).
     """
@@ -207,22 +201,6 @@ def _new_figure(name: str, n_panels: int = 1) -> Figure:
     fig = Figure(figsize=figure_size_in(name, n_panels), layout="constrained")
     FigureCanvasAgg(fig)
     return fig
-
-
-def save_figure(fig: Figure, out_dir: str | Path, name: str) -> list[Path]:
-    """Write ``fig`` as ``out_dir/name.png`` (``FIGURE_DPI``) and ``out_dir/name.pdf``.
-
-    Returns the two paths. The PDF carries no creation date, so the same
-    figure gives the same file.
-    """
-    out_dir = Path(out_dir)
-    png, pdf = out_dir / f"{name}.png", out_dir / f"{name}.pdf"
-    # Each written beside its target and renamed into place, so no figure is ever half drawn.
-    with atomic_path(png) as partial:
-        fig.savefig(partial, format="png", dpi=FIGURE_DPI)
-    with atomic_path(pdf) as partial:
-        fig.savefig(partial, format="pdf", metadata={"CreationDate": None})
-    return [png, pdf]
 
 
 # --------------------------------------------------------------------------- overlay
@@ -754,23 +732,21 @@ def draw_success_vs_initial_error(rates: pd.DataFrame) -> Figure:
 # --------------------------------------------------------------------------- all at once
 
 
-def write_evaluation_figures(
-    out_dir: str | Path,
+def evaluation_figures(
     table: pd.DataFrame,
     segments_world: np.ndarray | None = None,
     items: Sequence[SurveyedScan] | None = None,
     pose_id: int | None = None,
     window_deg: float = 20.0,
-    progress: ProgressFactory = silent,
-) -> list[Path]:
-    """Write the figures of one evaluated run into ``out_dir`` (which must exist); each
-    figure is a step of ``progress``.
+) -> dict[str, Callable[[], Figure]]:
+    """The figures of one evaluated run, by name, each drawn when called (``io/figures``
+    writes them).
 
     ``table`` is a ``evaluate.table1`` result. With the global map
     ``segments_world`` (M, 4) and the run's ``items`` (``surveyed_scans``)
     all of ``EVALUATION_FIGURES`` are drawn, the accumulator and the
     coarse-to-fine tracks for ``pose_id`` (default: the first item);
-    otherwise only ``errors``. Returns the paths written, PNG before PDF.
+    otherwise only ``errors``.
     """
     figures = {}
     if segments_world is not None and items:
@@ -788,12 +764,7 @@ def write_evaluation_figures(
             COARSE_TO_FINE: lambda: _coarse_to_fine_figure(segments_world, item),
         }
     figures[ERRORS] = lambda: draw_errors(final_errors(table))
-    written = []
-    with progress("drawing figures", len(figures), "figure") as shown:
-        for name, draw in figures.items():
-            written += save_figure(draw(), out_dir, name)
-            shown.advance()
-    return written
+    return figures
 
 
 def _accumulator_figure(

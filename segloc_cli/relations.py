@@ -18,11 +18,7 @@ deviation over the relations. Only relative motions enter, so the score does
 not depend on the world frame the trajectory is expressed in: any rigid
 transform of the whole trajectory leaves every error unchanged.
 
-File format (``*.relations``): one relation a line, whitespace-separated
-``t1 t2 dx dy dz droll dpitch dyaw`` (seconds, metres, radians); ``#`` starts a
-comment; blank lines are ignored. The planar metric uses dx, dy and dyaw.
-
-Every function except ``read_relations`` is pure: files are the command line's job.
+The relations are read by ``io/relations.py``; every function here is pure.
 """
 
 from __future__ import annotations
@@ -32,18 +28,16 @@ import io
 import json
 import math
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
-from segloc_cli.confidence import ESTIMATED
 from segloc_cli.config import TIME_TOLERANCE_MS
 from segloc_cli.errors import InputError
+from segloc_cli.estimates import ESTIMATE_COLUMNS, ESTIMATED, Relations
 from segloc_cli.evaluate import FORMATS
 from segloc_cli.geometry import wrap_angle
-from segloc_cli.io.files import reading
-from segloc_cli.io.tables import ESTIMATE_COLUMNS, pair_by_time
+from segloc_cli.timing import pair_by_time
 
 PUBLISHED_SOURCE = (
     "Graph Mapping results of Kümmerle et al., On measuring the accuracy of SLAM algorithms, "
@@ -83,75 +77,6 @@ PUBLISHED_SQUARED: dict[str, dict[str, dict[str, tuple[float, float]]]] = {
 }
 """The squared errors of the same source and table as ``PUBLISHED``: dataset →
 method → ``trans_sq_m2`` (m²) / ``rot_sq_deg2`` (deg²) → (mean, standard deviation)."""
-
-
-# --- relations ------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class Relations:
-    """Reference relative motions between pairs of robot poses.
-
-    ``t1_s``, ``t2_s`` (R,) float64 seconds, the times of the two poses;
-    ``delta`` (R, 3) float64 ``dx_m, dy_m, dyaw_rad``: the motion from the pose
-    at t1 to the pose at t2, expressed in the frame of the pose at t1.
-    """
-
-    t1_s: np.ndarray
-    t2_s: np.ndarray
-    delta: np.ndarray
-
-    def __len__(self) -> int:
-        return len(self.t1_s)
-
-
-_RELATION_FIELDS = ("t1", "t2", "dx", "dy", "dz", "droll", "dpitch", "dyaw")
-
-
-def read_relations(path: str | Path) -> Relations:
-    """Read a ``*.relations`` file → ``Relations`` (see the module docstring for the format).
-
-    Raises ``InputError`` naming the file, and the 1-based line for a line
-    without 8 finite numbers; also for an unreadable file or one with no relation.
-    """
-    path = Path(path)
-    with reading(path, "a relations file (t1 t2 dx dy dz droll dpitch dyaw per line)"):
-        text = path.read_text(encoding="utf-8-sig")
-    rows: list[list[float]] = []
-    for number, raw in enumerate(text.splitlines(), start=1):
-        line = raw.split("#", 1)[0].strip()
-        if not line:
-            continue
-        fields = line.split()
-        if len(fields) != len(_RELATION_FIELDS):
-            raise InputError(
-                f"line {number}: expected 8 whitespace-separated values "
-                f"'{' '.join(_RELATION_FIELDS)}', got {len(fields)}",
-                path=path,
-            )
-        values = []
-        for name, text_value in zip(_RELATION_FIELDS, fields, strict=True):
-            try:
-                value = float(text_value)
-            except ValueError:
-                value = math.nan
-            if not math.isfinite(value):
-                raise InputError(
-                    f"line {number}: {name} is {text_value!r}; expected a finite number",
-                    path=path,
-                )
-            values.append(value)
-        rows.append(values)
-    if not rows:
-        raise InputError(
-            "no relations; expected lines 't1 t2 dx dy dz droll dpitch dyaw'", path=path
-        )
-    table = np.array(rows, dtype=float)
-    return Relations(
-        t1_s=table[:, 0].copy(),
-        t2_s=table[:, 1].copy(),
-        delta=table[:, [2, 3, 7]].copy(),
-    )
 
 
 # --- errors ---------------------------------------------------------------------------
@@ -234,7 +159,7 @@ def relation_errors(
     ``times_s`` (N,) seconds, ``poses`` (N, 3) ``x_m, y_m, theta_rad`` in any one
     world frame, NaN rows for failed poses. Each relation's t1 and t2 is paired
     with the estimate nearest in time within ``tolerance_s`` (inclusive; see
-    ``io.tables.pair_by_time``): when that time is held by two estimates the
+    ``timing.pair_by_time``): when that time is held by two estimates the
     pairing is refused with an ``InputError`` naming ``estimates_path`` and
     their rows (many relations may share a time; that is no collision). The
     relation is skipped when either time has no estimate or its estimate is

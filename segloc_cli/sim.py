@@ -26,8 +26,8 @@ from segloc_cli.geometry import (
     rotation,
     wrap_angle,
 )
-from segloc_cli.io.maps import World
 from segloc_cli.scan import MAX_RANGE_M, Scan
+from segloc_cli.world import World
 
 EXPLORER_READINGS = (128, 256, 1024, 2048)
 

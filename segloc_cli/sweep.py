@@ -31,7 +31,7 @@ import numpy as np
 import pandas as pd
 
 from segloc_cli.errors import InputError
-from segloc_cli.io.tables import PoseTable
+from segloc_cli.estimates import STATUS_NO_GUESS, STATUS_NO_SCAN, STATUS_TASK_FAILED, PoseTable
 
 TASK_COLUMNS = ("task", "log", "combination", "seed")
 """The task a row belongs to: its key, the log as the spec names it, the combination's index
@@ -57,12 +57,6 @@ SCAN_COLUMNS = (
 )
 """What each scan's row holds after the task and parameter columns; ``error`` is empty but
 for the one row of a failed task."""
-STATUS_TASK_FAILED = "task failed"
-"""The status of the one row a failed task leaves: its ``error`` says why."""
-STATUS_NO_SCAN = "no scan"
-"""A survey pose within the log's time span that no scan lies near enough in time to."""
-STATUS_NO_GUESS = "no guess"
-"""A survey pose whose scan has no initial guess (from the guesses file or /odom)."""
 MISSING_ODOMETRY = "; give init-errors or initial = FILE in the spec"
 """How the error of a task that takes its guesses from a log without /odom ends."""
 KEY_DIGITS = 16
@@ -171,7 +165,7 @@ def _survey_pairing(task: Task, log, tolerance_s: float):
     guesses (rows of poses, world frame; None for a global search) and the status of a row
     that lies within the log's time span but lacks a scan or a guess (None elsewhere)."""
     from segloc_cli import pipeline
-    from segloc_cli.io.tables import pair_by_time
+    from segloc_cli.timing import pair_by_time
 
     survey_s = task.survey.time_s
     # Each survey row takes the scan nearest its time: a dense log under a sparse survey

@@ -14,7 +14,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from segloc_cli.confidence import (
+from segloc_cli.config import ExtractParams, RefineParams, TrackParams
+from segloc_cli.estimates import (
     ESTIMATED,
     STATUS_AMBIGUOUS,
     STATUS_LOST,
@@ -22,11 +23,10 @@ from segloc_cli.confidence import (
     STATUS_OK,
     STATUS_RECOVERED,
     STATUS_TOO_FEW_SEGMENTS,
+    EstimateRow,
 )
-from segloc_cli.config import ExtractParams, RefineParams, TrackParams
 from segloc_cli.extract import extract_segments
 from segloc_cli.geometry import Pose2, wrap_angle
-from segloc_cli.io.tables import EstimateRow
 from segloc_cli.localize import Estimate, Localizer, estimate_row, scan_is_degenerate, usable_points
 from segloc_cli.refine import inlier_ratio, refine_pose
 from segloc_cli.scan import Scan

@@ -36,9 +36,9 @@ from numba.core.dispatcher import Dispatcher
 from segloc_cli import pipeline
 from segloc_cli.config import Config
 from segloc_cli.errors import SeglocError
+from segloc_cli.estimates import PoseTable
 from segloc_cli.geometry import Pose2
 from segloc_cli.io.log import Log
-from segloc_cli.io.tables import PoseTable
 from segloc_cli.refine import nearest_segments
 from segloc_cli.sim import (
     SensorModel,

@@ -108,7 +108,7 @@ def test_sparse_scans_of_128_readings():
 
 def _rooms(count: int, first_seed: int):
     """Generated rooms side by side, 25 m apart: a map far larger than any one scan sees."""
-    from segloc_cli.io.maps import World
+    from segloc_cli.world import World
 
     parts, materials = [], []
     for k in range(count):

@@ -12,9 +12,6 @@ from segloc_cli.confidence import (
     FEATURES,
     MODEL_PATH,
     MODES,
-    STATUS_AMBIGUOUS,
-    STATUS_LOST,
-    STATUS_OK,
     TIE_SCALE,
     UNINFORMED,
     ConfidenceModel,
@@ -24,11 +21,12 @@ from segloc_cli.confidence import (
     shipped_models,
 )
 from segloc_cli.config import ConfidenceParams
+from segloc_cli.estimates import STATUS_AMBIGUOUS, STATUS_LOST, STATUS_OK
 from segloc_cli.extract import extract_segments
 from segloc_cli.geometry import Pose2
-from segloc_cli.io.maps import World
 from segloc_cli.localize import Localizer
 from segloc_cli.sim import NOISE_FREE, random_free_poses, random_world, simulate_scan
+from segloc_cli.world import World
 
 
 def _evidence(**changes) -> Evidence:

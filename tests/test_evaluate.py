@@ -12,8 +12,8 @@ import pytest
 from test_cli import run_cli
 
 from segloc_cli.errors import InputError
+from segloc_cli.estimates import ESTIMATE_COLUMNS, PoseTable
 from segloc_cli.evaluate import format_table, gate, summary, table1
-from segloc_cli.io.tables import ESTIMATE_COLUMNS, PoseTable
 
 
 def make_survey(rows: list[tuple[int, float, float, float, float]]) -> PoseTable:

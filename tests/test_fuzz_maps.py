@@ -16,10 +16,10 @@ from segloc_cli.io.maps import (
     MAX_SEGMENTS,
     MAX_TOTAL_LENGTH_M,
     MIN_SEGMENT_LENGTH_M,
-    World,
     read_map,
     read_world,
 )
+from segloc_cli.world import World
 
 
 def _check_segments(segments: np.ndarray) -> None:

@@ -17,15 +17,9 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from segloc_cli.errors import InputError
-from segloc_cli.io.tables import (
-    ESTIMATE_COLUMNS,
-    ESTIMATE_INT_COLUMNS,
-    MAX_COORDINATE_M,
-    PoseTable,
-    read_estimates,
-    read_pose_table,
-)
-from segloc_cli.relations import Relations, read_relations
+from segloc_cli.estimates import ESTIMATE_COLUMNS, ESTIMATE_INT_COLUMNS, PoseTable, Relations
+from segloc_cli.io.relations import read_relations
+from segloc_cli.io.tables import MAX_COORDINATE_M, read_estimates, read_pose_table
 
 GOOD_NUMBERS = st.one_of(
     st.floats(min_value=-1e3, max_value=1e3, allow_nan=False).map(repr),

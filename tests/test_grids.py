@@ -18,8 +18,9 @@ from segloc_cli.errors import InputError
 from segloc_cli.geometry import Pose2, point_segment_distances, transform_segments
 from segloc_cli.io import grids
 from segloc_cli.io.grids import occupied_cells, read_header, read_nav2, write_nav2
-from segloc_cli.io.maps import World, read_map, write_map
+from segloc_cli.io.maps import read_map, write_map
 from segloc_cli.raster import _ring_order, line_cells, trace_walls
+from segloc_cli.world import World
 
 # A small lab, measured in whole centimetres (not on the 5 cm lattice): outer walls with a
 # chamfered corner, a corridor wall with two doors, three rooms, a slanted partition and a

@@ -11,17 +11,12 @@ import pytest
 from test_cli import run_cli
 from test_foxglove import validated_messages
 
-from segloc_cli.confidence import STATUS_AMBIGUOUS
 from segloc_cli.config import LocalizeParams, SearchParams
+from segloc_cli.estimates import HYPOTHESIS_COLUMNS, STATUS_AMBIGUOUS, PoseTable
 from segloc_cli.extract import extract_segments
 from segloc_cli.geometry import Pose2, wrap_angle
 from segloc_cli.io.maps import write_world
-from segloc_cli.io.tables import (
-    HYPOTHESIS_COLUMNS,
-    HypothesesWriter,
-    PoseTable,
-    write_pose_table,
-)
+from segloc_cli.io.tables import HypothesesWriter, write_pose_table
 from segloc_cli.localize import Localizer
 from segloc_cli.search import distinct
 from segloc_cli.sim import (

@@ -12,13 +12,13 @@ from segloc_cli.io.files import OutputError
 from segloc_cli.io.maps import (
     MAX_MAP_BYTES,
     MAX_SEGMENTS,
-    World,
     bounds_problem,
     read_map,
     read_world,
     write_map,
     write_world,
 )
+from segloc_cli.world import World
 
 SEGMENTS = np.array(
     [

@@ -13,15 +13,12 @@ from hypothesis import strategies as st
 from test_cli import run_cli
 
 from segloc_cli.errors import InputError
+from segloc_cli.estimates import ESTIMATE_COLUMNS, PoseTable
 from segloc_cli.geometry import heading_to_quaternion, quaternion_to_heading, wrap_angle
 from segloc_cli.io.files import OutputError
 from segloc_cli.io.tables import (
-    ESTIMATE_COLUMNS,
     EstimatesWriter,
-    PoseTable,
     TumWriter,
-    nearest_by_time,
-    pair_by_time,
     read_estimates,
     read_pose_table,
     write_estimates,
@@ -29,6 +26,7 @@ from segloc_cli.io.tables import (
     write_pose_table_tum,
     write_tum,
 )
+from segloc_cli.timing import nearest_by_time, pair_by_time
 
 # --- survey CSV ------------------------------------------------------------------
 

@@ -17,7 +17,7 @@ import subprocess
 import sys
 import textwrap
 
-from segloc_cli.confidence import (
+from segloc_cli.estimates import (
     STATUS_AMBIGUOUS,
     STATUS_LOST,
     STATUS_NO_OVERLAP,

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from segloc_cli.align import align
-from segloc_cli.confidence import STATUS_OK, STATUS_TOO_FEW_SEGMENTS
+from segloc_cli.estimates import STATUS_OK, STATUS_TOO_FEW_SEGMENTS
 from segloc_cli.extract import extract_segments
 from segloc_cli.geometry import Pose2, segment_orientations, wrap_angle
 from segloc_cli.localize import (

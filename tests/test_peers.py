@@ -15,8 +15,8 @@ import pytest
 from conftest import HALL, HALL_WORLD
 from test_cli import assert_one_line_error, run_cli
 
-from segloc_cli.confidence import STATUS_NO_OVERLAP
 from segloc_cli.errors import SeglocError
+from segloc_cli.estimates import STATUS_NO_OVERLAP
 from segloc_cli.geometry import Pose2, point_segment_distances, sample_segments, wrap_angle
 from segloc_cli.io.maps import read_map, read_world
 from segloc_cli.io.tables import read_pose_table

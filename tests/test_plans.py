@@ -17,10 +17,11 @@ from test_cli import run_cli
 from segloc_cli.errors import InputError
 from segloc_cli.extract import extract_segments
 from segloc_cli.geometry import Pose2, wrap_angle
-from segloc_cli.io.maps import World, read_map, write_map
+from segloc_cli.io.maps import read_map, write_map
 from segloc_cli.io.plans import read_dxf, write_dxf
 from segloc_cli.localize import Localizer
 from segloc_cli.sim import SensorModel, random_free_poses, simulate_scan, uniform_initial_errors
+from segloc_cli.world import World
 
 # An L-shaped office, millimetres: the outline as one closed polyline, two walls as lines,
 # a door drawn as an arc piece, a pillar as a block placed twice, desks on their own layer.

@@ -18,7 +18,7 @@ import pandas as pd
 import pytest
 from conftest import HALL, SEGLOC
 
-from segloc_cli.io.tables import ESTIMATE_COLUMNS
+from segloc_cli.estimates import ESTIMATE_COLUMNS
 
 REPO = Path(__file__).resolve().parents[1]
 

@@ -25,8 +25,9 @@ from conftest import HALL, HALL_POSE, SEGLOC
 from segloc_cli.devices.explorer import ExplorerDevice
 from segloc_cli.devices.record import DURABLE_EVERY_S
 from segloc_cli.devices.scip2 import URG_04LX_PARAMETERS, Scip2Device
+from segloc_cli.estimates import PoseTable
 from segloc_cli.io.mcap_log import read_log
-from segloc_cli.io.tables import PoseTable, write_pose_table
+from segloc_cli.io.tables import write_pose_table
 
 PROGRESS = re.compile(r"recorded (\d+) scans")
 WAIT_S = 30.0

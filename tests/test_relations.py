@@ -14,15 +14,14 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from segloc_cli.errors import InputError
+from segloc_cli.estimates import ESTIMATE_COLUMNS, Relations
 from segloc_cli.geometry import Pose2
-from segloc_cli.io.tables import ESTIMATE_COLUMNS
+from segloc_cli.io.relations import read_relations
 from segloc_cli.relations import (
     CSV_COLUMNS,
     PUBLISHED,
     PUBLISHED_SQUARED,
-    Relations,
     format_relations,
-    read_relations,
     relation_errors,
     relative_motion,
     trajectory_from_estimates,

@@ -33,10 +33,11 @@ from test_io_rosbag import (
     write_bag,
 )
 
+from segloc_cli.estimates import PoseTable
 from segloc_cli.geometry import Pose2
 from segloc_cli.io.maps import read_map, write_map
 from segloc_cli.io.mcap_log import read_log, write_log
-from segloc_cli.io.tables import PoseTable, write_pose_table
+from segloc_cli.io.tables import write_pose_table
 from segloc_cli.scan import Scan
 
 # A 6 m × 4 m room; five scans 0.1 m apart along it, 1 s apart from t = 1 s.

@@ -7,8 +7,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from segloc_cli.confidence import STATUS_AMBIGUOUS, STATUS_OK, STATUS_TOO_FEW_SEGMENTS
 from segloc_cli.config import SearchParams
+from segloc_cli.estimates import STATUS_AMBIGUOUS, STATUS_OK, STATUS_TOO_FEW_SEGMENTS
 from segloc_cli.extract import extract_segments
 from segloc_cli.field import (
     BOUND_LEVELS,
@@ -21,7 +21,6 @@ from segloc_cli.field import (
     score_raster,
 )
 from segloc_cli.geometry import Pose2, point_segment_distances, rotation, wrap_angle
-from segloc_cli.io.maps import World
 from segloc_cli.localize import LocalizeParams, Localizer
 from segloc_cli.search import (
     MIN_TOP_LEVEL,
@@ -37,6 +36,7 @@ from segloc_cli.search import (
     distinct,
 )
 from segloc_cli.sim import NOISE_FREE, random_free_poses, random_world, simulate_scan
+from segloc_cli.world import World
 
 
 def _errors(pose: Pose2, truth: Pose2) -> tuple[float, float]:

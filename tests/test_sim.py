@@ -10,7 +10,7 @@ import pytest
 from conftest import HALL
 
 from segloc_cli.geometry import Pose2, point_segment_distances, wrap_angle
-from segloc_cli.io.maps import World, read_map
+from segloc_cli.io.maps import read_map
 from segloc_cli.io.mcap_log import read_log
 from segloc_cli.io.tables import read_pose_table
 from segloc_cli.sim import (
@@ -27,6 +27,7 @@ from segloc_cli.sim import (
     symmetric_room,
     uniform_initial_errors,
 )
+from segloc_cli.world import World
 
 # A sensor without any random effect, so ranges are the exact geometry (rounded to 1 mm).
 EXACT = SensorModel(

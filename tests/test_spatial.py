@@ -10,12 +10,12 @@ from hypothesis import strategies as st
 
 from segloc_cli.extract import extract_segments
 from segloc_cli.geometry import Pose2, point_segment_distances
-from segloc_cli.io.maps import World
 from segloc_cli.kernels import point_segment_distance
 from segloc_cli.localize import Localizer
 from segloc_cli.overlap import coarse_to_fine
 from segloc_cli.sim import SensorModel, random_free_poses, random_world, simulate_scan
 from segloc_cli.spatial import SegmentGrid, filed_within
+from segloc_cli.world import World
 
 coordinate = st.floats(-60.0, 60.0, allow_nan=False)
 

@@ -12,8 +12,9 @@ from hypothesis import strategies as st
 from test_cli import assert_one_line_error, run_cli
 from test_plans import localization_errors, random_map_file, same_segments
 
-from segloc_cli.io.maps import World, read_map
+from segloc_cli.io.maps import read_map
 from segloc_cli.io.svg import read_svg, write_svg
+from segloc_cli.world import World
 
 # A floor drawn in centimetres (1 user unit = 1 cm, from width/height in cm and the
 # viewBox), the building turned 20° and moved by its group; y grows down the page.

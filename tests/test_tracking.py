@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from conftest import HALL
 
-from segloc_cli.confidence import STATUS_LOST, STATUS_OK, STATUS_RECOVERED
+from segloc_cli.estimates import STATUS_LOST, STATUS_OK, STATUS_RECOVERED
 from segloc_cli.geometry import Pose2, wrap_angle
 from segloc_cli.io.maps import read_world
 from segloc_cli.localize import Localizer

@@ -6,15 +6,15 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from segloc_cli.confidence import STATUS_OK
 from segloc_cli.config import MIN_HOLD_POINTS, TrackParams, WindowParams
+from segloc_cli.estimates import STATUS_OK
 from segloc_cli.extract import extract_segments
 from segloc_cli.geometry import Pose2, transform_points
-from segloc_cli.io.maps import World
 from segloc_cli.localize import Localizer, localize_scan, localize_scans
 from segloc_cli.refine import nearest_segments
 from segloc_cli.sim import NOISE_FREE, SensorModel, simulate_scan
 from segloc_cli.window import Neighbour, Windows, neighbour_indices, relative_pose, window_map
+from segloc_cli.world import World
 
 
 def _straight(n: int, step_m: float = 0.125, dt_s: float = 0.2) -> tuple[np.ndarray, np.ndarray]:
@@ -184,9 +184,10 @@ def test_localize_uses_windows_where_the_log_has_odometry_and_says_so(tmp_path, 
     from conftest import HALL
     from test_cli import run_cli
 
+    from segloc_cli.estimates import PoseTable
     from segloc_cli.io.maps import write_map
     from segloc_cli.io.mcap_log import write_log
-    from segloc_cli.io.tables import PoseTable, read_estimates, write_pose_table
+    from segloc_cli.io.tables import read_estimates, write_pose_table
 
     # A robot driving down the corridor, 0.25 m per scan, its odometry exact.
     rng = np.random.default_rng(5)

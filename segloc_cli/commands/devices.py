@@ -20,10 +20,9 @@ from segloc_cli.commands.options import (
     sensor_options,
     with_options,
 )
+from segloc_cli.errors import EXIT_INTERRUPTED
 from segloc_cli.geometry import Pose2
 from segloc_cli.runfile import run_file_path
-
-EXIT_INTERRUPTED = 130
 
 
 def _protocol_choice() -> click.Choice:
@@ -33,7 +32,7 @@ def _protocol_choice() -> click.Choice:
 
 
 def _parse_pose(value: str) -> Pose2:
-    from segloc_cli.io.maps import MAX_COORDINATE_M
+    from segloc_cli.limits import MAX_COORDINATE_M
 
     x, y, theta_deg = parse_planar_pose(value, "--pose", MAX_COORDINATE_M, "2.5,1.0,90")
     return Pose2(x, y, float(np.deg2rad(theta_deg)))

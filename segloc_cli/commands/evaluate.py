@@ -22,13 +22,12 @@ from segloc_cli.commands.options import (
     warn,
     with_options,
 )
-from segloc_cli.errors import InputError
-from segloc_cli.io.times import time_range
+from segloc_cli.errors import EXIT_GATE_FAILED, InputError
 from segloc_cli.runfile import run_file_path
+from segloc_cli.timing import time_range
 
 GATE_SHOWN = 5
 """Violations of an evaluate gate named on its one line; the table shows them all."""
-EXIT_GATE_FAILED = 1
 
 EVALUATE_OPTIONS = (
     path_option(
@@ -254,13 +253,14 @@ def _write_plots(
 ):
     """Draw the figures of ``evaluate --plots``; ``figure_data`` is (map, log, log path) or None,
     ``paths`` (survey, estimates) name the inputs in errors."""
-    from segloc_cli.plots import MAP_FIGURES, surveyed_scans, write_evaluation_figures
+    from segloc_cli.io.figures import write_figures
+    from segloc_cli.plots import MAP_FIGURES, evaluation_figures, surveyed_scans
     from segloc_cli.progress import Progress
 
     plots_dir.mkdir(parents=True, exist_ok=True)
     if figure_data is None:
         info(f"skipped {', '.join(MAP_FIGURES)}: they need --map MAP.json and --log LOG.mcap")
-        written = write_evaluation_figures(plots_dir, table, progress=Progress)
+        figures = evaluation_figures(table)
     else:
         segments_world, log, log_path = figure_data
         survey_path, estimates_path = paths
@@ -273,19 +273,18 @@ def _write_plots(
                 f"(scans {time_range(log.scan_times_s)}); is this the log of the estimates?",
                 path=log_path,
             )
-        written = write_evaluation_figures(
-            plots_dir, table, segments_world, items, progress=Progress
-        )
+        figures = evaluation_figures(table, segments_world, items)
+    written = write_figures(figures, plots_dir, progress=Progress)
     for path in written:
         info(f"wrote {path}")
 
 
 def _evaluate_relations(estimates, estimates_path: Path, a: dict) -> None:
     """Print (or write) the relation errors of the estimates (``a``: the command's arguments)."""
+    from segloc_cli.io.relations import read_relations
     from segloc_cli.relations import (
         PUBLISHED,
         format_relations,
-        read_relations,
         relation_errors,
         trajectory_from_estimates,
     )

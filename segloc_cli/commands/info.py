@@ -53,7 +53,7 @@ def run_view_lines(path: Path, view) -> list[str]:
     """The lines ``segloc info`` prints for a run view (a ``RunViewContents``); what the
     writer drew (map segments, statuses) only where the file records it."""
     from segloc_cli.io.runview import layout_path
-    from segloc_cli.io.times import time_range
+    from segloc_cli.timing import time_range
 
     counts = view.message_counts
     scans, placed = counts.get("/scan", 0), counts.get("/tf", 0)

@@ -27,9 +27,9 @@ from segloc_cli.commands.options import (
     within_cores,
 )
 from segloc_cli.config import LOCALIZE_TUNING, MATCHER, STAGES, WINDOW
+from segloc_cli.errors import EXIT_INTERRUPTED
 from segloc_cli.runfile import beside, run_file_path
 
-EXIT_INTERRUPTED = 130
 PROGRESS_LABELS = {"guided": "localizing", "global": "global search", "track": "tracking"}
 """What the progress display says a run of each mode is doing."""
 
@@ -269,7 +269,7 @@ def _row_pose(row, prefix: str):
 def _level(status: str) -> str:
     """The run view's log level of a status: info when the estimate is accepted, warning when
     a distinct pose fits nearly as well, error otherwise."""
-    from segloc_cli.confidence import ESTIMATED, STATUS_AMBIGUOUS
+    from segloc_cli.estimates import ESTIMATED, STATUS_AMBIGUOUS
 
     return "info" if status in ESTIMATED else "warning" if status == STATUS_AMBIGUOUS else "error"
 
@@ -338,7 +338,7 @@ def _expect(first_ms: float, n_scans: int) -> None:
 
 def _parse_region(value: str | None, global_search: bool) -> tuple[float, ...] | None:
     """``--region X0,Y0,X1,Y1`` → (x0, y0, x1, y1) metres, checked."""
-    from segloc_cli.io.maps import MAX_COORDINATE_M
+    from segloc_cli.limits import MAX_COORDINATE_M
 
     if value is None:
         return None

@@ -107,9 +107,10 @@ def simulate(world_path, poses_path, out_dir, readings, noise_cm, seed, init_err
     import numpy as np
 
     from segloc_cli import pipeline
+    from segloc_cli.estimates import PoseTable
     from segloc_cli.io.files import check_outputs
     from segloc_cli.io.maps import read_world
-    from segloc_cli.io.tables import PoseTable, read_pose_table, write_pose_table
+    from segloc_cli.io.tables import read_pose_table, write_pose_table
 
     errors = _parse_init_errors(init_errors)
     if out_dir.exists() and not out_dir.is_dir():
@@ -235,9 +236,10 @@ def import_carmen(log_path, out_path, survey_out, laser, range_max_m, force):
     publish time and in the survey's original_time_s column.
     """
 
+    from segloc_cli.estimates import PoseTable
     from segloc_cli.io.carmen import read_carmen
     from segloc_cli.io.files import check_outputs
-    from segloc_cli.io.tables import PoseTable, write_pose_table, write_pose_table_tum
+    from segloc_cli.io.tables import write_pose_table, write_pose_table_tum
     from segloc_cli.progress import Progress
 
     outputs = {"--out": out_path, "--survey-out": survey_out}
@@ -318,7 +320,7 @@ def import_rosbag(bag_path, out_path, scan_topic, odom_topic, laser_offset, forc
 def info_command(log_path):
     """Summarise a log: channels and message counts, time span, sensor settings, whether
     the file was finished (a recording cut short still shows every complete scan)."""
-    from segloc_cli.io.times import time_range
+    from segloc_cli.timing import time_range
 
     log = load_log(log_path)
     beams = sorted({len(s) for s in log.scans})

@@ -8,7 +8,6 @@ from pathlib import Path
 
 import click
 
-from segloc_cli.commands.localize import EXIT_INTERRUPTED
 from segloc_cli.commands.options import (
     Invocation,
     config_option,
@@ -19,9 +18,7 @@ from segloc_cli.commands.options import (
     warn,
     within_cores,
 )
-from segloc_cli.errors import InputError
-
-EXIT_TASKS_FAILED = 1
+from segloc_cli.errors import EXIT_INTERRUPTED, EXIT_TASKS_FAILED, InputError
 
 
 @click.command()
@@ -193,7 +190,8 @@ def _where(client, scheduler: str | None) -> str:
 
 def _report(plan, table, out_path: Path, fmt: str, stops: list[str]) -> None:
     """Print the summary, then how the sweep ended; exit 130 if stopped, 1 if tasks failed."""
-    from segloc_cli.sweep import STATUS_TASK_FAILED, format_summary, summary
+    from segloc_cli.estimates import STATUS_TASK_FAILED
+    from segloc_cli.sweep import format_summary, summary
 
     if len(table):
         stats = summary(table, plan.grid_keys, *plan.gates.values())

@@ -320,7 +320,7 @@ def _drawn(survey, init_errors: tuple[str, float, float], seed: int, label: str)
     """The guesses of seed ``seed`` for the log named ``label``: the survey's poses less
     errors drawn as ``init_errors`` says. Drawn from the log's name, so that adding or
     reordering logs leaves every other log's guesses (and finished tasks) as they were."""
-    from segloc_cli.io.tables import PoseTable
+    from segloc_cli.estimates import PoseTable
     from segloc_cli.sim import initial_errors, initial_guesses
 
     rng = np.random.default_rng([seed, zlib.crc32(label.encode())])

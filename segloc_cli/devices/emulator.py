@@ -33,9 +33,9 @@ import numpy as np
 from segloc_cli.devices import device_class
 from segloc_cli.devices.base import EmulatedDevice
 from segloc_cli.geometry import Pose2
-from segloc_cli.io.maps import World
 from segloc_cli.sim import SensorModel, render_ranges
 from segloc_cli.stopping import stop_requests
+from segloc_cli.world import World
 
 FAULTS = ("garbage", "checksum", "stall", "hangup")
 POLL_S = 0.002

@@ -52,8 +52,8 @@ from segloc_cli.config import ExtractParams
 from segloc_cli.errors import InputError
 from segloc_cli.geometry import Pose2, transform_segments
 from segloc_cli.io.files import atomic_path, reading, write_text_atomic
-from segloc_cli.io.maps import MAX_COORDINATE_M
 from segloc_cli.io.plans import Plan, checked_plan_segments
+from segloc_cli.limits import MAX_COORDINATE_M
 from segloc_cli.raster import SPLIT_CELLS, line_cells, trace_walls
 
 MODES = ("trinary", "scale", "raw")

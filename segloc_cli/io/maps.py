@@ -26,18 +26,18 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from segloc_cli.errors import InputError
 from segloc_cli.io.files import reading, write_text_atomic
+from segloc_cli.limits import MAX_COORDINATE_M
+from segloc_cli.world import MATERIALS, World
 
 MAP_FORMAT = "segloc-map"
 WORLD_FORMAT = "segloc-world"
 SUPPORTED_VERSION = 1
-MATERIALS = ("wall", "glass")
 
 MAX_MAP_BYTES = 32 * 1024 * 1024
 """Largest map or world file read (bytes): ``MAX_SEGMENTS`` segments written at full
@@ -45,10 +45,6 @@ precision take about 13 MB."""
 
 MAX_SEGMENTS = 100_000
 """Most segments in a map: a multi-storey campus plan holds tens of thousands."""
-
-MAX_COORDINATE_M = 1e7
-"""Largest coordinate magnitude (m); UTM eastings and northings stay below it, and float64
-still resolves nanometres there."""
 
 MAX_MAP_EXTENT_M = 2000.0
 """Largest width or height (m) of a map's bounding box. The score raster spans it: up to
@@ -60,39 +56,6 @@ proportion (about a second per 1,000 km)."""
 
 MIN_SEGMENT_LENGTH_M = 1e-6
 """Shorter segments (1 µm) count as zero length: their direction is undefined."""
-
-
-@dataclass(frozen=True)
-class World:
-    """A simulated environment.
-
-    ``segments`` (M, 4) float64, metres, world frame; ``materials`` (M,) str, one
-    of ``MATERIALS`` per segment; ``name`` a label for reports.
-    """
-
-    segments: np.ndarray
-    materials: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=str))
-    name: str = "world"
-
-    def __post_init__(self) -> None:
-        segments = np.asarray(self.segments, dtype=float).reshape(-1, 4)
-        materials = np.asarray(self.materials, dtype=str).reshape(-1)
-        if materials.size == 0 and len(segments) > 0:
-            materials = np.full(len(segments), "wall")
-        if len(materials) != len(segments):
-            raise ValueError(
-                f"world {self.name!r}: {len(materials)} materials for {len(segments)} segments"
-            )
-        unknown = sorted(set(materials.tolist()) - set(MATERIALS))
-        if unknown:
-            raise ValueError(
-                f"world {self.name!r}: unknown material(s) {unknown}; use one of {list(MATERIALS)}"
-            )
-        object.__setattr__(self, "segments", segments)
-        object.__setattr__(self, "materials", materials)
-
-    def __len__(self) -> int:
-        return len(self.segments)
 
 
 def write_map(path: str | Path, segments_world: np.ndarray, source: dict | None = None) -> None:

@@ -76,8 +76,8 @@ from segloc_cli.errors import InputError
 from segloc_cli.geometry import Pose2, heading_to_quaternion, quaternion_to_heading, wrap_angle
 from segloc_cli.io.files import reading, writing_error
 from segloc_cli.io.log import SENSOR_METADATA_NAME, Log, laser_offset_of
-from segloc_cli.io.maps import MAX_COORDINATE_M
 from segloc_cli.io.runview import RUN_METADATA_NAME
+from segloc_cli.limits import MAX_COORDINATE_M
 from segloc_cli.progress import SILENT, Progress
 from segloc_cli.scan import MAX_READINGS, Scan, evenly_spaced_angles, fan_defect
 

@@ -34,7 +34,8 @@ import numpy as np
 from segloc_cli.errors import InputError
 from segloc_cli.geometry import segment_lengths
 from segloc_cli.io.files import atomic_path, reading
-from segloc_cli.io.maps import MAX_COORDINATE_M, MIN_SEGMENT_LENGTH_M
+from segloc_cli.io.maps import MIN_SEGMENT_LENGTH_M
+from segloc_cli.limits import MAX_COORDINATE_M
 
 UNITS_M = {"m": 1.0, "cm": 0.01, "mm": 0.001, "in": 0.0254, "ft": 0.3048}
 """Units a caller can give for a drawing that does not say its own, in metres."""

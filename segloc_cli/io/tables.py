@@ -1,16 +1,14 @@
-"""Pose tables (survey CSV, TUM trajectories), the estimates CSV, and time matching.
+"""Pose table files (survey CSV, TUM trajectories) and the estimates CSV.
 
 Survey CSV: ``pose_id,time_s,x_m,y_m,theta_deg`` (columns by name, any order).
 TUM trajectory: whitespace-separated ``t x y z qx qy qz qw`` lines, ``#`` comments;
-the heading is the yaw of the quaternion. Estimates CSV: ``ESTIMATE_COLUMNS``.
+the heading is the yaw of the quaternion. Estimates CSV: ``estimates.ESTIMATE_COLUMNS``.
 Poses are (N, 3) arrays ``x_m y_m theta_rad`` in the world frame; headings are
 degrees only in the files.
 
 Whole tables are written atomically (a temporary file renamed into place); the
 estimates of a running ``localize`` are streamed row by row instead
 (``EstimatesWriter``, ``TumWriter``), so a killed run keeps every finished row.
-Records of two files are paired by time with ``pair_by_time``, which refuses a
-pairing that is ambiguous rather than choosing one of the candidates silently.
 """
 
 from __future__ import annotations
@@ -21,256 +19,34 @@ import math
 import os
 import time
 from collections.abc import Mapping
-from dataclasses import dataclass
 from pathlib import Path
-from typing import IO, Self, TypedDict, get_type_hints
+from typing import IO, Self
 
 import numpy as np
 import pandas as pd
 
 from segloc_cli.errors import InputError
+from segloc_cli.estimates import (
+    ESTIMATE_COLUMNS,
+    ESTIMATE_INT_COLUMNS,
+    ESTIMATE_LATER_COLUMNS,
+    ESTIMATE_LATER_COUNTS,
+    ESTIMATE_POSITION_COLUMNS,
+    ESTIMATE_REQUIRED_FLOAT_COLUMNS,
+    ESTIMATE_TEXT_COLUMNS,
+    HYPOTHESIS_COLUMNS,
+    UNSAID_COUNT,
+    HypothesisRow,
+    PoseTable,
+)
 from segloc_cli.geometry import heading_to_quaternion, quaternion_to_heading
 from segloc_cli.io.files import atomic_write, reading, writing_error
-from segloc_cli.io.maps import MAX_COORDINATE_M
-
-MAX_ABS_ID = 2**63 - 1
-"""Largest |pose_id| (and integer estimates column): ids are stored as int64."""
+from segloc_cli.limits import MAX_ABS_ID, MAX_COORDINATE_M
 
 STREAM_FSYNC_INTERVAL_S = 1.0
 """Streamed tables are flushed after every row and synced to disk at most this often (s)."""
 
 SURVEY_COLUMNS = ["pose_id", "time_s", "x_m", "y_m", "theta_deg"]
-
-
-class EstimateColumns(TypedDict):
-    """One row of the estimates CSV: the outcome for one scan, world frame.
-
-    Positions in metres, headings in degrees, NaN where a value was not made:
-    the initial guess (``init_*``, NaN for a global search), stage 1's heading
-    (``align_theta_deg``), where stage 2 ended (``stage2_*``), the answer
-    (``x_m``, ``y_m``, ``theta_deg``), the stage-2 overlap (m of segment), the
-    share of the scan's points on the map at the answer, the best distinct
-    alternative found and its share (``runner_up_*``), the count of local
-    segments, the time spent on the scan (ms), the probability that the answer is
-    the right place (``confidence``, NaN where no verdict was made from the scan's
-    points), the verdict (``status``) and how many scans the local map held
-    (``window_scans``: 1 for the scan alone, more with its neighbours placed by
-    odometry; 0 where a file of an earlier version does not say).
-    The fields, in order, are the file's columns.
-    """
-
-    pose_id: int
-    time_s: float
-    init_x_m: float
-    init_y_m: float
-    init_theta_deg: float
-    align_theta_deg: float
-    stage2_x_m: float
-    stage2_y_m: float
-    stage2_theta_deg: float
-    x_m: float
-    y_m: float
-    theta_deg: float
-    overlap: float
-    inlier_ratio: float
-    runner_up_x_m: float
-    runner_up_y_m: float
-    runner_up_theta_deg: float
-    runner_up_ratio: float
-    n_local_segments: int
-    runtime_ms: float
-    confidence: float
-    status: str
-    window_scans: int
-
-
-class HypothesisRow(TypedDict):
-    """One distinct pose found for a scan (world frame; metres, degrees): its share of points
-    on the map, fit score (0–1) and probability of being the right place."""
-
-    x_m: float
-    y_m: float
-    theta_deg: float
-    inlier_ratio: float
-    score: float
-    confidence: float
-
-
-class EstimateRow(EstimateColumns, total=False):
-    """An estimates row as a run makes it: the columns, and beside them (not a column) the
-    distinct poses found for the scan, best first (``HypothesesWriter``)."""
-
-    hypotheses: list[HypothesisRow]
-
-
-ESTIMATE_COLUMNS = list(EstimateColumns.__annotations__)
-"""Columns of the estimates CSV, in order: the fields of ``EstimateColumns``."""
-ESTIMATE_INT_COLUMNS = [c for c, kind in get_type_hints(EstimateColumns).items() if kind is int]
-ESTIMATE_TEXT_COLUMNS = [c for c, kind in get_type_hints(EstimateColumns).items() if kind is str]
-HYPOTHESIS_COLUMNS = ["pose_id", "time_s", "rank", *HypothesisRow.__annotations__]
-"""Columns of the hypotheses CSV (``HypothesesWriter``): a row per distinct pose of a scan,
-``rank`` 1 the answer."""
-# Float columns that must hold a number in every row; the others may be empty (NaN).
-ESTIMATE_REQUIRED_FLOAT_COLUMNS = ["time_s"]
-ESTIMATE_POSITION_COLUMNS = [c for c in ESTIMATE_COLUMNS if c.endswith(("x_m", "y_m"))]
-"""Columns holding a position (m), within ±``MAX_COORDINATE_M`` where not empty."""
-ESTIMATE_LATER_COLUMNS = ["confidence", "window_scans"]
-"""Columns that files written by earlier versions lack; read as empty (NaN) there, or as
-``UNSAID_COUNT`` for a count."""
-UNSAID_COUNT = 0
-"""``window_scans`` of a row made before the column was: the count was not kept."""
-ESTIMATE_LATER_COUNTS = [c for c in ESTIMATE_LATER_COLUMNS if c in ESTIMATE_INT_COLUMNS]
-"""The later columns that are counts, ``UNSAID_COUNT`` where a row lacks them."""
-
-
-@dataclass(frozen=True)
-class PoseTable:
-    """Poses with ids and times.
-
-    ``pose_id`` (N,) int64; ``time_s`` (N,) float64 seconds, NaN when the file
-    has no times; ``poses`` (N, 3) float64 ``x_m, y_m, theta_rad``, world frame.
-    """
-
-    pose_id: np.ndarray
-    time_s: np.ndarray
-    poses: np.ndarray
-
-    def __len__(self) -> int:
-        return len(self.pose_id)
-
-
-# --- time matching --------------------------------------------------------------
-
-
-def nearest_by_time(query_times_s, ref_times_s, tolerance_s: float) -> np.ndarray:
-    """Index into ``ref_times_s`` of the nearest reference time for each query.
-
-    ``query_times_s`` (Q,) and ``ref_times_s`` (R,) seconds; ``ref`` need not be
-    sorted. Returns (Q,) int64 indices, −1 where no reference time lies within
-    ``tolerance_s`` (inclusive) or the query is NaN. On a tie the earlier
-    reference time wins; among equal reference times, the first in ``ref``.
-    """
-    query = np.asarray(query_times_s, dtype=float).reshape(-1)
-    ref = np.asarray(ref_times_s, dtype=float).reshape(-1)
-    result = np.full(query.shape, -1, dtype=np.int64)
-    finite_ref = np.flatnonzero(np.isfinite(ref))
-    if finite_ref.size == 0 or query.size == 0:
-        return result
-    order = finite_ref[np.argsort(ref[finite_ref], kind="stable")]
-    sorted_ref = ref[order]
-    n = len(sorted_ref)
-
-    right = np.searchsorted(sorted_ref, query, side="left")
-    left = right - 1
-    right_c = np.clip(right, 0, n - 1)
-    left_c = np.clip(left, 0, n - 1)
-    with np.errstate(invalid="ignore"):
-        dist_right = np.where(right < n, sorted_ref[right_c] - query, np.inf)
-        dist_left = np.where(left >= 0, query - sorted_ref[left_c], np.inf)
-    # The left neighbour may be the last of a run of equal times: step back to its first.
-    left_first = np.searchsorted(sorted_ref, sorted_ref[left_c], side="left")
-    take_left = dist_left <= dist_right
-    best_pos = np.where(take_left, left_first, right_c)
-    best_dist = np.where(take_left, dist_left, dist_right)
-    with np.errstate(invalid="ignore"):
-        ok = np.isfinite(query) & (best_dist <= tolerance_s)
-    result[ok] = order[best_pos[ok]]
-    return result
-
-
-def _numbered(label: str, indices: np.ndarray, shown: int = 3) -> str:
-    """'rows 4 and 5', 'rows 4, 5 and 9', 'rows 4, 5, 9 and 12 more' from 0-based indices."""
-    numbers = [str(int(i) + 1) for i in indices]
-    if len(numbers) > shown:
-        return f"{label}s {', '.join(numbers[:shown])} and {len(numbers) - shown} more"
-    return f"{label}s {', '.join(numbers[:-1])} and {numbers[-1]}"
-
-
-def _located_error(path: object, where: str, message: str) -> InputError:
-    """An InputError reading ``path, where: message`` (``where`` names several rows)."""
-    error = InputError(f"{path}, {where}: {message}")
-    error.path = path
-    return error
-
-
-def pair_by_time(
-    query_times_s,
-    ref_times_s,
-    tolerance_s: float,
-    *,
-    query_path: object,
-    ref_path: object,
-    query_label: str = "record",
-    ref_label: str = "row",
-    distinct_queries: bool = True,
-) -> np.ndarray:
-    """``nearest_by_time``, refusing every pairing that is not unambiguous.
-
-    ``query_times_s`` (Q,) and ``ref_times_s`` (R,) are seconds; each query is
-    paired with the reference nearest in time within ``tolerance_s``
-    (inclusive). Returns (Q,) int64 indices into ``ref_times_s``, −1 where no
-    reference is close enough or the query is NaN.
-
-    The rule: a pairing is refused (``InputError``, exit status 2) when
-
-    - the reference time nearest a query is held by two or more reference rows
-      (equal times, e.g. all 0 or absolute times printed with too few digits):
-      the query could be paired with either, and the message names
-      ``ref_path`` and those rows; or
-    - ``distinct_queries`` is true and two or more queries that found a
-      reference have the same time: they would all take the same reference
-      row, and the message names ``query_path`` and those queries.
-
-    Nothing else is refused. Other references that lie within the tolerance
-    but farther than the nearest one do not matter: scans 25 ms apart at
-    40 Hz pair one-to-one with a table written at the same times, whatever
-    the tolerance. Two distinct reference times exactly as far from a query
-    on either side are no collision; the earlier one is taken, as in
-    ``nearest_by_time``. Distinct query times may share a reference row (a
-    sparse survey under a dense log). Rows are numbered from 1, in the
-    order given; labels are singular nouns ("scan", "row") made plural with an "s".
-    """
-    query = np.asarray(query_times_s, dtype=float).reshape(-1)
-    ref = np.asarray(ref_times_s, dtype=float).reshape(-1)
-    match = nearest_by_time(query, ref, tolerance_s)
-    hit = np.flatnonzero(match >= 0)
-    if hit.size == 0:
-        return match
-
-    matched_ref_s = ref[match[hit]]
-    sorted_ref = np.sort(ref[np.isfinite(ref)])
-    holders = np.searchsorted(sorted_ref, matched_ref_s, side="right") - np.searchsorted(
-        sorted_ref, matched_ref_s, side="left"
-    )
-    shared = np.flatnonzero(holders > 1)
-    if shared.size:
-        q = int(hit[shared[0]])
-        t_ref = float(ref[match[q]])
-        rows = np.flatnonzero(ref == t_ref)
-        verb = "both have" if rows.size == 2 else "all have"
-        hint = "" if query[q] == t_ref else " (or lower --tolerance-ms)"
-        raise _located_error(
-            ref_path,
-            _numbered(ref_label, rows),
-            f"{verb} time {t_ref:.3f} s, so a {query_label} at {query[q]:.3f} s matches more "
-            f"than one {ref_label}; give every {ref_label} a distinct time{hint}",
-        )
-
-    if distinct_queries and hit.size > 1:
-        matched_query_s = query[hit]
-        _, inverse, counts = np.unique(matched_query_s, return_inverse=True, return_counts=True)
-        repeated = counts[inverse.reshape(-1)] > 1
-        if repeated.any():
-            q = int(hit[np.argmax(repeated)])
-            same = hit[matched_query_s == query[q]]
-            both = "both" if same.size == 2 else "all"
-            raise _located_error(
-                query_path,
-                _numbered(query_label, same),
-                f"{both} have time {query[q]:.3f} s, so {both} would be paired with {ref_label} "
-                f"{int(match[q]) + 1} of {ref_path}; give every {query_label} a distinct time",
-            )
-    return match
 
 
 # --- shared reading helpers -------------------------------------------------------

@@ -174,11 +174,3 @@ def _checked(times_s: np.ndarray) -> np.ndarray:
     if not np.all(np.isfinite(t)):
         raise ValueError("times must be finite")
     return t
-
-
-def time_range(times_s) -> str:
-    """``first–last s`` of some times, or ``none``."""
-    times_s = np.asarray(times_s, dtype=float)
-    if times_s.size == 0:
-        return "none"
-    return f"{times_s.min():.3f}–{times_s.max():.3f} s"

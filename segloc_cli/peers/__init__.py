@@ -18,9 +18,10 @@ import importlib
 
 import numpy as np
 
-from segloc_cli.confidence import STATUS_NO_OVERLAP, ConfidenceParams, points_status
+from segloc_cli.confidence import ConfidenceParams, points_status
 from segloc_cli.config import METHODS
 from segloc_cli.errors import SeglocError
+from segloc_cli.estimates import STATUS_NO_OVERLAP
 from segloc_cli.geometry import Pose2
 from segloc_cli.localize import NAN_POSE, Estimate
 from segloc_cli.refine import RefineParams, support
