@@ -29,6 +29,7 @@ from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 from enum import IntEnum
+from typing import Literal, overload
 
 import numpy as np
 
@@ -197,7 +198,7 @@ Message = Empty | Configure | Identity | ConfigAck | Nak | Scan
 # -- frames --------------------------------------------------------------------------
 
 
-def crc16_ccitt_false(data: bytes) -> int:
+def crc16_ccitt_false(data: bytes | bytearray) -> int:
     """CRC-16/CCITT-FALSE (poly 0x1021, init 0xFFFF, no reflection, no final xor)."""
     return binascii.crc_hqx(data, 0xFFFF)
 
@@ -588,6 +589,19 @@ class ExplorerDriver(Driver):
             self.skipped += 1
             return None
 
+    # A reply of kind ``expected`` is what ``decode_message`` makes of that kind.
+    @overload
+    def _request(
+        self, message: Message, expected: Literal[Kind.IDENTITY], what: str
+    ) -> Identity | Nak: ...
+    @overload
+    def _request(
+        self, message: Message, expected: Literal[Kind.CONFIG_ACK], what: str
+    ) -> ConfigAck | Nak: ...
+    @overload
+    def _request(
+        self, message: Message, expected: Literal[Kind.START_ACK, Kind.STOP_ACK], what: str
+    ) -> Empty | Nak: ...
     def _request(self, message: Message, expected: Kind, what: str) -> Message:
         """Send a command and wait for its reply (or a NAK); frames before it are dropped."""
         sequence = self._send(message)
