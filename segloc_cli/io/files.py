@@ -20,7 +20,7 @@ import tempfile
 from collections.abc import Iterable, Iterator, Mapping
 from contextlib import contextmanager
 from pathlib import Path
-from typing import IO
+from typing import IO, Any
 
 from segloc_cli.errors import InputError
 
@@ -156,7 +156,7 @@ def atomic_write(path: str | Path, mode: str = "w") -> Iterator[IO]:
     ``mode`` is "w" (text, UTF-8, line ends as written) or "wb". The data is
     flushed to disk before the rename; see ``atomic_path`` for failures.
     """
-    text = {"encoding": "utf-8", "newline": ""} if "b" not in mode else {}
+    text: dict[str, Any] = {"encoding": "utf-8", "newline": ""} if "b" not in mode else {}
     with atomic_path(path) as temporary, open(temporary, mode, **text) as stream:
         yield stream
         stream.flush()

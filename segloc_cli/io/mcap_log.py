@@ -65,6 +65,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from types import TracebackType
+from typing import IO, cast
 
 import numpy as np
 from mcap.exceptions import EndOfFile
@@ -898,7 +899,10 @@ def _read_records(stream, size: int) -> _Found:
     found = _Found()
     bounded = _Bounded(stream, size)
     # A record longer than the file can only be a corrupt length field.
-    reader = StreamReader(bounded, emit_chunks=True, record_size_limit=max(size, 1))
+    # StreamReader only ever calls ``read`` on a stream that is not a path or a RawIOBase.
+    reader = StreamReader(
+        cast("IO[bytes]", bounded), emit_chunks=True, record_size_limit=max(size, 1)
+    )
     records = _records(reader)
     end_of_last_record = len(MCAP_MAGIC)
     while True:

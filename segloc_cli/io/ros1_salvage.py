@@ -108,8 +108,8 @@ def _ros2_type(connection_body: memoryview) -> str:
         name, _, value = bytes(view[at + 4 : at + 4 + length]).partition(b"=")
         fields[name.decode("latin-1")] = value
         at += 4 + length
-    package, _, name = fields.get("type", b"").decode("latin-1").partition("/")
-    return f"{package}/msg/{name}"
+    package, _, message = fields.get("type", b"").decode("latin-1").partition("/")
+    return f"{package}/msg/{message}"
 
 
 def salvage_ros1(path: Path, topics: set[str]) -> Salvage:

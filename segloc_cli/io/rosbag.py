@@ -308,6 +308,7 @@ def _decoded(
     for topic, msgtype, data in messages:
         progress.advance()
         n_scan_messages += topic == scan_topic
+        wanted: tuple[str, ...]
         if topic == scan_topic:
             wanted = (SCAN_TYPE,)
         else:
@@ -423,11 +424,12 @@ def _bag_messages(
 ) -> tuple[_Messages, list[str]]:
     """The bag's decoded messages (``_Messages``) and the warning that the bag was salvaged
     (a ROS 1 bag the reader refused) or none."""
+    refusal: InputError
     try:
-        reader, refusal = _open(path), None
+        reader = _open(path)
     except InputError as refused:
-        reader, refusal = None, refused
-    if reader is not None:
+        refusal = refused
+    else:
         try:
             decoded = _read_messages(path, reader, scan_topic, odom_topic, tf_topics, progress)
             return decoded, []
@@ -481,6 +483,7 @@ def _laser_offset(
     mounting = None
     if robot == scanner and decoded.robot_frame:
         return laser_offset_settings(0.0, 0.0, 0.0, f"frame_id:{robot}"), False
+    why: str | None
     if robot == scanner:
         why = f"no odometry frame and no transform to {scanner} (the scans' frame)"
     elif (mounting := find_mounting(links, robot, scanner)) is None:

@@ -237,7 +237,7 @@ class _Expansion:
         ``InputError`` when that is an element being counted, placed inside itself."""
         if element.tag.rsplit("}", 1)[-1] != "use":
             return []
-        href = next((element.get(name) for name in _HREFS if element.get(name)), "")
+        href = next((value for name in _HREFS if (value := element.get(name))), "")
         target = self.by_id.get(href[1:])
         if target is None:
             return []

@@ -20,7 +20,7 @@ import os
 import time
 from collections.abc import Mapping
 from pathlib import Path
-from typing import IO, Self
+from typing import IO, Any, Self, SupportsFloat
 
 import numpy as np
 import pandas as pd
@@ -261,7 +261,7 @@ def _read_tum(path: Path, text: str) -> PoseTable:
     )
 
 
-def _fmt(value: float) -> str:
+def _fmt(value: SupportsFloat) -> str:
     # repr() is the shortest text that parses back to the identical float64.
     return repr(float(value))
 
@@ -325,7 +325,7 @@ def _check_estimate_frame(frame: pd.DataFrame) -> None:
         raise ValueError(f"estimates frame lacks columns {missing}")
 
 
-def estimate_cells(row: Mapping[str, object]) -> list[str]:
+def estimate_cells(row: Mapping[str, Any]) -> list[str]:
     """One estimates row (column name → value) as the CSV fields of ``ESTIMATE_COLUMNS``.
 
     Integer columns as integers, ``status`` as text, other columns as the
@@ -457,7 +457,7 @@ class EstimatesWriter(_RowStream):
     def __init__(self, path: str | Path):
         super().__init__(path, ",".join(ESTIMATE_COLUMNS))
 
-    def write_row(self, row: Mapping[str, object]) -> None:
+    def write_row(self, row: Mapping[str, Any]) -> None:
         """Write one estimates row (column → value); ``ValueError`` as ``estimate_cells``."""
         cells = estimate_cells(row)
         buffer = io.StringIO()
@@ -486,9 +486,10 @@ def read_estimates(path: str | Path) -> pd.DataFrame:
     values: dict[str, list] = {c: [] for c in ESTIMATE_COLUMNS}
     for row, fields in data:
         for c in ESTIMATE_COLUMNS:
-            text = "" if col[c] is None else fields[col[c]]
+            index = col[c]
+            text = "" if index is None else fields[index]
             if c in ESTIMATE_INT_COLUMNS:
-                unsaid = col[c] is None
+                unsaid = index is None
                 values[c].append(UNSAID_COUNT if unsaid else _parse_int(path, row, c, text))
             elif c in ESTIMATE_TEXT_COLUMNS:
                 values[c].append(text)
@@ -527,7 +528,7 @@ def _tum_lines(numbers: np.ndarray) -> list[str]:
     ]
 
 
-def _tum_numbers(rows: Mapping[str, object] | pd.DataFrame) -> np.ndarray:
+def _tum_numbers(rows: Mapping[str, Any] | pd.DataFrame) -> np.ndarray:
     """``time_s, x_m, y_m, theta_deg`` of the rows whose four values are all finite, (K, 4)."""
     columns = ["time_s", "x_m", "y_m", "theta_deg"]
     if isinstance(rows, pd.DataFrame):
@@ -573,7 +574,7 @@ class HypothesesWriter(_RowStream):
         super().__init__(path, ",".join(HYPOTHESIS_COLUMNS))
         self.limit = int(limit)
 
-    def write_row(self, row: Mapping[str, object]) -> None:
+    def write_row(self, row: Mapping[str, Any]) -> None:
         """Write the hypotheses of one estimates row (needs ``pose_id`` and ``time_s``)."""
         listed = list(row.get("hypotheses") or [])[: self.limit]
         for rank, hypothesis in enumerate(listed, 1):
@@ -595,7 +596,7 @@ class TumWriter(_RowStream):
     def __init__(self, path: str | Path):
         super().__init__(path, TUM_HEADER)
 
-    def write_row(self, row: Mapping[str, object]) -> None:
+    def write_row(self, row: Mapping[str, Any]) -> None:
         """Write the pose of one estimates row (needs ``time_s, x_m, y_m, theta_deg``)."""
         for line in _tum_lines(_tum_numbers(row)):
             self.write_line(line)

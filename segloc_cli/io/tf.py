@@ -137,9 +137,9 @@ def disagreements(transforms: Iterable[Transform]) -> dict[str, tuple[Transform,
             unchanging[child] = tf
         elif (seen := unchanging[child]) is not None and seen[1:] != tf[1:]:
             unchanging[child] = None  # motion, not a mounting
-    for child, tf in unchanging.items():
-        if tf is not None and child in static and not same_link(tf, static[child]):
-            found.setdefault(child, (tf, static[child]))
+    for child, kept in unchanging.items():
+        if kept is not None and child in static and not same_link(kept, static[child]):
+            found.setdefault(child, (kept, static[child]))
     return found
 
 
@@ -175,7 +175,9 @@ def ancestors(links: dict[str, tuple[str, np.ndarray, str]], frame: str) -> list
 def _up(links: dict[str, tuple[str, np.ndarray, str]], frame: str):
     """From ``frame`` up to the root of its tree: (ancestor, ``frame``'s pose in it (4, 4),
     the topics of the links between), ``frame`` itself first. Stops at a loop."""
-    pose, topics, seen = np.eye(4), frozenset(), set()
+    pose = np.eye(4)
+    topics: frozenset[str] = frozenset()
+    seen: set[str] = set()
     while True:
         yield frame, pose, topics
         seen.add(frame)
