@@ -295,7 +295,7 @@ def _square_extent(points: np.ndarray, margin_m: float) -> tuple[float, float, f
 
 def _draw_map(ax, segments_world: np.ndarray, label: str | None = "global map") -> None:
     lines = LineCollection(
-        segments_world.reshape(-1, 2, 2), colors=_MAP_COLOUR, linewidths=2.5, label=label
+        list(segments_world.reshape(-1, 2, 2)), colors=_MAP_COLOUR, linewidths=2.5, label=label
     )
     ax.add_collection(lines)
 
@@ -326,7 +326,7 @@ def draw_overlay(segments_world: np.ndarray, panels: Sequence[OverlayPanel]) -> 
         # A stand-in, so the legend shows the readings' marker at a size one can see.
         ax.plot([], [], ".", color=_POINT_COLOUR, markersize=6, label="readings")
         local = LineCollection(
-            panel.segments_world.reshape(-1, 2, 2),
+            list(panel.segments_world.reshape(-1, 2, 2)),
             colors=_LOCAL_COLOUR,
             linewidths=1.2,
             label="local map",

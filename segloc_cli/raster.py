@@ -334,8 +334,8 @@ def _chain_segments(
                 pieces.append((first, last))
         out = np.empty((len(pieces), 4))
         kept = 0
-        for piece in pieces:
-            first, last = _trimmed(xs, ys, *piece, 0.5 * resolution_m)
+        for piece_first, piece_last in pieces:
+            first, last = _trimmed(xs, ys, piece_first, piece_last, 0.5 * resolution_m)
             # No direction test (σ = ∞): cells are not noisy readings.
             if last - first >= min_points and segment_of_piece(
                 xs, ys, first, last, min_points, min_length_m, np.inf, 0.0, scratch, out[kept]

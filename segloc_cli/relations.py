@@ -28,6 +28,7 @@ import io
 import json
 import math
 from dataclasses import dataclass, field
+from functools import partial
 
 import numpy as np
 import pandas as pd
@@ -175,15 +176,16 @@ def relation_errors(
             f"poses must be ({len(times_s)}, 3) x_m y_m theta_rad to match times_s, "
             f"got shape {poses.shape}"
         )
-    pairing = {
-        "query_path": "relations",
-        "ref_path": estimates_path,
-        "query_label": "relation time",
-        "ref_label": "row",
-        "distinct_queries": False,
-    }
-    first = pair_by_time(relations.t1_s, times_s, tolerance_s, **pairing)
-    second = pair_by_time(relations.t2_s, times_s, tolerance_s, **pairing)
+    pair = partial(
+        pair_by_time,
+        query_path="relations",
+        ref_path=estimates_path,
+        query_label="relation time",
+        ref_label="row",
+        distinct_queries=False,
+    )
+    first = pair(relations.t1_s, times_s, tolerance_s)
+    second = pair(relations.t2_s, times_s, tolerance_s)
     matched = (first >= 0) & (second >= 0)
     finite_pose = np.all(np.isfinite(poses), axis=1)
     usable = matched.copy()

@@ -17,6 +17,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from segloc_cli.geometry import (
     TWO_PI,
@@ -109,7 +110,7 @@ def beam_angles(readings: int) -> np.ndarray:
 
 def cast_rays(
     segments_world: np.ndarray,
-    origin_xy: np.ndarray,
+    origin_xy: ArrayLike,
     angles_world_rad: np.ndarray,
     transparent: np.ndarray | None = None,
 ) -> np.ndarray:
@@ -382,7 +383,7 @@ def _outer_wall(rng: np.random.Generator, width_m: float, height_m: float) -> np
         vertices.append(start + along * cut[side, 1])
         # Features are placed in separate slots of the free part of the side so they never overlap.
         n_features = int(rng.integers(0, 3))
-        slots = np.linspace(lo, hi, n_features + 1) if n_features else []
+        slots: np.ndarray | list[float] = np.linspace(lo, hi, n_features + 1) if n_features else []
         for k in range(n_features):
             slot_lo, slot_hi = slots[k], slots[k + 1]
             width = min(rng.uniform(1.0, 3.0), 0.8 * (slot_hi - slot_lo))

@@ -65,7 +65,7 @@ class SegmentGrid:
             if counts.sum() <= MAX_FILED and shape[0] * shape[1] <= MAX_FILED:
                 break
             self.cell_m *= 2.0
-        self._shape = tuple(int(v) for v in shape)
+        self._shape = (int(shape[0]), int(shape[1]))
         owner = np.repeat(np.arange(segments.shape[0]), counts)
         k = np.arange(owner.size) - np.repeat(np.cumsum(counts) - counts, counts)
         ix = first[owner, 0] + k % span[owner, 0]
@@ -167,7 +167,7 @@ FiledCells = tuple[np.ndarray, float, np.ndarray, np.ndarray, np.ndarray]
 
 
 @njit(cache=True)
-def _cell_index(scaled: float) -> int:
+def _cell_index(scaled: float) -> np.int64:
     """Cell number of a coordinate already divided by the cell side; clipped before the cast
     as in ``SegmentGrid._cell_of``, so a far point cannot wrap around int64."""
     return np.int64(np.floor(min(max(scaled, -1e15), 1e15)))

@@ -65,6 +65,9 @@ def peer_localizer(method: str, segments_world: np.ndarray, **options):
 class GuidedMatcher:
     """What the peers share as ``ScanMatcher``s: points only, from an initial guess."""
 
+    segments_world: np.ndarray
+    """The map (M, 4), world frame, as each peer's constructor keeps it."""
+
     uses_segments = False
     supports_global = False
     supports_window = False
