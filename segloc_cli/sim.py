@@ -391,6 +391,7 @@ def _outer_wall(rng: np.random.Generator, width_m: float, height_m: float) -> np
                 continue
             a = rng.uniform(slot_lo, slot_hi - width)
             depth = rng.uniform(0.6, 2.0) if rng.random() < 0.6 else -rng.uniform(0.4, 1.0)
+            slant: np.ndarray | tuple[float, float]
             slant = rng.uniform(0.0, 0.3, size=2) * width if rng.random() < 0.5 else (0.0, 0.0)
             vertices += [
                 start + along * a,

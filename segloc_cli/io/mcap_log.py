@@ -773,8 +773,8 @@ def _decompressed(chunk: Chunk) -> bytes:
     if chunk.compression == "lz4":
         import lz4.frame
 
-        decompressor = lz4.frame.LZ4FrameDecompressor()
-        return decompressor.decompress(chunk.data, max_length=chunk.uncompressed_size)
+        lz4_decompressor = lz4.frame.LZ4FrameDecompressor()
+        return lz4_decompressor.decompress(chunk.data, max_length=chunk.uncompressed_size)
     raise _CorruptChunk(f"unknown compression {chunk.compression!r}")
 
 
