@@ -1,0 +1,35 @@
+"""The prepared map: what it builds for which settings, and what it shares between them."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from segloc_cli.config import LocalizeParams, SearchParams
+from segloc_cli.prepared import prepare_map
+from segloc_cli.sim import random_world
+from segloc_cli.spatial import NEAR_CELL_M
+
+ROOM = random_world(np.random.default_rng(11))
+
+
+def test_a_map_prepared_for_other_settings_shares_what_they_leave_unchanged():
+    first = prepare_map(ROOM.segments)
+    same_bins = first.for_params(LocalizeParams(grid_m=1.0))
+    assert same_bins.rtable is first.rtable and same_bins.index is first.index
+    assert same_bins.search is first.search and same_bins.near_index is first.near_index
+    finer = first.for_params(LocalizeParams(bin_deg=0.5))
+    assert finer.rtable is not first.rtable and finer.index is first.index
+    assert finer.search is first.search
+    wider = first.for_params(LocalizeParams(search=SearchParams(half_width_m=3.0)))
+    assert wider.search is not first.search and wider.search.params.half_width_m == 3.0
+    assert wider.rtable is first.rtable
+
+
+def test_the_search_is_built_only_where_the_settings_run_it():
+    assert prepare_map(ROOM.segments).search is not None
+    paper = LocalizeParams(refine=None)
+    assert prepare_map(ROOM.segments, paper).search is None
+    assert prepare_map(ROOM.segments, LocalizeParams(search=None)).search is None
+    assert prepare_map(ROOM.segments, paper, global_search=True).search is not None
+    fine = prepare_map(ROOM.segments, paper).near_index
+    assert fine.cell_m == NEAR_CELL_M
