@@ -146,7 +146,7 @@ def real_trials(name: str, datasets: Path, work: Path, rng: np.random.Generator)
     log = read_log(raw.log_path)
     # The held-out scans' times are the raw log's own, as written to the CSV.
     index = nearest_by_time(raw.truth.time_s, log.scan_times_s, SAME_TIME_S)
-    localizer = Localizer(read_map(raw.map_path), model=UNINFORMED)
+    localizer = Localizer.on_map(read_map(raw.map_path), global_search=True, model=UNINFORMED)
     windows = scan_windows(log, raw.log_path, index, localizer, Config())
     scans = [log.scans[i] for i in index]
     return localize_trials(name, localizer, scans, raw.truth.poses, rng, windows)
@@ -171,7 +171,7 @@ def _world_trials(source: str, world: World, rng: np.random.Generator) -> list[d
     scans = [simulate_scan(world, Pose2(*p), SIM_SENSOR, rng, float(k)) for k, p in
              enumerate(truths)]  # fmt: skip
     windows = _simulated_windows(world, truths, rng)
-    localizer = Localizer(world.segments, model=UNINFORMED)
+    localizer = Localizer.on_map(world.segments, global_search=True, model=UNINFORMED)
     return localize_trials(source, localizer, scans, truths, rng, windows)
 
 

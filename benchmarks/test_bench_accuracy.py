@@ -101,8 +101,7 @@ def rooms():
         world = random_world(rng)
         truth = random_free_poses(world, POSES_PER_WORLD, rng)
         errors = uniform_initial_errors(POSES_PER_WORLD, INITIAL_XY_M, INITIAL_THETA_DEG, rng)
-        localizer = Localizer(world.segments)
-        _ = localizer.hypothesis_search  # the map's score raster, built once per map, not per pose
+        localizer = Localizer.on_map(world.segments)  # its score raster built once per map
         out.append((seed, world, localizer, truth, initial_guesses(truth, errors)))
     return out
 

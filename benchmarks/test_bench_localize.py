@@ -126,15 +126,15 @@ def paper_cases(paper_world):
 
 def test_localize_paper_scale_paper_schedule_k6(benchmark, paper_world, paper_cases):
     params = LocalizeParams(iterations=6, recentres=0)
-    _run(benchmark, Localizer(paper_world.segments, params), paper_cases, "paper scale, K=6")
+    _run(benchmark, Localizer.on_map(paper_world.segments, params), paper_cases, "paper scale, K=6")
 
 
 def test_localize_paper_scale_defaults(benchmark, paper_world, paper_cases):
-    _run(benchmark, Localizer(paper_world.segments), paper_cases, "paper scale, defaults")
+    _run(benchmark, Localizer.on_map(paper_world.segments), paper_cases, "paper scale, defaults")
 
 
 def test_localize_paper_scale_defaults_refined(benchmark, paper_world, paper_cases):
-    localizer = Localizer(paper_world.segments)
+    localizer = Localizer.on_map(paper_world.segments)
     _run(benchmark, localizer, paper_cases, "paper scale, defaults + refinement", refine=True)
 
 
@@ -143,7 +143,7 @@ def test_localize_large_map(benchmark, segments):
     world = _large_world(segments)
     first_room = random_world(np.random.default_rng(500))
     cases = _cases(world, POSES, seed=2, region=first_room)
-    _run(benchmark, Localizer(world.segments), cases, f"{segments}-segment map, defaults")
+    _run(benchmark, Localizer.on_map(world.segments), cases, f"{segments}-segment map, defaults")
 
 
 BATCH_SCANS = 48
@@ -169,7 +169,7 @@ def test_throughput_jobs(benchmark, hall_batch, jobs):
     """Wall time of a batch; the second run prints the speed-up of two processes over one."""
     scans, guesses, segments = hall_batch
     ids = list(range(len(scans)))
-    localizer = Localizer(segments)
+    localizer = Localizer.on_map(segments)
 
     def batch():
         return list(localize_scans_parallel(scans, guesses, ids, localizer, jobs))

@@ -12,7 +12,7 @@ from typing import Protocol
 
 import numpy as np
 
-from segloc_cli.align import RTable, align
+from segloc_cli.align import align
 from segloc_cli.confidence import (
     MODES,
     ConfidenceModel,
@@ -33,10 +33,10 @@ from segloc_cli.extract import extract_segments
 from segloc_cli.freespace import crossing_ratio
 from segloc_cli.geometry import Pose2
 from segloc_cli.overlap import coarse_to_fine
+from segloc_cli.prepared import PreparedMap, prepare_map
 from segloc_cli.refine import Refinement, refine_pose, support
 from segloc_cli.scan import Scan
 from segloc_cli.search import HypothesisSearch, distinct
-from segloc_cli.spatial import NEAR_CELL_M, SegmentGrid
 from segloc_cli.window import Windows, scan_window_map
 
 
@@ -158,13 +158,12 @@ class ScanMatcher(Protocol):
 
 
 class Localizer:
-    """Localizes local maps against one global map (M, 4), world frame.
+    """Localizes local maps against one global map, prepared for its settings
+    (``prepared.PreparedMap``: the map (M, 4), world frame, with its indexes, R-table and,
+    where the settings search, the hypothesis search; ``on_map`` prepares one).
 
-    ``index``, ``near_index``, ``rtable`` and ``search`` let a localizer with
-    other settings share what another built on the same map (see
-    ``with_params``); by default they are built here (``near_index`` and the
-    search on first use). ``model`` gives the verdict's confidence for every local
-    map (by default the shipped models, one for a scan and one for a window).
+    ``model`` gives the verdict's confidence for every local map (by default the shipped
+    models, one for a scan and one for a window).
     """
 
     uses_segments = True
@@ -173,58 +172,51 @@ class Localizer:
 
     def __init__(
         self,
-        segments_world: np.ndarray,
+        prepared: PreparedMap,
         params: LocalizeParams | None = None,
         *,
-        index: SegmentGrid | None = None,
-        rtable: RTable | None = None,
-        search: HypothesisSearch | None = None,
-        near_index: SegmentGrid | None = None,
         model: ConfidenceModel | None = None,
     ):
         self.params = params or LocalizeParams()
+        unsuited = prepared.unsuited_to(self.params)
+        if unsuited is not None:
+            raise ValueError(
+                f"the prepared map does not suit these settings: {unsuited} "
+                "(prepare it for them with PreparedMap.for_params)"
+            )
+        self.prepared = prepared
+        self.segments_world = prepared.segments_world
         self.model = model
         self.models = shipped_models() if model is None else dict.fromkeys(MODES, model)
-        self.segments_world = np.asarray(segments_world, dtype=float)
-        if rtable is None:
-            rtable = RTable.build(self.segments_world, self.params.bin_deg)
-        self.rtable = rtable
-        self.index = SegmentGrid(self.segments_world) if index is None else index
-        self._near_index = near_index
-        self._search = search
+
+    @classmethod
+    def on_map(
+        cls,
+        segments_world: np.ndarray,
+        params: LocalizeParams | None = None,
+        *,
+        global_search: bool = False,
+        model: ConfidenceModel | None = None,
+    ) -> Localizer:
+        """A localizer on the map (M, 4), world frame, prepared now for ``params`` and, with
+        ``global_search``, for ``localize_global`` (``prepared.prepare_map``)."""
+        prepared = prepare_map(segments_world, params, global_search=global_search)
+        return cls(prepared, params, model=model)
 
     def with_params(self, params: LocalizeParams) -> Localizer:
-        """A localizer on the same map with other settings, sharing what they leave unchanged.
+        """A localizer on the same map with other settings, sharing what they leave unchanged
+        (``PreparedMap.for_params``)."""
+        return Localizer(self.prepared.for_params(params), params, model=self.model)
 
-        The R-table is shared when the bin width is the same, the score
-        raster when the search settings are.
-        """
-        same_bins = params.bin_deg == self.params.bin_deg
-        same_search = params.search is not None and params.search == self.params.search
-        return Localizer(
-            self.segments_world,
-            params,
-            index=self.index,
-            rtable=self.rtable if same_bins else None,
-            search=self.hypothesis_search if same_search else None,
-            near_index=self.near_index,
-            model=self.model,
-        )
-
-    @property
-    def near_index(self) -> SegmentGrid:
-        """The map's segments in a grid of fine cells, for what lies near each point of a
-        scan (refinement and the points' verdicts); built on first use."""
-        if self._near_index is None:
-            self._near_index = SegmentGrid(self.segments_world, cell_m=NEAR_CELL_M)
-        return self._near_index
-
-    @property
-    def hypothesis_search(self) -> HypothesisSearch:
-        """The map's score raster and search, built on first use."""
-        if self._search is None:
-            self._search = HypothesisSearch(self.segments_world, self.params.search)
-        return self._search
+    def _search(self) -> HypothesisSearch:
+        """The prepared map's hypothesis search; ``ValueError`` when it was prepared without
+        one (for settings that never search, and no global search)."""
+        if self.prepared.search is None:
+            raise ValueError(
+                "the map was prepared without the hypothesis search; prepare it with "
+                "global_search=True to search it globally"
+            )
+        return self.prepared.search
 
     def _near_mask(self, initial: Pose2, segments_robot: np.ndarray) -> np.ndarray | None:
         """The map segments (mask (M,)) the scan could contain, seen from near ``initial``;
@@ -238,7 +230,7 @@ class Localizer:
         """
         radius = float(np.hypot(segments_robot[:, 0::2], segments_robot[:, 1::2]).max(initial=0.0))
         reach = radius + 2.0 * np.sqrt(2.0) * self.params.grid_m
-        near = self.index.mask_near([initial.x, initial.y], reach)
+        near = self.prepared.index.mask_near([initial.x, initial.y], reach)
         return None if near.all() else near
 
     def headings(self, segments_robot: np.ndarray, initial: Pose2 | None) -> np.ndarray:
@@ -253,7 +245,7 @@ class Localizer:
         else:
             allowed, prior = self._near_mask(initial, segments_robot), initial.theta
         return align(
-            self.rtable,
+            self.prepared.rtable,
             segments_robot,
             prior_rad=prior,
             window_deg=p.window_deg or 0.0,
@@ -338,7 +330,7 @@ class Localizer:
         if searching:
             window = 180.0 if p.window_deg is None else p.window_deg
             known = None if stage2 is None else stage2.pose
-            hyps = self.hypothesis_search.around(points_robot, initial, window, peaks, known)
+            hyps = self._search().around(points_robot, initial, window, peaks, known)
             seeds += [h.pose for h in hyps]
         overlap = 0.0 if stage2 is None else stage2.overlap_m
         stage2_pose = None if stage2 is None else stage2.pose
@@ -361,7 +353,7 @@ class Localizer:
         n_local = int(segments_robot.shape[0])
         degenerate = scan_is_degenerate(points_robot, segments_robot, self.params)
         points_robot = usable_points(points_robot)
-        seeds = [h.pose for h in self.hypothesis_search.everywhere(points_robot)]
+        seeds = [h.pose for h in self._search().everywhere(points_robot)]
         heading = float("nan")
         enough = n_local >= self.params.min_segments
         if enough:
@@ -377,9 +369,8 @@ class Localizer:
         pose that shares a few segments with the map as highly as the right one, so the
         answer is ``lost`` unless enough of the points lie on the map there. No rival was
         sought, so the points alone decide (``points_status``), with no confidence."""
-        ratio, hold = support(
-            points_robot, self.segments_world, est.pose, self._band_m, index=self.near_index
-        )
+        near = self.prepared.near_index
+        ratio, hold = support(points_robot, self.segments_world, est.pose, self._band_m, index=near)
         status = points_status(ratio, hold, self.params.confidence)
         return replace(est, inlier_ratio=ratio, status=status)
 
@@ -400,7 +391,7 @@ class Localizer:
             score=best.score,
             runner_up_score=0.0 if runner_up is None else runner_up.score,
             hold_points=self.hold_points(points_robot, best.pose),
-            crossing_ratio=crossing_ratio(own, best.pose, self.near_index),
+            crossing_ratio=crossing_ratio(own, best.pose, self.prepared.near_index),
             points=int(points_robot.shape[0]),
         )
 
@@ -411,12 +402,13 @@ class Localizer:
 
     def hold_points(self, points_robot: np.ndarray, pose: Pose2) -> float:
         """How firmly the points on the map fix the position at ``pose`` (``refine.support``)."""
-        band = self._band_m
-        return support(points_robot, self.segments_world, pose, band, index=self.near_index)[1]
+        band, near = self._band_m, self.prepared.near_index
+        return support(points_robot, self.segments_world, pose, band, index=near)[1]
 
     def _stage2(self, segments_robot: np.ndarray, initial: Pose2, peaks: np.ndarray):
         """Stage 2 from each stage-1 peak: (heading, result) of the largest overlap."""
         p = self.params
+        index = self.prepared.index if len(self.segments_world) > INDEX_MIN_SEGMENTS else None
         best = None
         for heading in peaks:
             result = coarse_to_fine(
@@ -428,7 +420,7 @@ class Localizer:
                 iterations=p.iterations,
                 ratio=p.ratio,
                 recentres=p.recentres,
-                index=self.index if len(self.segments_world) > INDEX_MIN_SEGMENTS else None,
+                index=index,
             )
             if best is None or result.overlap_m > best[1].overlap_m:
                 best = (float(heading), result)
@@ -455,9 +447,9 @@ class Localizer:
                 align_theta_rad=heading,
                 stage2_pose=stage2_pose,
             )
+        near = self.prepared.near_index
         fits = [
-            refine_pose(points_robot, self.segments_world, s, p.refine, index=self.near_index)
-            for s in seeds
+            refine_pose(points_robot, self.segments_world, s, p.refine, index=near) for s in seeds
         ]
         kept = self._distinct(fits)
         best = kept[0]
@@ -466,7 +458,7 @@ class Localizer:
         windowed = own_points is not None and own_points < points_robot.shape[0]
         if windowed:  # whether the answer is lost is for the scan's own points to say
             own = support(points_robot[:own_points], self.segments_world, best.pose,
-                          self._band_m, index=self.near_index)[0]  # fmt: skip
+                          self._band_m, index=near)[0]  # fmt: skip
             evidence = replace(evidence, scan_inlier_ratio=own)
         model = self.models["window" if windowed else "single"]
         status, confidence = judge(evidence, p.confidence, model)

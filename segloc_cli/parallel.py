@@ -2,10 +2,11 @@
 
 Scans localized from their own initial guesses (or globally) do not depend
 on each other, so blocks of them go to worker processes and the rows come
-back in scan order. The workers are forked after the localizer has built
-what it shares (R-table, score raster) and compiled its kernels, so each
-starts with them rather than building them again. Every row equals the one
-a single process gives except ``runtime_ms``, a measured time.
+back in scan order. The workers are forked after the localizer's map was
+prepared (``prepared.py``: its indexes, R-table and score raster) and its
+kernels compiled, so each starts with them rather than building them again.
+Every row equals the one a single process gives except ``runtime_ms``, a
+measured time.
 
 No more workers are started than there are blocks of scans, nor (``usable_cores``, which
 the command warns of) than cores to run them. Where the system lets fewer processes start
@@ -33,7 +34,7 @@ from concurrent.futures import TimeoutError as FutureTimeout
 
 from segloc_cli.extract import ExtractParams
 from segloc_cli.geometry import Pose2
-from segloc_cli.localize import Localizer, ScanMatcher, localize_scans
+from segloc_cli.localize import ScanMatcher, localize_scans
 from segloc_cli.scan import Scan
 from segloc_cli.window import Windows
 
@@ -93,17 +94,13 @@ def _localize_block(bounds: tuple[int, int]) -> list[dict]:
 
 
 _warmed: weakref.WeakSet = weakref.WeakSet()
-"""Localizers already run once in this process (their kernels compiled, their parts built)."""
+"""Localizers already run once in this process (their kernels compiled)."""
 
 
-def prepare_localizer(
-    localizer: ScanMatcher, scans: Sequence[Scan], guesses, extract_params
-) -> None:
-    """Build the localizer's lazy parts and run it once on the first scan, untimed, so that
-    no scan's time includes them (and forked workers share what was built)."""
-    if isinstance(localizer, Localizer) and localizer.params.refine is not None:
-        if localizer.params.search is not None or guesses is None:
-            localizer.hypothesis_search  # noqa: B018 (built on first access)
+def warm_localizer(localizer: ScanMatcher, scans: Sequence[Scan], guesses, extract_params) -> None:
+    """Run the localizer once on the first scan (globally when ``guesses`` is None), untimed,
+    so that no scan's time includes compiling its kernels (and forked workers start with them
+    compiled). What it looks the map up in was built with it (``prepared.prepare_map``)."""
     if scans and localizer not in _warmed:
         first = None if guesses is None else guesses[:1]
         list(localize_scans(scans[:1], first, [0], localizer, extract_params))
@@ -134,7 +131,7 @@ def localize_scans_parallel(
         )
         return
     global _job
-    prepare_localizer(localizer, scans, initial_poses, extract_params)
+    warm_localizer(localizer, scans, initial_poses, extract_params)
     blocks = [(i, min(i + BLOCK_SCANS, len(scans))) for i in range(0, len(scans), BLOCK_SCANS)]
     _job = (list(scans), initial_poses, list(pose_ids), localizer, extract_params, windows)
     pool, jobs = _started_pool(min(jobs, len(blocks)), stop) if len(blocks) > 1 else (None, 1)

@@ -99,12 +99,14 @@ def paired_guesses(log: Log, log_path: Path, initial: Path | None, tolerance_ms:
     return Guesses(index, poses, ids)
 
 
-def localizer_for(segments_world: np.ndarray, config: Config):
-    """The ``ScanMatcher`` of ``config.method`` on a map (M, 4), world frame."""
+def localizer_for(segments_world: np.ndarray, config: Config, mode: str):
+    """The ``ScanMatcher`` of ``config.method`` on a map (M, 4), world frame, for a run in
+    ``mode`` (one of ``MODES``). The two-stage method's map is prepared here, all of it the
+    mode runs (``prepared.prepare_map``), so that no scan's time includes building it."""
     if config.method == "two-stage":
         from segloc_cli.localize import Localizer
 
-        return Localizer(segments_world, config.localize)
+        return Localizer.on_map(segments_world, config.localize, global_search=mode == "global")
     from segloc_cli.peers import peer_localizer
 
     options = {"variant": config.icp_variant} if config.method == "icp" else {}
@@ -144,8 +146,6 @@ def localize_log(
     """
     if mode not in MODES:
         raise ValueError(f"mode {mode!r} is not one of {', '.join(MODES)}")
-    if mode == "global":
-        localizer.hypothesis_search  # noqa: B018 (built now, so no scan's time includes it)
     if mode == "global" and initial is None:
         index = np.arange(len(log.scans))
         guesses = Guesses(index, [], log.scan_numbers)

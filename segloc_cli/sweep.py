@@ -128,7 +128,7 @@ def run_task(task: Task) -> pd.DataFrame:
     from segloc_cli.evaluate import final_errors
     from segloc_cli.geometry import Pose2
     from segloc_cli.localize import localize_scans
-    from segloc_cli.parallel import prepare_localizer
+    from segloc_cli.parallel import warm_localizer
 
     log = _log_of(task.log_path)
     config = Config.from_values(dict(task.settings))
@@ -140,12 +140,13 @@ def run_task(task: Task) -> pd.DataFrame:
             + ("" if task.is_global else " and a guess"),
             path=task.log_path,
         )
-    localizer = pipeline.localizer_for(task.segments_world, config)
+    mode = "global" if task.is_global else "guided"
+    localizer = pipeline.localizer_for(task.segments_world, config, mode)
     scans = [log.scans[i] for i in scan[rows]]
     guesses = None if guess_poses is None else [Pose2(*guess_poses[r]) for r in rows]
     pose_ids = task.survey.pose_id[rows]
     windows = pipeline.scan_windows(log, task.log_path, scan[rows], localizer, config)
-    prepare_localizer(localizer, scans, guesses, config.extract)
+    warm_localizer(localizer, scans, guesses, config.extract)
     made = localize_scans(scans, guesses, pose_ids, localizer, config.extract, windows)
     estimates = pd.DataFrame([{k: v for k, v in row.items() if k != "hypotheses"} for row in made])
     final = (estimates[c].to_numpy(float) for c in ("x_m", "y_m", "theta_deg"))

@@ -137,7 +137,7 @@ def _track_match(
         localizer.segments_world,
         guess,
         replace(p.refine, prior_sigma_m=sigma_m, prior_sigma_deg=sigma_deg),
-        index=localizer.near_index,
+        index=localizer.prepared.near_index,
     )
     return Estimate(
         pose=fit.pose,
@@ -174,7 +174,7 @@ def _heading_fits(
     if local.shape[0] >= localizer.params.min_segments:
         headings = np.concatenate([localizer.headings(local, guess), headings])
     params = replace(localizer.params.refine, prior_sigma_m=track.max_jump_m * factor / 4.0)
-    out, n_local, near = [], int(local.shape[0]), localizer.near_index
+    out, n_local, near = [], int(local.shape[0]), localizer.prepared.near_index
     for heading in headings:
         start = Pose2(guess.x, guess.y, float(wrap_angle(heading)))
         fit = refine_pose(points, localizer.segments_world, start, params, index=near)
@@ -196,7 +196,7 @@ def _measured(localizer: Localizer, est: Estimate, points: np.ndarray) -> Estima
     if est.status != STATUS_OK or np.isfinite(est.inlier_ratio):
         return est
     band = (localizer.params.refine or RefineParams()).final_gate_m
-    near = localizer.near_index
+    near = localizer.prepared.near_index
     ratio = inlier_ratio(points, localizer.segments_world, est.pose, band, index=near)
     return replace(est, inlier_ratio=ratio)
 

@@ -107,7 +107,7 @@ def warm_up() -> list[str]:
     for option, (mode, settings) in LOCALIZE_RUNS.items():
         config = Config.from_values(settings)
         try:
-            localizer = pipeline.localizer_for(built.segments, config)
+            localizer = pipeline.localizer_for(built.segments, config, mode)
         except SeglocError:  # a peer's package is missing: the command would refuse it too
             left_out.append(option)
             continue

@@ -36,7 +36,7 @@ def _trials(
 ) -> np.ndarray:
     """Final errors (n, 2): position in metres and |heading| in degrees."""
     rng = np.random.default_rng(seed)
-    localizer = Localizer(world.segments, params)
+    localizer = Localizer.on_map(world.segments, params)
     truth = random_free_poses(world, n, rng)
     errors = uniform_initial_errors(n, 1.9, 20.0, rng)
     out = []
@@ -125,7 +125,7 @@ def test_large_map_of_many_rooms():
     """Twenty rooms (~1,000 segments), localizing in one of them from ±1.5 m and ±20°."""
     world = _rooms(ROOMS, 8100)
     rng = np.random.default_rng(8)
-    localizer = Localizer(world.segments)
+    localizer = Localizer.on_map(world.segments)
     room = random_world(np.random.default_rng(8100 + 5))
     truth = random_free_poses(room, TRIALS, rng) + np.array([25.0, 20.0, 0.0])  # room 5's place
     errors = uniform_initial_errors(TRIALS, 1.5, 20.0, rng)

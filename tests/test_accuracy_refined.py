@@ -45,7 +45,7 @@ def outcomes() -> list[tuple[int, int, float, float, str, int]]:
     for seed in WORLD_SEEDS:
         rng = np.random.default_rng(seed)
         world = random_world(rng)
-        localizer = Localizer(world.segments)
+        localizer = Localizer.on_map(world.segments)
         truth = random_free_poses(world, POSES_PER_WORLD, rng)
         errors = uniform_initial_errors(POSES_PER_WORLD, INITIAL_XY_M, INITIAL_THETA_DEG, rng)
         for k, (pose, guess) in enumerate(zip(truth, initial_guesses(truth, errors), strict=True)):

@@ -145,10 +145,10 @@ def test_a_localized_scan_carries_its_evidence_and_confidence():
     truth = Pose2(*random_free_poses(world, 1, rng)[0])
     scan = simulate_scan(world, truth, NOISE_FREE, rng, 0.0)
     guess = Pose2(truth.x + 0.6, truth.y - 0.4, truth.theta + 0.2)
-    est = Localizer(world.segments).localize(extract_segments(scan), guess, scan.points())
+    est = Localizer.on_map(world.segments).localize(extract_segments(scan), guess, scan.points())
     assert est.evidence is not None
     assert est.evidence.inlier_ratio == est.inlier_ratio
-    assert est.evidence.hold_points == Localizer(world.segments).hold_points(
+    assert est.evidence.hold_points == Localizer.on_map(world.segments).hold_points(
         scan.points(), est.pose
     )
     single = shipped_models()["single"]
@@ -163,7 +163,8 @@ def test_a_symmetric_room_is_not_trusted():
     scan = simulate_scan(
         room, Pose2.from_deg(2.5, 1.5, 30.0), NOISE_FREE, np.random.default_rng(1), 0.0
     )
-    est = Localizer(room.segments).localize_global(extract_segments(scan), scan.points())
+    localizer = Localizer.on_map(room.segments, global_search=True)
+    est = localizer.localize_global(extract_segments(scan), scan.points())
     assert est.evidence.score == pytest.approx(est.evidence.runner_up_score)
     assert est.confidence < ConfidenceParams().min_confidence
     assert est.status == STATUS_AMBIGUOUS

@@ -38,7 +38,7 @@ def _right(pose: Pose2, truth: Pose2) -> bool:
 
 
 def _globally(world, truths, rng, sensor=SENSOR, params=None):
-    localizer = Localizer(world.segments, params)
+    localizer = Localizer.on_map(world.segments, params, global_search=True)
     for truth in truths:
         scan = simulate_scan(world, truth, sensor, rng, 0.0)
         yield localizer.localize_global(extract_segments(scan), scan.points()), truth

@@ -120,7 +120,7 @@ CORPUS = textwrap.dedent(
 
     rows = 0
     for map_name, segments in maps.items():
-        localizer = Localizer(segments)
+        localizer = Localizer.on_map(segments, global_search=True)
         two_stage = localizer.with_params(replace(localizer.params, refine=None))
         small = map_name != "huge_legal"
         for scan_name, scan in scans.items():
@@ -159,7 +159,7 @@ CORPUS = textwrap.dedent(
 
     # A seeded random corpus, as the fuzz suites draw theirs: every kind of value mixed in.
     odd = np.array([np.nan, np.inf, -np.inf, 1e30, -1e30, 1e6, 0.0, -1.0, 1e-300])
-    room = Localizer(world.segments)
+    room = Localizer.on_map(world.segments)
     room_two_stage = room.with_params(replace(room.params, refine=None))
     for k in range(150):
         n = int(rng.integers(0, 400))

@@ -53,11 +53,11 @@ MAP = np.vstack([NEAR, FAR])
 
 
 def test_distant_segments_cannot_outvote_the_walls_in_reach():
-    localizer = Localizer(MAP)
+    localizer = Localizer.on_map(MAP)
     guess = Pose2(0.3, -0.2, np.deg2rad(4.0))
     # With every map segment voting, the product vote is 3·3 + 2·2 + 2·2 = 17 at 10°, where
     # the clutter lines up, against 3·1 + 2·1 + 2·1 = 7 at the true 0° (walls in 1 m pieces).
-    everything = align(localizer.rtable, LOCAL, prior_rad=guess.theta, window_deg=20.0)
+    everything = align(localizer.prepared.rtable, LOCAL, prior_rad=guess.theta, window_deg=20.0)
     assert np.rad2deg(everything.best_rad) == pytest.approx(10.0, abs=1e-9)
     assert everything.peak_votes[0] == pytest.approx(17.0)
     # Only the segments the scan can reach (its 4.2 m radius plus the search's 2·√2·1.5 m)
@@ -72,7 +72,7 @@ def test_clutter_orientations_are_what_the_example_says():
 
 
 def test_too_few_local_segments_get_a_status_not_a_pose():
-    est = Localizer(MAP).localize(LOCAL[:1], Pose2(0.0, 0.0, 0.0))
+    est = Localizer.on_map(MAP).localize(LOCAL[:1], Pose2(0.0, 0.0, 0.0))
     assert est.status == STATUS_TOO_FEW_SEGMENTS
     assert np.isnan(est.pose.x) and est.n_local_segments == 1
 
@@ -116,7 +116,7 @@ def test_usable_points_drop_rows_that_are_not_finite():
 
 def test_a_normal_scan_is_still_ok():
     world, truth, scan = _room_and_scan()
-    (row,) = localize_scans([scan], [_near(truth)], [0], Localizer(world.segments))
+    (row,) = localize_scans([scan], [_near(truth)], [0], Localizer.on_map(world.segments))
     assert row["status"] == STATUS_OK
     assert np.hypot(row["x_m"] - truth.x, row["y_m"] - truth.y) < 1e-3
 
@@ -125,7 +125,7 @@ def test_non_finite_points_are_left_out_not_counted_against_the_scan():
     world, truth, scan = _room_and_scan()
     points = scan.points()
     points[::5] = np.nan
-    est = Localizer(world.segments).localize(extract_segments(scan), _near(truth), points)
+    est = Localizer.on_map(world.segments).localize(extract_segments(scan), _near(truth), points)
     assert est.status == STATUS_OK
     assert est.inlier_ratio == pytest.approx(1.0)
 
@@ -133,7 +133,7 @@ def test_non_finite_points_are_left_out_not_counted_against_the_scan():
 def test_two_readings_are_too_few_segments_never_ok():
     world, truth, scan = _room_and_scan()
     two = _readings(scan, np.flatnonzero(scan.valid)[[100, 400]])
-    localizer = Localizer(world.segments)
+    localizer = Localizer.on_map(world.segments, global_search=True)
     (row,) = localize_scans([two], [_near(truth)], [0], localizer)
     assert row["status"] == STATUS_TOO_FEW_SEGMENTS
     assert row["n_local_segments"] == 0
@@ -147,7 +147,7 @@ def test_nineteen_readings_on_three_walls_are_too_few_points():
     world, truth, scan = _room_and_scan()
     points = scan.points()[:19]
     local = np.array([[1.0, 0.0, 2.0, 0.0], [0.0, 1.0, 0.0, 2.0], [-1.0, 0.0, -2.0, 0.5]])
-    est = Localizer(world.segments).localize(local, _near(truth), points)
+    est = Localizer.on_map(world.segments).localize(local, _near(truth), points)
     assert est.status == STATUS_TOO_FEW_SEGMENTS
 
 
@@ -157,7 +157,7 @@ def test_a_fan_on_one_ray_is_not_ok():
     world, truth, scan = _room_and_scan()
     ray = Scan(0.0, np.zeros(len(scan)), scan.ranges_m, scan.range_max_m)
     assert point_spread_m(ray.points()) == pytest.approx(0.0, abs=1e-9)
-    localizer = Localizer(world.segments)
+    localizer = Localizer.on_map(world.segments, global_search=True)
     (row,) = localize_scans([ray], [_near(truth)], [0], localizer)
     assert row["status"] == STATUS_TOO_FEW_SEGMENTS
     (row,) = localize_scans([ray], None, [0], localizer)
@@ -168,7 +168,7 @@ def test_one_wall_seen_alone_is_not_ok():
     """Points along one straight wall pin a heading and one offset, not a pose."""
     wall = np.column_stack([np.linspace(-3.0, 3.0, 200), np.full(200, 2.0)])
     local = np.array([[-3.0, 2.0, -1.0, 2.0], [-1.0, 2.0, 1.0, 2.0], [1.0, 2.0, 3.0, 2.0]])
-    est = Localizer(MAP).localize(local, Pose2(0.0, 0.0, 0.0), wall)
+    est = Localizer.on_map(MAP).localize(local, Pose2(0.0, 0.0, 0.0), wall)
     assert est.status == STATUS_TOO_FEW_SEGMENTS
 
 
@@ -179,7 +179,7 @@ def test_tracking_carries_the_guess_through_a_scan_too_poor_to_match():
     odometry = [truth, truth, truth]
     rows = list(
         track_scans([scan, sparse, scan], odometry, _near(truth), [0, 1, 2],
-                    Localizer(world.segments))
+                    Localizer.on_map(world.segments))
     )  # fmt: skip
     assert [r["status"] for r in rows] == [STATUS_OK, STATUS_TOO_FEW_SEGMENTS, STATUS_OK]
     # The sparse scan's row holds the dead-reckoning guess: the previous estimate, unmoved.
@@ -222,16 +222,6 @@ def test_a_global_run_needs_a_matcher_that_supports_it():
         next(localize_scans([scan], None, [1], _PointsOnlyMatcher(world.segments)))
 
 
-def test_with_params_shares_what_the_settings_leave_unchanged():
-    world, _, _ = _room_and_scan()
-    first = Localizer(world.segments)
-    same_bins = first.with_params(LocalizeParams(grid_m=1.0))
-    assert same_bins.rtable is first.rtable and same_bins.index is first.index
-    assert same_bins.hypothesis_search is first.hypothesis_search
-    finer = first.with_params(LocalizeParams(bin_deg=0.5))
-    assert finer.rtable is not first.rtable and finer.params.bin_deg == 0.5
-
-
 MOUNT = Pose2(0.22, 0.05, np.deg2rad(30.0))
 """A scanner 22 cm ahead of the robot's origin and 5 cm left, turned 30°."""
 
@@ -248,7 +238,7 @@ def test_an_off_centre_scanner_s_scans_localize_the_robot(refined):
 
     rng = np.random.default_rng(7001)
     world = random_world(rng)
-    localizer = Localizer(world.segments)
+    localizer = Localizer.on_map(world.segments)
     truth = random_free_poses(world, 20, rng)
     errors = uniform_initial_errors(20, 1.5, 20.0, rng)
     for pose, error in zip(truth, errors, strict=True):

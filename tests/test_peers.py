@@ -179,9 +179,9 @@ def many_scans():
 def test_two_jobs_give_the_rows_of_one(params, hall_map, many_scans):
     scans, guesses = many_scans
     ids = list(range(1, len(scans) + 1))
-    one = _without_times(localize_scans(scans, guesses, ids, Localizer(hall_map, params)))
+    one = _without_times(localize_scans(scans, guesses, ids, Localizer.on_map(hall_map, params)))
     two = _without_times(
-        localize_scans_parallel(scans, guesses, ids, Localizer(hall_map, params), jobs=2)
+        localize_scans_parallel(scans, guesses, ids, Localizer.on_map(hall_map, params), jobs=2)
     )
     assert list(two["pose_id"]) == ids
     pd.testing.assert_frame_equal(one, two, check_exact=True)
@@ -191,8 +191,9 @@ def test_two_jobs_give_the_rows_of_one(params, hall_map, many_scans):
 def test_two_jobs_global_search_gives_the_rows_of_one(hall_map, many_scans):
     scans = many_scans[0][:5]
     ids = [1, 2, 3, 4, 5]
-    one = _without_times(localize_scans(scans, None, ids, Localizer(hall_map)))
-    two = _without_times(localize_scans_parallel(scans, None, ids, Localizer(hall_map), jobs=2))
+    globally = Localizer.on_map(hall_map, global_search=True)
+    one = _without_times(localize_scans(scans, None, ids, globally))
+    two = _without_times(localize_scans_parallel(scans, None, ids, globally, jobs=2))
     pd.testing.assert_frame_equal(one, two, check_exact=True)
 
 

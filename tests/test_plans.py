@@ -125,7 +125,7 @@ def localization_errors(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Position (m) and heading (degrees) errors (count,) of scans simulated in ``built`` at
     random free poses, localized on ``map_segments`` from guesses up to 1 m and 15° off."""
-    localizer = Localizer(map_segments)
+    localizer = Localizer.on_map(map_segments)
     rng = np.random.default_rng(seed)
     truths = random_free_poses(built, count, rng)
     errors = uniform_initial_errors(len(truths), 1.0, 15.0, rng)

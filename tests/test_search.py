@@ -284,7 +284,7 @@ def test_search_ranks_the_true_pose_first_from_far_off(seed):
 def test_global_localization_in_a_world_without_symmetry(seed):
     rng = np.random.default_rng(seed)
     world = random_world(rng)
-    localizer = Localizer(world.segments)
+    localizer = Localizer.on_map(world.segments, global_search=True)
     for truth in random_free_poses(world, 3, rng):
         true = Pose2(*truth)
         scan = simulate_scan(world, true, NOISE_FREE, rng, 0.0)
@@ -303,7 +303,9 @@ def test_global_localization_with_too_few_segments_keeps_the_pose_but_not_the_tr
     true = Pose2(*random_free_poses(world, 1, rng)[0])
     scan = simulate_scan(world, true, NOISE_FREE, rng, 0.0)
     local = extract_segments(scan)
-    localizer = Localizer(world.segments, LocalizeParams(min_segments=local.shape[0] + 1))
+    localizer = Localizer.on_map(
+        world.segments, LocalizeParams(min_segments=local.shape[0] + 1), global_search=True
+    )
     est = localizer.localize_global(local, scan.points())
     position, heading = _errors(est.pose, true)
     assert position < 1e-3 and heading < 0.01
@@ -318,7 +320,8 @@ def test_global_localization_in_a_symmetric_room_is_ambiguous():
     true = Pose2.from_deg(2.5, 1.5, 30.0)
     twin = Pose2.from_deg(8.0 - 2.5, 5.0 - 1.5, 30.0 - 180.0)
     scan = simulate_scan(room, true, NOISE_FREE, np.random.default_rng(1), 0.0)
-    est = Localizer(room.segments).localize_global(extract_segments(scan), scan.points())
+    localizer = Localizer.on_map(room.segments, global_search=True)
+    est = localizer.localize_global(extract_segments(scan), scan.points())
     assert est.status == STATUS_AMBIGUOUS
     found = sorted([est.pose, est.runner_up], key=lambda pose: _errors(pose, true)[0])
     for pose, expected in zip(found, (true, twin), strict=True):

@@ -106,8 +106,8 @@ def test_stage2_with_the_index_equals_stage2_without():
         [room.segments + [25.0 * (k % 3), 20.0 * (k // 3)] * 2 for k, room in enumerate(rooms)]
     )
     block = World(segments, np.full(segments.shape[0], "wall"), "rooms")
-    localizer = Localizer(segments)
-    grid = localizer.index
+    localizer = Localizer.on_map(segments)
+    grid = localizer.prepared.index
     p = localizer.params
     tuning = dict(
         grid_m=p.grid_m,

@@ -61,7 +61,7 @@ def hall():
 
 
 def _track(world, truth, scans, odom, first_guess, localizer=None):
-    localizer = localizer or Localizer(world.segments)
+    localizer = localizer or Localizer.on_map(world.segments)
     rows = list(track_scans(scans, odom, first_guess, range(1, len(scans) + 1), localizer))
     est = np.array([[r["x_m"], r["y_m"], np.deg2rad(r["theta_deg"])] for r in rows])
     true = np.array([p.as_array() for p in truth])
@@ -143,12 +143,14 @@ def test_a_scan_that_matches_nothing_is_lost_and_the_track_goes_on(hall):
 def test_the_map_grid_changes_no_tracked_pose(hall):
     """Tracking through the localizer's fine grid of the map repeats, bit for bit, tracking
     that tests every segment (a grid of one cell), recovery searches included."""
+    from dataclasses import replace
+
     world, truth, scans = hall
     odom = _odometry(truth, np.random.default_rng(2), slip={12: Pose2(0.0, 0.8, 0.0)})
     one_cell = SegmentGrid(world.segments, cell_m=np.inf)
-    localizer = Localizer(world.segments)
-    plain = Localizer(world.segments, near_index=one_cell)
-    assert localizer.with_params(localizer.params).near_index is localizer.near_index
+    localizer = Localizer.on_map(world.segments)
+    plain = Localizer(replace(localizer.prepared, near_index=one_cell))
+    assert plain.with_params(plain.params).prepared.near_index is one_cell
     *_, rows = _track(world, truth, scans, odom, truth[0], localizer)
     *_, expected = _track(world, truth, scans, odom, truth[0], plain)
     assert [r["status"] for r in rows].count(STATUS_RECOVERED) == 1

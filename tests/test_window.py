@@ -87,7 +87,7 @@ def _corridor_window(slip: Pose2 | None = None) -> tuple:
 
 def test_a_window_fixes_the_place_along_a_corridor_that_the_scan_alone_cannot():
     scan, neighbours = _corridor_window()
-    localizer = Localizer(CORRIDOR.segments)
+    localizer = Localizer.on_map(CORRIDOR.segments)
     guess = Pose2(5.6, 1.1, np.deg2rad(4.0))
     alone, held_alone = localize_scan(localizer, scan, guess)
     assert held_alone == 1
@@ -152,7 +152,7 @@ def test_windowed_rows_say_how_many_scans_they_hold_and_match_on_two_processes()
     scan, neighbours = _corridor_window()
     windows = Windows([neighbours, [], neighbours[:2]], WindowParams(), TrackParams())
     scans, guesses = [scan] * 3, [Pose2(5.3, 1.0, 0.0)] * 3
-    localizer = Localizer(CORRIDOR.segments)
+    localizer = Localizer.on_map(CORRIDOR.segments)
     rows = list(localize_scans(scans, guesses, [1, 2, 3], localizer, None, windows))
     assert [r["window_scans"] for r in rows] == [9, 1, 3]
     two = list(localize_scans_parallel(scans, guesses, [1, 2, 3], localizer, 2, windows=windows))
@@ -171,7 +171,7 @@ def test_a_noise_free_window_in_open_space_changes_nothing_but_the_evidence():
     motion = Pose2(0.5, 0.0, 0.1)
     other = simulate_scan(room, truth.compose(motion), NOISE_FREE, rng, 0.5)
     windows = Windows([[(other, motion)]], WindowParams(), TrackParams())
-    localizer = Localizer(room.segments)
+    localizer = Localizer.on_map(room.segments)
     est, held = localize_scan(
         localizer, scan, Pose2(3.4, 1.7, 0.5), None, [(other, motion)], windows
     )

@@ -171,7 +171,7 @@ def localize(
     segments_world = read_map(map_path)
     if mode == "global":
         pipeline.check_global_extent(segments_world, map_path, config.localize.search.region)
-    localizer = pipeline.localizer_for(segments_world, config)
+    localizer = pipeline.localizer_for(segments_world, config, mode)
     stops: list[str] = []  # signals asking the run to stop, noted while it runs
 
     def stop() -> bool:
