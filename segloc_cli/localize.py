@@ -8,7 +8,7 @@ from __future__ import annotations
 import time
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, replace
-from typing import Protocol
+from typing import Protocol, overload
 
 import numpy as np
 
@@ -83,6 +83,10 @@ class Estimate:
     hypotheses: tuple[Hypothesis, ...] = ()
 
 
+@overload
+def usable_points(points_robot: np.ndarray) -> np.ndarray: ...
+@overload
+def usable_points(points_robot: None) -> None: ...
 def usable_points(points_robot: np.ndarray | None) -> np.ndarray | None:
     """The rows (K, 2) of ``points_robot`` with finite coordinates (None stays None)."""
     if points_robot is None:
@@ -309,7 +313,7 @@ class Localizer:
         heading, stage2 = float("nan"), None
         if peaks.size:
             heading, stage2 = self._stage2(segments_robot, initial, peaks)
-        if not robust:
+        if not robust or points_robot is None:  # robust: refined, so the points are there
             if stage2 is None or stage2.overlap_m <= 0:
                 return Estimate(
                     pose=NAN_POSE,
@@ -560,7 +564,9 @@ def localize_scan(
         if initial is None:
             return localizer.localize_global(local, points), 1
         return localizer.localize(local, initial, points), 1
-    refine = localizer.params.refine  # a matcher that supports windows is a Localizer
+    if not isinstance(localizer, Localizer):
+        raise TypeError(f"{type(localizer).__name__} cannot localize a window of scans")
+    refine = localizer.params.refine
     window = scan_window_map(points, local, neighbours, windows, extract_params, refine)
     own = int(points.shape[0])
     if initial is None:

@@ -31,7 +31,9 @@ from collections import deque
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Future, ProcessPoolExecutor
 from concurrent.futures import TimeoutError as FutureTimeout
+from typing import NamedTuple
 
+from segloc_cli.estimates import EstimateRow
 from segloc_cli.extract import ExtractParams
 from segloc_cli.geometry import Pose2
 from segloc_cli.localize import ScanMatcher, localize_scans
@@ -50,7 +52,19 @@ thread of its own never does."""
 PROCESS_LIMIT_HINT = "the system's limit on processes (ulimit -u) may be reached"
 """What the warning of a pool (or a sweep's cluster) smaller than asked suggests."""
 
-_job: tuple | None = None
+
+class _Job(NamedTuple):
+    """The work of a run spread over processes: ``localize_scans``'s arguments."""
+
+    scans: list[Scan]
+    initial_poses: Sequence[Pose2] | None
+    pose_ids: list[int]
+    localizer: ScanMatcher
+    extract_params: ExtractParams | None
+    windows: Windows | None
+
+
+_job: _Job | None = None
 """The work of the current run, set before the workers are forked (they inherit it)."""
 
 
@@ -77,7 +91,9 @@ def _worker_signals() -> None:
         os._exit(1)
 
 
-def _localize_block(bounds: tuple[int, int]) -> list[dict]:
+def _localize_block(bounds: tuple[int, int]) -> list[EstimateRow]:
+    if _job is None:
+        raise RuntimeError("no job: blocks run on the workers of localize_scans_parallel")
     scans, guesses, pose_ids, localizer, extract_params, windows = _job
     start, stop = bounds
     block_guesses = None if guesses is None else guesses[start:stop]
@@ -116,7 +132,7 @@ def localize_scans_parallel(
     extract_params: ExtractParams | None = None,
     stop: Callable[[], bool] = lambda: False,
     windows: Windows | None = None,
-) -> Iterator[dict]:
+) -> Iterator[EstimateRow]:
     """``localize_scans`` spread over ``jobs`` processes; rows are yielded in scan order
     (``windows``: each scan's neighbours, as there).
 
@@ -133,7 +149,7 @@ def localize_scans_parallel(
     global _job
     warm_localizer(localizer, scans, initial_poses, extract_params)
     blocks = [(i, min(i + BLOCK_SCANS, len(scans))) for i in range(0, len(scans), BLOCK_SCANS)]
-    _job = (list(scans), initial_poses, list(pose_ids), localizer, extract_params, windows)
+    _job = _Job(list(scans), initial_poses, list(pose_ids), localizer, extract_params, windows)
     pool, jobs = _started_pool(min(jobs, len(blocks)), stop) if len(blocks) > 1 else (None, 1)
     if pool is None:
         _job = None
@@ -248,7 +264,7 @@ def _say(message: str) -> None:
     print(f"segloc: warning: {message}", file=sys.stderr)
 
 
-def _result(future: Future, stop: Callable[[], bool]) -> list[dict] | None:
+def _result(future: Future, stop: Callable[[], bool]) -> list[EstimateRow] | None:
     """The rows of a block, or None once ``stop()`` says the run is to end."""
     while True:
         try:

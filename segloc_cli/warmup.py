@@ -29,6 +29,7 @@ import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numba.core.dispatcher import Dispatcher
@@ -60,7 +61,7 @@ SCAN_PERIOD_S = 1.0
 PLACEHOLDER_PATH = Path("warmup.mcap")
 """The name the in-memory log and survey go by (only messages about bad input would show it)."""
 
-LOCALIZE_RUNS = {
+LOCALIZE_RUNS: dict[str, tuple[str, dict[str, Any]]] = {
     "guided": ("guided", {}),
     "--no-refine": ("guided", {"no-refine": True}),
     "--global": ("global", {}),
