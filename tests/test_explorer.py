@@ -37,8 +37,8 @@ from segloc_cli.devices.explorer import (
     Kind,
     Nak,
     NakCode,
-    Scan,
     ScanDecoder,
+    ScanMessage,
     crc16_ccitt_false,
     decode_frame,
     decode_message,
@@ -53,9 +53,9 @@ from segloc_cli.sim import NOISE_FREE, render_ranges
 DOC = Path(__file__).resolve().parents[1] / "docs" / "explorer-protocol.md"
 
 
-def scan_message(readings: int = 128, timestamp_us: int = 0, first: int = 0) -> Scan:
+def scan_message(readings: int = 128, timestamp_us: int = 0, first: int = 0) -> ScanMessage:
     ranges = (np.arange(readings, dtype=np.uint16) * 7 + 1000).astype(np.uint16)
-    return Scan(timestamp_us, 250, first, ranges)
+    return ScanMessage(timestamp_us, 250, first, ranges)
 
 
 def spoil(frame: bytes) -> bytes:
@@ -64,7 +64,7 @@ def spoil(frame: bytes) -> bytes:
 
 
 def same_message(a, b) -> bool:
-    if isinstance(a, Scan) and isinstance(b, Scan):
+    if isinstance(a, ScanMessage) and isinstance(b, ScanMessage):
         return (a.timestamp_us, a.rev_hundredths, a.first_angle) == (
             b.timestamp_us,
             b.rev_hundredths,
@@ -260,7 +260,7 @@ def test_a_false_start_inside_a_spoiled_frame_counts_once():
     # Ranges whose bytes spell a plausible CONFIGURE header inside the scan.
     ranges = np.full(128, 1000, dtype=np.uint16)
     ranges[5:8] = [0x5AA5, 0x0402, 0x0000]
-    bad = spoil(encode_message(Scan(0, 200, 0, ranges), 0))
+    bad = spoil(encode_message(ScanMessage(0, 200, 0, ranges), 0))
     good = encode_message(Empty(Kind.STOP_ACK), 1)
     stream = ExplorerStream()
     assert stream.feed(bad + good) == [decode_frame(good)]
@@ -285,7 +285,7 @@ def test_scan_decoder_holds_scans_to_the_settings_in_effect():
     far.ranges_mm[3] = 20_001
     cases = [
         (scan_message(256), "scan of 256 readings while 128 are set"),
-        (Scan(0, 200, 0, scan_message(128).ranges_mm), "scan at speed 200 while 250 is set"),
+        (ScanMessage(0, 200, 0, scan_message(128).ranges_mm), "scan at speed 200 while 250 is set"),
         (far, "scan with a range of 20001 mm, beyond range_max"),
     ]
     for message, reason in cases:
@@ -298,15 +298,17 @@ def test_scan_decoder_without_settings_takes_any_offered_count_at_a_speed_on_off
     decoder = ScanDecoder()
     assert decoder.take(decode_frame(encode_message(scan_message(2048), 0))).ranges_m.size == 2048
     with pytest.raises(FrameError, match="speed 0 while None"):
-        decoder.take(decode_frame(encode_message(Scan(0, 0, 0, scan_message().ranges_mm), 1)))
+        decoder.take(
+            decode_frame(encode_message(ScanMessage(0, 0, 0, scan_message().ranges_mm), 1))
+        )
 
 
 # -- fuzzing ---------------------------------------------------------------------------
 
 messages = st.one_of(
-    st.sampled_from([m for m in EVERY_MESSAGE if not isinstance(m, Scan)]),
+    st.sampled_from([m for m in EVERY_MESSAGE if not isinstance(m, ScanMessage)]),
     st.builds(
-        lambda n, t, a, seed: Scan(
+        lambda n, t, a, seed: ScanMessage(
             t, 200, a, np.random.default_rng(seed).integers(0, 65_536, n).astype(np.uint16)
         ),
         st.sampled_from([128, 256]),
@@ -591,7 +593,9 @@ def test_driver_decodes_scans_unwraps_the_clock_and_counts_skipped(explorer_on):
     first = 0x4000  # a quarter turn
     ranges = np.array([1000, 0, 29_999] + [2500] * 125, dtype=np.uint16)
     times = [CLOCK_WRAP_US - 100_000, 150_000]
-    frames = [encode_message(Scan(t, 200, first, ranges), 7 + i) for i, t in enumerate(times)]
+    frames = [
+        encode_message(ScanMessage(t, 200, first, ranges), 7 + i) for i, t in enumerate(times)
+    ]
     script = b"\x01\x02" + frames[0] + spoil(frames[1]) + frames[1]
     driver = explorer_on(lambda: ScriptedExplorer(script))
     driver.start()

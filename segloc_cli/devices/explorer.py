@@ -175,7 +175,7 @@ class Nak:
 
 
 @dataclass(frozen=True, eq=False)
-class Scan:
+class ScanMessage:
     """SCAN: one revolution.
 
     ``timestamp_us`` device clock at the first reading (uint32, wraps);
@@ -192,7 +192,7 @@ class Scan:
     kind = Kind.SCAN
 
 
-Message = Empty | Configure | Identity | ConfigAck | Nak | Scan
+Message = Empty | Configure | Identity | ConfigAck | Nak | ScanMessage
 
 
 # -- frames --------------------------------------------------------------------------
@@ -288,7 +288,7 @@ def _payload(message: Message) -> bytes:
         if any(len(f) > n for f, n in zip(fields, _IDENTITY_WIDTHS, strict=True)):
             raise ValueError(f"identity fields are at most {_IDENTITY_WIDTHS} characters")
         return _IDENTITY.pack(*fields)
-    if isinstance(message, Scan):
+    if isinstance(message, ScanMessage):
         ranges = np.asarray(message.ranges_mm, dtype="<u2")
         header = _SCAN_HEADER.pack(
             message.timestamp_us, ranges.size, message.rev_hundredths, message.first_angle
@@ -304,12 +304,12 @@ def _ascii_field(raw: bytes) -> str:
     return text.decode("ascii")
 
 
-def _decode_scan(payload: bytes) -> Scan:
+def _decode_scan(payload: bytes) -> ScanMessage:
     timestamp_us, readings, rev_hundredths, first_angle = _SCAN_HEADER.unpack_from(payload)
     if SCAN_HEADER_SIZE + 2 * readings != len(payload):
         raise FrameError(f"scan says {readings} readings but carries {len(payload)} bytes")
     ranges = np.frombuffer(payload, dtype="<u2", offset=SCAN_HEADER_SIZE).astype(np.uint16)
-    return Scan(timestamp_us, rev_hundredths, first_angle, ranges)
+    return ScanMessage(timestamp_us, rev_hundredths, first_angle, ranges)
 
 
 # -- the stream parser ---------------------------------------------------------------
@@ -756,7 +756,7 @@ class ExplorerDevice(EmulatedDevice):
         angles_rad = TWO_PI * np.arange(self.readings) / self.readings
         ranges_mm = ranges_to_mm(self.render(angles_rad))
         timestamp_us = (self._clock_offset_us + round(start_s * 1e6)) % CLOCK_WRAP_US
-        scan = Scan(timestamp_us, self.rev_hundredths, 0, ranges_mm)
+        scan = ScanMessage(timestamp_us, self.rev_hundredths, 0, ranges_mm)
         frame = encode_message(scan, self._scan_sequence)
         self._scan_sequence = (self._scan_sequence + 1) & 0xFFFF
         if self.corrupt():

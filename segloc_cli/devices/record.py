@@ -31,7 +31,7 @@ killed recorder loses at most this much of the recording, plus the scan in fligh
 
 
 @dataclass
-class Progress:
+class RecordingTally:
     """What a recording has done so far (and, at the end, how it ended)."""
 
     scans: int = 0
@@ -60,8 +60,8 @@ def record(
     out_path: Path,
     settings: RecordSettings,
     on_start: Callable[[DeviceInfo, dict[str, str]], None] = lambda info, sensor: None,
-    on_scan: Callable[[Progress], None] = lambda progress: None,
-) -> Progress:
+    on_scan: Callable[[RecordingTally], None] = lambda tally: None,
+) -> RecordingTally:
     """Record from ``driver`` (not yet opened) into a new log at ``out_path``.
 
     Returns the final progress; ``ended_by`` is "scans", "duration", "SIGINT"
@@ -92,9 +92,9 @@ def _stream(
     writer: LogWriter,
     settings: RecordSettings,
     stop: list[str],
-    on_scan: Callable[[Progress], None],
-) -> Progress:
-    progress = Progress()
+    on_scan: Callable[[RecordingTally], None],
+) -> RecordingTally:
+    progress = RecordingTally()
     started = time.monotonic()
     last_scan = started
     skipped_at_last_scan = driver.skipped

@@ -52,7 +52,7 @@ from segloc_cli.config import ExtractParams
 from segloc_cli.errors import InputError
 from segloc_cli.geometry import Pose2, transform_segments
 from segloc_cli.io.files import atomic_path, reading, write_text_atomic
-from segloc_cli.io.plans import Plan, checked_plan_segments
+from segloc_cli.io.plans import FloorPlan, checked_plan_segments
 from segloc_cli.limits import MAX_COORDINATE_M
 from segloc_cli.raster import SPLIT_CELLS, line_cells, trace_walls
 
@@ -124,7 +124,7 @@ class WrittenGrid:
 # --- reading ------------------------------------------------------------------------------
 
 
-def read_nav2(path: str | Path) -> Plan:
+def read_nav2(path: str | Path) -> FloorPlan:
     """Read a nav2 map (YAML and image) as segments (M, 4) in metres, world frame.
 
     See the module docstring for the rules. Raises ``InputError`` naming the file at fault
@@ -175,7 +175,7 @@ def read_nav2(path: str | Path) -> Plan:
         f"traced from {n_occupied} occupied cells of {header.image.name} "
         f"({columns} × {rows} cells of {res:g} m)"
     )
-    return Plan(segments, source, 0, summary, also_read=(header.image,))
+    return FloorPlan(segments, source, 0, summary, also_read=(header.image,))
 
 
 def read_header(path: Path) -> GridHeader:

@@ -1,5 +1,5 @@
 """Building plans as segment maps: DXF drawings in and out, through ezdxf; the plan type
-every plan reader returns (``Plan``; SVG drawings are in ``svg``, nav2 grids in ``grids``).
+every plan reader returns (``FloorPlan``; SVG drawings are in ``svg``, nav2 grids in ``grids``).
 
 A plan's walls are its lines and curves. Reading a DXF takes, from the model space (or the
 layers asked for), every ``LINE``, every piece of a ``LWPOLYLINE`` or 2D ``POLYLINE``
@@ -69,7 +69,7 @@ DXF_ENTITIES = "LINE, LWPOLYLINE, POLYLINE, ARC, CIRCLE, ELLIPSE or SPLINE"
 
 
 @dataclass(frozen=True)
-class Plan:
+class FloorPlan:
     """What a plan reader made of a file.
 
     ``segments`` (M, 4) metres, world frame; ``source`` the record of what was read, for
@@ -102,7 +102,7 @@ def checked_plan_segments(path: Path, pieces_m: np.ndarray, hint: str) -> np.nda
     return segments[segment_lengths(segments) >= MIN_SEGMENT_LENGTH_M]
 
 
-def read_dxf(path: str | Path, layers: Sequence[str] = (), units: str | None = None) -> Plan:
+def read_dxf(path: str | Path, layers: Sequence[str] = (), units: str | None = None) -> FloorPlan:
     """Read the walls of a DXF plan as segments (M, 4) in metres (see the module docstring).
 
     ``layers`` limits the reading to those layers (all by default); ``units`` (a key of
@@ -149,7 +149,7 @@ def read_dxf(path: str | Path, layers: Sequence[str] = (), units: str | None = N
     warnings = [read.chords_warning()] if read.chords else []
     if empty:
         warnings.append(f"nothing read from layer(s) {', '.join(empty)}: no {DXF_ENTITIES} there")
-    return Plan(segments, source, read.chords, summary, warnings=tuple(warnings))
+    return FloorPlan(segments, source, read.chords, summary, warnings=tuple(warnings))
 
 
 def write_dxf(path: str | Path, segments_world: np.ndarray) -> None:

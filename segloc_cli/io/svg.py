@@ -39,7 +39,7 @@ import numpy as np
 
 from segloc_cli.errors import InputError
 from segloc_cli.io.files import reading, write_text_atomic
-from segloc_cli.io.plans import Plan, checked_plan_segments
+from segloc_cli.io.plans import FloorPlan, checked_plan_segments
 
 LENGTH_UNITS_M = {
     "mm": 0.001,
@@ -78,7 +78,7 @@ _SIZE = re.compile(r"^\s*([+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?)\s*([a-zA-Z%
 
 def read_svg(
     path: str | Path, scale_m: float | None = None, origin_m: tuple[float, float] = (0.0, 0.0)
-) -> Plan:
+) -> FloorPlan:
     """Read the walls of an SVG drawing as segments (M, 4) in metres, world frame.
 
     ``scale_m`` is metres per user unit (None: from the drawing's size, see the module
@@ -134,7 +134,7 @@ def read_svg(
     }
     summary = f"from {shapes} elements (1 SVG unit = {scale_m:g} m, origin at {x0:g}, {y0:g})"
     warnings = (f"{chords} arc or curve pieces taken as straight chords",) if chords else ()
-    return Plan(segments, source, chords, summary, warnings=warnings)
+    return FloorPlan(segments, source, chords, summary, warnings=warnings)
 
 
 def write_svg(path: str | Path, segments_world: np.ndarray) -> None:
