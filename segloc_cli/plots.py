@@ -596,7 +596,7 @@ def draw_coarse_to_fine(
 # --------------------------------------------------------------------------- Table 1 errors
 
 
-def final_errors(table: pd.DataFrame) -> pd.DataFrame:
+def errors_by_pose(table: pd.DataFrame) -> pd.DataFrame:
     """Per pose of a ``table1`` result: ``pose_id``, ``err_xy_cm``, ``err_theta_deg``
     (surveyed minus final estimate, world frame) and ``accepted`` (status ok or recovered)."""
     return pd.DataFrame(
@@ -763,7 +763,7 @@ def evaluation_figures(
             ACCUMULATOR: lambda: _accumulator_figure(segments_world, item, window_deg),
             COARSE_TO_FINE: lambda: _coarse_to_fine_figure(segments_world, item),
         }
-    figures[ERRORS] = lambda: draw_errors(final_errors(table))
+    figures[ERRORS] = lambda: draw_errors(errors_by_pose(table))
     return figures
 
 
