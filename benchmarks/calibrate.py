@@ -20,9 +20,10 @@ own scans stripped from the raw log (``protocol.raw_held_out``); a simulated sca
 holds scans along its line of travel placed by the true motion plus odometry noise. Each
 held-out scan is localized from two guesses drawn as in the perturbation protocol
 (±1.5 m, ±20°), one from a wider draw (±3 m, ±45°) and, for up to ``GLOBAL_PER_LOG`` scans per
-log, with no guess at all (``--global``). A model per mode (``confidence.MODES``) is fitted on
-the trials whose searched area holds the truth (``FITTED_KINDS``), and also once per group
-(each real log; the simulated worlds as one) with that group left out, which gives each trial
+log, with no guess at all (``--global``). A model per kind of local map
+(``confidence.LOCAL_MAPS``) is fitted on the trials whose searched area holds the truth
+(``FITTED_KINDS``), and also once per group (each real log; the simulated worlds as one) with
+that group left out, which gives each trial
 a prediction from a model that never saw its group: the report's reliability, flag and
 threshold tables come from those.
 
@@ -55,7 +56,7 @@ from protocol import (
 from sklearn.linear_model import LogisticRegression
 from sklearn.preprocessing import StandardScaler
 
-from segloc_cli.confidence import FEATURES, MODEL_PATH, MODES, UNINFORMED, ConfidenceModel
+from segloc_cli.confidence import FEATURES, LOCAL_MAPS, MODEL_PATH, UNINFORMED, ConfidenceModel
 from segloc_cli.config import ConfidenceParams, Config, TrackParams, WindowParams
 from segloc_cli.geometry import Pose2
 from segloc_cli.io.maps import read_map
@@ -315,8 +316,10 @@ def threshold_figure(trials: pd.DataFrame, left_out: np.ndarray) -> None:
 
     thresholds = np.concatenate([np.linspace(0.05, 0.95, 19), [0.97, 0.98, 0.99, 0.995]])
     default = ConfidenceParams().min_confidence
-    fig, axes = plt.subplots(1, len(MODES), figsize=(5.5 * len(MODES), 4.5), squeeze=False)
-    for ax, mode in zip(axes[0], MODES, strict=True):
+    fig, axes = plt.subplots(
+        1, len(LOCAL_MAPS), figsize=(5.5 * len(LOCAL_MAPS), 4.5), squeeze=False
+    )
+    for ax, mode in zip(axes[0], LOCAL_MAPS, strict=True):
         mine = (trials["mode"] == mode).to_numpy() & trials["kind"].isin(FITTED_KINDS).to_numpy()
         chosen = trials[mine]
         groups = chosen["source"].map(group_of)
@@ -461,7 +464,7 @@ def write_models(trials: pd.DataFrame, out: Path, work: Path) -> None:
     """Fit a model per mode on ``trials``, write them to ``MODEL_PATH``, the report to ``out``
     and the trials with their left-out predictions to ``work/trials.csv``."""
     models, left_out = {}, np.full(len(trials), np.nan)
-    for mode in MODES:
+    for mode in LOCAL_MAPS:
         mine = (trials["mode"] == mode).to_numpy()
         chosen = trials[mine].reset_index(drop=True)
         models[mode] = fit(chosen)
@@ -477,7 +480,7 @@ def write_models(trials: pd.DataFrame, out: Path, work: Path) -> None:
                 for (m, s), r in sources.iterrows()
                 if m == mode
             }
-            for mode in MODES
+            for mode in LOCAL_MAPS
         },
     }
     document = {"models": {m: model.as_dict() for m, model in models.items()}}

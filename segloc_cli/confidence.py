@@ -48,7 +48,7 @@ to a third of the right answers of the most cluttered one), and only sets ``lost
 ``min_inlier_ratio``. The share of beams through walls, the inliers' RMS distance and the
 counts of points and of segments, which stood for the scanner and the map rather than for
 the fit."""
-MODES = ("single", "window")
+LOCAL_MAPS = ("single", "window")
 """The local maps a confidence is fitted for: one scan, and a window of scans (``window.py``),
 whose margins over a rival are larger for the same doubt."""
 TIE_SCALE = 0.003
@@ -164,10 +164,10 @@ that what it fits never depends on an earlier fit."""
 
 @functools.cache
 def shipped_models() -> dict[str, ConfidenceModel]:
-    """The models fitted by ``benchmarks/calibrate.py``, one per mode of ``MODES``, read once
-    from ``MODEL_PATH``."""
+    """The models fitted by ``benchmarks/calibrate.py``, one per kind of local map in
+    ``LOCAL_MAPS``, read once from ``MODEL_PATH``."""
     data = json.loads(MODEL_PATH.read_text(encoding="utf-8"))["models"]
-    return {mode: ConfidenceModel.from_dict(data[mode]) for mode in MODES}
+    return {mode: ConfidenceModel.from_dict(data[mode]) for mode in LOCAL_MAPS}
 
 
 def judge(

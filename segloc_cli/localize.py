@@ -14,7 +14,7 @@ import numpy as np
 
 from segloc_cli.align import align
 from segloc_cli.confidence import (
-    MODES,
+    LOCAL_MAPS,
     ConfidenceModel,
     Evidence,
     judge,
@@ -191,7 +191,7 @@ class Localizer:
         self.prepared = prepared
         self.segments_world = prepared.segments_world
         self.model = model
-        self.models = shipped_models() if model is None else dict.fromkeys(MODES, model)
+        self.models = shipped_models() if model is None else dict.fromkeys(LOCAL_MAPS, model)
 
     @classmethod
     def on_map(

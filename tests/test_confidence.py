@@ -10,8 +10,8 @@ import pytest
 
 from segloc_cli.confidence import (
     FEATURES,
+    LOCAL_MAPS,
     MODEL_PATH,
-    MODES,
     TIE_SCALE,
     UNINFORMED,
     ConfidenceModel,
@@ -122,7 +122,7 @@ def test_points_status_asks_no_rival():
     assert points_status(float("nan"), 40.0, params) == STATUS_LOST
 
 
-@pytest.mark.parametrize("mode", MODES)
+@pytest.mark.parametrize("mode", LOCAL_MAPS)
 def test_the_shipped_models_read_known_features_and_trust_a_clear_margin(mode):
     model = shipped_models()[mode]
     data = json.loads(MODEL_PATH.read_text(encoding="utf-8"))
