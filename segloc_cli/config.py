@@ -21,10 +21,14 @@ import ast
 import functools
 import inspect
 import itertools
+import math
+from collections.abc import Callable
 from dataclasses import dataclass, field, fields, replace
 from typing import Any
 
 import numpy as np
+
+from segloc_cli.errors import SeglocError
 
 TIME_TOLERANCE_MS = 50.0
 """Default largest time difference when pairing records of two files by time."""
@@ -289,6 +293,16 @@ class Config:
         return config
 
 
+class SettingError(SeglocError):
+    """A value a setting does not take, or settings that cannot go together, in the command
+    line's words. From ``Setting.checked`` (``key`` set), the reason alone: what click prints
+    after "Invalid value for '--KEY': "."""
+
+    def __init__(self, message: str, key: str | None = None):
+        super().__init__(message)
+        self.key = key
+
+
 @dataclass(frozen=True)
 class Setting:
     """One setting as the outside world names it.
@@ -299,7 +313,9 @@ class Setting:
     values of a text setting; ``help`` is the option's help text, None for a
     tuning setting that the help does not list. A ``switch`` is a flag that
     sets the field to None (``--no-refine``: no refinement); its ``path`` is
-    the field it empties.
+    the field it empties. A setting given as text of several parts (``--region
+    X0,Y0,X1,Y1``) has a ``parse`` that checks the text and makes the field's value of it,
+    when the configuration is made (``run_config``), as ``metavar`` shows it.
     """
 
     key: str
@@ -310,6 +326,8 @@ class Setting:
     choices: tuple[str, ...] | None = None
     help: str | None = None
     switch: bool = False
+    metavar: str | None = None
+    parse: Callable[[str], Any] | None = None
 
     @property
     def default(self) -> Any:
@@ -323,21 +341,80 @@ class Setting:
 
     @property
     def kind(self) -> type:
-        """The value's type: bool, int, float or str."""
+        """The value's type: bool, int, float or str (text to ``parse``)."""
         if self.switch:
             return bool
+        if self.parse is not None:
+            return str
         return {"float": float, "int": int, "str": str}[_field_kind(self.path)]
 
+    def checked(self, value: Any) -> Any:
+        """``value`` (text from the command line, or a value of a configuration file) as the
+        setting takes it: one of its ``choices``; a whole number within its bounds; a finite
+        number within them; a switch's bool; text to ``parse`` as it is (``parse`` checks
+        it). ``SettingError`` says why not, as click's own types say it."""
+        if self.switch:
+            return bool(value)
+        if self.choices is not None:
+            return one_of(value, self.choices, self.key)
+        if self.parse is not None:
+            return value
+        if self.kind is int:
+            high = None if self.high is None else int(self.high)
+            return number_within(value, int, int(self.low), high, key=self.key)
+        return number_within(value, float, self.low, self.high, self.low_open, self.key)
+
     def applied(self, config: Config, value: Any) -> Config:
-        """``config`` with this setting set to ``value`` (a switch: emptied when True)."""
+        """``config`` with this setting set to ``value`` (a switch: emptied when True; text
+        to parse: parsed, which may raise ``SettingError``)."""
         if self.switch:
             return _replaced(config, self.path, None) if value else config
-        return _replaced(config, self.path, self.kind(value))
+        made = self.kind(value) if self.parse is None else self.parse(value)
+        return _replaced(config, self.path, made)
 
     @property
     def doc(self) -> str:
         """The help text, or for a tuning setting the docstring of its field."""
         return self.help or field_doc(_owner_class(self.path), self.path[-1])
+
+
+def number_within(
+    value: Any,
+    kind: type,
+    low: float | None,
+    high: float | None = None,
+    low_open: bool = False,
+    key: str | None = None,
+) -> float:
+    """``value`` as a number of ``kind`` (int, or float: then also finite) from ``low`` (above
+    it when ``low_open``) to ``high``, either None for no bound; ``SettingError`` in the words
+    of click's ``IntRange`` and ``FloatRange`` (the bounds shown as given)."""
+    try:
+        number = kind(value)
+    except ValueError:
+        name = "integer range" if kind is int else "float range"
+        raise SettingError(f"{value!r} is not a valid {name}.", key) from None
+    below = low is not None and (number <= low if low_open else number < low)
+    if below or (high is not None and number > high):
+        if low is None:
+            bounds = f"x<={high}"
+        elif high is None:
+            bounds = f"x{'>' if low_open else '>='}{low}"
+        else:
+            bounds = f"{low}{'<' if low_open else '<='}x<={high}"
+        raise SettingError(f"{number} is not in the range {bounds}.", key)
+    if kind is float and not math.isfinite(number):
+        raise SettingError(f"{value!r} is not a finite number.", key)
+    return number
+
+
+def one_of(value: Any, choices: tuple[str, ...], key: str | None = None) -> str:
+    """The choice that ``value`` names (as text); ``SettingError`` in ``click.Choice``'s words."""
+    if str(value) in choices:
+        return str(value)
+    listed = ", ".join(map(repr, choices))
+    some = f"one of {listed}" if len(choices) > 1 else listed
+    raise SettingError(f"{value!r} is not {some}.", key)
 
 
 def _owner_class(path: tuple[str, ...]) -> type:

@@ -20,7 +20,7 @@ from typing import Any
 
 import click
 
-from segloc_cli.config import SETTINGS, Config, Setting
+from segloc_cli.config import SETTINGS, Config, Setting, number_within
 from segloc_cli.errors import InputError
 
 OUTPUT_KEYS = frozenset({"out", "tum", "mcap", "survey-out", "plots", "config", "force"})
@@ -85,14 +85,46 @@ def load_log(path: Path):
     return log
 
 
-class FiniteRange(click.FloatRange):
-    """``click.FloatRange`` that also refuses NaN and the infinities (which pass its bounds)."""
+class _Checked:
+    """A click type whose values ``check`` checks (a ``Setting``'s ``checked``, or the bounds
+    of a number), its ``SettingError`` the option's error; the click type it is mixed into
+    gives the help its metavar and range."""
+
+    check: Callable[[Any], Any]
 
     def convert(self, value, param, ctx):
-        number = super().convert(value, param, ctx)
-        if not math.isfinite(number):
-            self.fail(f"{value!r} is not a finite number.", param, ctx)
-        return number
+        from segloc_cli.config import SettingError
+
+        try:
+            return self.check(value)
+        except SettingError as exc:
+            self.fail(str(exc), param, ctx)
+
+
+class FiniteRange(_Checked, click.FloatRange):
+    """``click.FloatRange`` that also refuses NaN and the infinities (which pass its bounds)."""
+
+    def check(self, value: Any) -> float:
+        return number_within(value, float, self.min, self.max, self.min_open)
+
+
+class _SettingChoice(_Checked, click.Choice):
+    def __init__(self, setting: Setting):
+        super().__init__(setting.choices)
+        self.check = setting.checked
+
+
+class _SettingIntRange(_Checked, click.IntRange):
+    def __init__(self, setting: Setting):
+        high = None if setting.high is None else int(setting.high)
+        super().__init__(min=int(setting.low), max=high)
+        self.check = setting.checked
+
+
+class _SettingFloatRange(_Checked, click.FloatRange):
+    def __init__(self, setting: Setting):
+        super().__init__(min=setting.low, max=setting.high, min_open=setting.low_open)
+        self.check = setting.checked
 
 
 class ModuleChoice(click.Choice):
@@ -145,12 +177,12 @@ def setting_option(key: str, **help_fields: str) -> Callable:
 
 
 def _setting_type(setting: Setting) -> click.ParamType:
+    """The click type of a setting's option: ``Setting.checked`` checks its values."""
     if setting.choices is not None:
-        return click.Choice(setting.choices)
+        return _SettingChoice(setting)
     if setting.kind is int:
-        high = None if setting.high is None else int(setting.high)
-        return click.IntRange(min=int(setting.low), max=high)
-    return FiniteRange(min=setting.low, max=setting.high, min_open=setting.low_open)
+        return _SettingIntRange(setting)
+    return _SettingFloatRange(setting)
 
 
 def tuning_options(settings: tuple[Setting, ...]) -> Callable:
