@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 
 from segloc_cli.errors import SeglocError
+from segloc_cli.limits import MAX_COORDINATE_M
 
 TIME_TOLERANCE_MS = 50.0
 """Default largest time difference when pairing records of two files by time."""
@@ -50,6 +51,9 @@ METHODS = ("two-stage", "icp", "correlative")
 
 ICP_VARIANTS = ("gicp", "plane")
 """ICP flavours of ``--method icp``: generalized ICP or point-to-plane ICP."""
+
+GUESSES_KEYWORD = "odom"
+"""``--initial`` value that takes the guesses from the log itself rather than a file."""
 
 
 @dataclass(frozen=True)
@@ -624,6 +628,38 @@ WINDOW = Setting(
     "odometry (not --track, not the peers' methods); 0 localizes each scan alone.",
 )
 
+
+def _rectangle(text: str) -> tuple[float, float, float, float]:
+    """``X0,Y0,X1,Y1`` text → (x0, y0, x1, y1) metres, finite, within ±``MAX_COORDINATE_M``
+    and with x0 < x1, y0 < y1; else ``SettingError``."""
+    try:
+        corners = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        corners = ()
+    if not (
+        len(corners) == 4
+        and all(abs(c) <= MAX_COORDINATE_M for c in corners)
+        and corners[0] < corners[2]
+        and corners[1] < corners[3]
+    ):
+        raise SettingError(
+            f"{text!r}; use X0,Y0,X1,Y1 in metres with X0 < X1 and Y0 < Y1, finite and "
+            f"within ±{MAX_COORDINATE_M:g} m (e.g. 0,0,40,25)",
+            "region",
+        )
+    return corners
+
+
+REGION = Setting(
+    "region",
+    ("localize", "search", "region"),
+    help="With --global: search only this rectangle (metres, world frame) instead of "
+    "wherever the scan could reach the map.",
+    metavar="X0,Y0,X1,Y1",
+    parse=_rectangle,
+)
+"""The global search's rectangle; it goes with ``--global`` (``run_config``)."""
+
 TOLERANCE = Setting(
     "tolerance-ms",
     ("tolerance_ms",),
@@ -662,15 +698,66 @@ LOCALIZE_TUNING = (
 )
 """Localization's tuning settings: config-file keys (and unlisted options)."""
 
+LOCALIZE_SETTINGS = (*STAGES, *MATCHER, WINDOW, REGION, TOLERANCE, *LOCALIZE_TUNING)
+"""The settings ``segloc localize`` takes."""
+
 SETTINGS: dict[str, Setting] = {
     s.key: s
-    for s in (*STAGES, WINDOW, *MATCHER, TOLERANCE, *EXTRACT, POLISH, *FUSE, *LOCALIZE_TUNING)
+    for s in (
+        *STAGES,
+        WINDOW,
+        REGION,
+        *MATCHER,
+        TOLERANCE,
+        *EXTRACT,
+        POLISH,
+        *FUSE,
+        *LOCALIZE_TUNING,
+    )
 }
 """Every setting by key."""
 
 
+def run_config(values: dict[str, Any], global_search: bool, track: bool) -> Config:
+    """The configuration of a localize run from its settings by key (as ``Config.from_values``
+    takes them), refusing as ``SettingError`` a ``--region`` without ``--global``, a region
+    that is no rectangle, and settings that cannot go together."""
+    if values.get(REGION.key) is not None and not global_search:
+        raise SettingError("--region goes with --global")
+    try:
+        config = Config.from_values(values)
+    except SettingError as exc:  # text parsed as the configuration is made (--region)
+        raise SettingError(f"Invalid value for --{exc.key}: {exc}") from None
+    _check_together(config, global_search, track)
+    return config
+
+
+def _check_together(config: Config, global_search: bool, track: bool) -> None:
+    """Refuse settings that cannot go together (``--track``, ``--global``: the modes)."""
+    bin_deg = config.localize.bin_deg
+    if not np.isclose(180.0 / bin_deg, round(180.0 / bin_deg)):
+        raise SettingError(f"Invalid value for --bin-deg: {bin_deg:g} does not divide 180")
+    if config.method != "two-stage" and (global_search or track):
+        other = "--global" if global_search else "--track"
+        raise SettingError(
+            f"--method {config.method} cannot be combined with {other}: it matches each scan "
+            "from its own initial guess"
+        )
+    if track and config.jobs > 1:
+        raise SettingError(
+            "--jobs cannot be combined with --track: each tracked scan starts from the "
+            "previous one's estimate"
+        )
+    if global_search and (track or config.localize.refine is None):
+        other = "--track" if track else "--no-refine"
+        raise SettingError(
+            f"--global cannot be combined with {other}: it searches every scan afresh and "
+            "ranks its candidates by refining them"
+        )
+
+
 def _shown(value: Any) -> str:
-    return "off" if value is False else str(value)
+    return "off" if value is False else "none" if value is None else str(value)
 
 
 def settings_table() -> str:
@@ -681,7 +768,8 @@ def settings_table() -> str:
          "`evaluate`)", (*MATCHER, WINDOW, TOLERANCE)),
         ("Extraction (`localize`, `map build`)", EXTRACT),
         ("Fusion (`map build`)", (POLISH, *FUSE)),
-        ("Checks, search, refinement, verdict and tracking (`localize`)", LOCALIZE_TUNING),
+        ("Checks, search, refinement, verdict and tracking (`localize`)",
+         (REGION, *LOCALIZE_TUNING)),
     ]  # fmt: skip
     lines = ["| key | default | meaning |", "|---|---|---|"]
     for title, settings in sections:

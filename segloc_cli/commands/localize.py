@@ -12,7 +12,6 @@ from pathlib import Path
 import click
 
 from segloc_cli.commands.options import (
-    GUESSES_KEYWORD,
     GuessSource,
     Invocation,
     config_option,
@@ -26,7 +25,15 @@ from segloc_cli.commands.options import (
     with_options,
     within_cores,
 )
-from segloc_cli.config import LOCALIZE_TUNING, MATCHER, STAGES, WINDOW
+from segloc_cli.config import (
+    GUESSES_KEYWORD,
+    LOCALIZE_TUNING,
+    MATCHER,
+    REGION,
+    STAGES,
+    WINDOW,
+    run_config,
+)
 from segloc_cli.errors import EXIT_INTERRUPTED
 from segloc_cli.runfile import beside, run_file_path
 
@@ -75,13 +82,7 @@ LOCALIZE_OPTIONS = (
         "and its runner-up. Every scan is localized, or only those listed by --initial FILE "
         "(whose poses are then not used).",
     ),
-    click.option(
-        "--region",
-        metavar="X0,Y0,X1,Y1",
-        default=None,
-        help="With --global: search only this rectangle (metres, world frame) instead of "
-        "wherever the scan could reach the map.",
-    ),
+    setting_option(REGION.key),
     click.option(
         "--track",
         is_flag=True,
@@ -114,7 +115,6 @@ def localize(
     initial,
     global_search,
     track,
-    region,
     **_,
 ):
     """Localize every scan of one or more logs against a map.
@@ -158,8 +158,7 @@ def localize(
     from segloc_cli.io.maps import read_map
 
     run = Invocation.current()
-    config = _with_region(run.config, _parse_region(region, global_search))
-    check_modes(config, global_search, track)
+    config = run_config(run.options, global_search, track)
     config = replace(config, jobs=within_cores(config.jobs, "localizing on {cores} processes"))
     mode = "global" if global_search else "track" if track else "guided"
     guess_file = None if initial == GUESSES_KEYWORD else Path(initial)
@@ -199,32 +198,6 @@ def localize(
     _report(summary, out_path, stops, skipped=sum(r.skipped for r in runs))
     if listed is not None:
         info(f"{listed[0]}: up to {listed[1]} distinct poses per scan, best first")
-
-
-def check_modes(config, global_search: bool, track: bool) -> None:
-    """Refuse settings that cannot go together, before any file is read."""
-    import numpy as np
-
-    bin_deg = config.localize.bin_deg
-    if not np.isclose(180.0 / bin_deg, round(180.0 / bin_deg)):
-        raise click.BadParameter(f"{bin_deg:g} does not divide 180", param_hint="--bin-deg")
-    if config.method != "two-stage" and (global_search or track):
-        other = "--global" if global_search else "--track"
-        raise click.UsageError(
-            f"--method {config.method} cannot be combined with {other}: it matches each scan "
-            "from its own initial guess"
-        )
-    if track and config.jobs > 1:
-        raise click.UsageError(
-            "--jobs cannot be combined with --track: each tracked scan starts from the "
-            "previous one's estimate"
-        )
-    if global_search and (track or config.localize.refine is None):
-        other = "--track" if track else "--no-refine"
-        raise click.UsageError(
-            f"--global cannot be combined with {other}: it searches every scan afresh and "
-            "ranks its candidates by refining them"
-        )
 
 
 def _run_view(mcap_path: Path, segments_world, log_paths, map_path: Path, mode: str):
@@ -334,40 +307,6 @@ def _expect(first_ms: float, n_scans: int) -> None:
     each = first_ms / 1e3
     total_min = each * n_scans / 60.0
     info(f"global search: about {each:.1f} s per scan, {n_scans} scans (about {total_min:.1f} min)")
-
-
-def _parse_region(value: str | None, global_search: bool) -> tuple[float, ...] | None:
-    """``--region X0,Y0,X1,Y1`` → (x0, y0, x1, y1) metres, checked."""
-    from segloc_cli.limits import MAX_COORDINATE_M
-
-    if value is None:
-        return None
-    if not global_search:
-        raise click.UsageError("--region goes with --global")
-    try:
-        corners = tuple(float(v) for v in value.split(","))
-    except ValueError:
-        corners = ()
-    if not (
-        len(corners) == 4
-        and all(abs(c) <= MAX_COORDINATE_M for c in corners)
-        and corners[0] < corners[2]
-        and corners[1] < corners[3]
-    ):
-        raise click.BadParameter(
-            f"{value!r}; use X0,Y0,X1,Y1 in metres with X0 < X1 and Y0 < Y1, finite and "
-            f"within ±{MAX_COORDINATE_M:g} m (e.g. 0,0,40,25)",
-            param_hint="--region",
-        )
-    return corners
-
-
-def _with_region(config, region: tuple[float, ...] | None):
-    """``config`` with the global search limited to ``region`` (if any)."""
-    if region is None:
-        return config
-    search = replace(config.localize.search, region=region)
-    return replace(config, localize=replace(config.localize, search=search))
 
 
 def _report(summary, out_path: Path, stops: list[str], skipped: int) -> None:

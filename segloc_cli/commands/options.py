@@ -20,7 +20,7 @@ from typing import Any
 
 import click
 
-from segloc_cli.config import SETTINGS, Config, Setting, number_within
+from segloc_cli.config import GUESSES_KEYWORD, SETTINGS, Config, Setting, number_within
 from segloc_cli.errors import InputError
 
 OUTPUT_KEYS = frozenset({"out", "tum", "mcap", "survey-out", "plots", "config", "force"})
@@ -31,9 +31,6 @@ write over the first run's view)."""
 COMMAND_LINE_ONLY = frozenset({"force"})
 """Options a configuration file may not set: ``--force`` must be seen where it is given, or
 a file kept for its settings would overwrite outputs unasked."""
-
-GUESSES_KEYWORD = "odom"
-"""``--initial`` value that takes the guesses from the log itself rather than a file."""
 
 
 def warn(message: str) -> None:
@@ -111,20 +108,20 @@ class FiniteRange(_Checked, click.FloatRange):
 class _SettingChoice(_Checked, click.Choice):
     def __init__(self, setting: Setting):
         super().__init__(setting.choices)
-        self.check = setting.checked
+        self.setting, self.check = setting, setting.checked
 
 
 class _SettingIntRange(_Checked, click.IntRange):
     def __init__(self, setting: Setting):
         high = None if setting.high is None else int(setting.high)
         super().__init__(min=int(setting.low), max=high)
-        self.check = setting.checked
+        self.setting, self.check = setting, setting.checked
 
 
 class _SettingFloatRange(_Checked, click.FloatRange):
     def __init__(self, setting: Setting):
         super().__init__(min=setting.low, max=setting.high, min_open=setting.low_open)
-        self.check = setting.checked
+        self.setting, self.check = setting, setting.checked
 
 
 class ModuleChoice(click.Choice):
@@ -171,13 +168,17 @@ def setting_option(key: str, **help_fields: str) -> Callable:
         type=_setting_type(setting),
         default=setting.default,
         show_default=listed,
+        metavar=setting.metavar,
         help=text,
         hidden=not listed,
     )
 
 
 def _setting_type(setting: Setting) -> click.ParamType:
-    """The click type of a setting's option: ``Setting.checked`` checks its values."""
+    """The click type of a setting's option: ``Setting.checked`` checks its values; text to
+    parse is checked when the configuration is made (``config.run_config``)."""
+    if setting.parse is not None:
+        return click.STRING
     if setting.choices is not None:
         return _SettingChoice(setting)
     if setting.kind is int:
@@ -298,41 +299,29 @@ def _unknown_key(key: str, command: tuple[str, ...], options: dict) -> str:
 
 
 def config_value(ctx: click.Context, option: click.Option, key: str, raw: Any, path: Path):
-    """A value of a configuration table, checked as the option checks its own."""
-    if option.is_flag and not isinstance(raw, bool):
-        raise InputError(f"key {key!r} is a flag: give true or false, not {raw!r}", path=path)
-    if not isinstance(raw, (bool, int, float, str)):
-        raise InputError(f"key {key!r} takes one value, not a {type(raw).__name__}", path=path)
-    if not option.is_flag and isinstance(raw, bool):
-        raise InputError(f"key {key!r} takes a value, not {str(raw).lower()}", path=path)
-    _check_kind(option, key, raw, path)
-    if isinstance(option.type, click.types.IntParamType) and isinstance(raw, float):
-        if not raw.is_integer():
-            raise InputError(f"key {key!r} takes a whole number, not {raw!r}", path=path)
-    if holds_path(option):
-        if not isinstance(raw, str) or not raw:
-            raise InputError(f"key {key!r} takes a path in quotes, not {raw!r}", path=path)
-        if raw != GUESSES_KEYWORD:
-            raw = str(path.parent / raw)  # an absolute raw stays itself
-    if isinstance(option.type, click.Choice):
-        raw = str(raw)
+    """A value of a configuration table, checked as the option checks its own: a setting's by
+    ``tablevalues.setting_value``, any other's kind by ``tablevalues.table_value`` and its
+    value by its click type (a relative path taken relative to the file's folder)."""
+    from segloc_cli.tablevalues import Takes, setting_value, table_value
+
+    setting = getattr(option.type, "setting", None)
+    if setting is not None:
+        return setting_value(setting, raw, path)
+    numeric = click.types.IntParamType | click.types.FloatParamType
+    takes = Takes(
+        flag=option.is_flag,
+        number=isinstance(option.type, numeric),
+        whole=isinstance(option.type, click.types.IntParamType),
+        path=holds_path(option),
+        choice=isinstance(option.type, click.Choice),
+    )
+    raw = table_value(key, raw, takes, path)
+    if holds_path(option) and raw != GUESSES_KEYWORD:
+        raw = str(path.parent / raw)  # an absolute raw stays itself
     try:
         return option.type_cast_value(ctx, raw)
     except click.BadParameter as exc:
         raise InputError(f"key {key!r}: {exc.format_message()}", path=path) from None
-
-
-def _check_kind(option: click.Option, key: str, raw: Any, path: Path) -> None:
-    """Refuse a TOML value of the wrong kind for ``option``: text for a number (``"1.5"``), a
-    number for text (a layer named 0 is written ``"0"``); a choice takes either, as its
-    values may be numbers (``readings = 1024``)."""
-    numeric = isinstance(option.type, click.types.IntParamType | click.types.FloatParamType)
-    if option.is_flag or holds_path(option) or isinstance(option.type, click.Choice):
-        return
-    if numeric and isinstance(raw, str):
-        raise InputError(f"key {key!r} takes a number, not the text {raw!r}", path=path)
-    if not numeric and not isinstance(raw, str):
-        raise InputError(f"key {key!r} takes text in quotes, not {raw!r}", path=path)
 
 
 RECORDED_INPUTS = "segloc.recorded_inputs"

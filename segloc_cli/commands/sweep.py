@@ -87,7 +87,7 @@ def sweep(spec_path, out_path, scheduler, jobs, fmt, force):
     percentile errors (a pose without an estimate counting as infinitely
     wrong), and the median time per scan.
     """
-    from segloc_cli.commands.sweepspec import read_spec
+    from segloc_cli.sweepspec import read_spec
 
     _check_extra()
     if (
