@@ -7,6 +7,7 @@ options. Bad input raises ``InputError`` naming the file.
 - ``paired_guesses``: which scans of a log have an initial guess, and which.
 - ``localizer_for``: the matcher a configuration asks for, on a map.
 - ``localize_log``: the rows of one log, batch, global or tracked.
+- ``localize_guessed``: the rows of chosen scans of a log, from their guesses or global.
 - ``build_map``: a segment map from surveyed scans.
 - ``simulate_log``: a simulated log of a world at given poses.
 """
@@ -153,26 +154,41 @@ def localize_log(
         guesses = paired_guesses(log, log_path, initial, config.tolerance_ms)
     if mode == "track":
         index, rows = _track(log, log_path, localizer, guesses, config)
-    else:
-        from segloc_cli.parallel import localize_scans_parallel
+        return LogRun(log_path, rows, log.scan_times_s[index], len(log.scans) - index.size)
+    return localize_guessed(log, log_path, localizer, guesses, config, stop, mode == "guided")
 
-        index = guesses.index
-        poses = None if mode == "global" else guesses.poses
-        scans = [log.scans[i] for i in index]
-        windows = scan_windows(log, log_path, index, localizer, config)
-        rows = localize_scans_parallel(
-            scans,
-            poses,
-            guesses.pose_ids,
-            localizer,
-            config.jobs,
-            config.extract,
-            stop=stop,
-            windows=windows,
-        )
-        note = window_note(log, localizer, config, windows)
-        return LogRun(log_path, rows, log.scan_times_s[index], len(log.scans) - index.size, note)
-    return LogRun(log_path, rows, log.scan_times_s[index], len(log.scans) - index.size)
+
+def localize_guessed(
+    log: Log,
+    log_path: Path,
+    localizer,
+    guesses: Guesses,
+    config: Config,
+    stop: Callable[[], bool] = lambda: False,
+    guided: bool = True,
+) -> LogRun:
+    """Plan the localization of the scans ``guesses.index`` of ``log``, each from its guess
+    (world frame) when ``guided``, else by a global search, its row under its pose id, with
+    its window where the log has odometry (``scan_windows``), on ``config.jobs`` processes
+    (``stop`` is asked between blocks of scans); the rows are made as ``LogRun.rows`` is
+    read."""
+    from segloc_cli.parallel import localize_scans_parallel
+
+    index = guesses.index
+    scans = [log.scans[i] for i in index]
+    windows = scan_windows(log, log_path, index, localizer, config)
+    rows = localize_scans_parallel(
+        scans,
+        guesses.poses if guided else None,
+        guesses.pose_ids,
+        localizer,
+        config.jobs,
+        config.extract,
+        stop=stop,
+        windows=windows,
+    )
+    note = window_note(log, localizer, config, windows)
+    return LogRun(log_path, rows, log.scan_times_s[index], len(log.scans) - index.size, note)
 
 
 def scan_odometry(log: Log, log_path: Path, tolerance_s: float) -> np.ndarray:
