@@ -17,7 +17,7 @@ from test_cli import assert_one_line_error, run_cli
 
 from segloc_cli import __version__
 from segloc_cli.cli import cli
-from segloc_cli.commands.options import option_key
+from segloc_cli.commands.configfile import option_key
 from segloc_cli.config import (
     EXTRACT,
     FUSE,

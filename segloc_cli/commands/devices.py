@@ -8,18 +8,18 @@ from pathlib import Path
 import click
 import numpy as np
 
+from segloc_cli.commands.configfile import config_option
+from segloc_cli.commands.invocation import Invocation
 from segloc_cli.commands.logs import check_increasing_times
 from segloc_cli.commands.options import (
     FiniteRange,
-    Invocation,
-    config_option,
     force_option,
-    info,
-    parse_planar_pose,
     path_option,
     sensor_options,
     with_options,
 )
+from segloc_cli.commands.optionvalues import parse_planar_pose
+from segloc_cli.commands.printing import info
 from segloc_cli.errors import EXIT_INTERRUPTED
 from segloc_cli.geometry import Pose2
 from segloc_cli.runfile import run_file_path

@@ -7,20 +7,18 @@ from pathlib import Path
 
 import click
 
+from segloc_cli.commands.configfile import config_option
+from segloc_cli.commands.invocation import Invocation
 from segloc_cli.commands.options import (
     FiniteRange,
-    Invocation,
     ModuleChoice,
-    config_option,
     force_option,
     format_option,
-    info,
-    load_log,
     path_option,
     setting_option,
-    warn,
     with_options,
 )
+from segloc_cli.commands.printing import info, load_log, warn
 from segloc_cli.errors import EXIT_GATE_FAILED
 
 EVALUATE_OPTIONS = (

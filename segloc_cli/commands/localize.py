@@ -7,19 +7,18 @@ from pathlib import Path
 
 import click
 
+from segloc_cli.commands.configfile import config_option
+from segloc_cli.commands.invocation import Invocation
 from segloc_cli.commands.localize_lines import expect, report, say_how
 from segloc_cli.commands.options import (
     GuessSource,
-    Invocation,
-    config_option,
     force_option,
-    load_log,
     path_option,
     setting_option,
     tuning_options,
     with_options,
-    within_cores,
 )
+from segloc_cli.commands.printing import load_log, within_cores
 from segloc_cli.config import GUESSES_KEYWORD, LOCALIZE_TUNING, MATCHER, REGION, STAGES, WINDOW
 
 LOCALIZE_OPTIONS = (

@@ -8,7 +8,7 @@ import sys
 
 import click
 
-from segloc_cli.commands.options import info, warn
+from segloc_cli.commands.printing import info, warn
 from segloc_cli.errors import EXIT_INTERRUPTED
 
 

@@ -7,20 +7,18 @@ from pathlib import Path
 
 import click
 
+from segloc_cli.commands.configfile import config_option
+from segloc_cli.commands.invocation import Invocation
 from segloc_cli.commands.options import (
     FiniteRange,
-    Invocation,
     ModuleChoice,
-    config_option,
     force_option,
-    info,
-    load_log,
-    parse_planar_pose,
     path_option,
     sensor_options,
-    warn,
     with_options,
 )
+from segloc_cli.commands.optionvalues import parse_planar_pose
+from segloc_cli.commands.printing import info, load_log, warn
 from segloc_cli.errors import InputError
 from segloc_cli.geometry import Pose2
 from segloc_cli.io.log import SIMULATED_GUESSES_KEY

@@ -8,18 +8,16 @@ from pathlib import Path
 
 import click
 
+from segloc_cli.commands.configfile import config_option
+from segloc_cli.commands.invocation import Invocation
 from segloc_cli.commands.options import (
-    Invocation,
-    config_option,
     force_option,
-    info,
-    load_log,
     path_option,
     setting_option,
     tuning_options,
-    warn,
     with_options,
 )
+from segloc_cli.commands.printing import info, load_log, warn
 from segloc_cli.config import EXTRACT, FUSE
 from segloc_cli.errors import InputError
 from segloc_cli.runfile import run_file_path

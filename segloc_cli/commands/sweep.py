@@ -8,16 +8,10 @@ from pathlib import Path
 
 import click
 
-from segloc_cli.commands.options import (
-    Invocation,
-    config_option,
-    force_option,
-    format_option,
-    info,
-    path_option,
-    warn,
-    within_cores,
-)
+from segloc_cli.commands.configfile import config_option
+from segloc_cli.commands.invocation import Invocation
+from segloc_cli.commands.options import force_option, format_option, path_option
+from segloc_cli.commands.printing import info, warn, within_cores
 from segloc_cli.errors import EXIT_INTERRUPTED, EXIT_TASKS_FAILED, InputError
 
 
