@@ -265,6 +265,19 @@ class ResultStore:
         """Keys of the tasks held whose rows are not a failure."""
         return {k for k, rows in self._frames.items() if not _is_failure(rows)}
 
+    def todo(self, tasks: Sequence[Task]) -> list[Task]:
+        """The ``tasks`` not done yet, in order; an ``InputError`` when the store holds tasks
+        they do not include (another spec's results)."""
+        done = self.done()
+        foreign = done - {t.key for t in tasks}  # failures of other tasks hold nothing
+        if foreign:
+            raise InputError(
+                f"holds {len(foreign)} task(s) this spec does not plan (another spec's "
+                "results?); use another --out, or --force to replace it",
+                path=self.out,
+            )
+        return [t for t in tasks if t.key not in done]
+
     def add(self, key: str, rows: pd.DataFrame) -> None:
         """Keep a finished task's rows, on disk at once."""
         from segloc_cli.io.files import atomic_path
@@ -369,6 +382,15 @@ def connect(
     cluster = _local_cluster(workers, warn)
     with cluster, Client(cluster) as client:
         yield client
+
+
+def where(client: Any, scheduler: str | None) -> str:
+    """Where the tasks of ``client`` (``connect``) run, in words: the cluster at the
+    scheduler's address, or the local one and its workers."""
+    if scheduler:
+        return f"the cluster at {scheduler}"
+    n = len(client.scheduler_info().get("workers", {}))
+    return f"a local cluster of {n} worker{'s' if n > 1 else ''}"
 
 
 def _greet(address: str) -> None:
