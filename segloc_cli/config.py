@@ -11,6 +11,9 @@ option of the command line (``--grid-m``) and the key in a ``--config`` table
 (``grid-m = 1.5``); ``path`` says which field of ``Config`` it sets; ``help``
 is the option's help text, or None for a tuning setting, which the command
 line accepts but does not list (the README's settings table lists them all).
+``Setting.checked`` is the one check of a setting's value, whether it comes from the
+command line, a ``--config`` table, a run file or a sweep spec; ``run_config`` makes a
+localize run's ``Config`` and refuses settings that cannot go together.
 
 This module imports nothing heavier than numpy: the command line reads it at start-up.
 """

@@ -17,19 +17,18 @@ from typing import Any
 
 import click
 
-from segloc_cli.config import SETTINGS, Setting, number_within
+from segloc_cli.config import SETTINGS, Setting, SettingError, number_within
 
 
 class _Checked:
     """A click type whose values ``check`` checks (a ``Setting``'s ``checked``, or the bounds
     of a number), its ``SettingError`` the option's error; the click type it is mixed into
-    gives the help its metavar and range."""
+    gives the help its metavar and range. A setting's type holds the setting (``setting``),
+    by which ``--config`` checks the option's values as well."""
 
     check: Callable[[Any], Any]
 
     def convert(self, value, param, ctx):
-        from segloc_cli.config import SettingError
-
         try:
             return self.check(value)
         except SettingError as exc:
