@@ -12,12 +12,14 @@ import time
 import click
 
 from segloc_cli import __version__
-from segloc_cli.commands.devices import emulate, record
+from segloc_cli.commands.emulate import emulate
 from segloc_cli.commands.evaluate import evaluate
+from segloc_cli.commands.imports import import_group
 from segloc_cli.commands.info import info_command
 from segloc_cli.commands.localize import localize
-from segloc_cli.commands.logs import import_group, simulate
+from segloc_cli.commands.logs import simulate
 from segloc_cli.commands.maps import map_group
+from segloc_cli.commands.record import record
 from segloc_cli.commands.sweep import sweep
 from segloc_cli.errors import (
     EXIT_BAD_INPUT,

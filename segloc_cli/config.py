@@ -11,6 +11,9 @@ option of the command line (``--grid-m``) and the key in a ``--config`` table
 (``grid-m = 1.5``); ``path`` says which field of ``Config`` it sets; ``help``
 is the option's help text, or None for a tuning setting, which the command
 line accepts but does not list (the README's settings table lists them all).
+``Setting.checked`` is the one check of a setting's value, whether it comes from the
+command line, a ``--config`` table, a run file or a sweep spec; ``run_config`` makes a
+localize run's ``Config`` and refuses settings that cannot go together.
 
 This module imports nothing heavier than numpy: the command line reads it at start-up.
 """
@@ -21,10 +24,15 @@ import ast
 import functools
 import inspect
 import itertools
+import math
+from collections.abc import Callable
 from dataclasses import dataclass, field, fields, replace
 from typing import Any
 
 import numpy as np
+
+from segloc_cli.errors import SeglocError
+from segloc_cli.limits import MAX_COORDINATE_M
 
 TIME_TOLERANCE_MS = 50.0
 """Default largest time difference when pairing records of two files by time."""
@@ -46,6 +54,9 @@ METHODS = ("two-stage", "icp", "correlative")
 
 ICP_VARIANTS = ("gicp", "plane")
 """ICP flavours of ``--method icp``: generalized ICP or point-to-plane ICP."""
+
+GUESSES_KEYWORD = "odom"
+"""``--initial`` value that takes the guesses from the log itself rather than a file."""
 
 
 @dataclass(frozen=True)
@@ -289,6 +300,16 @@ class Config:
         return config
 
 
+class SettingError(SeglocError):
+    """A value a setting does not take, or settings that cannot go together, in the command
+    line's words. From ``Setting.checked`` (``key`` set), the reason alone: what click prints
+    after "Invalid value for '--KEY': "."""
+
+    def __init__(self, message: str, key: str | None = None):
+        super().__init__(message)
+        self.key = key
+
+
 @dataclass(frozen=True)
 class Setting:
     """One setting as the outside world names it.
@@ -299,7 +320,9 @@ class Setting:
     values of a text setting; ``help`` is the option's help text, None for a
     tuning setting that the help does not list. A ``switch`` is a flag that
     sets the field to None (``--no-refine``: no refinement); its ``path`` is
-    the field it empties.
+    the field it empties. A setting given as text of several parts (``--region
+    X0,Y0,X1,Y1``) has a ``parse`` that checks the text and makes the field's value of it,
+    when the configuration is made (``run_config``), as ``metavar`` shows it.
     """
 
     key: str
@@ -310,6 +333,8 @@ class Setting:
     choices: tuple[str, ...] | None = None
     help: str | None = None
     switch: bool = False
+    metavar: str | None = None
+    parse: Callable[[str], Any] | None = None
 
     @property
     def default(self) -> Any:
@@ -323,21 +348,80 @@ class Setting:
 
     @property
     def kind(self) -> type:
-        """The value's type: bool, int, float or str."""
+        """The value's type: bool, int, float or str (text to ``parse``)."""
         if self.switch:
             return bool
+        if self.parse is not None:
+            return str
         return {"float": float, "int": int, "str": str}[_field_kind(self.path)]
 
+    def checked(self, value: Any) -> Any:
+        """``value`` (text from the command line, or a value of a configuration file) as the
+        setting takes it: one of its ``choices``; a whole number within its bounds; a finite
+        number within them; a switch's bool; text to ``parse`` as it is (``parse`` checks
+        it). ``SettingError`` says why not, as click's own types say it."""
+        if self.switch:
+            return bool(value)
+        if self.choices is not None:
+            return one_of(value, self.choices, self.key)
+        if self.parse is not None:
+            return value
+        if self.kind is int:
+            high = None if self.high is None else int(self.high)
+            return number_within(value, int, int(self.low), high, key=self.key)
+        return number_within(value, float, self.low, self.high, self.low_open, self.key)
+
     def applied(self, config: Config, value: Any) -> Config:
-        """``config`` with this setting set to ``value`` (a switch: emptied when True)."""
+        """``config`` with this setting set to ``value`` (a switch: emptied when True; text
+        to parse: parsed, which may raise ``SettingError``)."""
         if self.switch:
             return _replaced(config, self.path, None) if value else config
-        return _replaced(config, self.path, self.kind(value))
+        made = self.kind(value) if self.parse is None else self.parse(value)
+        return _replaced(config, self.path, made)
 
     @property
     def doc(self) -> str:
         """The help text, or for a tuning setting the docstring of its field."""
         return self.help or field_doc(_owner_class(self.path), self.path[-1])
+
+
+def number_within(
+    value: Any,
+    kind: type,
+    low: float | None,
+    high: float | None = None,
+    low_open: bool = False,
+    key: str | None = None,
+) -> float:
+    """``value`` as a number of ``kind`` (int, or float: then also finite) from ``low`` (above
+    it when ``low_open``) to ``high``, either None for no bound; ``SettingError`` in the words
+    of click's ``IntRange`` and ``FloatRange`` (the bounds shown as given)."""
+    try:
+        number = kind(value)
+    except ValueError:
+        name = "integer range" if kind is int else "float range"
+        raise SettingError(f"{value!r} is not a valid {name}.", key) from None
+    below = low is not None and (number <= low if low_open else number < low)
+    if below or (high is not None and number > high):
+        if low is None:
+            bounds = f"x<={high}"
+        elif high is None:
+            bounds = f"x{'>' if low_open else '>='}{low}"
+        else:
+            bounds = f"{low}{'<' if low_open else '<='}x<={high}"
+        raise SettingError(f"{number} is not in the range {bounds}.", key)
+    if kind is float and not math.isfinite(number):
+        raise SettingError(f"{value!r} is not a finite number.", key)
+    return number
+
+
+def one_of(value: Any, choices: tuple[str, ...], key: str | None = None) -> str:
+    """The choice that ``value`` names (as text); ``SettingError`` in ``click.Choice``'s words."""
+    if str(value) in choices:
+        return str(value)
+    listed = ", ".join(map(repr, choices))
+    some = f"one of {listed}" if len(choices) > 1 else listed
+    raise SettingError(f"{value!r} is not {some}.", key)
 
 
 def _owner_class(path: tuple[str, ...]) -> type:
@@ -547,6 +631,38 @@ WINDOW = Setting(
     "odometry (not --track, not the peers' methods); 0 localizes each scan alone.",
 )
 
+
+def _rectangle(text: str) -> tuple[float, float, float, float]:
+    """``X0,Y0,X1,Y1`` text → (x0, y0, x1, y1) metres, finite, within ±``MAX_COORDINATE_M``
+    and with x0 < x1, y0 < y1; else ``SettingError``."""
+    try:
+        corners = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        corners = ()
+    if not (
+        len(corners) == 4
+        and all(abs(c) <= MAX_COORDINATE_M for c in corners)
+        and corners[0] < corners[2]
+        and corners[1] < corners[3]
+    ):
+        raise SettingError(
+            f"{text!r}; use X0,Y0,X1,Y1 in metres with X0 < X1 and Y0 < Y1, finite and "
+            f"within ±{MAX_COORDINATE_M:g} m (e.g. 0,0,40,25)",
+            "region",
+        )
+    return corners
+
+
+REGION = Setting(
+    "region",
+    ("localize", "search", "region"),
+    help="With --global: search only this rectangle (metres, world frame) instead of "
+    "wherever the scan could reach the map.",
+    metavar="X0,Y0,X1,Y1",
+    parse=_rectangle,
+)
+"""The global search's rectangle; it goes with ``--global`` (``run_config``)."""
+
 TOLERANCE = Setting(
     "tolerance-ms",
     ("tolerance_ms",),
@@ -585,15 +701,66 @@ LOCALIZE_TUNING = (
 )
 """Localization's tuning settings: config-file keys (and unlisted options)."""
 
+LOCALIZE_SETTINGS = (*STAGES, *MATCHER, WINDOW, REGION, TOLERANCE, *LOCALIZE_TUNING)
+"""The settings ``segloc localize`` takes."""
+
 SETTINGS: dict[str, Setting] = {
     s.key: s
-    for s in (*STAGES, WINDOW, *MATCHER, TOLERANCE, *EXTRACT, POLISH, *FUSE, *LOCALIZE_TUNING)
+    for s in (
+        *STAGES,
+        WINDOW,
+        REGION,
+        *MATCHER,
+        TOLERANCE,
+        *EXTRACT,
+        POLISH,
+        *FUSE,
+        *LOCALIZE_TUNING,
+    )
 }
 """Every setting by key."""
 
 
+def run_config(values: dict[str, Any], global_search: bool, track: bool) -> Config:
+    """The configuration of a localize run from its settings by key (as ``Config.from_values``
+    takes them), refusing as ``SettingError`` a ``--region`` without ``--global``, a region
+    that is no rectangle, and settings that cannot go together."""
+    if values.get(REGION.key) is not None and not global_search:
+        raise SettingError("--region goes with --global")
+    try:
+        config = Config.from_values(values)
+    except SettingError as exc:  # text parsed as the configuration is made (--region)
+        raise SettingError(f"Invalid value for --{exc.key}: {exc}") from None
+    _check_together(config, global_search, track)
+    return config
+
+
+def _check_together(config: Config, global_search: bool, track: bool) -> None:
+    """Refuse settings that cannot go together (``--track``, ``--global``: the modes)."""
+    bin_deg = config.localize.bin_deg
+    if not np.isclose(180.0 / bin_deg, round(180.0 / bin_deg)):
+        raise SettingError(f"Invalid value for --bin-deg: {bin_deg:g} does not divide 180")
+    if config.method != "two-stage" and (global_search or track):
+        other = "--global" if global_search else "--track"
+        raise SettingError(
+            f"--method {config.method} cannot be combined with {other}: it matches each scan "
+            "from its own initial guess"
+        )
+    if track and config.jobs > 1:
+        raise SettingError(
+            "--jobs cannot be combined with --track: each tracked scan starts from the "
+            "previous one's estimate"
+        )
+    if global_search and (track or config.localize.refine is None):
+        other = "--track" if track else "--no-refine"
+        raise SettingError(
+            f"--global cannot be combined with {other}: it searches every scan afresh and "
+            "ranks its candidates by refining them"
+        )
+
+
 def _shown(value: Any) -> str:
-    return "off" if value is False else str(value)
+    return "off" if value is False else "none" if value is None else str(value)
 
 
 def settings_table() -> str:
@@ -604,7 +771,8 @@ def settings_table() -> str:
          "`evaluate`)", (*MATCHER, WINDOW, TOLERANCE)),
         ("Extraction (`localize`, `map build`)", EXTRACT),
         ("Fusion (`map build`)", (POLISH, *FUSE)),
-        ("Checks, search, refinement, verdict and tracking (`localize`)", LOCALIZE_TUNING),
+        ("Checks, search, refinement, verdict and tracking (`localize`)",
+         (REGION, *LOCALIZE_TUNING)),
     ]  # fmt: skip
     lines = ["| key | default | meaning |", "|---|---|---|"]
     for title, settings in sections:

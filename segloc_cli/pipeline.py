@@ -7,14 +7,16 @@ options. Bad input raises ``InputError`` naming the file.
 - ``paired_guesses``: which scans of a log have an initial guess, and which.
 - ``localizer_for``: the matcher a configuration asks for, on a map.
 - ``localize_log``: the rows of one log, batch, global or tracked.
+- ``localize_guessed``: the rows of chosen scans of a log, from their guesses or global.
 - ``build_map``: a segment map from surveyed scans.
+- ``read_plan``, ``write_plan``: a segment map from a building plan or grid, or as one.
 - ``simulate_log``: a simulated log of a world at given poses.
 """
 
 from __future__ import annotations
 
 import itertools
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -153,26 +155,41 @@ def localize_log(
         guesses = paired_guesses(log, log_path, initial, config.tolerance_ms)
     if mode == "track":
         index, rows = _track(log, log_path, localizer, guesses, config)
-    else:
-        from segloc_cli.parallel import localize_scans_parallel
+        return LogRun(log_path, rows, log.scan_times_s[index], len(log.scans) - index.size)
+    return localize_guessed(log, log_path, localizer, guesses, config, stop, mode == "guided")
 
-        index = guesses.index
-        poses = None if mode == "global" else guesses.poses
-        scans = [log.scans[i] for i in index]
-        windows = scan_windows(log, log_path, index, localizer, config)
-        rows = localize_scans_parallel(
-            scans,
-            poses,
-            guesses.pose_ids,
-            localizer,
-            config.jobs,
-            config.extract,
-            stop=stop,
-            windows=windows,
-        )
-        note = window_note(log, localizer, config, windows)
-        return LogRun(log_path, rows, log.scan_times_s[index], len(log.scans) - index.size, note)
-    return LogRun(log_path, rows, log.scan_times_s[index], len(log.scans) - index.size)
+
+def localize_guessed(
+    log: Log,
+    log_path: Path,
+    localizer,
+    guesses: Guesses,
+    config: Config,
+    stop: Callable[[], bool] = lambda: False,
+    guided: bool = True,
+) -> LogRun:
+    """Plan the localization of the scans ``guesses.index`` of ``log``, each from its guess
+    (world frame) when ``guided``, else by a global search, its row under its pose id, with
+    its window where the log has odometry (``scan_windows``), on ``config.jobs`` processes
+    (``stop`` is asked between blocks of scans); the rows are made as ``LogRun.rows`` is
+    read."""
+    from segloc_cli.parallel import localize_scans_parallel
+
+    index = guesses.index
+    scans = [log.scans[i] for i in index]
+    windows = scan_windows(log, log_path, index, localizer, config)
+    rows = localize_scans_parallel(
+        scans,
+        guesses.poses if guided else None,
+        guesses.pose_ids,
+        localizer,
+        config.jobs,
+        config.extract,
+        stop=stop,
+        windows=windows,
+    )
+    note = window_note(log, localizer, config, windows)
+    return LogRun(log_path, rows, log.scan_times_s[index], len(log.scans) - index.size, note)
 
 
 def scan_odometry(log: Log, log_path: Path, tolerance_s: float) -> np.ndarray:
@@ -378,6 +395,57 @@ def build_map(
     if segments.shape[0] == 0:
         raise InputError("no segments could be extracted from the surveyed scans", path=log_path)
     return BuiltMap(segments, used, poses, local_maps)
+
+
+def read_plan(
+    plan_path: Path,
+    kind: str,
+    layers: Sequence[str] = (),
+    units: str | None = None,
+    scale_m: float | None = None,
+    origin: tuple[float, float] = (0.0, 0.0),
+):
+    """The segments of a building plan or grid (an ``io/plans.Plan``) of ``kind`` "dxf" (of
+    ``layers``, all when empty; in ``units`` where the drawing says none), "svg" (``scale_m``
+    metres per unit, its origin at ``origin``, metres) or "nav2"."""
+    if kind == "dxf":
+        from segloc_cli.io.plans import read_dxf
+
+        return read_dxf(plan_path, layers, units)
+    if kind == "svg":
+        from segloc_cli.io.svg import read_svg
+
+        return read_svg(plan_path, scale_m, origin)
+    from segloc_cli.io.grids import read_nav2
+
+    return read_nav2(plan_path)
+
+
+def write_plan(
+    out_path: Path, segments_world: np.ndarray, kind: str, resolution_m: float | None = None
+) -> str:
+    """Write a segment map (M, 4; world frame) as a plan of ``kind`` "nav2" (a grid of cells of
+    ``resolution_m``, its default when None, with its image beside), "svg" or "dxf"; returns
+    what was written, in words ("segments as lines, in metres")."""
+    if kind == "nav2":
+        from segloc_cli.io.grids import DEFAULT_RESOLUTION_M, write_nav2
+
+        res = DEFAULT_RESOLUTION_M if resolution_m is None else resolution_m
+        grid = write_nav2(out_path, segments_world, res)
+        columns, rows = grid.shape
+        return (
+            f"segments drawn in {grid.occupied_cells} occupied cells of a {columns} × {rows} "
+            f"grid of {res:g} m ({grid.image})"
+        )
+    if kind == "svg":
+        from segloc_cli.io.svg import write_svg
+
+        write_svg(out_path, segments_world)
+        return "segments as lines, 1 unit = 1 mm"
+    from segloc_cli.io.plans import write_dxf
+
+    write_dxf(out_path, segments_world)
+    return "segments as lines, in metres"
 
 
 def simulate_log(

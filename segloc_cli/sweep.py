@@ -126,14 +126,11 @@ def run_task(task: Task) -> pd.DataFrame:
     from segloc_cli import pipeline
     from segloc_cli.config import Config
     from segloc_cli.evaluate import final_errors
-    from segloc_cli.geometry import Pose2
-    from segloc_cli.localize import localize_scans
     from segloc_cli.parallel import warm_localizer
 
     log = _log_of(task.log_path)
     config = Config.from_values(dict(task.settings))
-    scan, guess_poses, missing = _survey_pairing(task, log, config.tolerance_ms / 1e3)
-    rows = np.flatnonzero(scan >= 0)
+    rows, guesses, missing = _survey_pairing(task, log, config.tolerance_ms / 1e3)
     if rows.size == 0:
         raise InputError(
             f"no survey row has a scan within {config.tolerance_ms:g} ms"
@@ -142,13 +139,13 @@ def run_task(task: Task) -> pd.DataFrame:
         )
     mode = "global" if task.is_global else "guided"
     localizer = pipeline.localizer_for(task.segments_world, config, mode)
-    scans = [log.scans[i] for i in scan[rows]]
-    guesses = None if guess_poses is None else [Pose2(*guess_poses[r]) for r in rows]
-    pose_ids = task.survey.pose_id[rows]
-    windows = pipeline.scan_windows(log, task.log_path, scan[rows], localizer, config)
-    warm_localizer(localizer, scans, guesses, config.extract)
-    made = localize_scans(scans, guesses, pose_ids, localizer, config.extract, windows)
-    estimates = pd.DataFrame([{k: v for k, v in row.items() if k != "hypotheses"} for row in made])
+    scans = [log.scans[i] for i in guesses.index]
+    warm_localizer(localizer, scans, None if task.is_global else guesses.poses, config.extract)
+    guided = not task.is_global
+    made = pipeline.localize_guessed(log, task.log_path, localizer, guesses, config, guided=guided)
+    estimates = pd.DataFrame(
+        [{k: v for k, v in row.items() if k != "hypotheses"} for row in made.rows]
+    )
     final = (estimates[c].to_numpy(float) for c in ("x_m", "y_m", "theta_deg"))
     frame = estimates.assign(**final_errors(task.survey.poses[rows], *final), error=None)
     absent = np.flatnonzero(pd.notna(missing))
@@ -162,10 +159,13 @@ def run_task(task: Task) -> pd.DataFrame:
 
 
 def _survey_pairing(task: Task, log, tolerance_s: float):
-    """For each survey row: the index of its scan in ``log`` (−1: none, or no guess), the
-    guesses (rows of poses, world frame; None for a global search) and the status of a row
-    that lies within the log's time span but lacks a scan or a guess (None elsewhere)."""
+    """(survey rows to localize, ``pipeline.Guesses`` of their scans, misses): the rows whose
+    time has a scan of ``log`` (its nearest, within ``tolerance_s``) and a guess (world
+    frame; none for a global search), those scans' indices, guesses and the rows' pose ids;
+    and for each survey row the status of a row that lies within the log's time span but
+    lacks a scan or a guess (None elsewhere)."""
     from segloc_cli import pipeline
+    from segloc_cli.geometry import Pose2
     from segloc_cli.timing import pair_by_time
 
     survey_s = task.survey.time_s
@@ -177,21 +177,32 @@ def _survey_pairing(task: Task, log, tolerance_s: float):
     spanned = (survey_s >= times.min() - tolerance_s) & (survey_s <= times.max() + tolerance_s)
     missing = np.full(survey_s.size, None, dtype=object)
     missing[(scan < 0) & spanned] = STATUS_NO_SCAN
-    if task.is_global:
-        return scan, None, missing
+    guess_poses = None
+    if not task.is_global:
+        guess_of_row, guess_poses = _guesses_of_rows(task, log, scan, tolerance_s)
+        unguessed = (scan >= 0) & (guess_of_row < 0)
+        missing[unguessed] = STATUS_NO_GUESS
+        scan[unguessed] = -1
+    rows = np.flatnonzero(scan >= 0)
+    poses = [] if guess_poses is None else [Pose2(*guess_poses[r]) for r in rows]
+    return rows, pipeline.Guesses(scan[rows], poses, task.survey.pose_id[rows]), missing
+
+
+def _guesses_of_rows(task: Task, log, scan: np.ndarray, tolerance_s: float):
+    """For each survey row, the row of its guess (−1: none) and that guess (x m, y m, θ rad;
+    world frame): the log's /odom at the row's scan, or the task's guess nearest the row's
+    time."""
+    from segloc_cli import pipeline
+    from segloc_cli.timing import pair_by_time
+
     if task.guesses is None:
         odom = pipeline.odometry_rows(log, task.log_path, tolerance_s, MISSING_ODOMETRY)
         guess_of_row = np.where(scan >= 0, odom[scan], -1)
-        guess_poses = log.odom_poses[guess_of_row]
-    else:
-        guess_of_row = pair_by_time(survey_s, task.guesses.time_s, tolerance_s,
-                                    query_path=task.survey_path, ref_path="the guesses",
-                                    query_label="row", ref_label="guess")  # fmt: skip
-        guess_poses = task.guesses.poses[guess_of_row]
-    unguessed = (scan >= 0) & (guess_of_row < 0)
-    missing[unguessed] = STATUS_NO_GUESS
-    scan[unguessed] = -1
-    return scan, guess_poses, missing
+        return guess_of_row, log.odom_poses[guess_of_row]
+    guess_of_row = pair_by_time(task.survey.time_s, task.guesses.time_s, tolerance_s,
+                                query_path=task.survey_path, ref_path="the guesses",
+                                query_label="row", ref_label="guess")  # fmt: skip
+    return guess_of_row, task.guesses.poses[guess_of_row]
 
 
 def _framed(task: Task, scans: pd.DataFrame) -> pd.DataFrame:
@@ -254,6 +265,19 @@ class ResultStore:
     def done(self) -> set[str]:
         """Keys of the tasks held whose rows are not a failure."""
         return {k for k, rows in self._frames.items() if not _is_failure(rows)}
+
+    def todo(self, tasks: Sequence[Task]) -> list[Task]:
+        """The ``tasks`` not done yet, in order; an ``InputError`` when the store holds tasks
+        they do not include (another spec's results)."""
+        done = self.done()
+        foreign = done - {t.key for t in tasks}  # failures of other tasks hold nothing
+        if foreign:
+            raise InputError(
+                f"holds {len(foreign)} task(s) this spec does not plan (another spec's "
+                "results?); use another --out, or --force to replace it",
+                path=self.out,
+            )
+        return [t for t in tasks if t.key not in done]
 
     def add(self, key: str, rows: pd.DataFrame) -> None:
         """Keep a finished task's rows, on disk at once."""
@@ -359,6 +383,15 @@ def connect(
     cluster = _local_cluster(workers, warn)
     with cluster, Client(cluster) as client:
         yield client
+
+
+def where(client: Any, scheduler: str | None) -> str:
+    """Where the tasks of ``client`` (``connect``) run, in words: the cluster at the
+    scheduler's address, or the local one and its workers."""
+    if scheduler:
+        return f"the cluster at {scheduler}"
+    n = len(client.scheduler_info().get("workers", {}))
+    return f"a local cluster of {n} worker{'s' if n > 1 else ''}"
 
 
 def _greet(address: str) -> None:

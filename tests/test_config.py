@@ -17,10 +17,11 @@ from test_cli import assert_one_line_error, run_cli
 
 from segloc_cli import __version__
 from segloc_cli.cli import cli
-from segloc_cli.commands.options import option_key
+from segloc_cli.commands.configfile import option_key
 from segloc_cli.config import (
     EXTRACT,
     FUSE,
+    LOCALIZE_SETTINGS,
     LOCALIZE_TUNING,
     SETTINGS,
     TABLE_BEGIN,
@@ -69,13 +70,13 @@ def test_localize_and_map_build_take_every_setting():
     localize_keys = {option_key(p) for p in commands[("localize",)].params}
     build_keys = {option_key(p) for p in commands[("map", "build")].params}
     assert {s.key for s in LOCALIZE_TUNING} <= localize_keys
+    assert {s.key for s in LOCALIZE_SETTINGS} == localize_keys & set(SETTINGS)
     assert {s.key for s in (*EXTRACT, *FUSE)} <= build_keys
     assert set(SETTINGS) <= localize_keys | build_keys
 
 
 def test_every_field_of_every_stage_is_a_setting():
-    """Each field of the parameter classes can be set, except the per-scan prior spreads and
-    the global search's region (``--region``)."""
+    """Each field of the parameter classes can be set, except the per-scan prior spreads."""
     paths = {s.path for s in SETTINGS.values()}
     for owner, cls in [
         (("extract",), ExtractParams),
@@ -87,8 +88,7 @@ def test_every_field_of_every_stage_is_a_setting():
         for f in fields(cls):
             nested = f.name in ("refine", "search", "confidence")
             per_scan = f.name.startswith("prior_sigma")
-            by_option = f.name == "region"  # --region, a rectangle
-            if not (nested or per_scan or by_option):
+            if not (nested or per_scan):
                 assert (*owner, f.name) in paths, f"{cls.__name__}.{f.name} has no setting"
 
 
@@ -312,3 +312,37 @@ def test_simulate_run_file_repeats_the_log(hall, capsys):
     for one, other in zip(logs[0].scans, logs[1].scans, strict=True):
         assert one.ranges_m.tobytes() == other.ranges_m.tobytes()
     assert logs[0].odom_poses.tobytes() == logs[1].odom_poses.tobytes()
+
+
+def test_region_is_a_setting_of_global_runs(hall, capsys):
+    """``--region`` from a configuration file or a run file limits a global search as on the
+    command line, and goes with ``--global`` there too."""
+    (hall / "region.toml").write_text(
+        '[localize]\nmap = "map.json"\nglobal = true\nregion = "0,0,20,14"\n', encoding="utf-8"
+    )
+    args = ["localize", "log.mcap", "--config", "region.toml", "--out", "a.csv"]
+    assert run_cli(capsys, *args).code == 0
+    table = tomllib.loads((hall / "a.run.toml").read_text(encoding="utf-8"))["localize"]
+    assert table["region"] == "0,0,20,14"
+    again = ["localize", "log.mcap", "--config", "a.run.toml", "--out", "b.csv"]
+    assert run_cli(capsys, *again).code == 0
+    assert _rows(hall / "a.csv") == _rows(hall / "b.csv")
+    (hall / "guided.toml").write_text('[localize]\nregion = "0,0,20,14"\n', encoding="utf-8")
+    guided = ["localize", "log.mcap", "--map", "map.json", "--config", "guided.toml"]
+    assert_one_line_error(run_cli(capsys, *guided, "--out", "c.csv"), "--region goes with --global")
+
+
+def test_run_config_sets_the_region_and_refuses_what_cannot_go_together():
+    from segloc_cli.config import SettingError, run_config
+
+    config = run_config({"region": "0,0,20,14"}, global_search=True, track=False)
+    assert config.localize.search.region == (0.0, 0.0, 20.0, 14.0)
+    for values, global_search, track, said in [
+        ({"region": "0,0,20,14"}, False, False, "--region goes with --global"),
+        ({"region": "5,0,1,4"}, True, False, "Invalid value for --region: '5,0,1,4'; use X0,Y0"),
+        ({"bin-deg": 7.0}, False, False, "Invalid value for --bin-deg: 7 does not divide 180"),
+        ({"jobs": 2}, False, True, "--jobs cannot be combined with --track"),
+        ({"no-refine": True}, True, False, "--global cannot be combined with --no-refine"),
+    ]:
+        with pytest.raises(SettingError, match="^" + re.escape(said)):
+            run_config(values, global_search, track)

@@ -226,7 +226,7 @@ def test_scans_of_the_office_localize_on_its_imported_plan(tmp_path, capsys):
 
 
 def test_the_units_option_offers_the_units_the_reader_knows():
-    from segloc_cli.commands.maps import map_import
+    from segloc_cli.commands.plans import map_import
     from segloc_cli.io.plans import UNITS_M
 
     (units,) = [p for p in map_import.params if p.name == "units"]

@@ -18,10 +18,10 @@ import pytest
 from conftest import HALL, SEGLOC
 from test_cli import assert_one_line_error, run_cli
 
-from segloc_cli.commands.sweepspec import read_spec
 from segloc_cli.estimates import STATUS_TASK_FAILED
 from segloc_cli.io.tables import read_pose_table
 from segloc_cli.sweep import ResultStore, Task, connect, run_task, run_tasks, summary
+from segloc_cli.sweepspec import read_spec
 
 SPEC = """\
 map = "hall/map.json"

@@ -2,36 +2,24 @@
 
 from __future__ import annotations
 
-import sys
-import time
-from collections import Counter
-from contextlib import ExitStack
 from dataclasses import replace
 from pathlib import Path
 
 import click
 
+from segloc_cli.commands.configfile import config_option
+from segloc_cli.commands.invocation import Invocation
+from segloc_cli.commands.localize_lines import expect, report, say_how
 from segloc_cli.commands.options import (
-    GUESSES_KEYWORD,
     GuessSource,
-    Invocation,
-    config_option,
     force_option,
-    info,
-    load_log,
     path_option,
     setting_option,
     tuning_options,
-    warn,
     with_options,
-    within_cores,
 )
-from segloc_cli.config import LOCALIZE_TUNING, MATCHER, STAGES, WINDOW
-from segloc_cli.errors import EXIT_INTERRUPTED
-from segloc_cli.runfile import beside, run_file_path
-
-PROGRESS_LABELS = {"guided": "localizing", "global": "global search", "track": "tracking"}
-"""What the progress display says a run of each mode is doing."""
+from segloc_cli.commands.printing import load_log, within_cores
+from segloc_cli.config import GUESSES_KEYWORD, LOCALIZE_TUNING, MATCHER, REGION, STAGES, WINDOW
 
 LOCALIZE_OPTIONS = (
     path_option(
@@ -75,13 +63,7 @@ LOCALIZE_OPTIONS = (
         "and its runner-up. Every scan is localized, or only those listed by --initial FILE "
         "(whose poses are then not used).",
     ),
-    click.option(
-        "--region",
-        metavar="X0,Y0,X1,Y1",
-        default=None,
-        help="With --global: search only this rectangle (metres, world frame) instead of "
-        "wherever the scan could reach the map.",
-    ),
+    setting_option(REGION.key),
     click.option(
         "--track",
         is_flag=True,
@@ -114,7 +96,6 @@ def localize(
     initial,
     global_search,
     track,
-    region,
     **_,
 ):
     """Localize every scan of one or more logs against a map.
@@ -156,235 +137,47 @@ def localize(
     from segloc_cli import pipeline
     from segloc_cli.io.files import check_outputs
     from segloc_cli.io.maps import read_map
+    from segloc_cli.progress import Progress
+    from segloc_cli.rowstream import RowOutputs, write_rows
 
     run = Invocation.current()
-    config = _with_region(run.config, _parse_region(region, global_search))
-    check_modes(config, global_search, track)
-    config = replace(config, jobs=within_cores(config.jobs, "localizing on {cores} processes"))
-    mode = "global" if global_search else "track" if track else "guided"
+    config, mode = _config(run, global_search, track)
     guess_file = None if initial == GUESSES_KEYWORD else Path(initial)
-    listed = None if hypotheses is None else (beside(out_path, ".hypotheses.csv"), hypotheses)
-    outputs = {"--out": out_path, "--tum": tum_path, "--mcap": mcap_path}
-    outputs["--hypotheses"] = None if listed is None else listed[0]
-    outputs["--out (run file)"] = run_file_path(out_path)
-    check_outputs(outputs, [*log_paths, map_path, guess_file], run.force)
+    written = RowOutputs.beside(out_path, tum_path, hypotheses, mcap_path)
+    check_outputs(written.by_option(), [*log_paths, map_path, guess_file], run.force)
     segments_world = read_map(map_path)
     if mode == "global":
         pipeline.check_global_extent(segments_world, map_path, config.localize.search.region)
     localizer = pipeline.localizer_for(segments_world, config, mode)
     stops: list[str] = []  # signals asking the run to stop, noted while it runs
-
-    def stop() -> bool:
-        return bool(stops)
-
     logs = [load_log(p) for p in log_paths]
     runs = [
-        pipeline.localize_log(log, p, localizer, mode, guess_file, config, stop)
+        pipeline.localize_log(log, p, localizer, mode, guess_file, config, lambda: bool(stops))
         for log, p in zip(logs, log_paths, strict=True)
     ]
-    for message in pipeline.overlapping_logs(runs):
-        warn(message)
-    for log_run in runs:
-        if log_run.local_maps:
-            info(f"{log_run.path}: {log_run.local_maps}")
-    with ExitStack() as stack:
-        rows = (row for run in runs for row in run.rows)
-        if mcap_path is not None:
-            view = stack.enter_context(
-                _run_view(mcap_path, segments_world, log_paths, map_path, mode)
-            )
-            rows = _shown(view, runs, logs, config)
-        summary = _write_rows(rows, runs, out_path, tum_path, listed, stops, mode)
+    say_how(runs)
+    view = _view(segments_world, logs, mode, config) if mcap_path else None
+    summary = write_rows(runs, written, stops, mode, Progress, expect, view)
     run.write_run_file(out_path)
-    _report(summary, out_path, stops, skipped=sum(r.skipped for r in runs))
-    if listed is not None:
-        info(f"{listed[0]}: up to {listed[1]} distinct poses per scan, best first")
+    report(summary, written)
 
 
-def check_modes(config, global_search: bool, track: bool) -> None:
-    """Refuse settings that cannot go together, before any file is read."""
-    import numpy as np
+def _config(run: Invocation, global_search: bool, track: bool):
+    """(the run's ``Config``, its mode): its settings checked together (``run_config``), and
+    ``--jobs`` no more than the cores there are."""
+    from segloc_cli.config import run_config
 
-    bin_deg = config.localize.bin_deg
-    if not np.isclose(180.0 / bin_deg, round(180.0 / bin_deg)):
-        raise click.BadParameter(f"{bin_deg:g} does not divide 180", param_hint="--bin-deg")
-    if config.method != "two-stage" and (global_search or track):
-        other = "--global" if global_search else "--track"
-        raise click.UsageError(
-            f"--method {config.method} cannot be combined with {other}: it matches each scan "
-            "from its own initial guess"
-        )
-    if track and config.jobs > 1:
-        raise click.UsageError(
-            "--jobs cannot be combined with --track: each tracked scan starts from the "
-            "previous one's estimate"
-        )
-    if global_search and (track or config.localize.refine is None):
-        other = "--track" if track else "--no-refine"
-        raise click.UsageError(
-            f"--global cannot be combined with {other}: it searches every scan afresh and "
-            "ranks its candidates by refining them"
-        )
+    config = run_config(run.options, global_search, track)
+    config = replace(config, jobs=within_cores(config.jobs, "localizing on {cores} processes"))
+    return config, "global" if global_search else "track" if track else "guided"
 
 
-def _run_view(mcap_path: Path, segments_world, log_paths, map_path: Path, mode: str):
-    """The run view's writer, for a run of the logs on the map."""
-    from segloc_cli.io.runview import RunViewWriter
+def _view(segments_world, logs, mode: str, config):
+    """What the run view shows: the map (M, 4; world frame) and ``logs`` (the command's logs,
+    localized in ``mode``)."""
+    from segloc_cli.rowstream import RunView
 
-    metadata = {"command": "localize", "mode": mode, "map": str(map_path)}
-    metadata["logs"] = ", ".join(str(log_path) for log_path in log_paths)
-    return RunViewWriter(mcap_path, segments_world, metadata)
-
-
-def _shown(view, runs, logs, config):
-    """The rows of ``runs``, each also added to the run view with its scan."""
-    from segloc_cli.extract import extract_segments
-
-    for run, log in zip(runs, logs, strict=True):
-        scans = {scan.time_s: scan for scan in log.scans}
-        for row in run.rows:
-            scan = scans[row["time_s"]]
-            view.add(
-                scan,
-                extract_segments(scan, config.extract),
-                _row_pose(row, ""),
-                guess=_row_pose(row, "init_"),
-                runner_up=_row_pose(row, "runner_up_"),
-                hypotheses=tuple(_row_pose(h, "") for h in row.get("hypotheses", [])[1:]),
-                status=row["status"],
-                level=_level(row["status"]),
-                text=_row_text(run.path, row),
-            )
-            yield row
-
-
-def _row_pose(row, prefix: str):
-    """The pose of a row's ``{prefix}x_m``, ``y_m``, ``theta_deg`` columns: NaN where the row
-    has none, which the run view leaves out."""
-    from segloc_cli.geometry import Pose2
-
-    return Pose2.from_deg(row[f"{prefix}x_m"], row[f"{prefix}y_m"], row[f"{prefix}theta_deg"])
-
-
-def _level(status: str) -> str:
-    """The run view's log level of a status: info when the estimate is accepted, warning when
-    a distinct pose fits nearly as well, error otherwise."""
-    from segloc_cli.estimates import ESTIMATED, STATUS_AMBIGUOUS
-
-    return "info" if status in ESTIMATED else "warning" if status == STATUS_AMBIGUOUS else "error"
-
-
-def _row_text(log_path: Path, row) -> str:
-    """One line on a row for the run view's log."""
-    import math
-
-    runner_up = (
-        f"a distinct pose fits {row['runner_up_ratio']:.0%}"
-        if math.isfinite(row["runner_up_x_m"])
-        else "no distinct pose fits as well"
-    )
-    return (
-        f"{log_path.name} pose {row['pose_id']} at {row['time_s']:.3f} s: "
-        f"{row['inlier_ratio']:.0%} of the points on the map, overlap {row['overlap']:.2f} m, "
-        f"{row['n_local_segments']} local segments; {runner_up}; "
-        f"confidence {row['confidence']:.2f}"
-    )
-
-
-def _write_rows(rows, runs, out_path: Path, tum_path, listed, stops: list[str], mode: str):
-    """Write ``rows`` (those of ``runs``) to ``out_path`` (and ``tum_path``, and the first K
-    hypotheses of each to the path of ``listed`` = (path, K)) as they come,
-    with progress on long runs (and, for a global search, the first scan's time as the time
-    to expect per scan). Ctrl-C, SIGTERM and SIGHUP, noted in ``stops``, stop it between
-    scans with every finished row kept. Returns (n scans planned, statuses, runtimes (ms), s)."""
-    from segloc_cli.io.tables import EstimatesWriter, HypothesesWriter, TumWriter
-    from segloc_cli.progress import Progress
-    from segloc_cli.stopping import stop_requests
-
-    n_scans = sum(run.times_s.size for run in runs)
-    t0 = time.perf_counter()
-    statuses: list[str] = []
-    runtimes_ms: list[float] = []
-    with ExitStack() as stack:
-        stack.enter_context(stop_requests(stops))
-        writers = [stack.enter_context(EstimatesWriter(out_path))]
-        if tum_path is not None:
-            writers.append(stack.enter_context(TumWriter(tum_path)))
-        if listed is not None:
-            writers.append(stack.enter_context(HypothesesWriter(*listed)))
-        progress = stack.enter_context(Progress(PROGRESS_LABELS[mode], n_scans, "scan"))
-        try:
-            for row in rows:
-                progress.advance()
-                for writer in writers:
-                    writer.write_row(row)
-                statuses.append(row["status"])
-                runtimes_ms.append(row["runtime_ms"])
-                if mode == "global" and len(runtimes_ms) == 1:
-                    _expect(row["runtime_ms"], n_scans)
-                if stops:
-                    break
-        except KeyboardInterrupt:  # Ctrl-C that arrived outside the stop handler
-            stops.append("Ctrl-C")
-    return n_scans, statuses, runtimes_ms, time.perf_counter() - t0
-
-
-def _expect(first_ms: float, n_scans: int) -> None:
-    """Say how long a global run will take, from its first scan."""
-    each = first_ms / 1e3
-    total_min = each * n_scans / 60.0
-    info(f"global search: about {each:.1f} s per scan, {n_scans} scans (about {total_min:.1f} min)")
-
-
-def _parse_region(value: str | None, global_search: bool) -> tuple[float, ...] | None:
-    """``--region X0,Y0,X1,Y1`` → (x0, y0, x1, y1) metres, checked."""
-    from segloc_cli.limits import MAX_COORDINATE_M
-
-    if value is None:
-        return None
-    if not global_search:
-        raise click.UsageError("--region goes with --global")
-    try:
-        corners = tuple(float(v) for v in value.split(","))
-    except ValueError:
-        corners = ()
-    if not (
-        len(corners) == 4
-        and all(abs(c) <= MAX_COORDINATE_M for c in corners)
-        and corners[0] < corners[2]
-        and corners[1] < corners[3]
-    ):
-        raise click.BadParameter(
-            f"{value!r}; use X0,Y0,X1,Y1 in metres with X0 < X1 and Y0 < Y1, finite and "
-            f"within ±{MAX_COORDINATE_M:g} m (e.g. 0,0,40,25)",
-            param_hint="--region",
-        )
-    return corners
-
-
-def _with_region(config, region: tuple[float, ...] | None):
-    """``config`` with the global search limited to ``region`` (if any)."""
-    if region is None:
-        return config
-    search = replace(config.localize.search, region=region)
-    return replace(config, localize=replace(config.localize, search=search))
-
-
-def _report(summary, out_path: Path, stops: list[str], skipped: int) -> None:
-    """Print how the run went; exit 130 if it was interrupted."""
-    import numpy as np
-
-    n_scans, statuses, runtimes_ms, elapsed = summary
-    done = len(statuses)
-    if stops:
-        kept = f"their estimates are in {out_path}" if done else f"{out_path} holds the header only"
-        click.echo(
-            f"segloc: interrupted ({stops[0]}) after {done} of {n_scans} scans; {kept}", err=True
-        )
-        sys.exit(EXIT_INTERRUPTED)
-    counts = ", ".join(f"{n} {status}" for status, n in Counter(statuses).most_common())
-    info(
-        f"{out_path}: {done} scans localized ({counts}) in {elapsed:.2f} s, "
-        f"median {np.median(runtimes_ms):.1f} ms per scan"
-        + (f"; {skipped} scans skipped (no initial guess or odometry)" if skipped else "")
-    )
+    run = Invocation.current()
+    metadata = {"command": "localize", "mode": mode, "map": str(run.options["map"])}
+    metadata["logs"] = ", ".join(str(log_path) for _, log_path in run.arguments)
+    return RunView(segments_world, metadata, logs, config.extract)

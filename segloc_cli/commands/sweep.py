@@ -8,17 +8,11 @@ from pathlib import Path
 
 import click
 
-from segloc_cli.commands.options import (
-    Invocation,
-    config_option,
-    force_option,
-    format_option,
-    info,
-    path_option,
-    warn,
-    within_cores,
-)
-from segloc_cli.errors import EXIT_INTERRUPTED, EXIT_TASKS_FAILED, InputError
+from segloc_cli.commands.configfile import config_option
+from segloc_cli.commands.invocation import Invocation
+from segloc_cli.commands.options import force_option, format_option, path_option
+from segloc_cli.commands.printing import info, warn, within_cores
+from segloc_cli.errors import EXIT_INTERRUPTED, EXIT_TASKS_FAILED
 
 
 @click.command()
@@ -87,7 +81,7 @@ def sweep(spec_path, out_path, scheduler, jobs, fmt, force):
     percentile errors (a pose without an estimate counting as infinitely
     wrong), and the median time per scan.
     """
-    from segloc_cli.commands.sweepspec import read_spec
+    from segloc_cli.sweepspec import read_spec
 
     _check_extra()
     if (
@@ -151,19 +145,10 @@ def _run(plan, out_path: Path, scheduler: str | None, jobs: int, force: bool):
     """Run the plan's tasks not yet in ``out_path``; (the table written, stop signals)."""
     from segloc_cli.progress import Progress
     from segloc_cli.stopping import stop_requests
-    from segloc_cli.sweep import ResultStore, connect, run_tasks
+    from segloc_cli.sweep import ResultStore, connect, run_tasks, where
 
     store = ResultStore(out_path, fresh=force)
-    planned = {t.key for t in plan.tasks}
-    done = store.done()
-    foreign = done - planned  # failures of other tasks hold nothing, and are dropped
-    if foreign:
-        raise InputError(
-            f"holds {len(foreign)} task(s) this spec does not plan (another spec's results?); "
-            "use another --out, or --force to replace it",
-            path=out_path,
-        )
-    todo = [t for t in plan.tasks if t.key not in done]
+    todo = store.todo(plan.tasks)
     planned = f"segloc sweep: {len(plan.tasks)} tasks"
     if len(todo) < len(plan.tasks):
         planned += f", {len(plan.tasks) - len(todo)} done before"
@@ -173,19 +158,11 @@ def _run(plan, out_path: Path, scheduler: str | None, jobs: int, force: bool):
     else:
         workers = jobs if scheduler else _local_workers(jobs, len(todo))
         with connect(scheduler, workers, warn) as client, stop_requests(stops):
-            info(f"{planned}; running {len(todo)} on {_where(client, scheduler)}")
+            info(f"{planned}; running {len(todo)} on {where(client, scheduler)}")
             with Progress("sweeping", len(todo), "task") as progress:
                 run_tasks(client, todo, store, progress.advance, lambda: bool(stops))
     table = store.finish([t.key for t in plan.tasks])
     return table, stops
-
-
-def _where(client, scheduler: str | None) -> str:
-    """Where the tasks run: the cluster at the scheduler's address, or the local one."""
-    if scheduler:
-        return f"the cluster at {scheduler}"
-    n = len(client.scheduler_info().get("workers", {}))
-    return f"a local cluster of {n} worker{'s' if n > 1 else ''}"
 
 
 def _report(plan, table, out_path: Path, fmt: str, stops: list[str]) -> None:

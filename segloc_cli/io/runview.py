@@ -42,10 +42,11 @@ import json
 import math
 import time
 from collections import Counter
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
-from typing import IO
+from typing import IO, Any
 
 import numpy as np
 
@@ -216,6 +217,25 @@ class RunViewWriter:
                 self._writer.flush()  # the chunk of the scans since the last, to the OS
             self._flushed_at = time.monotonic()
 
+    def add_row(
+        self, scan: Scan, local_segments: np.ndarray, row: Mapping[str, Any], log_path: Path
+    ) -> None:
+        """One scan of a localize run with its estimates row (``estimates.EstimateRow``):
+        the answer, the guess, the runner-up and the row's other ``hypotheses`` (best
+        first, the answer among them) as poses in ``world``, the status at its level
+        (``status_level``) and a line on the row (``row_text``) naming the log's file."""
+        self.add(
+            scan,
+            local_segments,
+            row_pose(row, ""),
+            guess=row_pose(row, "init_"),
+            runner_up=row_pose(row, "runner_up_"),
+            hypotheses=tuple(row_pose(h, "") for h in row.get("hypotheses", [])[1:]),
+            status=row["status"],
+            level=status_level(row["status"]),
+            text=row_text(log_path, row),
+        )
+
     def close(self) -> None:
         """Finish the file (with the map even if no scan came): what was drawn, the summary.
         Closing again does nothing."""
@@ -257,6 +277,35 @@ class RunViewWriter:
         entity = _lines_entity(_timestamp(time_ns), "map", WORLD_FRAME, self._map, None)
         self._log("/map", _scene_update(entity), time_ns)
         self._map_written = True
+
+
+def row_pose(row: Mapping[str, Any], prefix: str) -> Pose2:
+    """The pose of a row's ``{prefix}x_m``, ``y_m``, ``theta_deg`` columns (metres, degrees,
+    world frame): NaN where the row has none, which the run view leaves out."""
+    return Pose2.from_deg(row[f"{prefix}x_m"], row[f"{prefix}y_m"], row[f"{prefix}theta_deg"])
+
+
+def status_level(status: str) -> str:
+    """The ``/status`` level of a row's status: info when the estimate is accepted, warning
+    when a distinct pose fits nearly as well, error otherwise."""
+    from segloc_cli.estimates import ESTIMATED, STATUS_AMBIGUOUS
+
+    return "info" if status in ESTIMATED else "warning" if status == STATUS_AMBIGUOUS else "error"
+
+
+def row_text(log_path: Path, row: Mapping[str, Any]) -> str:
+    """One line on a row for the run view's log."""
+    runner_up = (
+        f"a distinct pose fits {row['runner_up_ratio']:.0%}"
+        if math.isfinite(row["runner_up_x_m"])
+        else "no distinct pose fits as well"
+    )
+    return (
+        f"{log_path.name} pose {row['pose_id']} at {row['time_s']:.3f} s: "
+        f"{row['inlier_ratio']:.0%} of the points on the map, overlap {row['overlap']:.2f} m, "
+        f"{row['n_local_segments']} local segments; {runner_up}; "
+        f"confidence {row['confidence']:.2f}"
+    )
 
 
 @dataclass(frozen=True)

@@ -4,9 +4,9 @@ The spec names a map, the logs, a survey (the true poses each answer is scored a
 the initial guesses are made and the seeds; any localize setting is fixed at the top level
 (``iterations = 8``) or listed in ``[grid]`` (``iterations = [6, 8]``), whose every
 combination is run. Keys are ``segloc localize``'s long option names, as in a ``--config``
-table, and each value is checked as that option checks its own. Paths are relative to the
-spec's folder. A log may be a table, ``{path = "...", map = "...", survey = "..."}``, to
-give it a map and survey of its own.
+table, and each value is checked as that option checks its own (``tablevalues``, by
+``Setting.checked``). Paths are relative to the spec's folder. A log may be a table,
+``{path = "...", map = "...", survey = "..."}``, to give it a map and survey of its own.
 """
 
 from __future__ import annotations
@@ -19,12 +19,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import click
 import numpy as np
 
-from segloc_cli.commands.options import GUESSES_KEYWORD, config_value, options_by_key
+from segloc_cli.config import GUESSES_KEYWORD, LOCALIZE_SETTINGS, Setting
 from segloc_cli.errors import InputError
 from segloc_cli.sweep import Task, task_key
+from segloc_cli.tablevalues import Takes, setting_value, table_value
 
 SPEC_KEYS = {
     "map": "the segment map (MAP.json) of every log that names none",
@@ -41,8 +41,10 @@ SPEC_KEYS = {
 DEFAULT_GATES = {"fail-above-cm": 10.0, "fail-above-deg": 1.0}
 NOT_SWEPT = {"map", "out", "tum", "mcap", "hypotheses", "initial", "track", "jobs", "region"}
 """Localize options a spec does not take: its outputs, its inputs (given by the spec's own
-keys), tracking (whose scans follow one another, not one task's guesses) and the worker
-count (the sweep's --jobs)."""
+keys), tracking (whose scans follow one another, not one task's guesses), the worker
+count (the sweep's --jobs) and the global search's region."""
+SPEC_FLAGS = ("global",)
+"""Localize's flags a spec takes besides its settings: a global search, without guesses."""
 LOG_TABLE_KEYS = ("path", "map", "survey")
 MAX_TASKS = 10_000
 """Most tasks (logs × combinations × seeds) a spec may plan: planning, submitting and
@@ -63,26 +65,22 @@ class Plan:
 
 def read_spec(path: Path) -> Plan:
     """The plan of the spec ``path``; a bad key or value is an ``InputError`` naming it."""
-    from segloc_cli.commands.localize import localize
     from segloc_cli.runfile import load_toml
 
     document = load_toml(path, "a sweep spec (TOML)")
-    ctx = click.Context(localize, info_name="localize")
-    options = {k: o for k, o in options_by_key(localize).items() if k not in NOT_SWEPT}
+    swept = _swept()
     grid = document.pop("grid", {})
     if not isinstance(grid, dict):
         raise InputError("[grid] must be a table of lists: iterations = [6, 8]", path=path)
     for key, value in document.items():
         if isinstance(value, dict):
             raise InputError(f"table [{key}] is no part of a spec; the only table is [grid]", path)
-        if key not in SPEC_KEYS and key not in options:
-            raise InputError(_unknown(key, options), path=path)
+        if key not in SPEC_KEYS and key not in swept:
+            raise InputError(_unknown(key, swept), path=path)
     fixed = {
-        key: config_value(ctx, options[key], key, value, path)
-        for key, value in document.items()
-        if key in options
+        key: _value(swept[key], key, value, path) for key, value in document.items() if key in swept
     }
-    grid_values = _grid(grid, options, fixed, ctx, path)
+    grid_values = _grid(grid, swept, fixed, path)
     logs = _logs(document, path)
     seeds = _seeds(document.get("seeds", [0]), path)
     _check_size(len(logs), [len(v) for v in grid_values.values()], len(seeds), path)
@@ -96,6 +94,20 @@ def read_spec(path: Path) -> Plan:
     plan = _planned(document, path, logs, combinations, fixed, seeds, gates, tuple(grid_values))
     _check_distinct(plan.tasks, path)
     return plan
+
+
+def _swept() -> dict[str, Setting | None]:
+    """The localize keys a spec takes: its settings but those ``NOT_SWEPT``, and its
+    ``SPEC_FLAGS`` (None: no setting)."""
+    settings = {s.key: s for s in LOCALIZE_SETTINGS if s.key not in NOT_SWEPT}
+    return settings | dict.fromkeys(SPEC_FLAGS)
+
+
+def _value(setting: Setting | None, key: str, raw: Any, path: Path) -> Any:
+    """A localize key's value checked as its option checks it (a flag's: true or false)."""
+    if setting is None:
+        return table_value(key, raw, Takes(flag=True), path)
+    return setting_value(setting, raw, path)
 
 
 def _check_size(n_logs: int, grid_lengths: list[int], n_seeds: int, path: Path) -> None:
@@ -125,8 +137,8 @@ def _check_distinct(tasks: list[Task], path: Path) -> None:
             )
 
 
-def _unknown(key: str, options: dict) -> str:
-    known = [*SPEC_KEYS, *options]
+def _unknown(key: str, swept: dict) -> str:
+    known = [*SPEC_KEYS, *swept]
     close = difflib.get_close_matches(key, known, n=1)
     hint = f"did you mean {close[0]!r}?" if close else "see segloc sweep --help"
     return (
@@ -134,19 +146,19 @@ def _unknown(key: str, options: dict) -> str:
     )
 
 
-def _grid(grid: dict, options: dict, fixed: dict, ctx, path: Path) -> dict[str, list]:
+def _grid(grid: dict, swept: dict, fixed: dict, path: Path) -> dict[str, list]:
     """The grid's keys with their checked values, in the spec's order."""
     values: dict[str, list] = {}
     for key, listed in grid.items():
-        if key not in options:
+        if key not in swept:
             raise InputError(
-                _unknown(key, options).replace("unknown key", "unknown [grid] key"), path
+                _unknown(key, swept).replace("unknown key", "unknown [grid] key"), path
             )
         if key in fixed:
             raise InputError(f"key {key!r} is both fixed and in [grid]; keep one", path=path)
         if not isinstance(listed, list) or not listed:
             raise InputError(f"[grid] key {key!r} takes a list of values, e.g. [6, 8]", path=path)
-        checked = [config_value(ctx, options[key], key, v, path) for v in listed]
+        checked = [_value(swept[key], key, v, path) for v in listed]
         if len(set(map(repr, checked))) < len(checked):
             raise InputError(f"[grid] key {key!r} lists a value twice", path=path)
         values[key] = checked
@@ -155,13 +167,12 @@ def _grid(grid: dict, options: dict, fixed: dict, ctx, path: Path) -> dict[str, 
 
 def _check_combination(settings: dict[str, Any], path: Path) -> None:
     """Refuse settings that cannot go together, as ``segloc localize`` does."""
-    from segloc_cli.commands.localize import check_modes
-    from segloc_cli.config import Config
+    from segloc_cli.config import SettingError, run_config
 
     try:
-        check_modes(Config.from_values(settings), bool(settings.get("global")), track=False)
-    except click.ClickException as exc:
-        raise InputError(exc.format_message(), path=path) from None
+        run_config(settings, bool(settings.get("global")), track=False)
+    except SettingError as exc:
+        raise InputError(str(exc), path=path) from None
 
 
 @dataclass(frozen=True)
@@ -249,6 +260,33 @@ def _guesses(
     return None, file, f"initial {sha256(file)}"
 
 
+@dataclass(frozen=True)
+class _Inputs:
+    """The files a spec reads, each read once: their sha256 by path, the maps and surveys by
+    path, and every file as (role, path) in the order first named."""
+
+    digests: dict[Path, str]
+    maps: dict[Path, np.ndarray]
+    surveys: dict[Path, Any]
+    listed: list[tuple[str, Path]]
+
+
+def _read_inputs(logs: list[_Log], guess_file: Path | None) -> _Inputs:
+    from segloc_cli.io.maps import read_map
+    from segloc_cli.io.tables import read_pose_table
+    from segloc_cli.runfile import sha256
+
+    files = _Inputs({}, {}, {}, [] if guess_file is None else [("initial", guess_file)])
+    for log in logs:
+        for role, file in (("log", log.path), ("map", log.map_path), ("survey", log.survey_path)):
+            if file not in files.digests:
+                files.digests[file] = sha256(file)
+                files.listed.append((role, file))
+        files.maps.setdefault(log.map_path, read_map(log.map_path))
+        files.surveys.setdefault(log.survey_path, read_pose_table(log.survey_path))
+    return files
+
+
 def _planned(
     document: dict,
     path: Path,
@@ -261,40 +299,30 @@ def _planned(
 ) -> Plan:
     """The tasks in order: by log, then combination, then seed."""
     from segloc_cli.config import Config
-    from segloc_cli.io.maps import read_map
     from segloc_cli.io.tables import read_pose_table
-    from segloc_cli.runfile import sha256
 
     init_errors, guess_file, guesses_id = _guesses(document, path)
     file_guesses = None if guess_file is None else read_pose_table(guess_file)
-    maps, surveys, digests = {}, {}, {}
-    inputs: list[tuple[str, Path]] = [] if guess_file is None else [("initial", guess_file)]
-    for log in logs:
-        for role, file in (("log", log.path), ("map", log.map_path), ("survey", log.survey_path)):
-            if file not in digests:
-                digests[file] = sha256(file)
-                inputs.append((role, file))
-        maps.setdefault(log.map_path, read_map(log.map_path))
-        surveys.setdefault(log.survey_path, read_pose_table(log.survey_path))
+    files = _read_inputs(logs, guess_file)
+    settings = [{**fixed, **grid_settings} for grid_settings in combinations]
+    configs = [repr(Config.from_values(each)) for each in settings]
     tasks = []
     for log in logs:
-        survey = surveys[log.survey_path]
+        survey = files.surveys[log.survey_path]
         # One draw per seed, which every combination shares.
         guesses = {seed: file_guesses for seed in seeds}
         if init_errors is not None:
             guesses = {seed: _drawn(survey, init_errors, seed, log.label) for seed in seeds}
         for combination, grid_settings in enumerate(combinations):
-            settings = {**fixed, **grid_settings}
-            mode = "global" if settings.get("global") else "guided"
-            config = repr(Config.from_values(settings))
+            mode = "global" if settings[combination].get("global") else "guided"
             for seed in seeds:
                 identity = {
-                    "log": digests[log.path],
-                    "map": digests[log.map_path],
-                    "survey": digests[log.survey_path],
+                    "log": files.digests[log.path],
+                    "map": files.digests[log.map_path],
+                    "survey": files.digests[log.survey_path],
                     "guesses": None if mode == "global" else guesses_id,
                     "draw": [seed, log.label] if init_errors is not None else None,
-                    "config": config,
+                    "config": configs[combination],
                     "mode": mode,
                     "seed": seed,
                 }
@@ -305,15 +333,15 @@ def _planned(
                         log_path=log.path,
                         combination=combination,
                         params=tuple(grid_settings.items()),
-                        settings=tuple(settings.items()),
+                        settings=tuple(settings[combination].items()),
                         seed=seed,
-                        segments_world=maps[log.map_path],
+                        segments_world=files.maps[log.map_path],
                         survey=survey,
                         survey_path=str(log.survey_path),
                         guesses=guesses[seed],
                     )
                 )
-    return Plan(tasks, grid_keys, gates, inputs)
+    return Plan(tasks, grid_keys, gates, files.listed)
 
 
 def _drawn(survey, init_errors: tuple[str, float, float], seed: int, label: str):
