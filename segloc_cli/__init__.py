@@ -1,3 +1,3 @@
 """segloc: 2D laser localization by overlapping segment-based maps."""
 
-__version__ = "0.1.0"
+__version__ = "0.2.0"

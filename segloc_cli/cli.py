@@ -73,11 +73,12 @@ def _interrupted(exc: BaseException) -> bool:
     """Whether ``exc`` came of an interrupt: compiled code that Ctrl-C (or SIGTERM) reaches
     returns with the KeyboardInterrupt set, and Python reports that as a SystemError."""
     seen: set[int] = set()
-    while exc is not None and id(exc) not in seen:
-        if isinstance(exc, KeyboardInterrupt):
+    link: BaseException | None = exc
+    while link is not None and id(link) not in seen:
+        if isinstance(link, KeyboardInterrupt):
             return True
-        seen.add(id(exc))
-        exc = exc.__cause__ or exc.__context__
+        seen.add(id(link))
+        link = link.__cause__ or link.__context__
     return False
 
 

@@ -367,9 +367,14 @@ class Setting:
         if self.parse is not None:
             return value
         if self.kind is int:
-            high = None if self.high is None else int(self.high)
-            return number_within(value, int, int(self.low), high, key=self.key)
+            return number_within(value, int, *self.int_bounds, key=self.key)
         return number_within(value, float, self.low, self.high, self.low_open, self.key)
+
+    @property
+    def int_bounds(self) -> tuple[int | None, int | None]:
+        """``low`` and ``high`` as whole numbers, None where there is no bound (``int`` kind)."""
+        low = None if self.low is None else int(self.low)
+        return low, None if self.high is None else int(self.high)
 
     def applied(self, config: Config, value: Any) -> Config:
         """``config`` with this setting set to ``value`` (a switch: emptied when True; text
@@ -454,13 +459,14 @@ def _replaced(holder: Any, path: tuple[str, ...], value: Any) -> Any:
 @functools.cache
 def _field_docs(cls: type) -> dict[str, str]:
     """Docstrings written under the fields of a dataclass, by field name."""
-    tree = ast.parse(inspect.getsource(cls))
+    definition = ast.parse(inspect.getsource(cls)).body[0]
+    assert isinstance(definition, ast.ClassDef)
     docs: dict[str, str] = {}
-    body = tree.body[0].body
-    for node, after in itertools.pairwise(body):
-        documented = isinstance(after, ast.Expr) and isinstance(after.value, ast.Constant)
-        if isinstance(node, ast.AnnAssign) and documented:
-            docs[node.target.id] = inspect.cleandoc(after.value.value)
+    for node, after in itertools.pairwise(definition.body):
+        if not (isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name)):
+            continue
+        if isinstance(after, ast.Expr) and isinstance(after.value, ast.Constant):
+            docs[node.target.id] = inspect.cleandoc(str(after.value.value))
     return docs
 
 

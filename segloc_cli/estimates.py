@@ -43,7 +43,7 @@ class EstimateColumns(TypedDict):
     Positions in metres, headings in degrees, NaN where a value was not made:
     the initial guess (``init_*``, NaN for a global search), stage 1's heading
     (``align_theta_deg``), where stage 2 ended (``stage2_*``), the answer
-    (``x_m``, ``y_m``, ``theta_deg``), the stage-2 overlap (m of segment), the
+    (``x_m``, ``y_m``, ``theta_deg``), the stage-2 overlap (``overlap_m``, m of segment), the
     share of the scan's points on the map at the answer, the best distinct
     alternative found and its share (``runner_up_*``), the count of local
     segments, the time spent on the scan (ms), the probability that the answer is
@@ -66,7 +66,7 @@ class EstimateColumns(TypedDict):
     x_m: float
     y_m: float
     theta_deg: float
-    overlap: float
+    overlap_m: float
     inlier_ratio: float
     runner_up_x_m: float
     runner_up_y_m: float
@@ -114,6 +114,8 @@ ESTIMATE_LATER_COLUMNS = ["confidence", "window_scans"]
 ``UNSAID_COUNT`` for a count."""
 UNSAID_COUNT = 0
 """``window_scans`` of a row made before the column was: the count was not kept."""
+ESTIMATE_FORMER_NAMES = {"overlap_m": "overlap"}
+"""Columns that files of segloc 0.1 name otherwise: the column → its name there."""
 ESTIMATE_LATER_COUNTS = [c for c in ESTIMATE_LATER_COLUMNS if c in ESTIMATE_INT_COLUMNS]
 """The later columns that are counts, ``UNSAID_COUNT`` where a row lacks them."""
 

@@ -522,7 +522,7 @@ def estimate_row(
         x_m=est.pose.x,
         y_m=est.pose.y,
         theta_deg=est.pose.theta_deg,
-        overlap=est.overlap_m,
+        overlap_m=est.overlap_m,
         inlier_ratio=est.inlier_ratio,
         runner_up_x_m=runner_up.x,
         runner_up_y_m=runner_up.y,
@@ -580,7 +580,7 @@ def localize_scan(
 def localize_scans(
     scans: Sequence[Scan],
     initial_poses: Sequence[Pose2] | None,
-    pose_ids: Sequence[int],
+    pose_ids: Sequence[int] | np.ndarray,
     localizer: ScanMatcher,
     extract_params: ExtractParams | None = None,
     windows: Windows | None = None,

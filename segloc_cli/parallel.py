@@ -33,6 +33,8 @@ from concurrent.futures import Future, ProcessPoolExecutor
 from concurrent.futures import TimeoutError as FutureTimeout
 from typing import NamedTuple
 
+import numpy as np
+
 from segloc_cli.estimates import EstimateRow
 from segloc_cli.extract import ExtractParams
 from segloc_cli.geometry import Pose2
@@ -126,7 +128,7 @@ def warm_localizer(localizer: ScanMatcher, scans: Sequence[Scan], guesses, extra
 def localize_scans_parallel(
     scans: Sequence[Scan],
     initial_poses: Sequence[Pose2] | None,
-    pose_ids: Sequence[int],
+    pose_ids: Sequence[int] | np.ndarray,
     localizer: ScanMatcher,
     jobs: int,
     extract_params: ExtractParams | None = None,

@@ -14,10 +14,11 @@ from __future__ import annotations
 import functools
 import time
 from collections import Counter
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import ExitStack
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -29,6 +30,12 @@ from segloc_cli.progress import Progress, ProgressFactory, silent
 
 PROGRESS_LABELS = {"guided": "localizing", "global": "global search", "track": "tracking"}
 """What the progress display says a run of each mode (``pipeline.MODES``) is doing."""
+
+
+class RowWriter(Protocol):
+    """A file a run's rows stream into (``io/tables``: estimates, TUM, hypotheses)."""
+
+    def write_row(self, row: Mapping[str, Any]) -> None: ...
 
 
 @dataclass(frozen=True)
@@ -177,11 +184,11 @@ def _written(
     return tuple(statuses), tuple(runtimes_ms)
 
 
-def _writers(stack: ExitStack, outputs: RowOutputs) -> list:
+def _writers(stack: ExitStack, outputs: RowOutputs) -> list[RowWriter]:
     """The writers of the estimates, TUM and hypotheses files asked for, open in ``stack``."""
     from segloc_cli.io.tables import EstimatesWriter, HypothesesWriter, TumWriter
 
-    writers = [stack.enter_context(EstimatesWriter(outputs.out))]
+    writers: list[RowWriter] = [stack.enter_context(EstimatesWriter(outputs.out))]
     if outputs.tum is not None:
         writers.append(stack.enter_context(TumWriter(outputs.tum)))
     if outputs.hypotheses is not None:

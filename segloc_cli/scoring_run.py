@@ -196,10 +196,10 @@ def figures_of(
     return evaluation_figures(scores.table, segments_world, items)
 
 
-def relation_scores(estimates: pd.DataFrame, options: EvaluateOptions) -> str:
-    """The relation errors of the estimates' trajectory against the reference relations, as
-    text in the format asked (with the published errors beside, where asked); refused when
-    no relation has estimates at both of its times."""
+def relation_scores(estimates: pd.DataFrame, relations_path: Path, options: EvaluateOptions) -> str:
+    """The relation errors of the estimates' trajectory against the reference relations of
+    ``relations_path``, as text in the format asked (with the published errors beside, where
+    asked); refused when no relation has estimates at both of its times."""
     from segloc_cli.io.relations import read_relations
     from segloc_cli.relations import (
         PUBLISHED,
@@ -208,7 +208,7 @@ def relation_scores(estimates: pd.DataFrame, options: EvaluateOptions) -> str:
         trajectory_from_estimates,
     )
 
-    relations = read_relations(options.relations_path)
+    relations = read_relations(relations_path)
     times_s, poses = trajectory_from_estimates(estimates, only_ok=options.only_ok)
     errors = relation_errors(
         times_s,

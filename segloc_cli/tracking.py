@@ -38,7 +38,7 @@ def track_scans(
     scans: Sequence[Scan],
     odometry: Sequence[Pose2],
     first_guess: Pose2,
-    pose_ids: Sequence[int],
+    pose_ids: Sequence[int] | np.ndarray,
     localizer: Localizer,
     extract_params: ExtractParams | None = None,
     track: TrackParams | None = None,

@@ -28,6 +28,7 @@ from PIL import Image
 from test_cli import ESTIMATE_HEADER, SURVEY_HEADER, assert_one_line_error, run_cli
 from test_grids import GOOD
 
+from segloc_cli import __version__
 from segloc_cli.io.maps import read_map
 
 # --- what the process opens ----------------------------------------------------------------
@@ -791,12 +792,14 @@ CONFIG_REFUSALS: dict[str, tuple[list[str], str, tuple[str, ...]]] = {
     "over 1 MiB": (EVALUATE, "[evaluate]\n" + "#" * (1 << 20) + "\n", ("is over 1,048,576 bytes",)),
     "run file of another command": (
         EVALUATE,
-        '[map.import]\nscale = 0.1\n[run]\nsegloc = "0.1.0"\ncommand = "segloc map import"\n',
+        f'[map.import]\nscale = 0.1\n[run]\nsegloc = "{__version__}"\n'
+        'command = "segloc map import"\n',
         ("is the run file of `segloc map import`, not of `segloc evaluate`",),
     ),
     "run file of evaluate given to localize": (
         LOCALIZE,
-        '[evaluate]\nonly-ok = true\n[run]\nsegloc = "0.1.0"\ncommand = "segloc evaluate"\n',
+        f'[evaluate]\nonly-ok = true\n[run]\nsegloc = "{__version__}"\n'
+        'command = "segloc evaluate"\n',
         ("is the run file of `segloc evaluate`, not of `segloc localize`",),
     ),
 }
@@ -841,7 +844,8 @@ def test_a_run_file_naming_a_missing_survey_is_one_line(inputs, capsys):
 
 def test_a_run_file_naming_a_missing_map_is_one_line(inputs, capsys):
     (inputs / "old.run.toml").write_text(
-        '[localize]\nmap = "gone.json"\n[run]\nsegloc = "0.1.0"\ncommand = "segloc localize"\n'
+        f'[localize]\nmap = "gone.json"\n[run]\nsegloc = "{__version__}"\n'
+        'command = "segloc localize"\n'
     )
     args = ["localize", HALL / "log.mcap", "--config", "old.run.toml", "--out", "e.csv"]
     refused(run_cli(capsys, *args), Path("gone.json"), "file not found")
@@ -853,7 +857,7 @@ def test_the_run_file_of_an_evaluation_with_figures_repeats_its_table(inputs, ca
     inputs are left unread, with a warning, rather than refused as a misuse."""
     (inputs / "t.run.toml").write_text(
         '[evaluate]\nsurvey = "survey.csv"\nmap = "gone.json"\nlog = "gone.mcap"\n'
-        '[run]\nsegloc = "0.1.0"\ncommand = "segloc evaluate"\n'
+        f'[run]\nsegloc = "{__version__}"\ncommand = "segloc evaluate"\n'
     )
     result = run_cli(capsys, "evaluate", "est.csv", "--config", "t.run.toml", "--format", "json")
     assert result.code == 0, result.err

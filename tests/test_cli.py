@@ -35,7 +35,7 @@ SEED = 2000
 
 ESTIMATE_HEADER = (
     "pose_id,time_s,init_x_m,init_y_m,init_theta_deg,align_theta_deg,"
-    "stage2_x_m,stage2_y_m,stage2_theta_deg,x_m,y_m,theta_deg,overlap,inlier_ratio,"
+    "stage2_x_m,stage2_y_m,stage2_theta_deg,x_m,y_m,theta_deg,overlap_m,inlier_ratio,"
     "runner_up_x_m,runner_up_y_m,runner_up_theta_deg,runner_up_ratio,"
     "n_local_segments,runtime_ms,confidence,status,window_scans"
 )

@@ -37,7 +37,7 @@ def make_estimates(rows: list[dict]) -> pd.DataFrame:
         "x_m": 0.0,
         "y_m": 0.0,
         "theta_deg": 0.0,
-        "overlap": 1.0,
+        "overlap_m": 1.0,
         "inlier_ratio": 1.0,
         "n_local_segments": 20,
         "runtime_ms": 5.0,

@@ -27,7 +27,7 @@ from segloc_cli.devices.explorer import (
     ExplorerDriver,
     ExplorerStream,
     Kind,
-    Scan,
+    ScanMessage,
     encode_message,
 )
 from segloc_cli.devices.scip2 import (
@@ -294,7 +294,7 @@ def test_emulated_urg_answers_any_host_bytes_with_well_formed_replies(data, chun
 # --- Explorer -----------------------------------------------------------------------------------
 
 _SCANS = st.builds(
-    lambda n, speed, first, seed, top: Scan(
+    lambda n, speed, first, seed, top: ScanMessage(
         seed % (1 << 32),
         speed,
         first,

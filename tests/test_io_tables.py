@@ -501,7 +501,7 @@ def estimates_frame() -> pd.DataFrame:
             "x_m": [1.0 + 1e-13, 2.0 / 7.0, np.nan],
             "y_m": [-0.49, 1e-300, np.nan],
             "theta_deg": [9.75, 90.0, np.nan],
-            "overlap": [12.3456789012345, 0.0, np.nan],
+            "overlap_m": [12.3456789012345, 0.0, np.nan],
             "inlier_ratio": [0.875, 1.0 / 3.0, np.nan],
             "runner_up_x_m": [3.5, np.nan, np.nan],
             "runner_up_y_m": [-1.25, np.nan, np.nan],
@@ -551,8 +551,8 @@ def test_estimates_extra_columns_not_written_and_order_fixed(tmp_path):
 
 
 def test_write_estimates_checks_columns(tmp_path):
-    with pytest.raises(ValueError, match="overlap"):
-        write_estimates(tmp_path / "e.csv", estimates_frame().drop(columns=["overlap"]))
+    with pytest.raises(ValueError, match="overlap_m"):
+        write_estimates(tmp_path / "e.csv", estimates_frame().drop(columns=["overlap_m"]))
     frame = estimates_frame()
     frame.loc[1, "time_s"] = np.nan
     with pytest.raises(ValueError, match="time_s"):
@@ -641,6 +641,18 @@ def test_a_row_without_the_later_columns_leaves_confidence_empty_and_counts_zero
     back = read_estimates(path)
     assert np.isnan(back["confidence"].iloc[0])
     assert back["window_scans"].iloc[0] == 0
+
+
+def test_a_file_of_segloc_0_1_reads_its_overlap_column_as_overlap_m(tmp_path):
+    frame = estimates_frame()
+    current, former = tmp_path / "now.csv", tmp_path / "then.csv"
+    write_estimates(current, frame)
+    header, body = current.read_text().split("\n", 1)
+    assert ",overlap_m," in header
+    former.write_text(header.replace(",overlap_m,", ",overlap,") + "\n" + body)
+    back = read_estimates(former)
+    assert list(back.columns) == list(frame.columns)
+    pd.testing.assert_frame_equal(back, read_estimates(current), check_exact=True)
 
 
 def test_estimates_writer_writes_what_write_estimates_writes(tmp_path):

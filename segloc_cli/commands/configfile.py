@@ -56,10 +56,15 @@ def options_by_key(command: click.Command) -> dict[str, click.Option]:
     }
 
 
-def _command_paths(group: click.Group, prefix: tuple[str, ...] = ()) -> Iterator[tuple[str, ...]]:
-    for name, command in group.commands.items():
-        if isinstance(command, click.Group):
-            yield from _command_paths(command, (*prefix, name))
+def _command_paths(
+    command: click.Command, prefix: tuple[str, ...] = ()
+) -> Iterator[tuple[str, ...]]:
+    """The paths of the commands under ``command`` (the root group), e.g. ('map', 'build')."""
+    if not isinstance(command, click.Group):
+        return
+    for name, sub in command.commands.items():
+        if isinstance(sub, click.Group):
+            yield from _command_paths(sub, (*prefix, name))
         else:
             yield (*prefix, name)
 

@@ -127,7 +127,8 @@ def evaluate(estimates_path, force, **given):
         scoring_run.check_plots(options.plots_dir, with_map=options.with_map, force=force)
     estimates = scoring_run.read_scored_estimates(estimates_path)
     if options.relations_path is not None:
-        _emit(scoring_run.relation_scores(estimates, options), options.out_path)
+        relations = scoring_run.relation_scores(estimates, options.relations_path, options)
+        _emit(relations, options.out_path)
     else:
         _evaluate_survey(estimates, options)
 

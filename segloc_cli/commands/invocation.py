@@ -4,6 +4,7 @@ and the run file it writes beside its output."""
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -56,7 +57,7 @@ class Invocation:
         named = [(k, v) for k, v in self.options.items() if isinstance(v, Path) and v.is_file()]
         return [*self.arguments, *named]
 
-    def write_run_file(self, output: Path, also_read: list[tuple[str, Path]] = ()) -> Path:
+    def write_run_file(self, output: Path, also_read: Sequence[tuple[str, Path]] = ()) -> Path:
         """Write the run file beside ``output``, its inputs with ``also_read`` (role, path):
         files the inputs led to, such as a grid's image; return its path."""
         from segloc_cli.runfile import run_file_path, write_run_file

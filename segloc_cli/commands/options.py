@@ -44,14 +44,14 @@ class FiniteRange(_Checked, click.FloatRange):
 
 class _SettingChoice(_Checked, click.Choice):
     def __init__(self, setting: Setting):
-        super().__init__(setting.choices)
+        super().__init__(setting.choices or ())
         self.setting, self.check = setting, setting.checked
 
 
 class _SettingIntRange(_Checked, click.IntRange):
     def __init__(self, setting: Setting):
-        high = None if setting.high is None else int(setting.high)
-        super().__init__(min=int(setting.low), max=high)
+        low, high = setting.int_bounds
+        super().__init__(min=low, max=high)
         self.setting, self.check = setting, setting.checked
 
 
@@ -97,7 +97,7 @@ def setting_option(key: str, **help_fields: str) -> Callable:
     ``help_fields`` fill the placeholders of its help text."""
     setting = SETTINGS[key]
     listed = setting.help is not None
-    text = setting.help.format(**help_fields) if listed else setting.doc
+    text = setting.doc if setting.help is None else setting.help.format(**help_fields)
     if setting.switch:
         return click.option(f"--{key}", is_flag=True, default=False, help=text, hidden=not listed)
     return click.option(

@@ -46,13 +46,16 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
-from typing import IO, Any
+from typing import IO, TYPE_CHECKING, Any
 
 import numpy as np
 
 from segloc_cli.geometry import Pose2, heading_to_quaternion
 from segloc_cli.io.files import OutputError, writing_error
 from segloc_cli.scan import Scan
+
+if TYPE_CHECKING:
+    from foxglove.mcap import MCAPWriter
 
 WORLD_FRAME = "world"
 ROBOT_FRAME = "base_link"
@@ -93,7 +96,7 @@ class _Sink:
         except OSError as exc:
             raise writing_error(path, exc) from None
 
-    def write(self, data: bytes) -> int:
+    def write(self, data: bytes | bytearray) -> int:
         return self._noted(self._file.write, data)
 
     def seek(self, offset: int, whence: int = 0) -> int:
@@ -144,7 +147,7 @@ class RunViewWriter:
         self._sink = _Sink(self.path)
         self._context = foxglove.Context()
         options = MCAPWriteOptions(compression=MCAPCompression.Zstd, chunk_size=CHUNK_BYTES)
-        self._writer = None
+        self._writer: MCAPWriter | None = None
         with self._failing_writes():
             self._writer = foxglove.open_mcap(
                 self._sink, allow_overwrite=True, context=self._context, writer_options=options
@@ -159,7 +162,9 @@ class RunViewWriter:
             "/local_segments": channels.SceneUpdateChannel,
             "/status": channels.LogChannel,
         }
-        self._channels = {topic: made[topic](topic, context=self._context) for topic in TOPICS}
+        self._channels: dict[str, Any] = {
+            topic: made[topic](topic, context=self._context) for topic in TOPICS
+        }
 
     def __enter__(self) -> RunViewWriter:
         return self
@@ -212,7 +217,7 @@ class RunViewWriter:
         self._log("/local_segments", _scene_update(entity), time_ns)
         self._log("/status", _log_line(stamp, status, level, text), time_ns)
         self._statuses[status] += 1
-        if time.monotonic() - self._flushed_at >= FLUSH_INTERVAL_S:
+        if self._writer is not None and time.monotonic() - self._flushed_at >= FLUSH_INTERVAL_S:
             with self._failing_writes():
                 self._writer.flush()  # the chunk of the scans since the last, to the OS
             self._flushed_at = time.monotonic()
@@ -302,7 +307,7 @@ def row_text(log_path: Path, row: Mapping[str, Any]) -> str:
     )
     return (
         f"{log_path.name} pose {row['pose_id']} at {row['time_s']:.3f} s: "
-        f"{row['inlier_ratio']:.0%} of the points on the map, overlap {row['overlap']:.2f} m, "
+        f"{row['inlier_ratio']:.0%} of the points on the map, overlap {row['overlap_m']:.2f} m, "
         f"{row['n_local_segments']} local segments; {runner_up}; "
         f"confidence {row['confidence']:.2f}"
     )
@@ -546,7 +551,7 @@ def foxglove_layout() -> str:
     status log and the estimates' messages beside it."""
     import foxglove.layouts as fl
 
-    topics = {
+    topics: dict[str, Any] = {
         "/map": fl.BaseRendererSceneUpdateTopicSettings(visible=True),
         "/local_segments": fl.BaseRendererSceneUpdateTopicSettings(visible=True),
         "/scan": fl.BaseRendererLaserScanTopicSettings(

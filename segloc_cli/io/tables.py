@@ -28,6 +28,7 @@ import pandas as pd
 from segloc_cli.errors import InputError
 from segloc_cli.estimates import (
     ESTIMATE_COLUMNS,
+    ESTIMATE_FORMER_NAMES,
     ESTIMATE_INT_COLUMNS,
     ESTIMATE_LATER_COLUMNS,
     ESTIMATE_LATER_COUNTS,
@@ -319,6 +320,13 @@ def _missing_columns(present) -> list[str]:
     return [c for c in ESTIMATE_COLUMNS if c not in present and c not in ESTIMATE_LATER_COLUMNS]
 
 
+def _current_names(header: list[str]) -> list[str]:
+    """An estimates header with the columns that earlier versions named otherwise
+    (``ESTIMATE_FORMER_NAMES``) under their names of now."""
+    former = {old: new for new, old in ESTIMATE_FORMER_NAMES.items() if new not in header}
+    return [former.get(name, name) for name in header]
+
+
 def _check_estimate_frame(frame: pd.DataFrame) -> None:
     missing = _missing_columns(frame.columns)
     if missing:
@@ -475,6 +483,7 @@ def read_estimates(path: str | Path) -> pd.DataFrame:
     """
     path = Path(path)
     header, data = _read_csv_rows(path, _read_text(path))
+    header = _current_names(header)
     missing = _missing_columns(header)
     if missing:
         raise InputError(
