@@ -68,9 +68,11 @@ bench-peers: $(STAMP)
 figures: $(STAMP)
 	$(BIN)/python benchmarks/figures.py
 
+# ruff (rules and format) over the code, and mypy over the package ([tool.mypy] in pyproject.toml).
 lint: $(STAMP)
 	$(BIN)/ruff check segloc_cli tests benchmarks
 	$(BIN)/ruff format --check segloc_cli tests benchmarks
+	$(BIN)/mypy
 
 # Regenerate the shipped hall dataset (see datasets/hall/README.md).
 hall: $(STAMP)
