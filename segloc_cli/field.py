@@ -10,11 +10,18 @@ of every shift inside a square, which is what lets the search skip regions
 that cannot beat what it has already found (the multi-resolution idea of
 correlative scan matching). The coarse levels keep one bound per few cells,
 so that they stay small enough to be read from the processor's caches.
+
+The compiled search takes the pyramid as a ``PyramidArrays`` and reads its flat layout
+through the compiled helpers beside it (``level_grid``, ``level_cell``, ``level_cells``,
+``level_square``). Numba's on-disk cache of a compiled caller is keyed on the caller's own
+source file only: after editing those helpers, delete the ``*.nbi`` / ``*.nbc`` files in
+``segloc_cli/__pycache__`` (or touch ``search.py``), or the search keeps the old ones.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -246,6 +253,69 @@ class BoundPyramid:
         (bx, by), bx, by ≥ −``pad``."""
         shift = self.shifts[level - 1]
         return self.level(level)[(bx + self.pad) >> shift, (by + self.pad) >> shift] / BOUND_LEVELS
+
+    def arrays(self, fine: np.ndarray, phased: np.ndarray) -> PyramidArrays:
+        """The pyramid as compiled code takes it, with the fine raster (NX, NY) it bounds and
+        one of its levels split by phase (``phase_split``)."""
+        return PyramidArrays(
+            fine, self.values, self.offsets, self.shapes, self.shifts, self.pad, phased
+        )
+
+
+class PyramidArrays(NamedTuple):
+    """A fine score raster and its ``BoundPyramid``, as plain arrays and numbers for compiled
+    code, which reads the levels through ``level_grid``, ``level_cell``, ``level_cells`` and
+    ``level_square``."""
+
+    fine: np.ndarray
+    """(NX, NY) float32 scores in [0, 1] (``ScoreRaster.score``)."""
+    values: np.ndarray
+    """``BoundPyramid.values``: every level's bounds in whole 255ths, one after another."""
+    offsets: np.ndarray
+    """(depth,) int64: where each level starts in ``values``."""
+    shapes: np.ndarray
+    """(depth, 2) int64: each level's cells in x and y."""
+    shifts: np.ndarray
+    """(depth,) int64: each level's stride as a power of two."""
+    pad: int
+    """W = 2^depth − 1: the fine cells a level's squares reach before the raster."""
+    phased: np.ndarray
+    """(step, step, A, B) uint8: the level a search starts from split by phase at the stride
+    of its top squares (``phase_split``)."""
+
+
+@njit(cache=True)
+def level_grid(pyramid: PyramidArrays, level: int) -> tuple[np.ndarray, int, int]:
+    """Level ``level``'s bounds in whole 255ths, flat and row-major (cell (i, j) at i·ny + j),
+    and its cells in x and y (nx, ny)."""
+    nx, ny = pyramid.shapes[level - 1, 0], pyramid.shapes[level - 1, 1]
+    start = pyramid.offsets[level - 1]
+    return pyramid.values[start : start + nx * ny], nx, ny
+
+
+@njit(cache=True)
+def level_cell(pyramid: PyramidArrays, level: int, b: int) -> int:
+    """The cell, along either axis, of level ``level`` whose square holds the shifts
+    [0, 2^level) of fine cell ``b`` (b ≥ −``pad``): what ``BoundPyramid.bound`` reads."""
+    return (b + pyramid.pad) >> pyramid.shifts[level - 1]
+
+
+@njit(cache=True)
+def level_cells(pyramid: PyramidArrays, level: int, cells: int) -> int:
+    """``cells`` fine cells (≥ 0) in cells of level ``level``, rounded down: a shift by a
+    multiple of the level's stride moves every point's level cell by this many."""
+    return cells >> pyramid.shifts[level - 1]
+
+
+@njit(cache=True)
+def level_square(pyramid: PyramidArrays, level: int, x: int, y: int) -> tuple[int, int, int]:
+    """The square of 2^level shifts at corner (x, y), multiples of the stride of level
+    ``level``, in that level's cells: its corner and side (x, y, side)."""
+    return (
+        level_cells(pyramid, level, x),
+        level_cells(pyramid, level, y),
+        level_cells(pyramid, level, 2**level),
+    )
 
 
 def _strided_max(window: np.ndarray, stride: int, axis: int) -> np.ndarray:

@@ -42,6 +42,7 @@ finite, may come out with its sign bit flipped).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -87,14 +88,42 @@ def _ordered(gax, gay, gbx, gby):
     return True, gax, gay, gbx, gby
 
 
+class _Line(NamedTuple):
+    """G's supporting line: its unit normal (nx, ny) and its offset n·A (m)."""
+
+    nx: float
+    ny: float
+    off: float
+
+
+class _LocalSegment(NamedTuple):
+    """L as A + t·(dx, dy), t in [0, 1]: A (m), B − A (m) and L's length (m)."""
+
+    ax: float
+    ay: float
+    dx: float
+    dy: float
+    length: float
+
+
+class _SectorTerms(NamedTuple):
+    """L = A + t·(dx, dy) lies left of the ray through G's first end where a0 + b0·t >= 0,
+    right of the ray through its second where a1 + b1·t >= 0 (``_sector_terms``)."""
+
+    a0: float
+    b0: float
+    a1: float
+    b1: float
+
+
 @njit(cache=True)
 def _normal(gax, gay, gbx, gby):
-    """Unit normal (nx, ny) of G's line and its offset n·A, robot frame, for the ordered ends
-    of a G that subtends a sector (and so has a length, unless its square underflows)."""
+    """G's ``_Line`` in the robot frame, for the ordered ends of a G that subtends a sector
+    (and so has a length, unless its square underflows)."""
     ex, ey = gbx - gax, gby - gay
     g_len = np.sqrt(ex * ex + ey * ey)
     nx, ny = -ey / g_len, ex / g_len
-    return nx, ny, nx * gax + ny * gay
+    return _Line(nx, ny, nx * gax + ny * gay)
 
 
 @njit(cache=True)
@@ -108,9 +137,9 @@ def _zero_length(gax, gay, gbx, gby) -> bool:
 
 @njit(cache=True)
 def _sector_terms(gax, gay, gbx, gby, lax, lay, dx, dy):
-    """(a0, b0, a1, b1): L = A + t·(dx, dy) lies left of the ray through G's first end
-    where a0 + b0·t >= 0, right of the ray through its second where a1 + b1·t >= 0."""
-    return (
+    """The ``_SectorTerms`` of L = A + t·(dx, dy) and G's sector (ordered ends), robot
+    frame."""
+    return _SectorTerms(
         gax * lay - gay * lax,
         gax * dy - gay * dx,
         lax * gby - lay * gbx,
@@ -119,13 +148,15 @@ def _sector_terms(gax, gay, gbx, gby, lax, lay, dx, dy):
 
 
 @njit(cache=True)
-def _outside_sector(a0, b0, a1, b1) -> bool:
-    """Whether both ends of L break one of the sector's constraints, told without dividing.
+def _outside_sector(terms) -> bool:
+    """Whether both ends of L break one of the sector's constraints (``_SectorTerms``), told
+    without dividing.
 
     Then the pair overlaps nothing: for a finite b, a + b rounds below 0 only if
     it is below 0, which puts the root -a/b outside [0, 1] on the side that
     empties the interval.
     """
+    a0, b0, a1, b1 = terms
     # & and |, not `and` and `or`: both sides are cheap, and a branch here is unpredictable
     return ((a0 < 0.0) & (a0 + b0 < 0.0) & (abs(b0) < np.inf)) | (
         (a1 < 0.0) & (a1 + b1 < 0.0) & (abs(b1) < np.inf)
@@ -145,11 +176,12 @@ def _both_outside_unit(p: float, q: float, d: float) -> bool:
 
 
 @njit(cache=True)
-def _clipped_overlap(
-    gax, gay, gbx, gby, nx, ny, off, lax, lay, dx, dy, l_len, a0, b0, a1, b1, band_m, sin2_min
-) -> float:
-    """|Cls| + |Cgs| in metres of G (ordered ends, ``_normal``) and L = A + t·(dx, dy) of
-    length ``l_len`` with its ``_sector_terms``, all in the robot frame."""
+def _clipped_overlap(line, segment, terms, band_m, sin2_min) -> float:
+    """|Cls| + |Cgs| in metres of G (its ``_Line``) and L (``_LocalSegment``) with their
+    ``_SectorTerms``, all in the robot frame."""
+    nx, ny, off = line
+    lax, lay, dx, dy, l_len = segment
+    a0, b0, a1, b1 = terms
     # The band |n·(A + t·d) − off| <= δ around G's line: t between (∓δ − s0) / sd.
     s0 = nx * lax + ny * lay - off
     sd = nx * dx + ny * dy
@@ -200,15 +232,12 @@ def _pair_overlap(gax, gay, gbx, gby, lax, lay, lbx, lby, band_m, sin2_min) -> f
     if not facing:
         return 0.0
     dx, dy = lbx - lax, lby - lay
-    a0, b0, a1, b1 = _sector_terms(gax, gay, gbx, gby, lax, lay, dx, dy)
-    if _outside_sector(a0, b0, a1, b1) and not _zero_length(gax, gay, gbx, gby):
+    terms = _sector_terms(gax, gay, gbx, gby, lax, lay, dx, dy)
+    if _outside_sector(terms) and not _zero_length(gax, gay, gbx, gby):
         return 0.0
-    nx, ny, off = _normal(gax, gay, gbx, gby)
-    l_len = np.sqrt(dx * dx + dy * dy)
-    return _clipped_overlap(
-        gax, gay, gbx, gby, nx, ny, off, lax, lay, dx, dy, l_len, a0, b0, a1, b1, band_m,
-        sin2_min,
-    )  # fmt: skip
+    line = _normal(gax, gay, gbx, gby)
+    segment = _LocalSegment(lax, lay, dx, dy, np.sqrt(dx * dx + dy * dy))
+    return _clipped_overlap(line, segment, terms, band_m, sin2_min)
 
 
 @njit(cache=True)
@@ -260,12 +289,59 @@ def overlap_at_poses(
 # --- the search's bookkeeping -----------------------------------------------------------------
 
 
+class _LocalMap(NamedTuple):
+    """The local map as the search takes it (``_local_map``)."""
+
+    segments: np.ndarray
+    """(N, 4) local segments, robot frame, m."""
+    table: np.ndarray
+    """(N, 6) what the search needs of each whatever the pose: columns _FAR (range of its
+    farther end, m), _MID and _HALF (centre and half-width of the angle it subtends, rad),
+    _DX, _DY (B − A, m) and _LEN (length, m)."""
+    radius: float
+    """The largest range of any end (m; 0 for none)."""
+
+
+class _Around(NamedTuple):
+    """The candidate poses a pair table serves: within ``spread_m`` (m) and ``spread_rad``
+    (rad) of (x, y, theta) (world frame), scored in a band of half-width ``band_m`` (m)
+    around each global segment's line, at incidences whose sine is at least ``sin_min``."""
+
+    x: float
+    y: float
+    theta: float
+    spread_m: float
+    spread_rad: float
+    band_m: float
+    sin_min: float
+
+
+class _PairTable(NamedTuple):
+    """The pairs of an iteration, grouped by global segment: ``group_g`` (M,) lists the
+    global segments that pair with anything, in map order; ``group_end`` (M,) where each
+    one's run of local indices ends in ``pair_l`` (M·N,), which holds them in increasing
+    order. Read in order, the runs are ``candidate_pairs``' pairs, in its order. Only the
+    first groups, as many as ``_filter_pairs`` says, are filled."""
+
+    group_g: np.ndarray
+    group_end: np.ndarray
+    pair_l: np.ndarray
+
+
 @njit(cache=True)
-def _local_table(loc):
-    """What the search needs of each local segment (N, 4), robot frame, whatever the pose:
-    (N, 6) columns _FAR (range of its farther end, m), _MID and _HALF (centre and
-    half-width of the angle it subtends, rad), _DX, _DY (B − A, m) and _LEN (length, m);
-    and the largest range of any end (0 for none)."""
+def _no_pairs(n_map, n_local):
+    """Room for the ``_PairTable`` of a map of ``n_map`` and a local map of ``n_local``
+    segments."""
+    return _PairTable(
+        np.empty(n_map, dtype=np.int64),
+        np.empty(n_map, dtype=np.int64),
+        np.empty(n_map * n_local, dtype=np.int64),
+    )
+
+
+@njit(cache=True)
+def _local_map(loc):
+    """The ``_LocalMap`` of local segments (N, 4), robot frame."""
     table = np.empty((loc.shape[0], 6))
     radius = 0.0
     for n in range(loc.shape[0]):
@@ -279,7 +355,7 @@ def _local_table(loc):
         dx, dy = loc[n, 2] - loc[n, 0], loc[n, 3] - loc[n, 1]
         table[n, _DX], table[n, _DY] = dx, dy
         table[n, _LEN] = np.sqrt(dx * dx + dy * dy)
-    return table, radius
+    return _LocalMap(loc, table, radius)
 
 
 @njit(cache=True)
@@ -294,26 +370,20 @@ def _world_line(g, m):
     return nx, ny, nx * g[m, 0] + ny * g[m, 1]
 
 
-# The pairs of an iteration, grouped by global segment (the pair table): ``group_g`` (M,)
-# lists the global segments that pair with anything, in map order; ``group_end`` (M,)
-# where each one's run of local indices ends in ``pair_l`` (M·N,), which holds them in
-# increasing order. Read in order, the runs are ``candidate_pairs``' pairs, in its order.
-
-
 @njit(cache=True)
-def _filter_pairs(
-    g, loc, table, radius, x, y, theta, spread_m, spread_rad, band_m, sin_min,
-    active, n_active, keep_m, group_g, group_end, pair_l,
-):  # fmt: skip
-    """The pairs that can overlap for some pose within ``spread_m`` and ``spread_rad`` of
-    (x, y, theta), among the global segments ``active[:n_active]``; see ``candidate_pairs``.
+def _filter_pairs(g, local, around, active, n_active, keep_m, pairs):
+    """The pairs of global segments ``g`` (M, 4), world frame, among ``active[:n_active]``,
+    and segments of the ``local`` map that can overlap for some pose ``around`` serves; see
+    ``candidate_pairs``.
 
-    Fills ``group_g``, ``group_end`` and ``pair_l`` (the pair table) and returns the
-    number of groups and of active segments left: ``active`` is compacted in
-    place to those within ``keep_m`` metres (plus rounding slack) of this
-    iteration's range, all that a search moving at most ``keep_m`` from here
-    with no wider grid can still reach.
+    Fills ``pairs`` (``_PairTable``) and returns the number of groups and of active
+    segments left: ``active`` is compacted in place to those within ``keep_m`` metres
+    (plus rounding slack) of this iteration's range, all that a search moving at most
+    ``keep_m`` from here with no wider grid can still reach.
     """
+    loc, table, radius = local
+    x, y, theta, spread_m, spread_rad, band_m, sin_min = around
+    group_g, group_end, pair_l = pairs
     n_local = loc.shape[0]
     if n_local == 0 or g.shape[0] == 0:
         return 0, n_active
@@ -389,10 +459,13 @@ def _widened_sector(gax, gay, gbx, gby, dist0, spread_m):
 
 
 @njit(cache=True)
-def _grouped_overlaps(g, loc, table, poses, group_g, group_end, pair_l, n_groups, band_m, sin2_min):
-    """Overlap (C,) at each pose (C, 3) over the pairs of a pair table: the sum of
-    ``_overlaps_kernel`` over the same pairs, in the same order, with G's frame worked out
-    once per pose for all its local segments, and its line only once one needs it."""
+def _grouped_overlaps(g, local, poses, pairs, n_groups, band_m, sin2_min):
+    """Overlap (C,) at each pose (C, 3) of the ``local`` map over the first ``n_groups``
+    groups of ``pairs`` (``_PairTable``): the sum of ``_overlaps_kernel`` over the same
+    pairs, in the same order, with G's frame worked out once per pose for all its local
+    segments, and its line only once one needs it."""
+    loc, table = local.segments, local.table
+    group_g, group_end, pair_l = pairs
     out = np.zeros(poses.shape[0])
     in_sector = np.empty(loc.shape[0], dtype=np.int64)  # one G's pairs past the sector test
     for c in range(poses.shape[0]):
@@ -412,39 +485,30 @@ def _grouped_overlaps(g, loc, table, poses, group_g, group_end, pair_l, n_groups
                 for j in range(first, last):
                     n = pair_l[j]
                     lax, lay, dx, dy = loc[n, 0], loc[n, 1], table[n, _DX], table[n, _DY]
-                    a0, b0, a1, b1 = _sector_terms(gax, gay, gbx, gby, lax, lay, dx, dy)
+                    terms = _sector_terms(gax, gay, gbx, gby, lax, lay, dx, dy)
                     in_sector[passed] = n  # kept only if it passes: written without a branch
-                    passed += not _outside_sector(a0, b0, a1, b1)
+                    passed += not _outside_sector(terms)
             if passed > 0 or (facing and _zero_length(gax, gay, gbx, gby)):
-                nx, ny, off = _normal(gax, gay, gbx, gby)
+                line = _normal(gax, gay, gbx, gby)
                 for i in range(passed):
                     n = in_sector[i]
                     lax, lay, dx, dy = loc[n, 0], loc[n, 1], table[n, _DX], table[n, _DY]
-                    a0, b0, a1, b1 = _sector_terms(gax, gay, gbx, gby, lax, lay, dx, dy)
-                    total += _clipped_overlap(
-                        gax, gay, gbx, gby, nx, ny, off, lax, lay, dx, dy, table[n, _LEN],
-                        a0, b0, a1, b1, band_m, sin2_min,
-                    )  # fmt: skip
+                    terms = _sector_terms(gax, gay, gbx, gby, lax, lay, dx, dy)
+                    segment = _LocalSegment(lax, lay, dx, dy, table[n, _LEN])
+                    total += _clipped_overlap(line, segment, terms, band_m, sin2_min)
             first = last
         out[c] = total
     return out
 
 
 @njit(cache=True)
-def _pairs_at(
-    g, loc, table, radius, x, y, theta, spread_m, spread_rad, band_m, sin_min, active, n_active
-):
-    """``candidate_pairs`` around the pose (x, y, theta) among the global segments
-    ``active[:n_active]``: (global indices, local indices), ``table`` and ``radius``
-    being ``_local_table(loc)``."""
-    n_map, n_local = g.shape[0], loc.shape[0]
-    group_g = np.empty(n_map, dtype=np.int64)
-    group_end = np.empty(n_map, dtype=np.int64)
-    pair_l = np.empty(n_map * n_local, dtype=np.int64)
-    n_groups, _ = _filter_pairs(
-        g, loc, table, radius, x, y, theta, spread_m, spread_rad, band_m, sin_min,
-        active, n_active, np.inf, group_g, group_end, pair_l,  # inf: leaves `active` as is
-    )  # fmt: skip
+def _pairs_at(g, local, around, active, n_active):
+    """``candidate_pairs`` of the ``local`` map for the poses ``around`` serves, among the
+    global segments ``active[:n_active]``: (global indices, local indices)."""
+    pairs = _no_pairs(g.shape[0], local.segments.shape[0])
+    # keep_m inf: leaves `active` as it is
+    n_groups, _ = _filter_pairs(g, local, around, active, n_active, np.inf, pairs)
+    group_g, group_end, pair_l = pairs
     count = group_end[n_groups - 1] if n_groups > 0 else 0
     pair_g = np.empty(count, dtype=np.int64)
     first = 0
@@ -478,12 +542,9 @@ def candidate_pairs(
     loc = np.ascontiguousarray(np.asarray(segments_robot, dtype=float).reshape(-1, 4))
     sin_min = float(np.sin(np.deg2rad(min_incidence_deg)))
     x, y, theta = (float(v) for v in centre.as_array())
-    table, radius = _local_table(loc)
+    around = _Around(x, y, theta, float(spread_m), float(spread_rad), float(band_m), sin_min)
     everything = np.arange(g.shape[0])
-    return _pairs_at(
-        g, loc, table, radius, x, y, theta, float(spread_m), float(spread_rad), float(band_m),
-        sin_min, everything, everything.size,
-    )  # fmt: skip
+    return _pairs_at(g, _local_map(loc), around, everything, everything.size)
 
 
 @njit(cache=True)
@@ -549,24 +610,17 @@ def _search_kernel(g, loc, x, y, theta, eta, dtheta, iterations, ratio, recentre
     best_overlaps = np.empty(iterations + recentres)
     track[0] = x, y, theta
     n_map = g.shape[0]
-    table, radius = _local_table(loc)
+    local = _local_map(loc)
     active, n_active = np.arange(n_map), n_map
-    group_g = np.empty(n_map, dtype=np.int64)
-    group_end = np.empty(n_map, dtype=np.int64)
-    pair_l = np.empty(n_map * loc.shape[0], dtype=np.int64)
+    pairs = _no_pairs(n_map, loc.shape[0])
     steps, halvings, repeats_left = 0, 0, recentres
     while halvings < iterations:
         band = band_halfwidth(eta)
         candidates = _candidates(x, y, theta, eta, dtheta)
         travel, n_active = _travel_left(x, y, theta, eta, dtheta, repeats_left, active, n_active)
-        n_groups, n_active = _filter_pairs(
-            g, loc, table, radius, x, y, theta, np.sqrt(2.0) * eta, dtheta,
-            band, sin_min, active, n_active, travel, group_g, group_end, pair_l,
-        )  # fmt: skip
-        overlaps = _grouped_overlaps(
-            g, loc, table, candidates, group_g, group_end, pair_l, n_groups, band,
-            sin_min * sin_min,
-        )  # fmt: skip
+        around = _Around(x, y, theta, np.sqrt(2.0) * eta, dtheta, band, sin_min)
+        n_groups, n_active = _filter_pairs(g, local, around, active, n_active, travel, pairs)
+        overlaps = _grouped_overlaps(g, local, candidates, pairs, n_groups, band, sin_min * sin_min)
         best = overlaps.max()
         best_overlaps[steps] = best
         if best > 0.0:
@@ -594,9 +648,8 @@ def _search_kernel(g, loc, x, y, theta, eta, dtheta, iterations, ratio, recentre
         halvings += 1
     final_band = np.sqrt(2.0) * eta  # the last iteration's: band_halfwidth(2·η)
     _, n_active = _travel_left(x, y, theta, eta, dtheta, repeats_left, active, n_active)
-    final_g, final_l = _pairs_at(
-        g, loc, table, radius, x, y, theta, 0.0, 0.0, final_band, sin_min, active, n_active
-    )
+    at_final = _Around(x, y, theta, 0.0, 0.0, final_band, sin_min)
+    final_g, final_l = _pairs_at(g, local, at_final, active, n_active)
     final_pose = track[steps : steps + 1]
     final = _overlaps_kernel(g, loc, final_pose, final_g, final_l, final_band, sin_min * sin_min)
     return track[: steps + 1].copy(), best_overlaps[:steps].copy(), final[0]

@@ -19,6 +19,7 @@ call tests every segment of the map (as through a grid of one cell).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -362,6 +363,111 @@ def _solve3(a, b):
 
 
 @njit(cache=True)
+def _place_points(points, pose, rotated, world):
+    """The points (P, 2), robot frame, turned by the heading of ``pose`` (3,) into
+    ``rotated`` (P, 2) and placed at it into ``world`` (P, 2), world frame."""
+    c, s = np.cos(pose[2]), np.sin(pose[2])
+    for i in range(points.shape[0]):
+        rotated[i, 0] = points[i, 0] * c - points[i, 1] * s
+        rotated[i, 1] = points[i, 0] * s + points[i, 1] * c
+        world[i, 0] = rotated[i, 0] + pose[0]
+        world[i, 1] = rotated[i, 1] + pose[1]
+
+
+class _NearLists(NamedTuple):
+    """Each point's list of the map segments near where it was when the lists were made
+    (``filed_within``, ``_narrowed``)."""
+
+    at: np.ndarray
+    """(3,) the pose when they were made (world frame, m and rad)."""
+    where: np.ndarray
+    """(P, 2) the points then, world frame (m)."""
+    radius: float
+    """How far from the points then they list the segments (m; −inf: no lists yet)."""
+    starts: np.ndarray
+    """(P + 1,) where each point's list starts in ``segments``."""
+    segments: np.ndarray
+    """The listed segments' indices, point after point."""
+    distances: np.ndarray
+    """Each listed segment's distance from its point then (m)."""
+
+
+@njit(cache=True)
+def _near_lists(lists, pose, world, gate, reach_m, cells, segments, allowed):
+    """The lists for a step at ``pose`` with the points at ``world`` and this ``gate``:
+    ``lists`` while the pose has travelled less than their radius less the gate (any point
+    within ``reach_m`` of the scanner, ``_travel``), made anew from the grid beyond, and
+    narrowed when the gate has shrunk far enough within them. Made for twice the gate."""
+    travel = _travel(pose, lists.at, reach_m)
+    radius = lists.radius
+    renew = not travel <= radius - gate  # and on the first step, or at a NaN pose
+    narrow = not renew and radius > 2.0 * gate and radius - travel >= 2.0 * gate
+    if renew:
+        starts, listed, distances = filed_within(cells, segments, allowed, world, 2.0 * gate)
+    elif narrow:
+        starts, listed, distances = _narrowed(
+            world, segments, lists.starts, lists.segments, 2.0 * gate
+        )
+    else:
+        return lists
+    return _NearLists(pose.copy(), world.copy(), 2.0 * gate, starts, listed, distances)
+
+
+@njit(cache=True)
+def _normal_equations(world, rotated, segments, lists, hints, gate):
+    """The Gauss-Newton system of one step: the Hessian (3, 3) and gradient (3,) of the
+    point-to-line residuals, with Cauchy weights, of the points at ``world`` (``rotated``
+    about the pose's position) within ``gate`` of their nearest segment in their
+    ``lists`` (``_nearest_listed``), and how many such points there are. ``hints`` (P,)
+    holds each point's nearest segment at the step before, and gets this step's."""
+    starts, listed, listed_d = lists.starts, lists.segments, lists.distances
+    listed_where = lists.where
+    hessian = np.zeros((3, 3))
+    gradient = np.zeros(3)
+    jacobian = np.empty(3)
+    used = 0
+    for i in range(world.shape[0]):
+        px, py = world[i, 0], world[i, 1]
+        ex, ey = px - listed_where[i, 0], py - listed_where[i, 1]
+        moved = np.sqrt(ex * ex + ey * ey)
+        j, d = _nearest_listed(
+            px, py, moved, segments, listed, listed_d, starts[i], starts[i + 1], hints[i], gate
+        )
+        hints[i] = j
+        if not d <= gate:
+            continue
+        used += 1
+        dx, dy = segments[j, 2] - segments[j, 0], segments[j, 3] - segments[j, 1]
+        length = np.hypot(dx, dy)
+        length = length if length > 0 else 1.0
+        nx, ny = -dy / length, dx / length
+        residual = nx * (world[i, 0] - segments[j, 0]) + ny * (world[i, 1] - segments[j, 1])
+        jacobian[0], jacobian[1] = nx, ny
+        jacobian[2] = nx * -rotated[i, 1] + ny * rotated[i, 0]
+        # Cauchy weights with the scale at half the gate: points near the
+        # gate count for less, so a wrong pairing cannot drag the pose far.
+        weight = 1.0 / (1.0 + (residual / (0.5 * gate)) ** 2)
+        for a in range(3):
+            weighted = jacobian[a] * weight
+            gradient[a] += weighted * residual
+            for b in range(3):
+                hessian[a, b] += weighted * jacobian[b]
+    return hessian, gradient, used
+
+
+@njit(cache=True)
+def _damped_step(hessian, gradient, pose, initial, prior):
+    """The step (3,) that solves the system of ``_normal_equations`` at ``pose``, damped
+    and with the prior (weights ``prior`` (3,)) pulling towards ``initial``, and whether
+    the system was regular (``_solve3``). ``hessian`` is damped in place."""
+    offset = pose - initial
+    offset[2] = wrap_remainder(offset[2])
+    for a in range(3):
+        hessian[a, a] += prior[a] + 1e-6
+    return _solve3(hessian, -gradient - prior * offset)
+
+
+@njit(cache=True)
 def _gauss_newton(
     points,
     segments,
@@ -387,76 +493,22 @@ def _gauss_newton(
     world = np.empty((n, 2))
     rotated = np.empty((n, 2))
     # Each point is compared only with the segments listed near where it was when the
-    # lists were made, out to ``radius``: enough while the pose travels less than the
-    # radius less the gate. Lists are made for twice the gate, narrowed when the gate
-    # shrinks, and made anew from the grid when the pose has travelled too far for them.
-    # Each point's nearest segment at the last step is tried first at the next, and a listed
-    # segment is passed over when it was too far, given how far the point has moved since.
-    lists_at = initial.copy()
-    listed_from, listed, listed_d = filed_within(cells, segments, allowed, world[:0], 0.0)
-    listed_where = np.empty((n, 2))
+    # lists were made (``_near_lists``). Each point's nearest segment at the last step is
+    # tried first at the next, and a listed segment is passed over when it was too far,
+    # given how far the point has moved since.
+    starts, listed, distances = filed_within(cells, segments, allowed, world[:0], 0.0)
+    lists = _NearLists(initial.copy(), np.empty((n, 2)), -np.inf, starts, listed, distances)
     hints = np.full(n, -1, dtype=np.int64)
-    radius = -np.inf
     for gate in gates:
         for _ in range(steps_per_round):
-            c, s = np.cos(pose[2]), np.sin(pose[2])
-            for i in range(n):
-                rotated[i, 0] = points[i, 0] * c - points[i, 1] * s
-                rotated[i, 1] = points[i, 0] * s + points[i, 1] * c
-                world[i, 0] = rotated[i, 0] + pose[0]
-                world[i, 1] = rotated[i, 1] + pose[1]
-            travel = _travel(pose, lists_at, reach_m)
-            renew = not travel <= radius - gate  # and on the first step, or at a NaN pose
-            narrow = not renew and radius > 2.0 * gate and radius - travel >= 2.0 * gate
-            if renew:
-                listed_from, listed, listed_d = filed_within(
-                    cells, segments, allowed, world, 2.0 * gate
-                )
-            elif narrow:
-                listed_from, listed, listed_d = _narrowed(
-                    world, segments, listed_from, listed, 2.0 * gate
-                )
-            if renew or narrow:
-                lists_at[:] = pose
-                listed_where[:] = world
-                radius = 2.0 * gate
-            hessian = np.zeros((3, 3))
-            gradient = np.zeros(3)
-            jacobian = np.empty(3)
-            used = 0
-            for i in range(n):
-                px, py = world[i, 0], world[i, 1]
-                ex, ey = px - listed_where[i, 0], py - listed_where[i, 1]
-                j, d = _nearest_listed(
-                    px, py, np.sqrt(ex * ex + ey * ey), segments, listed, listed_d,
-                    listed_from[i], listed_from[i + 1], hints[i], gate,
-                )  # fmt: skip
-                hints[i] = j
-                if not d <= gate:
-                    continue
-                used += 1
-                dx, dy = segments[j, 2] - segments[j, 0], segments[j, 3] - segments[j, 1]
-                length = np.hypot(dx, dy)
-                length = length if length > 0 else 1.0
-                nx, ny = -dy / length, dx / length
-                residual = nx * (world[i, 0] - segments[j, 0]) + ny * (world[i, 1] - segments[j, 1])
-                jacobian[0], jacobian[1] = nx, ny
-                jacobian[2] = nx * -rotated[i, 1] + ny * rotated[i, 0]
-                # Cauchy weights with the scale at half the gate: points near the
-                # gate count for less, so a wrong pairing cannot drag the pose far.
-                weight = 1.0 / (1.0 + (residual / (0.5 * gate)) ** 2)
-                for a in range(3):
-                    weighted = jacobian[a] * weight
-                    gradient[a] += weighted * residual
-                    for b in range(3):
-                        hessian[a, b] += weighted * jacobian[b]
+            _place_points(points, pose, rotated, world)
+            lists = _near_lists(lists, pose, world, gate, reach_m, cells, segments, allowed)
+            hessian, gradient, used = _normal_equations(
+                world, rotated, segments, lists, hints, gate
+            )
             if used < min_points:
                 break
-            offset = pose - initial
-            offset[2] = wrap_remainder(offset[2])
-            for a in range(3):
-                hessian[a, a] += prior[a] + 1e-6
-            step, regular = _solve3(hessian, -gradient - prior * offset)
+            step, regular = _damped_step(hessian, gradient, pose, initial, prior)
             if not regular or not np.all(np.isfinite(step)):
                 break
             pose += step

@@ -14,6 +14,7 @@ poses, which the caller polishes by refinement and compares.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -21,7 +22,11 @@ from segloc_cli.config import SearchParams
 from segloc_cli.field import (
     BOUND_LEVELS,
     INDEX_LIMIT,
+    level_cell,
+    level_cells,
+    level_grid,
     level_shift,
+    level_square,
     max_pyramid,
     phase_split,
     pyramid_depth,
@@ -38,6 +43,36 @@ class Hypothesis:
 
     pose: Pose2
     score: float
+
+
+class SearchGrid(NamedTuple):
+    """The grid poses a search scores, as compiled code takes them: every heading × every
+    shift (x, y) in [0, ``n_cells``)² fine cells from the search's start (world frame)."""
+
+    headings: np.ndarray
+    """(H,) headings, rad."""
+    ix: np.ndarray
+    """(H, P) int64: the points' fine cells in x at shift (0, 0), per heading."""
+    iy: np.ndarray
+    """(H, P) int64: the same in y."""
+    n_cells: int
+    """Shifts along each axis."""
+    depth: int
+    """The pyramid level the search starts from: top squares of 2^depth × 2^depth shifts
+    (0: single shifts, no pyramid)."""
+    cell: float
+    """Side of a fine cell (and of a shift), m."""
+
+
+class Pruning(NamedTuple):
+    """Which grid poses a search keeps: the ``k`` best distinct ones scoring at least
+    ``keep`` times the best, two poses being alike within ``apart_m`` (m) and
+    ``apart_rad`` (rad)."""
+
+    k: int
+    keep: float
+    apart_m: float
+    apart_rad: float
 
 
 @njit(cache=True)
@@ -95,15 +130,29 @@ def _exact_sum(fine, ix, iy, x, y):
     return total
 
 
+class _MergedPoints(NamedTuple):
+    """The points' cells on each pyramid level, merged (``_level_cells``: ``cells``,
+    ``linear``, ``weights``, ``counts``, ``boxes``), and the box of their fine cells per
+    heading (``_cell_box``: ``fine_boxes``)."""
+
+    cells: np.ndarray
+    linear: np.ndarray
+    weights: np.ndarray
+    counts: np.ndarray
+    boxes: np.ndarray
+    fine_boxes: np.ndarray
+
+
 @njit(cache=True)
-def _level_cells(ix, iy, shapes, shifts, pad, n_cells, sort):
-    """The points' cells on each ``BoundPyramid`` level, merged: per level L (depth) and
-    heading h, the level cells (Q, 2) of the points' squares at shift (0, 0), how many
-    points each stands for (Q,), with Q in ``counts[L, h]``, each cell's index into its
-    level stored row-major (Q,), and the cells' bounding box (min x, max x, min y, max y).
-    With ``sort`` every cell is listed once; without, only consecutive points are merged (a
-    scan's points come in beam order, so most points sharing a cell are neighbours), which
-    costs no sorting: the choice for a search that evaluates few nodes.
+def _level_cells(pyramid, grid, sort):
+    """The points' cells on ``BoundPyramid`` levels 1 to the grid's depth, merged: per level
+    L (at index L − 1) and heading h, the level cells (Q, 2) of the points' squares at shift
+    (0, 0), how many points each stands for (Q,), with Q in ``counts[L − 1, h]``, each
+    cell's index into its level stored row-major (Q,), and the cells' bounding box (min x,
+    max x, min y, max y). With ``sort`` every cell is listed once; without, only consecutive
+    points are merged (a scan's points come in beam order, so most points sharing a cell
+    are neighbours), which costs no sorting: the choice for a search that evaluates few
+    nodes.
 
     A node of level L has a corner x that is a multiple of the level's stride 2^s, so a
     point of fine cell b reads the level at (b + W + x) >> s = ((b + W) >> s) + (x >> s):
@@ -112,7 +161,7 @@ def _level_cells(ix, iy, shapes, shifts, pad, n_cells, sort):
     within ``n_cells`` brings onto the level are left out, as are points beyond
     ``INDEX_LIMIT``.
     """
-    depth, (n_h, n_p) = shifts.shape[0], ix.shape
+    ix, iy, depth, (n_h, n_p) = grid.ix, grid.iy, grid.depth, grid.ix.shape
     # Only the first counts[L, h] entries of a row are filled (and read).
     cells = np.empty((depth, n_h, n_p, 2), dtype=np.int32)
     linear = np.empty((depth, n_h, n_p), dtype=np.int64)
@@ -123,15 +172,15 @@ def _level_cells(ix, iy, shapes, shifts, pad, n_cells, sort):
     qj = np.empty(n_p, dtype=np.int64)
     keys = np.empty(n_p, dtype=np.int64)
     for lv in range(depth):
-        shift, nx, ny = shifts[lv], shapes[lv, 0], shapes[lv, 1]
-        reach = (n_cells >> shift) + 1
+        _, nx, ny = level_grid(pyramid, lv + 1)
+        reach = level_cells(pyramid, lv + 1, grid.n_cells) + 1
         for h in range(n_h):
             m = 0
             for p in range(n_p):
                 bx, by = ix[h, p], iy[h, p]
                 if _beyond_limit(bx, by):
                     continue
-                ci, cj = (bx + pad) >> shift, (by + pad) >> shift
+                ci, cj = level_cell(pyramid, lv + 1, bx), level_cell(pyramid, lv + 1, by)
                 if -reach <= ci < nx and -reach <= cj < ny:
                     qi[m], qj[m] = ci, cj
                     m += 1
@@ -158,7 +207,7 @@ def _level_cells(ix, iy, shapes, shifts, pad, n_cells, sort):
                     box[0], box[1] = min(box[0], ci), max(box[1], ci)
                     box[2], box[3] = min(box[2], cj), max(box[3], cj)
             counts[lv, h] = q + 1
-    return cells, linear, weights, counts, boxes
+    return _MergedPoints(cells, linear, weights, counts, boxes, _cell_box(ix, iy))
 
 
 @njit(cache=True)
@@ -217,18 +266,46 @@ def _cell_box(ix, iy):
     return boxes
 
 
+class _MergedRow(NamedTuple):
+    """The merged points of one level and heading (``_level_cells``): their level cells
+    (Q, 2), each one's index into the level (Q,), how many points each stands for (Q,), Q,
+    and the cells' bounding box (min x, max x, min y, max y)."""
+
+    cells: np.ndarray
+    linear: np.ndarray
+    weights: np.ndarray
+    count: int
+    box: np.ndarray
+
+
 @njit(cache=True)
-def _children_bound(values, offset, shape, cells, linear, weights, count, box, xs, ys, half, out):
-    """The bounds of one level at the four moves (xs, ys), (xs + half, ys), (xs, ys + half),
-    (xs + half, ys + half) level cells of the merged points (``_level_cells`` of one level
-    and heading), into ``out`` (4,) in that order, in points' worth: each bounds
+def _merged_row(merged, level, h):
+    """The ``_MergedRow`` of level ``level`` and heading index h."""
+    lv = level - 1
+    return _MergedRow(
+        merged.cells[lv, h],
+        merged.linear[lv, h],
+        merged.weights[lv, h],
+        merged.counts[lv, h],
+        merged.boxes[lv, h],
+    )
+
+
+@njit(cache=True)
+def _children_bound(level_bounds, row, square, out):
+    """The bounds of one pyramid level (``level_grid``: values, nx, ny) at the four moves
+    (xs, ys), (xs + half, ys), (xs, ys + half), (xs + half, ys + half) level cells of the
+    merged points ``row`` (``_MergedRow``), ``square`` being (xs, ys, half)
+    (``level_square``), into ``out`` (4,) in that order, in points' worth: each bounds
     ``_exact_sum`` for every shift within its square. Cells beyond the level score 0; when
     the cells' box lies inside the level at all four moves, no cell is checked."""
-    nx, ny = shape[0], shape[1]
+    values, nx, ny = level_bounds
+    cells, linear, weights, count, box = row
+    xs, ys, half = square
     s0 = s1 = s2 = s3 = 0
     inside_x = box[0] + xs >= 0 and box[1] + xs + half < nx
     if inside_x and box[2] + ys >= 0 and box[3] + ys + half < ny:
-        base, across = offset + xs * ny + ys, half * ny
+        base, across = xs * ny + ys, half * ny
         for q in range(count):
             b, w = linear[q] + base, weights[q]
             s0 += w * values[b]
@@ -243,13 +320,13 @@ def _children_bound(values, offset, shape, cells, linear, weights, count, box, x
             in_i1, in_j1 = 0 <= i1 < nx, 0 <= j1 < ny
             w = weights[q]
             if in_i0 and in_j0:
-                s0 += w * values[offset + i0 * ny + j0]
+                s0 += w * values[i0 * ny + j0]
             if in_i1 and in_j0:
-                s1 += w * values[offset + i1 * ny + j0]
+                s1 += w * values[i1 * ny + j0]
             if in_i0 and in_j1:
-                s2 += w * values[offset + i0 * ny + j1]
+                s2 += w * values[i0 * ny + j1]
             if in_i1 and in_j1:
-                s3 += w * values[offset + i1 * ny + j1]
+                s3 += w * values[i1 * ny + j1]
     out[0], out[1], out[2], out[3] = (
         s0 / BOUND_LEVELS,
         s1 / BOUND_LEVELS,
@@ -317,37 +394,41 @@ def _batches(tally, first):
 
 
 @njit(cache=True)
-def _keep_distinct(score, hh, xx, yy, n, headings, cell, apart_m, apart_rad):
-    """Compact the first ``n`` entries (sorted best first) to those distinct from every
-    better entry kept; returns how many are kept."""
-    kept = 0
+def _keep_distinct(kept, n, grid, pruning):
+    """Compact the first ``n`` of the ``kept`` poses (sorted best first) to those distinct from
+    every better one kept; returns how many are kept."""
+    score, hh, xx, yy = kept
+    headings, cell = grid.headings, grid.cell
+    apart_m, apart_rad = pruning.apart_m, pruning.apart_rad
+    n_kept = 0
     for e in range(n):
         alone = True
-        for o in range(kept):
+        for o in range(n_kept):
             near = np.hypot(xx[e] - xx[o], yy[e] - yy[o]) * cell <= apart_m
             if near and abs(wrap(headings[hh[e]] - headings[hh[o]])) <= apart_rad:
                 alone = False
                 break
         if alone:
-            score[kept], hh[kept], xx[kept], yy[kept] = score[e], hh[e], xx[e], yy[e]
-            kept += 1
-    return kept
+            score[n_kept], hh[n_kept], xx[n_kept], yy[n_kept] = score[e], hh[e], xx[e], yy[e]
+            n_kept += 1
+    return n_kept
 
 
 @njit(cache=True)
-def _shadowed(kept_sum, kept_h, kept_x, kept_y, n_kept, headings, h, x, y, span, bound, cell,
-              apart_m, apart_rad):  # fmt: skip
+def _shadowed(kept, n_kept, grid, pruning, h, x, y, span, bound):
     """Whether every pose of the square of shifts [x, x + span] × [y, y + span] at heading
-    index h, none summing above ``bound``, is near a kept pose at least as good: placed,
-    each would be dropped as not distinct from it (``_keep_distinct``) and change nothing,
-    nor would the kept pose be displaced while they are placed (none beats it)."""
+    index h, none summing above ``bound``, is near one of the first ``n_kept`` ``kept`` poses
+    at least as good: placed, each would be dropped as not distinct from it
+    (``_keep_distinct``) and change nothing, nor would the kept pose be displaced while they
+    are placed (none beats it)."""
+    headings, apart_rad = grid.headings, pruning.apart_rad
     for o in range(n_kept):
-        if kept_sum[o] < bound or abs(wrap(headings[h] - headings[kept_h[o]])) > apart_rad:
+        if kept.sums[o] < bound or abs(wrap(headings[h] - headings[kept.h[o]])) > apart_rad:
             continue
         # The square's farthest corner from the kept pose is the farthest of its poses.
-        dx = max(abs(x - kept_x[o]), abs(x + span - kept_x[o]))
-        dy = max(abs(y - kept_y[o]), abs(y + span - kept_y[o]))
-        if np.hypot(dx, dy) * cell <= apart_m:
+        dx = max(abs(x - kept.x[o]), abs(x + span - kept.x[o]))
+        dy = max(abs(y - kept.y[o]), abs(y + span - kept.y[o]))
+        if np.hypot(dx, dy) * grid.cell <= pruning.apart_m:
             return True
     return False
 
@@ -390,150 +471,196 @@ FIRST_BATCH = 4096
 time, so that a global search sorts only the squares its threshold leaves."""
 
 
-@njit(cache=True)
-def _branch_and_bound(
-    fine,
-    values,
-    offsets,
-    shapes,
-    shifts,
-    pad,
-    phased,
-    ix,
-    iy,
-    n_cells,
-    depth,
-    headings,
-    cell,
-    apart_m,
-    apart_rad,
-    k,
-    keep,
-    top_mask,
-    known,
-    whole,
-    first_batch,
-):
-    """The ``k`` best distinct (heading, x, y) of the fine sums over a square of
-    ``n_cells``² shifts, by depth-first branch and bound over the bound pyramid.
+class _Poses(NamedTuple):
+    """Grid poses, one per entry: the sum of the points' scores (points' worth), the heading
+    index and the shift (x, y)."""
 
-    ``ix``, ``iy`` (H, P) are the points' fine cells at shift (0, 0) per heading. The
-    search bounds every square of 2^``depth`` shifts that ``top_mask`` allows at every
-    heading in one pass (level ``depth`` split by phase in ``phased``), takes them best
-    bound first, and splits a square in four while its bound beats the threshold: the
-    k-th best distinct sum kept so far (0 until k are kept), and at least ``keep`` times
-    the best. The best sum is exact; the runner-ups are the best distinct sums the pruning
-    leaves (a better pose that is not distinct from one kept replaces it). ``whole`` (A, A)
-    holds one heading's top bounds, A = ⌈n_cells / 2^depth⌉, of an integer type wide enough
-    for their sums. The top squares are sorted and searched ``first_batch`` at a time, then
-    4 times as many (``_batches``). Returns (sums, heading indices, x, y), best first.
-    """
-    n_h = ix.shape[0]
-    step = 2**depth
-    n_top = -(-n_cells // step)
-    # Sorting pays once the search spans many top squares (a global search).
-    cells, linear, weights, counts, boxes = _level_cells(
-        ix, iy, shapes[:depth], shifts[:depth], pad, n_cells, n_top > 2
+    sums: np.ndarray
+    h: np.ndarray
+    x: np.ndarray
+    y: np.ndarray
+
+
+class _Squares(NamedTuple):
+    """Squares of 2^level × 2^level shifts, one per entry: the level, the corner shift
+    (x, y) and the bound (points' worth) on the sums of their poses."""
+
+    level: np.ndarray
+    x: np.ndarray
+    y: np.ndarray
+    bound: np.ndarray
+
+
+@njit(cache=True)
+def _no_poses(size):
+    """Room for ``size`` ``_Poses``, all 0."""
+    return _Poses(
+        np.zeros(size),
+        np.zeros(size, dtype=np.int64),
+        np.zeros(size, dtype=np.int64),
+        np.zeros(size, dtype=np.int64),
     )
-    cell_boxes = _cell_box(ix, iy)
-    divisor = float(BOUND_LEVELS) if depth > 0 else 1.0
+
+
+@njit(cache=True)
+def _no_squares(size):
+    """Room for ``size`` ``_Squares``, all 0."""
+    return _Squares(
+        np.zeros(size, dtype=np.int64),
+        np.zeros(size, dtype=np.int64),
+        np.zeros(size, dtype=np.int64),
+        np.zeros(size),
+    )
+
+
+@njit(cache=True)
+def _top_square_bounds(pyramid, grid, merged, top_mask, whole):
+    """The bound of every top square of every heading, flat (H·A·A,), heading first, then x,
+    then y (A = ⌈n_cells / 2^depth⌉): whole 255ths from the level split by phase
+    (``_top_bounds`` into ``whole`` (A, A)), or without a pyramid (depth 0) the exact sums
+    of the single shifts. Squares ``top_mask`` (A, A) leaves out get −1."""
+    n_h, n_top = grid.ix.shape[0], -(-grid.n_cells // 2**grid.depth)
     top = np.full((n_h, n_top, n_top), -1.0)
-    exact = depth == 0  # no pyramid: the top squares are single shifts
+    exact = grid.depth == 0  # no pyramid: the top squares are single shifts
+    lv = grid.depth - 1
     for h in range(n_h):
-        if depth > 0:
-            lv = depth - 1
-            _top_bounds(phased, cells[lv, h], weights[lv, h], counts[lv, h], whole)
+        if not exact:
+            cells, weights = merged.cells[lv, h], merged.weights[lv, h]
+            _top_bounds(pyramid.phased, cells, weights, merged.counts[lv, h], whole)
         for a in range(n_top):
             for b in range(n_top):
-                if top_mask[a, b]:  # squares left out keep −1
-                    top[h, a, b] = _exact_sum(fine, ix[h], iy[h], a, b) if exact else whole[a, b]
-    top = top.reshape(-1)
+                if not top_mask[a, b]:  # squares left out keep −1
+                    continue
+                if exact:
+                    top[h, a, b] = _exact_sum(pyramid.fine, grid.ix[h], grid.iy[h], a, b)
+                else:
+                    top[h, a, b] = whole[a, b]
+    return top.reshape(-1)
+
+
+@njit(cache=True)
+def _place_leaf(kept, n_kept, grid, pruning, h, x, y, total):
+    """Place the grid pose (h, x, y) summing ``total`` among the first ``n_kept`` ``kept``
+    poses, in order, and keep the best ``k`` distinct ones; returns how many are kept."""
+    e = n_kept
+    while e > 0 and kept.sums[e - 1] < total:
+        kept.sums[e], kept.h[e] = kept.sums[e - 1], kept.h[e - 1]
+        kept.x[e], kept.y[e] = kept.x[e - 1], kept.y[e - 1]
+        e -= 1
+    kept.sums[e], kept.h[e], kept.x[e], kept.y[e] = total, h, x, y
+    return min(_keep_distinct(kept, n_kept + 1, grid, pruning), pruning.k)
+
+
+@njit(cache=True)
+def _threshold(kept, n_kept, pruning):
+    """The sum a square's bound must beat to be searched once a pose is kept: the k-th best
+    kept sum (0 until k are kept), and at least ``keep`` times the best."""
+    k = pruning.k
+    return max(kept.sums[k - 1] if n_kept == k else 0.0, pruning.keep * kept.sums[0])
+
+
+@njit(cache=True)
+def _push_children(stack, n_stack, sums, level, x, y, n_cells, threshold):
+    """Push onto the ``stack`` (``n_stack`` high) the four squares of 2^(level − 1) shifts
+    making the square of 2^level at corner (x, y), whose bounds ``sums`` (4,) holds in the
+    order of ``_children_exact``, that lie on the grid of ``n_cells``² shifts and beat
+    ``threshold``: the weakest first, so that the strongest is searched first, and of equal
+    ones the first first (as a stable sort, and np.argsort of so few, order them); returns
+    the stack's new height."""
+    half, bottom = 2 ** (level - 1), n_stack
+    for c in range(4):
+        cx, cy = x + (c % 2) * half, y + (c // 2) * half
+        if not (cx < n_cells and cy < n_cells and sums[c] > threshold):
+            continue
+        e = n_stack  # insert it above the squares it does not beat
+        while e > bottom and sums[c] < stack.bound[e - 1]:
+            stack.level[e], stack.x[e] = stack.level[e - 1], stack.x[e - 1]
+            stack.y[e], stack.bound[e] = stack.y[e - 1], stack.bound[e - 1]
+            e -= 1
+        stack.level[e], stack.x[e], stack.y[e], stack.bound[e] = level - 1, cx, cy, sums[c]
+        n_stack += 1
+    return n_stack
+
+
+@njit(cache=True)
+def _best_first(pyramid, grid, pruning, merged, top, known, first_batch):
+    """The kept poses (``_Poses``, best first) and how many, from the bounds ``top`` of
+    every top square (``_top_square_bounds``): the squares are taken best bound first,
+    ``first_batch`` at a time, then 4 times as many (``_batches``), each searched depth
+    first, a square split in four while its bound beats the threshold and it is not
+    ``_shadowed``. The threshold is the k-th best distinct sum kept so far (0 until k are
+    kept), and at least ``keep`` times the best, ``known`` being a sum already found."""
+    depth, step = grid.depth, 2**grid.depth
+    n_top = -(-grid.n_cells // step)
+    divisor = float(BOUND_LEVELS) if depth > 0 else 1.0
+    kept = _no_poses(pruning.k + 1)  # best first, and room for one more while a leaf is placed
+    n_kept = np.int64(0)  # not the literal 0, which numba would compile callees for as well
+    threshold = pruning.keep * known  # a sum already found is at most the best
+    stack, sums = _no_squares(4 * depth + 4), np.zeros(4)  # and the bounds of four children
+    fine, ix, iy = pyramid.fine, grid.ix, grid.iy
     bins, tally = _batch_bins(top, 1024)
-    # The kept poses, best first, and room for one more while a leaf is placed.
-    kept_sum = np.zeros(k + 1)
-    kept_h = np.zeros(k + 1, dtype=np.int64)
-    kept_x = np.zeros(k + 1, dtype=np.int64)
-    kept_y = np.zeros(k + 1, dtype=np.int64)
-    n_kept = 0
-    threshold = keep * known  # a sum already found is at most the best
-    size = 4 * depth + 4
-    stack_level = np.zeros(size, dtype=np.int64)
-    stack_x = np.zeros(size, dtype=np.int64)
-    stack_y = np.zeros(size, dtype=np.int64)
-    stack_bound = np.zeros(size)
-    sums = np.zeros(4)
-    child_bound = np.zeros(4)
-    child_x = np.zeros(4, dtype=np.int64)
-    child_y = np.zeros(4, dtype=np.int64)
-    done = False
     for low, high in _batches(tally, first_batch):
         members = np.flatnonzero((bins >= low) & (bins <= high))
         for flat in members[np.argsort(-top[members])]:
             if top[flat] / divisor <= threshold:
-                done = True
-                break
+                return kept, n_kept
             h = flat // (n_top * n_top)
-            stack_level[0] = depth
-            stack_x[0] = (flat // n_top) % n_top * step
-            stack_y[0] = flat % n_top * step
-            stack_bound[0] = top[flat] / divisor
-            stack_top = 1
-            while stack_top > 0:
-                stack_top -= 1
-                level, x, y = stack_level[stack_top], stack_x[stack_top], stack_y[stack_top]
-                bound = stack_bound[stack_top]
+            stack.level[0], stack.x[0] = depth, (flat // n_top) % n_top * step
+            stack.y[0], stack.bound[0] = flat % n_top * step, top[flat] / divisor
+            n_stack = 1
+            while n_stack > 0:
+                n_stack -= 1
+                level, x, y = stack.level[n_stack], stack.x[n_stack], stack.y[n_stack]
+                bound = stack.bound[n_stack]
                 if bound <= threshold:
                     continue
-                if _shadowed(kept_sum, kept_h, kept_x, kept_y, n_kept, headings, h, x, y,
-                             2**level - 1, bound, cell, apart_m, apart_rad):  # fmt: skip
+                if _shadowed(kept, n_kept, grid, pruning, h, x, y, 2**level - 1, bound):
                     continue
                 if level == 0:  # a leaf, whose bound is its exact sum: place it among the kept
-                    e = n_kept
-                    while e > 0 and kept_sum[e - 1] < bound:
-                        kept_sum[e], kept_h[e] = kept_sum[e - 1], kept_h[e - 1]
-                        kept_x[e], kept_y[e] = kept_x[e - 1], kept_y[e - 1]
-                        e -= 1
-                    kept_sum[e], kept_h[e], kept_x[e], kept_y[e] = bound, h, x, y
-                    n_kept = _keep_distinct(
-                        kept_sum,
-                        kept_h,
-                        kept_x,
-                        kept_y,
-                        n_kept + 1,
-                        headings,
-                        cell,
-                        apart_m,
-                        apart_rad,
-                    )
-                    n_kept = min(n_kept, k)
-                    threshold = max(kept_sum[k - 1] if n_kept == k else 0.0, keep * kept_sum[0])
+                    n_kept = _place_leaf(kept, n_kept, grid, pruning, h, x, y, bound)
+                    threshold = _threshold(kept, n_kept, pruning)
                     continue
-                half = 2 ** (level - 1)
+                # The four squares making this one: their bounds, in the order _push_children
+                # takes them (their exact sums when they are single shifts).
                 if level == 1:
-                    _children_exact(fine, ix[h], iy[h], cell_boxes[h], x, y, sums)
+                    _children_exact(fine, ix[h], iy[h], merged.fine_boxes[h], x, y, sums)
                 else:
-                    lv, shift = level - 2, shifts[level - 2]
-                    _children_bound(
-                        values, offsets[lv], shapes[lv], cells[lv, h], linear[lv, h],
-                        weights[lv, h], counts[lv, h], boxes[lv, h], x >> shift, y >> shift,
-                        half >> shift, sums,
-                    )  # fmt: skip
-                n_child = 0
-                for c in range(4):
-                    cx, cy = x + (c % 2) * half, y + (c // 2) * half
-                    if cx < n_cells and cy < n_cells and sums[c] > threshold:
-                        child_bound[n_child], child_x[n_child] = sums[c], cx
-                        child_y[n_child] = cy
-                        n_child += 1
-                # The weakest is pushed first, so the strongest is searched first.
-                for c in np.argsort(child_bound[:n_child]):
-                    stack_level[stack_top], stack_x[stack_top] = level - 1, child_x[c]
-                    stack_y[stack_top], stack_bound[stack_top] = child_y[c], child_bound[c]
-                    stack_top += 1
-        if done:
-            break
-    n_kept = np.searchsorted(-kept_sum[:n_kept], -keep * kept_sum[0], side="right")
-    return kept_sum[:n_kept], kept_h[:n_kept], kept_x[:n_kept], kept_y[:n_kept]
+                    lower, row = level - 1, _merged_row(merged, level - 1, h)
+                    square = level_square(pyramid, lower, x, y)
+                    _children_bound(level_grid(pyramid, lower), row, square, sums)
+                n_stack = _push_children(stack, n_stack, sums, level, x, y, grid.n_cells, threshold)
+    return kept, n_kept
+
+
+@njit(cache=True)
+def _branch_and_bound(pyramid, grid, pruning, top_mask, known, whole, first_batch):
+    """The ``pruning.k`` best distinct grid poses (``_Poses``: sums, heading indices, x, y),
+    best first, of the fine sums over the ``grid``, by depth-first branch and bound over the
+    bound pyramid (``PyramidArrays``).
+
+    The search bounds every square of 2^``depth`` shifts that ``top_mask`` allows at every
+    heading in one pass (the grid's level split by phase in ``pyramid.phased``), takes them
+    best bound first, and splits a square in four while its bound beats the threshold: the
+    k-th best distinct sum kept so far (0 until k are kept), and at least ``keep`` times
+    the best, ``known`` being a sum already found. The best sum is exact; the runner-ups
+    are the best distinct sums the pruning leaves (a better pose that is not distinct from
+    one kept replaces it). ``whole`` (A, A) holds one heading's top bounds, A = ⌈n_cells /
+    2^depth⌉, of an integer type wide enough for their sums. The top squares are sorted
+    and searched ``first_batch`` at a time, then 4 times as many (``_batches``).
+    """
+    n_top = -(-grid.n_cells // 2**grid.depth)
+    # Sorting pays once the search spans many top squares (a global search).
+    merged = _level_cells(pyramid, grid, n_top > 2)
+    top = _top_square_bounds(pyramid, grid, merged, top_mask, whole)
+    kept, n_kept = _best_first(pyramid, grid, pruning, merged, top, known, first_batch)
+    return _best_kept(kept, n_kept, pruning)
+
+
+@njit(cache=True)
+def _best_kept(kept, n_kept, pruning):
+    """The first ``n_kept`` ``kept`` poses that score at least ``keep`` times the best."""
+    n_kept = np.searchsorted(-kept.sums[:n_kept], -pruning.keep * kept.sums[0], side="right")
+    return _Poses(kept.sums[:n_kept], kept.h[:n_kept], kept.x[:n_kept], kept.y[:n_kept])
 
 
 @njit(cache=True)
@@ -639,35 +766,21 @@ class HypothesisSearch:
         mask = self._reachable(start, n_cells, depth, reach_m)
         n_top = mask.shape[0]
         wide_enough = points.shape[0] * BOUND_LEVELS < 2**31  # int32 top bounds, summed fast
-        sums, h, x, y = _branch_and_bound(
-            self.fine.score,
-            self.pyramid.values,
-            self.pyramid.offsets,
-            self.pyramid.shapes,
-            self.pyramid.shifts,
-            self.pyramid.pad,
-            self._phased(depth),
-            ix,
-            iy,
-            n_cells,
-            depth,
-            headings,
-            cell,
-            p.distinct_m,
-            np.deg2rad(p.distinct_deg),
-            p.hypotheses,
-            p.keep_fraction,
+        found = _branch_and_bound(
+            self.pyramid.arrays(self.fine.score, self._phased(depth)),
+            SearchGrid(headings, ix, iy, n_cells, depth, cell),
+            Pruning(p.hypotheses, p.keep_fraction, p.distinct_m, np.deg2rad(p.distinct_deg)),
             mask,
             self._known_sum(ix, iy, headings, start, n_cells, known),
             np.zeros((n_top, n_top), dtype=np.int32 if wide_enough else np.int64),
             first_batch,
         )
-        xy = start + cell * np.column_stack([x, y])
+        xy = start + cell * np.column_stack([found.x, found.y])
         return [
             Hypothesis(
                 Pose2(float(px), float(py), float(headings[k])), float(total / points.shape[0])
             )
-            for (px, py), k, total in zip(xy, h, sums, strict=True)
+            for (px, py), k, total in zip(xy, found.h, found.sums, strict=True)
         ]
 
     def _top_depth(self, n_cells: int, n_headings: int, everywhere: bool) -> int:

@@ -25,10 +25,13 @@ from segloc_cli.localize import LocalizeParams, Localizer
 from segloc_cli.search import (
     MIN_TOP_LEVEL,
     HypothesisSearch,
+    Pruning,
+    SearchGrid,
     _batches,
     _climbed,
     _exact_sum,
     _point_cells,
+    _Poses,
     _segment_samples,
     _shadowed,
     _top_bounds,
@@ -462,13 +465,18 @@ def test_a_square_is_shadowed_only_when_all_its_poses_are_near_a_kept_pose_as_go
     """A square of shifts is passed over only if each of its poses would be dropped beside a
     kept pose (within 0.3 m at 5 cm cells and 3°) scoring at least the square's bound."""
     headings = np.deg2rad(np.arange(-10.0, 11.0, 1.0))
-    kept_sum = np.array([50.0, 30.0, 0.0])
-    kept_h, kept_x, kept_y = np.array([10, 2, 0]), np.array([20, 60, 0]), np.array([20, 60, 0])
-    apart_m, apart_rad, cell = 0.3, np.deg2rad(3.0), 0.05
+    kept = _Poses(
+        sums=np.array([50.0, 30.0, 0.0]),
+        h=np.array([10, 2, 0]),
+        x=np.array([20, 60, 0]),
+        y=np.array([20, 60, 0]),
+    )
+    no_points = np.zeros((headings.size, 0), dtype=np.int64)
+    grid = SearchGrid(headings, no_points, no_points, n_cells=100, depth=0, cell=0.05)
+    pruning = Pruning(k=3, keep=0.0, apart_m=0.3, apart_rad=np.deg2rad(3.0))
 
     def shadowed(h, x, y, span, bound, n_kept=2):
-        return _shadowed(kept_sum, kept_h, kept_x, kept_y, n_kept, headings, h, x, y, span,
-                         bound, cell, apart_m, apart_rad)  # fmt: skip
+        return _shadowed(kept, n_kept, grid, pruning, h, x, y, span, bound)
 
     assert shadowed(10, 20, 20, 0, 50.0)  # the kept pose itself, no better: dropped
     assert not shadowed(10, 20, 20, 0, 50.5)  # a better one would replace it

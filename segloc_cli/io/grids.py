@@ -180,6 +180,35 @@ def read_nav2(path: str | Path) -> FloorPlan:
 
 def read_header(path: Path) -> GridHeader:
     """The checked YAML of a nav2 map (see ``read_nav2`` for what is refused)."""
+    document = _yaml_document(path)
+    image = document["image"]
+    if not isinstance(image, str) or not image.strip():
+        raise InputError(f"`image` must name the map's image, got {_shown(image)}", path=path)
+    resolution = _number(path, document, "resolution")
+    if resolution <= 0:
+        raise InputError(f"`resolution` must be more than 0 m, got {resolution:g}", path=path)
+    origin = _checked_origin(path, document["origin"])
+    occupied, free = _checked_thresholds(path, document)
+    negate = document["negate"]
+    if negate not in (0, 1):  # True and False are 1 and 0
+        raise InputError(f"`negate` must be 0 or 1, got {_shown(negate)}", path=path)
+    mode = document.get("mode", "trinary")
+    if not isinstance(mode, str) or mode.lower() not in MODES:
+        raise InputError(f"`mode` must be one of {', '.join(MODES)}, got {_shown(mode)}", path=path)
+    return GridHeader(
+        image=path.parent / image,
+        resolution_m=resolution,
+        origin=origin,
+        negate=bool(negate),
+        occupied_thresh=occupied,
+        free_thresh=free,
+        mode=mode.lower(),
+    )
+
+
+def _yaml_document(path: Path) -> dict:
+    """The YAML at ``path`` as a mapping holding every one of ``_REQUIRED_KEYS`` (their
+    values unchecked), or an ``InputError`` saying why it is not one."""
     import yaml
 
     with reading(path, "a nav2 map YAML"):
@@ -203,13 +232,12 @@ def read_header(path: Path) -> GridHeader:
     missing = [key for key in _REQUIRED_KEYS if key not in document]
     if missing:
         raise InputError(f"no `{'`, `'.join(missing)}` in this nav2 map YAML", path=path)
-    image = document["image"]
-    if not isinstance(image, str) or not image.strip():
-        raise InputError(f"`image` must name the map's image, got {_shown(image)}", path=path)
-    resolution = _number(path, document, "resolution")
-    if resolution <= 0:
-        raise InputError(f"`resolution` must be more than 0 m, got {resolution:g}", path=path)
-    origin = document["origin"]
+    return document
+
+
+def _checked_origin(path: Path, origin: object) -> tuple[float, float, float]:
+    """The YAML's ``origin`` as (x m, y m, yaw rad), each finite, the yaw within
+    ±``MAX_YAW_RAD``."""
     if not (isinstance(origin, list) and len(origin) == 3):
         raise InputError(f"`origin` must be [x, y, yaw], got {_shown(origin)}", path=path)
     origin_values = tuple(_number(path, {"origin": v}, "origin") for v in origin)
@@ -219,6 +247,12 @@ def read_header(path: Path) -> GridHeader:
             "map_server takes radians, not degrees",
             path=path,
         )
+    return origin_values
+
+
+def _checked_thresholds(path: Path, document: dict) -> tuple[float, float]:
+    """The YAML's ``occupied_thresh`` and ``free_thresh``, each in [0, 1], free below
+    occupied."""
     occupied = _number(path, document, "occupied_thresh")
     free = _number(path, document, "free_thresh")
     for key, value in (("occupied_thresh", occupied), ("free_thresh", free)):
@@ -228,21 +262,7 @@ def read_header(path: Path) -> GridHeader:
         raise InputError(
             f"`free_thresh` ({free:g}) must be below `occupied_thresh` ({occupied:g})", path=path
         )
-    negate = document["negate"]
-    if negate not in (0, 1):  # True and False are 1 and 0
-        raise InputError(f"`negate` must be 0 or 1, got {_shown(negate)}", path=path)
-    mode = document.get("mode", "trinary")
-    if not isinstance(mode, str) or mode.lower() not in MODES:
-        raise InputError(f"`mode` must be one of {', '.join(MODES)}, got {_shown(mode)}", path=path)
-    return GridHeader(
-        image=path.parent / image,
-        resolution_m=resolution,
-        origin=origin_values,
-        negate=bool(negate),
-        occupied_thresh=occupied,
-        free_thresh=free,
-        mode=mode.lower(),
-    )
+    return occupied, free
 
 
 def occupied_cells(header: GridHeader, yaml_path: Path) -> np.ndarray:
