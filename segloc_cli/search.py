@@ -38,7 +38,7 @@ from segloc_cli.kernels import wrap
 
 
 @dataclass(frozen=True)
-class Hypothesis:
+class GridPose:
     """A grid pose (world frame) and the mean score of the scan's points there, in [0, 1]."""
 
     pose: Pose2
@@ -274,7 +274,7 @@ class _MergedRow(NamedTuple):
     cells: np.ndarray
     linear: np.ndarray
     weights: np.ndarray
-    count: int
+    n_merged: int
     box: np.ndarray
 
 
@@ -736,7 +736,7 @@ class HypothesisSearch:
         reach_m: float | None = None,
         known: Pose2 | None = None,
         first_batch: int = FIRST_BATCH,
-    ) -> list[Hypothesis]:
+    ) -> list[GridPose]:
         """The ``hypotheses`` best distinct grid poses, best first, in a square around
         ``centre_xy``.
 
@@ -777,7 +777,7 @@ class HypothesisSearch:
         )
         xy = start + cell * np.column_stack([found.x, found.y])
         return [
-            Hypothesis(
+            GridPose(
                 Pose2(float(px), float(py), float(headings[k])), float(total / points.shape[0])
             )
             for (px, py), k, total in zip(xy, found.h, found.sums, strict=True)
@@ -870,7 +870,7 @@ class HypothesisSearch:
         window_deg: float,
         extra_headings=(),
         known: Pose2 | None = None,
-    ) -> list[Hypothesis]:
+    ) -> list[GridPose]:
         """Search the square of ``half_width_m`` around the guess, headings within ± window;
         ``known``, a pose found already (stage 2's), lets it prune from the start."""
         p = self.params
@@ -879,7 +879,7 @@ class HypothesisSearch:
         centre = np.array([initial.x, initial.y])
         return self.search(points_robot, wrap_angle(headings), centre, p.half_width_m, known=known)
 
-    def everywhere(self, points_robot: np.ndarray) -> list[Hypothesis]:
+    def everywhere(self, points_robot: np.ndarray) -> list[GridPose]:
         """Search at every heading with no initial guess: within ``region`` if the settings
         give one, else over the whole map wherever the scan's farthest reading could reach
         a map segment from.

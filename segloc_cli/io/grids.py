@@ -240,14 +240,14 @@ def _checked_origin(path: Path, origin: object) -> tuple[float, float, float]:
     ±``MAX_YAW_RAD``."""
     if not (isinstance(origin, list) and len(origin) == 3):
         raise InputError(f"`origin` must be [x, y, yaw], got {_shown(origin)}", path=path)
-    origin_values = tuple(_number(path, {"origin": v}, "origin") for v in origin)
-    if abs(origin_values[2]) > MAX_YAW_RAD:
+    x, y, yaw = (_number(path, {"origin": v}, "origin") for v in origin)
+    if abs(yaw) > MAX_YAW_RAD:
         raise InputError(
-            f"`origin` yaw must lie within ±{MAX_YAW_RAD:.2f} rad, got {origin_values[2]:g}; "
+            f"`origin` yaw must lie within ±{MAX_YAW_RAD:.2f} rad, got {yaw:g}; "
             "map_server takes radians, not degrees",
             path=path,
         )
-    return origin_values
+    return x, y, yaw
 
 
 def _checked_thresholds(path: Path, document: dict) -> tuple[float, float]:
