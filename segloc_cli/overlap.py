@@ -603,9 +603,24 @@ def _travel_left(x, y, theta, eta, dtheta, repeats_left, active, n_active):
     return np.sqrt(2.0) * eta * (max(repeats_left, 0) + 2.0), n_active
 
 
+class _Schedule(NamedTuple):
+    """The tuning of ``coarse_to_fine``: the first grid spacing η (m) and heading step Δα
+    (rad), the halvings K, the share of the best overlap from which candidates are
+    averaged, and the extra iterations allowed for re-centring."""
+
+    eta: float
+    dtheta: float
+    iterations: int
+    ratio: float
+    recentres: int
+
+
 @njit(cache=True)
-def _search_kernel(g, loc, x, y, theta, eta, dtheta, iterations, ratio, recentres, sin_min):
-    """The loop of ``coarse_to_fine``: (track (T, 3), best overlaps (T − 1,), final overlap)."""
+def _search_kernel(g, loc, start, schedule, sin_min):
+    """The loop of ``coarse_to_fine`` from ``start`` (x, y, theta), world frame, by the
+    ``_Schedule``: (track (T, 3), best overlaps (T − 1,), final overlap)."""
+    x, y, theta = start
+    eta, dtheta, iterations, ratio, recentres = schedule
     track = np.empty((iterations + recentres + 1, 3))
     best_overlaps = np.empty(iterations + recentres)
     track[0] = x, y, theta
@@ -713,8 +728,7 @@ def coarse_to_fine(
         turn = dtheta * (2.0 + recentres)
         reach = radius * (1.0 + turn) + travel + band_halfwidth(grid_m) / sin_min + 1e-6
         g = _within_reach(index, g, float(start.x), float(start.y), float(reach))
-    track, best_overlaps, final = _search_kernel(
-        g, loc, float(start.x), float(start.y), float(start.theta), float(grid_m), dtheta,
-        int(iterations), float(ratio), int(recentres), sin_min,
-    )  # fmt: skip
+    schedule = _Schedule(float(grid_m), dtheta, int(iterations), float(ratio), int(recentres))
+    at = (float(start.x), float(start.y), float(start.theta))
+    track, best_overlaps, final = _search_kernel(g, loc, at, schedule, sin_min)
     return OverlapResult(Pose2(*track[-1]), float(final), track, best_overlaps)

@@ -217,17 +217,16 @@ def refine_pose(
     if n == 0 or segments.shape[0] == 0:
         return Refinement(initial, 0.0, float("nan"), n, 0.0)
     index = _index_of(segments, index)
+    rounds = _Rounds(
+        np.array(_gates(p)), p.steps_per_round, p.min_points, _prior_weights(p), p.final_gate_m
+    )
     pose, placed = _fit(
         np.ascontiguousarray(points),
         index.segments_world,
         index.cells,
         initial.as_array().astype(float),
-        np.array(_gates(p)),
-        p.steps_per_round,
-        p.min_points,
-        _prior_weights(p),
+        rounds,
         2.0 * p.gate_m,
-        p.final_gate_m,
     )
     fitted = Pose2(float(pose[0]), float(pose[1]), float(pose[2]))
     n_in = placed[0]
@@ -235,10 +234,23 @@ def refine_pose(
     return Refinement(fitted, float(n_in / n), rms, n, float(placed[2] / n))
 
 
+class _Rounds(NamedTuple):
+    """The fit's rounds (``RefineParams``): one per gate (m) of ``gates``, of at most
+    ``steps_per_round`` Gauss-Newton steps, each needing ``min_points`` points within the
+    gate; the ``prior``'s weights (3,) on x, y, θ (``_prior_weights``); and the gate of the
+    fitted pose's inliers, ``final_gate_m``."""
+
+    gates: np.ndarray
+    steps_per_round: int
+    min_points: int
+    prior: np.ndarray
+    final_gate_m: float
+
+
 @njit(cache=True)
-def _fit(points, segments, cells, initial, gates, steps_per_round, min_points, prior, margin_m,
-         final_gate_m):  # fmt: skip
-    """``refine_pose`` compiled: the fitted pose (3,) and ``_placed`` there."""
+def _fit(points, segments, cells, initial, rounds, margin_m):
+    """``refine_pose`` compiled: the fitted pose (3,) and ``_placed`` there, from the points'
+    farthest reach plus ``margin_m`` of the map around ``initial``."""
     # Only segments within reach of the scan from near the guess can pair. Points that are
     # not finite never pair (their distances are NaN) and must not widen the reach.
     reach = 0.0
@@ -248,11 +260,8 @@ def _fit(points, segments, cells, initial, gates, steps_per_round, min_points, p
             reach = max(reach, r)
     reach += margin_m
     allowed = near_mask(cells, segments, initial[0], initial[1], reach)
-    pose = _gauss_newton(
-        points, segments, allowed, cells, initial, gates, steps_per_round, min_points, prior,
-        reach,
-    )  # fmt: skip
-    return pose, _placed(points, pose, cells, segments, allowed, final_gate_m)
+    pose = _gauss_newton(points, segments, allowed, cells, initial, rounds, reach)
+    return pose, _placed(points, pose, cells, segments, allowed, rounds.final_gate_m)
 
 
 def _prior_weights(p: RefineParams) -> np.ndarray:
@@ -374,54 +383,15 @@ def _place_points(points, pose, rotated, world):
         world[i, 1] = rotated[i, 1] + pose[1]
 
 
-class _NearLists(NamedTuple):
-    """Each point's list of the map segments near where it was when the lists were made
-    (``filed_within``, ``_narrowed``)."""
-
-    at: np.ndarray
-    """(3,) the pose when they were made (world frame, m and rad)."""
-    where: np.ndarray
-    """(P, 2) the points then, world frame (m)."""
-    radius: float
-    """How far from the points then they list the segments (m; −inf: no lists yet)."""
-    starts: np.ndarray
-    """(P + 1,) where each point's list starts in ``segments``."""
-    segments: np.ndarray
-    """The listed segments' indices, point after point."""
-    distances: np.ndarray
-    """Each listed segment's distance from its point then (m)."""
-
-
 @njit(cache=True)
-def _near_lists(lists, pose, world, gate, reach_m, cells, segments, allowed):
-    """The lists for a step at ``pose`` with the points at ``world`` and this ``gate``:
-    ``lists`` while the pose has travelled less than their radius less the gate (any point
-    within ``reach_m`` of the scanner, ``_travel``), made anew from the grid beyond, and
-    narrowed when the gate has shrunk far enough within them. Made for twice the gate."""
-    travel = _travel(pose, lists.at, reach_m)
-    radius = lists.radius
-    renew = not travel <= radius - gate  # and on the first step, or at a NaN pose
-    narrow = not renew and radius > 2.0 * gate and radius - travel >= 2.0 * gate
-    if renew:
-        starts, listed, distances = filed_within(cells, segments, allowed, world, 2.0 * gate)
-    elif narrow:
-        starts, listed, distances = _narrowed(
-            world, segments, lists.starts, lists.segments, 2.0 * gate
-        )
-    else:
-        return lists
-    return _NearLists(pose.copy(), world.copy(), 2.0 * gate, starts, listed, distances)
-
-
-@njit(cache=True)
-def _normal_equations(world, rotated, segments, lists, hints, gate):
+def _normal_equations(world, rotated, segments, lists, listed_where, hints, gate):
     """The Gauss-Newton system of one step: the Hessian (3, 3) and gradient (3,) of the
     point-to-line residuals, with Cauchy weights, of the points at ``world`` (``rotated``
-    about the pose's position) within ``gate`` of their nearest segment in their
-    ``lists`` (``_nearest_listed``), and how many such points there are. ``hints`` (P,)
-    holds each point's nearest segment at the step before, and gets this step's."""
-    starts, listed, listed_d = lists.starts, lists.segments, lists.distances
-    listed_where = lists.where
+    about the pose's position) within ``gate`` of their nearest segment in their lists
+    (``_nearest_listed``: CSR ``lists``, made with the points at ``listed_where``), and how
+    many such points there are. ``hints`` (P,) holds each point's nearest segment at the
+    step before, and gets this step's."""
+    starts, listed, listed_d = lists
     hessian = np.zeros((3, 3))
     gradient = np.zeros(3)
     jacobian = np.empty(3)
@@ -468,19 +438,8 @@ def _damped_step(hessian, gradient, pose, initial, prior):
 
 
 @njit(cache=True)
-def _gauss_newton(
-    points,
-    segments,
-    allowed,
-    cells,
-    initial,
-    gates,
-    steps_per_round,
-    min_points,
-    prior,
-    reach_m,
-):
-    """The fitted pose (3,): damped Gauss-Newton rounds, one per gate, of point-to-line
+def _gauss_newton(points, segments, allowed, cells, initial, rounds, reach_m):
+    """The fitted pose (3,): damped Gauss-Newton ``rounds``, one per gate, of point-to-line
     residuals with Cauchy weights and a prior on ``initial``.
 
     Points (P, 2) are in the robot frame; segments (M, 4), of which only the
@@ -493,20 +452,36 @@ def _gauss_newton(
     world = np.empty((n, 2))
     rotated = np.empty((n, 2))
     # Each point is compared only with the segments listed near where it was when the
-    # lists were made (``_near_lists``). Each point's nearest segment at the last step is
-    # tried first at the next, and a listed segment is passed over when it was too far,
-    # given how far the point has moved since.
-    starts, listed, distances = filed_within(cells, segments, allowed, world[:0], 0.0)
-    lists = _NearLists(initial.copy(), np.empty((n, 2)), -np.inf, starts, listed, distances)
+    # lists were made, out to ``radius``: enough while the pose travels less than the
+    # radius less the gate. Lists are made for twice the gate, narrowed when the gate
+    # shrinks, and made anew from the grid when the pose has travelled too far for them.
+    # Each point's nearest segment at the last step is tried first at the next, and a listed
+    # segment is passed over when it was too far, given how far the point has moved since.
+    # The lists are CSR: (starts (P + 1,), segment indices, distances (m)).
+    lists_at = initial.copy()
+    lists = filed_within(cells, segments, allowed, world[:0], 0.0)
+    listed_where = np.empty((n, 2))
     hints = np.full(n, -1, dtype=np.int64)
+    radius = -np.inf
+    gates, prior = rounds.gates, rounds.prior
     for gate in gates:
-        for _ in range(steps_per_round):
+        for _ in range(rounds.steps_per_round):
             _place_points(points, pose, rotated, world)
-            lists = _near_lists(lists, pose, world, gate, reach_m, cells, segments, allowed)
+            travel = _travel(pose, lists_at, reach_m)
+            renew = not travel <= radius - gate  # and on the first step, or at a NaN pose
+            narrow = not renew and radius > 2.0 * gate and radius - travel >= 2.0 * gate
+            if renew:
+                lists = filed_within(cells, segments, allowed, world, 2.0 * gate)
+            elif narrow:
+                lists = _narrowed(world, segments, lists[0], lists[1], 2.0 * gate)
+            if renew or narrow:
+                lists_at[:] = pose
+                listed_where[:] = world
+                radius = 2.0 * gate
             hessian, gradient, used = _normal_equations(
-                world, rotated, segments, lists, hints, gate
+                world, rotated, segments, lists, listed_where, hints, gate
             )
-            if used < min_points:
+            if used < rounds.min_points:
                 break
             step, regular = _damped_step(hessian, gradient, pose, initial, prior)
             if not regular or not np.all(np.isfinite(step)):
