@@ -17,7 +17,7 @@ $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	$(BIN)/python -m pip install --quiet -e '.[dev,peers,sweep]'
-	$(BIN)/python -m segloc_cli.warmup || echo "warning: warm-up failed" >&2
+	$(BIN)/python -m segloc_cli.runs.warmup || echo "warning: warm-up failed" >&2
 	@touch $(STAMP)
 
 # Build the hall's map from its mapping run, localize the 10 test scans (none of them in the
@@ -53,7 +53,7 @@ bench-sweep: $(STAMP)
 	$(BIN)/python benchmarks/sweep_real.py --datasets $(DATASETS) --out benchmarks/results-sweep.md
 
 # Fit the verdict's confidence model on simulated rooms and the real logs' calibration splits
-# (scans the benchmarks do not score): segloc_cli/confidence_model.json and
+# (scans the benchmarks do not score): segloc_cli/method/confidence_model.json and
 # benchmarks/results-calibration.md.
 calibrate: $(STAMP)
 	$(BIN)/python benchmarks/calibrate.py --datasets $(DATASETS)

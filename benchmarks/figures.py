@@ -27,7 +27,11 @@ from protocol import segloc_argv
 
 from segloc_cli.geometry import Pose2, quaternion_to_heading, transform_points
 from segloc_cli.io.figures import save_figure
-from segloc_cli.plots import SUCCESS_VS_INITIAL_ERROR, draw_success_vs_initial_error, success_rates
+from segloc_cli.scoring.plots import (
+    SUCCESS_VS_INITIAL_ERROR,
+    draw_success_vs_initial_error,
+    success_rates,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
 RUN_VIEW = "run-view"

@@ -57,7 +57,7 @@ from segloc_cli.io.maps import read_map
 from segloc_cli.io.mcap_log import read_log
 from segloc_cli.io.relations import read_relations
 from segloc_cli.io.tables import read_estimates, read_pose_table, write_pose_table
-from segloc_cli.relations import PUBLISHED, published_json
+from segloc_cli.scoring.relations import PUBLISHED, published_json
 from segloc_cli.timing import nearest_by_time
 
 SAME_TIME_S = 1e-3
@@ -337,7 +337,7 @@ def reference_on_relations(split: RelationSplit, relations: Relations) -> dict:
     """The corrected log's own reference poses of the end scans scored on ``relations`` (the
     kept ones), as a check of what the map's poses themselves miss: {"used", "trans_mean_m",
     "trans_std_m" (m), "rot_mean_deg", "rot_std_deg" (°)}."""
-    from segloc_cli.relations import relation_errors
+    from segloc_cli.scoring.relations import relation_errors
 
     rows = np.flatnonzero(split.held_out)
     errors = relation_errors(

@@ -352,8 +352,8 @@ def raw_held_out(split: HeldOutSplit, raw: RawLog, work: Path, commands: list[st
     from segloc_cli.config import WindowParams
     from segloc_cli.geometry import Pose2
     from segloc_cli.io.mcap_log import LogWriter, read_log
-    from segloc_cli.pipeline import scan_odometry
-    from segloc_cli.window import neighbour_indices
+    from segloc_cli.method.window import neighbour_indices
+    from segloc_cli.runs.pipeline import scan_odometry
 
     corrected, raw_log = read_log(split.log_path), read_log(raw.log_path)
     in_raw = same_scans(corrected.scans, raw_log.scans)

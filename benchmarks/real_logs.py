@@ -221,8 +221,8 @@ def reference_disagrees(
     ``REFERENCE_AGREES_M`` and ``REFERENCE_AGREES_DEG`` of the scan alone fitted from the
     answer: the map's best fit near the reference is the answer's, so the reference, not the
     answer, is off."""
-    from segloc_cli.refine import refine_pose
-    from segloc_cli.spatial import NEAR_CELL_M, SegmentGrid
+    from segloc_cli.method.refine import refine_pose
+    from segloc_cli.method.spatial import NEAR_CELL_M, SegmentGrid
 
     pos, head = errors_against_truth(est, truth)
     beyond = ~is_right_place(pos, head) & np.isfinite(pos)
@@ -403,7 +403,7 @@ def reference_fit(segments: np.ndarray, scans: list, truth: PoseTable) -> float:
     lies within the success bounds of its own reference, a ceiling for any
     method scored against that reference.
     """
-    from segloc_cli.refine import refine_pose
+    from segloc_cli.method.refine import refine_pose
 
     have = [k for k, scan in enumerate(scans) if scan is not None]
     fits = [refine_pose(scans[k].points(), segments, Pose2(*truth.poses[k])).pose for k in have]
@@ -593,7 +593,7 @@ def reference_check(relations_path: Path, times_s: np.ndarray, poses: np.ndarray
     success bound against the reference can be trusted.
     """
     from segloc_cli.io.relations import read_relations
-    from segloc_cli.relations import relation_errors, trajectory_from_estimates
+    from segloc_cli.scoring.relations import relation_errors, trajectory_from_estimates
 
     relations = read_relations(relations_path)
     reference = relation_errors(times_s, poses, relations)

@@ -41,7 +41,7 @@ from protocol import (
 )
 
 from segloc_cli.estimates import ESTIMATED
-from segloc_cli.evaluate import gate_masks
+from segloc_cli.scoring.evaluate import gate_masks
 
 GRID_KEY = "search-half-width-m"
 HALF_WIDTHS_M = (1.0, 2.0, 3.0)
@@ -196,7 +196,7 @@ def pooled_agrees(table: pd.DataFrame, figures: list[tuple[str, float, dict]]) -
     """Whether the sweep's own summary of ``table`` gives each window the pooled share within
     the gates computed here (it scores the rows the table holds, so they agree only when no
     scan is missing)."""
-    from segloc_cli.sweep import summary
+    from segloc_cli.runs.sweep import summary
 
     theirs = summary(table, (GRID_KEY,), SUCCESS_M * 100, SUCCESS_DEG)
     ours = {width: f["within"] * 100 for name, width, f in figures if name == "all"}

@@ -39,9 +39,9 @@ import numpy as np
 import pytest
 from protocol import pose_errors
 
-from segloc_cli.extract import extract_segments
 from segloc_cli.geometry import Pose2
-from segloc_cli.localize import Localizer
+from segloc_cli.method.extract import extract_segments
+from segloc_cli.method.localize import Localizer
 from segloc_cli.sim import (
     NOISE_FREE,
     SensorModel,

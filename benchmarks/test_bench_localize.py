@@ -27,11 +27,11 @@ import numpy as np
 import pytest
 from protocol import pose_errors
 
-from segloc_cli.extract import extract_segments
 from segloc_cli.geometry import Pose2, wrap_angle
 from segloc_cli.io.maps import read_map, read_world
-from segloc_cli.localize import LocalizeParams, Localizer
-from segloc_cli.parallel import localize_scans_parallel
+from segloc_cli.method.extract import extract_segments
+from segloc_cli.method.localize import LocalizeParams, Localizer
+from segloc_cli.runs.parallel import localize_scans_parallel
 from segloc_cli.sim import (
     SensorModel,
     random_free_poses,

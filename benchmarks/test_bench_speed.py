@@ -18,7 +18,7 @@ Sections, one test each, every figure measured in the same run:
 
 ms/scan is the median of the estimates' ``runtime_ms`` (the time segloc spent on each scan);
 wall is the whole command: start-up, reading the map and the log, writing the estimates.
-Kernels are compiled into numba's cache first (``python -m segloc_cli.warmup``), so no run
+Kernels are compiled into numba's cache first (``python -m segloc_cli.runs.warmup``), so no run
 pays for compiling. pytest-benchmark's table gives each section's total wall time, its
 preparation (importing logs, building the held-out maps, simulating) left out. Nothing is
 asserted but that every command succeeded. Every command run goes to ``WORK/commands.md``.
@@ -123,7 +123,10 @@ def _compiled_kernels():
     every command run."""
     start = time.perf_counter()
     warmup = subprocess.run(
-        [sys.executable, "-m", "segloc_cli.warmup"], capture_output=True, text=True, check=False
+        [sys.executable, "-m", "segloc_cli.runs.warmup"],
+        capture_output=True,
+        text=True,
+        check=False,
     )
     took_s = time.perf_counter() - start
     if warmup.returncode == 0:

@@ -1,7 +1,7 @@
 """The ``segloc`` command line: the command group, and one contract for every error.
 
 The commands live in ``segloc_cli.commands``, one module per family; each
-parses its options, calls ``segloc_cli.pipeline`` and prints.
+parses its options, calls ``segloc_cli.runs.pipeline`` and prints.
 """
 
 from __future__ import annotations

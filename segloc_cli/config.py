@@ -94,7 +94,7 @@ class FuseParams:
     """Largest gap between their extents along the common line (negative = overlap)."""
     polish_rounds: int = 0
     """Rounds of polishing: each scan's pose re-fitted to the map the other half of the scans
-    make (``mapping.polish_poses``); 0 keeps the poses as surveyed."""
+    make (``maps.fusion.polish_poses``); 0 keeps the poses as surveyed."""
     polish_max_shift_m: float = 0.2
     """A polished pose farther than this from the surveyed one is not taken (a bad fit)."""
     polish_min_inlier_ratio: float = 0.6

@@ -13,10 +13,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from segloc_cli.extract import extract_segments
 from segloc_cli.geometry import Pose2, wrap_angle
 from segloc_cli.io.maps import read_world
-from segloc_cli.localize import LocalizeParams, Localizer
+from segloc_cli.method.extract import extract_segments
+from segloc_cli.method.localize import LocalizeParams, Localizer
 from segloc_cli.sim import (
     SensorModel,
     random_free_poses,

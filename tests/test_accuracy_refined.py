@@ -18,9 +18,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from segloc_cli.extract import extract_segments
 from segloc_cli.geometry import Pose2, wrap_angle
-from segloc_cli.localize import Localizer
+from segloc_cli.method.extract import extract_segments
+from segloc_cli.method.localize import Localizer
 from segloc_cli.sim import (
     NOISE_FREE,
     initial_guesses,

@@ -7,7 +7,14 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from segloc_cli.align import (
+from segloc_cli.geometry import (
+    Pose2,
+    segment_lengths,
+    segment_orientations,
+    transform_segments,
+    wrap_angle,
+)
+from segloc_cli.method.align import (
     VOTE_SCHEMES,
     RTable,
     accumulate,
@@ -16,13 +23,6 @@ from segloc_cli.align import (
     circular_peaks,
     orientation_bins,
     vote_weight,
-)
-from segloc_cli.geometry import (
-    Pose2,
-    segment_lengths,
-    segment_orientations,
-    transform_segments,
-    wrap_angle,
 )
 
 DEG = np.pi / 180.0

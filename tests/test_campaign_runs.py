@@ -385,7 +385,7 @@ def test_an_enormous_sweep_is_refused_with_its_limit_before_it_starts(capsys, sp
 
 
 def test_a_sweep_at_the_limit_is_planned(spec_dir):
-    from segloc_cli.sweepspec import MAX_TASKS, read_spec
+    from segloc_cli.runs.sweepspec import MAX_TASKS, read_spec
 
     seeds = "seeds = [" + ", ".join(map(str, range(MAX_TASKS // 10))) + "]\n"
     grid = "[grid]\niterations = [" + ", ".join(map(str, range(3, 13))) + "]\n"
@@ -449,7 +449,7 @@ def test_a_log_listed_twice_is_refused_not_counted_twice(capsys, spec_dir, logs)
 
 
 def test_a_copy_of_a_log_with_guesses_of_its_own_is_a_task_of_its_own(spec_dir):
-    from segloc_cli.sweepspec import read_spec
+    from segloc_cli.runs.sweepspec import read_spec
 
     shutil.copy(spec_dir / "sim" / "log.mcap", spec_dir / "copy.mcap")
     spec = write_spec(spec_dir, SPEC.replace('["sim/log.mcap"]', '["sim/log.mcap", "copy.mcap"]'))
@@ -497,9 +497,9 @@ class _Server:
 def test_a_scheduler_that_does_not_answer_is_refused_in_bounded_time(
     capsys, spec_dir, monkeypatch, mode, fragment
 ):
-    import segloc_cli.sweep
+    import segloc_cli.runs.sweep
 
-    monkeypatch.setattr(segloc_cli.sweep, "SCHEDULER_TIMEOUT_S", 1.0)
+    monkeypatch.setattr(segloc_cli.runs.sweep, "SCHEDULER_TIMEOUT_S", 1.0)
     server = _Server(mode)
     try:
         address = f"tcp://127.0.0.1:{server.port}"
@@ -532,8 +532,8 @@ def _finished_parts(spec: Path, out: Path, keep: slice) -> tuple[list[str], pd.D
     """Run the spec's tasks in-process, keep those of ``keep`` as a killed sweep leaves
     them (in OUT.parts), with the debris of the one that was being written; (the plan's keys,
     the rows kept)."""
-    from segloc_cli.sweep import ResultStore, run_task
-    from segloc_cli.sweepspec import read_spec
+    from segloc_cli.runs.sweep import ResultStore, run_task
+    from segloc_cli.runs.sweepspec import read_spec
 
     tasks = read_spec(spec).tasks
     store = ResultStore(out)
@@ -569,8 +569,8 @@ def test_a_killed_sweep_resumes_with_no_task_lost_or_run_twice(capsys, spec_dir,
 
 @pytest.mark.parametrize("held", ["results", "parts", "superset"])
 def test_results_of_another_spec_are_refused_not_mixed(capsys, spec_dir, held):
-    from segloc_cli.sweep import ResultStore, run_task
-    from segloc_cli.sweepspec import read_spec
+    from segloc_cli.runs.sweep import ResultStore, run_task
+    from segloc_cli.runs.sweepspec import read_spec
 
     other = write_spec(spec_dir, SPEC.replace("seeds = [1, 2]", "seeds = [5, 6]"), "other.toml")
     out = spec_dir / "results.parquet"
@@ -781,7 +781,7 @@ def localize_jobs(capsys, tmp_path: Path, jobs: object) -> tuple[Result, Path]:
 
 @pytest.mark.parametrize("jobs", [3, 64, 400, 10**6])
 def test_more_jobs_than_cores_run_on_the_cores_and_say_so(capsys, tmp_path, one_job, jobs):
-    from segloc_cli.parallel import usable_cores
+    from segloc_cli.runs.parallel import usable_cores
 
     result, out = localize_jobs(capsys, tmp_path, jobs)
     assert result.code == 0, result.err
@@ -866,7 +866,7 @@ def test_a_pool_that_cannot_start_its_threads_is_done_without(
 
 
 def test_a_sweep_with_more_jobs_than_cores_runs_on_the_cores(capsys, spec_dir):
-    from segloc_cli.parallel import usable_cores
+    from segloc_cli.runs.parallel import usable_cores
 
     out = spec_dir / "results.parquet"
     done = run_cli(capsys, "sweep", write_spec(spec_dir), "--out", out, "--jobs", "400")
@@ -920,7 +920,7 @@ def open_dir(spec_dir):
 def test_under_a_process_limit_runs_with_what_starts_or_says_why_not(
     open_dir, command, nproc, outcome
 ):
-    from segloc_cli.parallel import usable_cores
+    from segloc_cli.runs.parallel import usable_cores
 
     prefix = _process_limit(nproc)
     if prefix is None:

@@ -721,7 +721,7 @@ def test_help(command, tmp_path):
 
 def test_interrupted_localize_keeps_the_scans_already_done(small, tmp_path, capsys, monkeypatch):
     """Ctrl-C during the third scan: the first two estimates are written, exit status 130."""
-    from segloc_cli.localize import Localizer
+    from segloc_cli.method.localize import Localizer
 
     real_localize = Localizer.localize
     calls = {"n": 0}

@@ -8,7 +8,10 @@ import math
 import numpy as np
 import pytest
 
-from segloc_cli.confidence import (
+from segloc_cli.config import ConfidenceParams
+from segloc_cli.estimates import STATUS_AMBIGUOUS, STATUS_LOST, STATUS_OK
+from segloc_cli.geometry import Pose2
+from segloc_cli.method.confidence import (
     FEATURES,
     LOCAL_MAPS,
     MODEL_PATH,
@@ -20,11 +23,8 @@ from segloc_cli.confidence import (
     points_status,
     shipped_models,
 )
-from segloc_cli.config import ConfidenceParams
-from segloc_cli.estimates import STATUS_AMBIGUOUS, STATUS_LOST, STATUS_OK
-from segloc_cli.extract import extract_segments
-from segloc_cli.geometry import Pose2
-from segloc_cli.localize import Localizer
+from segloc_cli.method.extract import extract_segments
+from segloc_cli.method.localize import Localizer
 from segloc_cli.sim import NOISE_FREE, random_free_poses, random_world, simulate_scan
 from segloc_cli.world import World
 

@@ -13,7 +13,7 @@ from test_cli import run_cli
 
 from segloc_cli.errors import InputError
 from segloc_cli.estimates import ESTIMATE_COLUMNS, PoseTable
-from segloc_cli.evaluate import format_table, gate, summary, table1
+from segloc_cli.scoring.evaluate import format_table, gate, summary, table1
 
 
 def make_survey(rows: list[tuple[int, float, float, float, float]]) -> PoseTable:

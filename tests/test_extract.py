@@ -9,7 +9,8 @@ from itertools import pairwise
 import numpy as np
 import pytest
 
-from segloc_cli.extract import (
+from segloc_cli.geometry import Pose2, transform_points, transform_segments
+from segloc_cli.method.extract import (
     ExtractParams,
     _numpy_sum,
     breakpoints,
@@ -18,7 +19,6 @@ from segloc_cli.extract import (
     fit_line,
     line_residuals,
 )
-from segloc_cli.geometry import Pose2, transform_points, transform_segments
 from segloc_cli.scan import Scan
 from segloc_cli.sim import (
     NOISE_FREE,

@@ -7,9 +7,9 @@ import math
 import numpy as np
 import pytest
 
-from segloc_cli.freespace import SHORTEN_M, crossing_ratio
 from segloc_cli.geometry import Pose2
-from segloc_cli.spatial import SegmentGrid
+from segloc_cli.method.freespace import SHORTEN_M, crossing_ratio
+from segloc_cli.method.spatial import SegmentGrid
 
 WALL = SegmentGrid(np.array([[2.0, -5.0, 2.0, 5.0], [-4.0, 3.0, -4.0, 4.0]]))
 

@@ -19,7 +19,7 @@ from segloc_cli.geometry import Pose2, point_segment_distances, transform_segmen
 from segloc_cli.io import grids
 from segloc_cli.io.grids import occupied_cells, read_header, read_nav2, write_nav2
 from segloc_cli.io.maps import read_map, write_map
-from segloc_cli.raster import _ring_order, line_cells, trace_walls
+from segloc_cli.maps.wall_tracing import _ring_order, line_cells, trace_walls
 from segloc_cli.world import World
 
 # A small lab, measured in whole centimetres (not on the 5 cm lattice): outer walls with a
@@ -303,7 +303,7 @@ def test_scans_of_the_lab_localize_on_its_map_read_back_from_a_5cm_grid(tmp_path
 def test_the_run_file_of_an_import_names_the_grid_s_image_too(tmp_path, capsys):
     import tomllib
 
-    from segloc_cli.runfile import sha256
+    from segloc_cli.runs.runfile import sha256
 
     write_map(tmp_path / "lab.json", lab(0.0))
     assert (

@@ -13,12 +13,12 @@ from test_foxglove import validated_messages
 
 from segloc_cli.config import LocalizeParams, SearchParams
 from segloc_cli.estimates import HYPOTHESIS_COLUMNS, STATUS_AMBIGUOUS, PoseTable
-from segloc_cli.extract import extract_segments
 from segloc_cli.geometry import Pose2, wrap_angle
 from segloc_cli.io.maps import write_world
 from segloc_cli.io.tables import HypothesesWriter, write_pose_table
-from segloc_cli.localize import Localizer
-from segloc_cli.search import distinct
+from segloc_cli.method.extract import extract_segments
+from segloc_cli.method.localize import Localizer
+from segloc_cli.method.search import distinct
 from segloc_cli.sim import (
     SensorModel,
     random_free_poses,

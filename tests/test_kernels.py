@@ -12,7 +12,7 @@ from segloc_cli.geometry import (
     transform_segments,
     wrap_angle,
 )
-from segloc_cli.kernels import (
+from segloc_cli.method.kernels import (
     angular_interval,
     out_of_frame,
     point_into_frame,

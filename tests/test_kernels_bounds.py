@@ -42,17 +42,17 @@ CORPUS = textwrap.dedent(
 
     import numpy as np
 
-    from segloc_cli.extract import extract_segments
-    from segloc_cli.field import score_raster
+    from segloc_cli.method.extract import extract_segments
+    from segloc_cli.method.score_raster import score_raster
     from segloc_cli.geometry import Pose2
-    from segloc_cli.localize import Localizer
-    from segloc_cli.overlap import candidate_pairs, coarse_to_fine, overlap_at_poses
-    from segloc_cli.refine import nearest_segments, refine_pose
+    from segloc_cli.method.localize import Localizer
+    from segloc_cli.method.overlap import candidate_pairs, coarse_to_fine, overlap_at_poses
+    from segloc_cli.method.refine import nearest_segments, refine_pose
     from segloc_cli.scan import Scan
-    from segloc_cli.search import HypothesisSearch
+    from segloc_cli.method.search import HypothesisSearch
     from segloc_cli.sim import NOISE_FREE, random_free_poses, random_world, simulate_scan
-    from segloc_cli.spatial import SegmentGrid
-    from segloc_cli.tracking import track_scans
+    from segloc_cli.method.spatial import SegmentGrid
+    from segloc_cli.method.tracking import track_scans
 
     np.seterr(all="ignore")
     rng = np.random.default_rng(11)

@@ -5,11 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from segloc_cli.align import align
 from segloc_cli.estimates import STATUS_OK, STATUS_TOO_FEW_SEGMENTS
-from segloc_cli.extract import extract_segments
 from segloc_cli.geometry import Pose2, segment_orientations, wrap_angle
-from segloc_cli.localize import (
+from segloc_cli.method.align import align
+from segloc_cli.method.extract import extract_segments
+from segloc_cli.method.localize import (
     Estimate,
     LocalizeParams,
     Localizer,
@@ -17,9 +17,9 @@ from segloc_cli.localize import (
     point_spread_m,
     usable_points,
 )
+from segloc_cli.method.tracking import track_scans
 from segloc_cli.scan import Scan
 from segloc_cli.sim import NOISE_FREE, random_free_poses, random_world, simulate_scan
-from segloc_cli.tracking import track_scans
 
 
 def _pieces(x1, y1, x2, y2, n):

@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from segloc_cli.geometry import Pose2, wrap_angle
-from segloc_cli.mapping import (
+from segloc_cli.maps.fusion import (
     FuseParams,
     _nearby_pairs,
     build_global_map,
@@ -496,7 +496,7 @@ def test_a_map_built_from_an_off_centre_scanner_lies_on_the_walls():
     from segloc_cli.io.log import Log
     from segloc_cli.io.maps import read_world
     from segloc_cli.io.tables import read_pose_table
-    from segloc_cli.pipeline import build_map
+    from segloc_cli.runs.pipeline import build_map
     from segloc_cli.sim import NOISE_FREE, simulate_scan
 
     hall = Path(__file__).resolve().parents[1] / "datasets" / "hall"
@@ -523,7 +523,7 @@ def test_a_map_built_from_an_off_centre_scanner_lies_on_the_walls():
 def _surveyed_room(seed: int, n: int = 24, error_m: float = 0.04, error_deg: float = 0.8):
     """Noise-free scans of a random room at ``n`` poses, their local maps, and surveyed poses
     off the truth by up to ``error_m`` per axis and ``error_deg``, as a SLAM solution is."""
-    from segloc_cli.extract import extract_segments
+    from segloc_cli.method.extract import extract_segments
     from segloc_cli.sim import NOISE_FREE, random_free_poses, random_world, simulate_scan
 
     rng = np.random.default_rng(seed)

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 from numba import njit
 
-from segloc_cli.extract import extract_segments
 from segloc_cli.geometry import Pose2, transform_segments, wrap_angle
-from segloc_cli.overlap import (
+from segloc_cli.method.extract import extract_segments
+from segloc_cli.method.overlap import (
     _pair_overlap,
     _within_reach,
     band_halfwidth,
@@ -20,8 +20,8 @@ from segloc_cli.overlap import (
     coarse_to_fine,
     overlap_at_poses,
 )
+from segloc_cli.method.spatial import SegmentGrid
 from segloc_cli.sim import SensorModel, random_free_poses, random_world, simulate_scan
-from segloc_cli.spatial import SegmentGrid
 
 SQRT2 = np.sqrt(2.0)
 IDENTITY = np.array([[0.0, 0.0, 0.0]])

@@ -20,11 +20,11 @@ from segloc_cli.estimates import STATUS_NO_OVERLAP
 from segloc_cli.geometry import Pose2, point_segment_distances, sample_segments, wrap_angle
 from segloc_cli.io.maps import read_map, read_world
 from segloc_cli.io.tables import read_pose_table
-from segloc_cli.localize import LocalizeParams, Localizer, localize_scans
-from segloc_cli.parallel import localize_scans_parallel
+from segloc_cli.method.localize import LocalizeParams, Localizer, localize_scans
 from segloc_cli.peers import judged_estimate, peer_localizer, require
 from segloc_cli.peers.correlative import CorrelativeParams
 from segloc_cli.peers.icp import IcpParams
+from segloc_cli.runs.parallel import localize_scans_parallel
 from segloc_cli.sim import SensorModel, simulate_scan
 
 PEERS = [

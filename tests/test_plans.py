@@ -15,11 +15,11 @@ from hypothesis import strategies as st
 from test_cli import run_cli
 
 from segloc_cli.errors import InputError
-from segloc_cli.extract import extract_segments
 from segloc_cli.geometry import Pose2, wrap_angle
 from segloc_cli.io.maps import read_map, write_map
 from segloc_cli.io.plans import read_dxf, write_dxf
-from segloc_cli.localize import Localizer
+from segloc_cli.method.extract import extract_segments
+from segloc_cli.method.localize import Localizer
 from segloc_cli.sim import SensorModel, random_free_poses, simulate_scan, uniform_initial_errors
 from segloc_cli.world import World
 

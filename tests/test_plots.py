@@ -13,14 +13,14 @@ from conftest import HALL
 from matplotlib.image import imread
 from test_cli import run_script
 
-from segloc_cli.align import VOTE_SCHEMES
-from segloc_cli.evaluate import table1
 from segloc_cli.geometry import wrap_angle
 from segloc_cli.io.figures import FIGURE_DPI
 from segloc_cli.io.maps import read_map
 from segloc_cli.io.mcap_log import read_log
 from segloc_cli.io.tables import read_estimates, read_pose_table
-from segloc_cli.plots import (
+from segloc_cli.method.align import VOTE_SCHEMES
+from segloc_cli.scoring.evaluate import table1
+from segloc_cli.scoring.plots import (
     ERRORS,
     EVALUATION_FIGURES,
     MAP_FIGURES,

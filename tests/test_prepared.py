@@ -6,12 +6,12 @@ import numpy as np
 import pytest
 
 from segloc_cli.config import LocalizeParams, SearchParams
-from segloc_cli.extract import extract_segments
 from segloc_cli.geometry import Pose2
-from segloc_cli.localize import Localizer
-from segloc_cli.prepared import prepare_map
+from segloc_cli.method.extract import extract_segments
+from segloc_cli.method.localize import Localizer
+from segloc_cli.method.prepared import prepare_map
+from segloc_cli.method.spatial import NEAR_CELL_M
 from segloc_cli.sim import NOISE_FREE, random_free_poses, random_world, simulate_scan
-from segloc_cli.spatial import NEAR_CELL_M
 
 ROOM = random_world(np.random.default_rng(11))
 

@@ -12,7 +12,7 @@ from segloc_cli.geometry import (
     transform_points,
     wrap_angle,
 )
-from segloc_cli.refine import (
+from segloc_cli.method.refine import (
     Refinement,
     RefineParams,
     inlier_ratio,
@@ -20,8 +20,8 @@ from segloc_cli.refine import (
     refine_pose,
     support,
 )
+from segloc_cli.method.spatial import SegmentGrid
 from segloc_cli.sim import NOISE_FREE, SensorModel, random_free_poses, random_world, simulate_scan
-from segloc_cli.spatial import SegmentGrid
 
 
 def test_nearest_segment_and_distance_by_hand():

@@ -17,7 +17,7 @@ from segloc_cli.errors import InputError
 from segloc_cli.estimates import ESTIMATE_COLUMNS, Relations
 from segloc_cli.geometry import Pose2
 from segloc_cli.io.relations import read_relations
-from segloc_cli.relations import (
+from segloc_cli.scoring.relations import (
     CSV_COLUMNS,
     PUBLISHED,
     PUBLISHED_SQUARED,

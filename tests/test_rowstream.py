@@ -6,12 +6,12 @@ import csv
 
 from conftest import HALL
 
-from segloc_cli import pipeline
 from segloc_cli.config import Config
 from segloc_cli.io.maps import read_map
 from segloc_cli.io.mcap_log import read_log
 from segloc_cli.io.runview import read_run_view
-from segloc_cli.rowstream import RowOutputs, RunView, write_rows
+from segloc_cli.runs import pipeline
+from segloc_cli.runs.rowstream import RowOutputs, RunView, write_rows
 
 
 def _runs(stops: list[str] | None = None, mode: str = "guided"):

@@ -9,8 +9,10 @@ from hypothesis import strategies as st
 
 from segloc_cli.config import SearchParams
 from segloc_cli.estimates import STATUS_AMBIGUOUS, STATUS_OK, STATUS_TOO_FEW_SEGMENTS
-from segloc_cli.extract import extract_segments
-from segloc_cli.field import (
+from segloc_cli.geometry import Pose2, point_segment_distances, rotation, wrap_angle
+from segloc_cli.method.extract import extract_segments
+from segloc_cli.method.localize import LocalizeParams, Localizer
+from segloc_cli.method.score_raster import (
     BOUND_LEVELS,
     cell_indices,
     level_shift,
@@ -20,9 +22,7 @@ from segloc_cli.field import (
     pyramid_depth,
     score_raster,
 )
-from segloc_cli.geometry import Pose2, point_segment_distances, rotation, wrap_angle
-from segloc_cli.localize import LocalizeParams, Localizer
-from segloc_cli.search import (
+from segloc_cli.method.search import (
     MIN_TOP_LEVEL,
     HypothesisSearch,
     Pruning,
@@ -408,7 +408,7 @@ def test_search_with_no_pyramid_is_brute_force_and_finds_the_same_best():
 @settings(max_examples=60, deadline=None)
 def test_compiled_point_cells_are_what_numpy_gives(points, headings, start):
     """The search's compiled cell lookup equals rotating with ``geometry.rotation`` and
-    ``field.cell_indices``, cell for cell, for any points (NaN, infinite, far)."""
+    ``score_raster.cell_indices``, cell for cell, for any points (NaN, infinite, far)."""
     points = np.array(points, dtype=float)
     origin, cell = np.array([-3.0, 2.5]), 0.05
     cos_sin = np.array([[np.cos(h), np.sin(h)] for h in headings])

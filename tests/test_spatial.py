@@ -8,13 +8,13 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from segloc_cli.extract import extract_segments
 from segloc_cli.geometry import Pose2, point_segment_distances
-from segloc_cli.kernels import point_segment_distance
-from segloc_cli.localize import Localizer
-from segloc_cli.overlap import coarse_to_fine
+from segloc_cli.method.extract import extract_segments
+from segloc_cli.method.kernels import point_segment_distance
+from segloc_cli.method.localize import Localizer
+from segloc_cli.method.overlap import coarse_to_fine
+from segloc_cli.method.spatial import SegmentGrid, filed_within
 from segloc_cli.sim import SensorModel, random_free_poses, random_world, simulate_scan
-from segloc_cli.spatial import SegmentGrid, filed_within
 from segloc_cli.world import World
 
 coordinate = st.floats(-60.0, 60.0, allow_nan=False)
@@ -132,7 +132,7 @@ def test_stage2_with_the_index_equals_stage2_without():
 def test_grid_of_long_diagonals_grows_its_cells_and_still_finds_them(monkeypatch):
     """Long diagonal segments fill the cells of their whole bounding box; past the filing
     budget the cells grow, and queries still find exactly the segments in reach."""
-    import segloc_cli.spatial as spatial
+    import segloc_cli.method.spatial as spatial
 
     monkeypatch.setattr(spatial, "MAX_FILED", 500)
     diagonals = np.array([[0.0, k, 100.0, 100.0 + k] for k in range(0, 20, 2)], dtype=float)

@@ -20,8 +20,8 @@ from test_cli import assert_one_line_error, run_cli
 
 from segloc_cli.estimates import STATUS_TASK_FAILED
 from segloc_cli.io.tables import read_pose_table
-from segloc_cli.sweep import ResultStore, Task, connect, run_task, run_tasks, summary
-from segloc_cli.sweepspec import read_spec
+from segloc_cli.runs.sweep import ResultStore, Task, connect, run_task, run_tasks, summary
+from segloc_cli.runs.sweepspec import read_spec
 
 SPEC = """\
 map = "hall/map.json"

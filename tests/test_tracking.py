@@ -11,10 +11,10 @@ from conftest import HALL
 from segloc_cli.estimates import STATUS_LOST, STATUS_OK, STATUS_RECOVERED
 from segloc_cli.geometry import Pose2, wrap_angle
 from segloc_cli.io.maps import read_world
-from segloc_cli.localize import Localizer
+from segloc_cli.method.localize import Localizer
+from segloc_cli.method.spatial import SegmentGrid
+from segloc_cli.method.tracking import track_scans
 from segloc_cli.sim import SensorModel, free_space_mask, random_world, simulate_scan
-from segloc_cli.spatial import SegmentGrid
-from segloc_cli.tracking import track_scans
 
 STEP_M = 0.25
 

@@ -1,6 +1,6 @@
 """The warm-up ``make setup`` runs compiles every kernel, with the types a real run uses.
 
-One subprocess runs ``python -m segloc_cli.warmup`` into an empty numba cache (a
+One subprocess runs ``python -m segloc_cli.runs.warmup`` into an empty numba cache (a
 temporary folder, so the normal cache is left alone); every ``@njit`` function of
 segloc_cli must then have its index file there. Localizing the hall on that
 cache (guided, tracked, with a peer) must add no compiled code: had the warm-up
@@ -8,7 +8,7 @@ called a kernel with other argument types (another dtype, layout or integer
 width), the first real run would compile it again.
 
 A new kernel that fails the first test sits on a path the warm-up does not
-run: run that path in ``segloc_cli.warmup``.
+run: run that path in ``segloc_cli.runs.warmup``.
 """
 
 from __future__ import annotations
@@ -49,12 +49,12 @@ def cached(cache_dir: Path, suffix: str) -> set[str]:
 
 @pytest.fixture(scope="module")
 def warm_cache(tmp_path_factory) -> tuple[Path, dict[str, str]]:
-    """An empty numba cache after ``python -m segloc_cli.warmup``, and the environment that
+    """An empty numba cache after ``python -m segloc_cli.runs.warmup``, and the environment that
     points numba at it."""
     cache_dir = tmp_path_factory.mktemp("numba")
     env = dict(os.environ, NUMBA_CACHE_DIR=str(cache_dir))
     done = subprocess.run(
-        [sys.executable, "-m", "segloc_cli.warmup"],
+        [sys.executable, "-m", "segloc_cli.runs.warmup"],
         env=env,
         capture_output=True,
         text=True,
@@ -77,7 +77,7 @@ def test_every_kernel_is_compiled_by_the_warm_up(warm_cache):
         for stem, name in njit_functions()
         if not any(index.startswith(f"{stem}.{name}-") for index in indexed)
     ]
-    assert not missing, f"not compiled by segloc_cli.warmup: {missing}"
+    assert not missing, f"not compiled by segloc_cli.runs.warmup: {missing}"
 
 
 @pytest.mark.parametrize("options", [[], ["--track"], ["--method", "icp"]], ids=" ".join)

@@ -8,12 +8,18 @@ import pytest
 
 from segloc_cli.config import MIN_HOLD_POINTS, TrackParams, WindowParams
 from segloc_cli.estimates import STATUS_OK
-from segloc_cli.extract import extract_segments
 from segloc_cli.geometry import Pose2, transform_points
-from segloc_cli.localize import Localizer, localize_scan, localize_scans
-from segloc_cli.refine import nearest_segments
+from segloc_cli.method.extract import extract_segments
+from segloc_cli.method.localize import Localizer, localize_scan, localize_scans
+from segloc_cli.method.refine import nearest_segments
+from segloc_cli.method.window import (
+    Neighbour,
+    Windows,
+    neighbour_indices,
+    relative_pose,
+    window_map,
+)
 from segloc_cli.sim import NOISE_FREE, SensorModel, simulate_scan
-from segloc_cli.window import Neighbour, Windows, neighbour_indices, relative_pose, window_map
 from segloc_cli.world import World
 
 
@@ -147,7 +153,7 @@ def test_a_neighbour_that_mostly_sees_what_the_scan_did_not_is_kept():
 
 
 def test_windowed_rows_say_how_many_scans_they_hold_and_match_on_two_processes():
-    from segloc_cli.parallel import localize_scans_parallel
+    from segloc_cli.runs.parallel import localize_scans_parallel
 
     scan, neighbours = _corridor_window()
     windows = Windows([neighbours, [], neighbours[:2]], WindowParams(), TrackParams())

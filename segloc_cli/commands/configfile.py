@@ -77,7 +77,7 @@ def command_path(ctx: click.Context) -> tuple[str, ...]:
 def _apply_config(ctx: click.Context, value: Path | None) -> None:
     """Read ``--config``: every key of the command's table becomes that option's default
     (so the command line still overrides it); an unknown key or bad value is refused."""
-    from segloc_cli import runfile
+    from segloc_cli.runs import runfile
 
     if value is None or ctx.resilient_parsing:
         return
@@ -117,7 +117,7 @@ def config_value(ctx: click.Context, option: click.Option, key: str, raw: Any, p
     """A value of a configuration table, checked as the option checks its own: a setting's by
     ``tablevalues.setting_value``, any other's kind by ``tablevalues.table_value`` and its
     value by its click type (a relative path taken relative to the file's folder)."""
-    from segloc_cli.tablevalues import Takes, setting_value, table_value
+    from segloc_cli.runs.tablevalues import Takes, setting_value, table_value
 
     setting = getattr(option.type, "setting", None)
     if setting is not None:

@@ -35,10 +35,10 @@ EVALUATE_OPTIONS = (
     ),
     click.option(
         "--published",
-        type=ModuleChoice("segloc_cli.relations", "PUBLISHED"),
+        type=ModuleChoice("segloc_cli.scoring.relations", "PUBLISHED"),
         help="With --relations: add the published graph-mapping errors for this dataset.",
     ),
-    format_option("segloc_cli.evaluate", "FORMATS", "Table format."),
+    format_option("segloc_cli.scoring.evaluate", "FORMATS", "Table format."),
     path_option(
         "--out",
         "out_path",
@@ -113,21 +113,21 @@ def evaluate(estimates_path, force, **given):
     error of the estimated relative motion, and how many relations were used
     and skipped.
     """
-    from segloc_cli import scoring_run
     from segloc_cli.io.files import check_outputs
+    from segloc_cli.runs import evaluation
 
     _unused_figure_inputs(given)
-    options = scoring_run.EvaluateOptions(estimates_path, **given)
+    options = evaluation.EvaluateOptions(estimates_path, **given)
     problem = options.usage_problem()
     if problem is not None:
         raise click.UsageError(problem)
     # Outputs are checked before any input is read, so a refusal costs no work.
     check_outputs(options.outputs, options.inputs, force)
     if options.plots_dir is not None:
-        scoring_run.check_plots(options.plots_dir, with_map=options.with_map, force=force)
-    estimates = scoring_run.read_scored_estimates(estimates_path)
+        evaluation.check_plots(options.plots_dir, with_map=options.with_map, force=force)
+    estimates = evaluation.read_scored_estimates(estimates_path)
     if options.relations_path is not None:
-        relations = scoring_run.relation_scores(estimates, options.relations_path, options)
+        relations = evaluation.relation_scores(estimates, options.relations_path, options)
         _emit(relations, options.out_path)
     else:
         _evaluate_survey(estimates, options)
@@ -156,7 +156,7 @@ def _evaluate_survey(estimates, options) -> None:
     """Print (or write) Table 1, draw the figures asked for, and apply the gates."""
     from segloc_cli.io.maps import read_map
     from segloc_cli.io.tables import read_pose_table
-    from segloc_cli.scoring_run import survey_scores
+    from segloc_cli.runs.evaluation import survey_scores
 
     survey = read_pose_table(options.survey_path)
     # Read before anything is printed, so a bad path stops the command with nothing half done.
@@ -174,9 +174,9 @@ def _evaluate_survey(estimates, options) -> None:
 def _draw(options, scores, estimates, survey, segments_world, log) -> None:
     """Draw the figures of ``--plots`` into its folder, made if needed, saying which."""
     from segloc_cli.io.figures import write_figures
-    from segloc_cli.plots import MAP_FIGURES
     from segloc_cli.progress import Progress
-    from segloc_cli.scoring_run import figures_of
+    from segloc_cli.runs.evaluation import figures_of
+    from segloc_cli.scoring.plots import MAP_FIGURES
 
     options.plots_dir.mkdir(parents=True, exist_ok=True)
     if segments_world is None or log is None:

@@ -18,7 +18,7 @@ from segloc_cli.commands.options import (
 from segloc_cli.commands.optionvalues import parse_planar_pose
 from segloc_cli.commands.printing import info, warn
 from segloc_cli.geometry import Pose2
-from segloc_cli.runfile import run_file_path
+from segloc_cli.runs.runfile import run_file_path
 from segloc_cli.scan import MAX_RANGE_M
 
 

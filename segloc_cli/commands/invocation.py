@@ -60,7 +60,7 @@ class Invocation:
     def write_run_file(self, output: Path, also_read: Sequence[tuple[str, Path]] = ()) -> Path:
         """Write the run file beside ``output``, its inputs with ``also_read`` (role, path):
         files the inputs led to, such as a grid's image; return its path."""
-        from segloc_cli.runfile import run_file_path, write_run_file
+        from segloc_cli.runs.runfile import run_file_path, write_run_file
 
         path = run_file_path(output)
         inputs = [*self.inputs(), *also_read]

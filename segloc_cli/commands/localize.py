@@ -134,11 +134,11 @@ def localize(
     killed process leaves every finished row in the file. Beside OUT goes
     its run file (OUT.run.toml): --config OUT.run.toml repeats the run.
     """
-    from segloc_cli import pipeline
     from segloc_cli.io.files import check_outputs
     from segloc_cli.io.maps import read_map
     from segloc_cli.progress import Progress
-    from segloc_cli.rowstream import RowOutputs, write_rows
+    from segloc_cli.runs import pipeline
+    from segloc_cli.runs.rowstream import RowOutputs, write_rows
 
     run = Invocation.current()
     config, mode = _config(run, global_search, track)
@@ -175,7 +175,7 @@ def _config(run: Invocation, global_search: bool, track: bool):
 def _view(segments_world, logs, mode: str, config):
     """What the run view shows: the map (M, 4; world frame) and ``logs`` (the command's logs,
     localized in ``mode``)."""
-    from segloc_cli.rowstream import RunView
+    from segloc_cli.runs.rowstream import RunView
 
     run = Invocation.current()
     metadata = {"command": "localize", "mode": mode, "map": str(run.options["map"])}

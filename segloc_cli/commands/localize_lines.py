@@ -14,7 +14,7 @@ from segloc_cli.errors import EXIT_INTERRUPTED
 
 def say_how(runs) -> None:
     """Warn of logs that overlap in time, and say how each log's local maps were made."""
-    from segloc_cli.pipeline import overlapping_logs
+    from segloc_cli.runs.pipeline import overlapping_logs
 
     for message in overlapping_logs(runs):
         warn(message)

@@ -21,7 +21,7 @@ from segloc_cli.commands.optionvalues import parsed
 from segloc_cli.commands.printing import info, load_log
 from segloc_cli.errors import InputError
 from segloc_cli.io.log import SIMULATED_GUESSES_KEY
-from segloc_cli.runfile import run_file_path
+from segloc_cli.runs.runfile import run_file_path
 from segloc_cli.scan import AT_ROBOT_ORIGIN
 from segloc_cli.sim import SensorModel
 
@@ -94,11 +94,11 @@ def simulate(world_path, poses_path, out_dir, readings, noise_cm, seed, init_err
     """
     import numpy as np
 
-    from segloc_cli import pipeline
     from segloc_cli.estimates import PoseTable
     from segloc_cli.io.files import check_outputs
     from segloc_cli.io.maps import read_world
     from segloc_cli.io.tables import read_pose_table, write_pose_table
+    from segloc_cli.runs import pipeline
     from segloc_cli.sim import parse_init_errors
 
     errors = parsed(parse_init_errors, init_errors, "--init-errors")
@@ -144,7 +144,7 @@ def laser_offset_line(log) -> str:
 
 def windows_line(log) -> str:
     """One line on whether ``localize`` gives the log's scans windows (``window.py``)."""
-    from segloc_cli.pipeline import no_odometry
+    from segloc_cli.runs.pipeline import no_odometry
 
     reason = no_odometry(log)
     if reason is None:

@@ -21,7 +21,7 @@ from segloc_cli.commands.plans import map_export, map_import
 from segloc_cli.commands.printing import info, load_log
 from segloc_cli.config import EXTRACT, FUSE
 from segloc_cli.errors import InputError
-from segloc_cli.runfile import run_file_path
+from segloc_cli.runs.runfile import run_file_path
 
 
 @click.group("map")
@@ -68,8 +68,8 @@ def map_build(log_path, survey_path, out_path, mcap_path, force, **_):
     from segloc_cli.io.files import check_outputs
     from segloc_cli.io.maps import bounds_problem, write_map
     from segloc_cli.io.tables import read_pose_table
-    from segloc_cli.pipeline import build_map
     from segloc_cli.progress import Progress
+    from segloc_cli.runs.pipeline import build_map
 
     run = Invocation.current()
     outputs = {"--out": out_path, "--mcap": mcap_path}

@@ -13,7 +13,7 @@ from segloc_cli.commands.options import force_option, path_option, with_options
 from segloc_cli.commands.optionvalues import parse_point
 from segloc_cli.commands.printing import info, warn
 from segloc_cli.errors import InputError
-from segloc_cli.runfile import run_file_path
+from segloc_cli.runs.runfile import run_file_path
 
 PLAN_FORMATS = {".dxf": "dxf", ".svg": "svg", ".yaml": "nav2", ".yml": "nav2"}
 """Plans ``map import`` reads and ``map export`` writes, by file extension."""
@@ -85,7 +85,7 @@ def map_import(plan_path, out_path, layers, units, scale_m, origin_m, force):
     """
     from segloc_cli.io.files import check_outputs
     from segloc_cli.io.maps import bounds_problem, write_map
-    from segloc_cli.pipeline import read_plan
+    from segloc_cli.runs.pipeline import read_plan
 
     kind = _plan_format(plan_path, "PLAN")
     _only_for(kind, "dxf", {"--layer": layers, "--units": units})
@@ -151,7 +151,7 @@ def map_export(map_path, out_path, plan_format, resolution_m, force):
     """
     from segloc_cli.io.files import check_outputs
     from segloc_cli.io.maps import read_map
-    from segloc_cli.pipeline import write_plan
+    from segloc_cli.runs.pipeline import write_plan
 
     kind = plan_format or _plan_format(out_path, "--out")
     _only_for(kind, "nav2", {"--resolution": resolution_m})

@@ -23,7 +23,7 @@ def within_cores(jobs: int, running: str) -> int:
     """``--jobs`` no more than the cores segloc may use here (more processes would only share
     them), with a warning that ends in ``running`` (its ``{cores}`` filled in) when it asked
     for more."""
-    from segloc_cli.parallel import usable_cores
+    from segloc_cli.runs.parallel import usable_cores
 
     cores = usable_cores()
     if jobs <= cores:

@@ -18,7 +18,7 @@ from segloc_cli.commands.options import (
 from segloc_cli.commands.optionvalues import parsed
 from segloc_cli.commands.printing import info
 from segloc_cli.errors import EXIT_INTERRUPTED
-from segloc_cli.runfile import run_file_path
+from segloc_cli.runs.runfile import run_file_path
 
 RECORD_OPTIONS = (
     click.option(

@@ -32,7 +32,7 @@ from segloc_cli.errors import EXIT_INTERRUPTED, EXIT_TASKS_FAILED
     show_default="this machine's cores",
     help="Worker processes of the local cluster (not with --scheduler).",
 )
-@format_option("segloc_cli.sweep", "SUMMARY_FORMATS", "Format of the summary printed.")
+@format_option("segloc_cli.runs.sweep", "SUMMARY_FORMATS", "Format of the summary printed.")
 @config_option
 @force_option
 def sweep(spec_path, out_path, scheduler, jobs, fmt, force):
@@ -81,7 +81,7 @@ def sweep(spec_path, out_path, scheduler, jobs, fmt, force):
     percentile errors (a pose without an estimate counting as infinitely
     wrong), and the median time per scan.
     """
-    from segloc_cli.sweepspec import read_spec
+    from segloc_cli.runs.sweepspec import read_spec
 
     _check_extra()
     if (
@@ -93,7 +93,7 @@ def sweep(spec_path, out_path, scheduler, jobs, fmt, force):
                                "workers are those started with `dask worker`")  # fmt: skip
     _check_scheduler(scheduler)
     from segloc_cli.io.files import check_outputs
-    from segloc_cli.runfile import run_file_path
+    from segloc_cli.runs.runfile import run_file_path
 
     run = Invocation.current()
     # An existing OUT is the sweep's to resume (force), but never one of its inputs.
@@ -119,7 +119,7 @@ def _check_extra() -> None:
 
 def _check_scheduler(scheduler: str | None) -> None:
     """Refuse a ``--scheduler`` that names no scheduler (before the spec is read)."""
-    from segloc_cli.sweep import address_problem
+    from segloc_cli.runs.sweep import address_problem
 
     problem = None if scheduler is None else address_problem(scheduler)
     if problem is not None:
@@ -131,7 +131,7 @@ def _check_scheduler(scheduler: str | None) -> None:
 def _local_workers(jobs: int, n_tasks: int) -> int:
     """The local cluster's size: ``jobs``, but no more than the tasks to run, nor than the
     cores segloc may use (``within_cores``, which warns only when ``--jobs`` was given)."""
-    from segloc_cli.parallel import usable_cores
+    from segloc_cli.runs.parallel import usable_cores
 
     source = click.get_current_context().get_parameter_source("jobs")
     if source == click.core.ParameterSource.DEFAULT:
@@ -144,8 +144,8 @@ def _local_workers(jobs: int, n_tasks: int) -> int:
 def _run(plan, out_path: Path, scheduler: str | None, jobs: int, force: bool):
     """Run the plan's tasks not yet in ``out_path``; (the table written, stop signals)."""
     from segloc_cli.progress import Progress
+    from segloc_cli.runs.sweep import ResultStore, connect, run_tasks, where
     from segloc_cli.stopping import stop_requests
-    from segloc_cli.sweep import ResultStore, connect, run_tasks, where
 
     store = ResultStore(out_path, fresh=force)
     todo = store.todo(plan.tasks)
@@ -168,7 +168,7 @@ def _run(plan, out_path: Path, scheduler: str | None, jobs: int, force: bool):
 def _report(plan, table, out_path: Path, fmt: str, stops: list[str]) -> None:
     """Print the summary, then how the sweep ended; exit 130 if stopped, 1 if tasks failed."""
     from segloc_cli.estimates import STATUS_TASK_FAILED
-    from segloc_cli.sweep import format_summary, summary
+    from segloc_cli.runs.sweep import format_summary, summary
 
     if len(table):
         stats = summary(table, plan.grid_keys, *plan.gates.values())

@@ -22,12 +22,13 @@ apply. Image row 0 is the top of the map (largest y); cell (column i, row j from
 bottom) has its centre at ``origin ⊕ ((i + ½)·resolution, (j + ½)·resolution)``, the
 offset turned by the origin's yaw.
 
-The occupied cells become segments as ``raster.trace_walls`` traces them: through the
-centres of each surface's outermost occupied cells, split and fitted as scans are, a wall
-one cell thick as one segment, a thicker one as one segment per face.
+The occupied cells become segments as ``maps.wall_tracing.trace_walls`` traces them:
+through the centres of each surface's outermost occupied cells, split and fitted as scans
+are, a wall one cell thick as one segment, a thicker one as one segment per face.
 
-Writing draws each segment as the thin line of cells it crosses (``raster.line_cells``) in
-black (occupied, 0) on a grid covering the map's bounding box,
+Writing draws each segment as the thin line of cells it crosses
+(``maps.wall_tracing.line_cells``) in black (occupied, 0) on a grid covering the map's
+bounding box,
 ``MARGIN_CELLS`` beyond it on every side. Cells inside the bounding box are free (254):
 a segment map says where walls are, not where floor is, so nothing inside can be marked
 unknown with reason, and free is what a plan drawn on white paper says. Cells of the margin
@@ -54,7 +55,7 @@ from segloc_cli.geometry import Pose2, transform_segments
 from segloc_cli.io.files import atomic_path, reading, write_text_atomic
 from segloc_cli.io.plans import FloorPlan, checked_plan_segments
 from segloc_cli.limits import MAX_COORDINATE_M
-from segloc_cli.raster import SPLIT_CELLS, line_cells, trace_walls
+from segloc_cli.maps.wall_tracing import SPLIT_CELLS, line_cells, trace_walls
 
 MODES = ("trinary", "scale", "raw")
 """Values of the YAML's ``mode`` key; ``trinary`` when it is absent."""

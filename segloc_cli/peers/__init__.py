@@ -18,14 +18,14 @@ import importlib
 
 import numpy as np
 
-from segloc_cli.confidence import ConfidenceParams, points_status
 from segloc_cli.config import METHODS
 from segloc_cli.errors import SeglocError
 from segloc_cli.estimates import STATUS_NO_OVERLAP
 from segloc_cli.geometry import Pose2
-from segloc_cli.localize import NAN_POSE, Estimate
-from segloc_cli.refine import RefineParams, support
-from segloc_cli.spatial import NEAR_CELL_M, SegmentGrid
+from segloc_cli.method.confidence import ConfidenceParams, points_status
+from segloc_cli.method.localize import NAN_POSE, Estimate
+from segloc_cli.method.refine import RefineParams, support
+from segloc_cli.method.spatial import NEAR_CELL_M, SegmentGrid
 
 __all__ = ["METHODS", "GuidedMatcher", "judged_estimate", "peer_localizer", "require"]
 

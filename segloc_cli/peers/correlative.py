@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from segloc_cli.geometry import Pose2, point_segment_distances
-from segloc_cli.localize import Estimate
+from segloc_cli.method.localize import Estimate
 from segloc_cli.peers import GuidedMatcher, require
 from segloc_cli.sim import cast_rays
 

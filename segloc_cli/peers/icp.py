@@ -16,7 +16,7 @@ import numpy as np
 
 from segloc_cli.config import ICP_VARIANTS
 from segloc_cli.geometry import Pose2, sample_segments
-from segloc_cli.localize import Estimate
+from segloc_cli.method.localize import Estimate
 from segloc_cli.peers import GuidedMatcher, require
 
 VARIANTS = dict(zip(ICP_VARIANTS, ("GICP", "PLANE_ICP"), strict=True))

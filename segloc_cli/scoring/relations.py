@@ -36,8 +36,8 @@ import pandas as pd
 from segloc_cli.config import TIME_TOLERANCE_MS
 from segloc_cli.errors import InputError
 from segloc_cli.estimates import ESTIMATE_COLUMNS, ESTIMATED, Relations
-from segloc_cli.evaluate import FORMATS
 from segloc_cli.geometry import wrap_angle
+from segloc_cli.scoring.evaluate import FORMATS
 from segloc_cli.timing import pair_by_time
 
 PUBLISHED_SOURCE = (

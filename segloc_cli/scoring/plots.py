@@ -29,12 +29,12 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.collections import LineCollection
 from matplotlib.figure import Figure
 
-from segloc_cli.align import VOTE_SCHEMES, RTable, accumulate, align, candidate_headings
 from segloc_cli.config import TIME_TOLERANCE_MS, LocalizeParams
 from segloc_cli.estimates import ESTIMATED, PoseTable
-from segloc_cli.extract import ExtractParams, extract_segments
 from segloc_cli.geometry import Pose2, transform_points, transform_segments, wrap_angle
-from segloc_cli.overlap import coarse_to_fine
+from segloc_cli.method.align import VOTE_SCHEMES, RTable, accumulate, align, candidate_headings
+from segloc_cli.method.extract import ExtractParams, extract_segments
+from segloc_cli.method.overlap import coarse_to_fine
 from segloc_cli.scan import Scan
 from segloc_cli.timing import pair_by_time
 

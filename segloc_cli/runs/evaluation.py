@@ -70,7 +70,7 @@ class EvaluateOptions:
     def outputs(self) -> dict[str, Path | None]:
         """Every file it writes besides the figures, by the option that names it (as
         ``io/files.check_outputs`` takes them): the table's, and the run file beside it."""
-        from segloc_cli.runfile import run_file_path
+        from segloc_cli.runs.runfile import run_file_path
 
         if self.out_path is None:
             return {"--out": None}
@@ -136,7 +136,7 @@ class SurveyScores:
 def survey_scores(estimates: pd.DataFrame, survey: PoseTable, options: EvaluateOptions):
     """Score ``estimates`` against the surveyed poses ``survey`` (paired by time); a pairing
     that fails names the survey when it names no file."""
-    from segloc_cli.evaluate import format_table, gate, summary, table1
+    from segloc_cli.scoring.evaluate import format_table, gate, summary, table1
 
     paths = {"estimates_path": options.estimates_path, "survey_path": options.survey_path}
     try:
@@ -153,7 +153,7 @@ def check_plots(plots_dir: Path, with_map: bool, force: bool) -> None:
     """Refuse, before any work, figures of ``--plots`` that exist (without ``force``) and a
     folder that cannot be made or written; ``with_map``: the map's figures are drawn too."""
     from segloc_cli.io.files import OutputError, check_output
-    from segloc_cli.plots import ERRORS, EVALUATION_FIGURES
+    from segloc_cli.scoring.plots import ERRORS, EVALUATION_FIGURES
 
     if plots_dir.exists() and not plots_dir.is_dir():
         raise OutputError("is not a folder; --plots takes a folder", path=plots_dir)
@@ -181,7 +181,7 @@ def figures_of(
     and with the map (M, 4; world frame) and the log also the local maps over the map, the
     stage-1 heading error of each vote scheme, the vote accumulator and the stage-2 tracks;
     refused when no scan of the log lies near a surveyed estimate."""
-    from segloc_cli.plots import evaluation_figures, surveyed_scans
+    from segloc_cli.scoring.plots import evaluation_figures, surveyed_scans
 
     if segments_world is None or log is None:
         return evaluation_figures(scores.table)
@@ -201,7 +201,7 @@ def relation_scores(estimates: pd.DataFrame, relations_path: Path, options: Eval
     ``relations_path``, as text in the format asked (with the published errors beside, where
     asked); refused when no relation has estimates at both of its times."""
     from segloc_cli.io.relations import read_relations
-    from segloc_cli.relations import (
+    from segloc_cli.scoring.relations import (
         PUBLISHED,
         format_relations,
         relation_errors,

@@ -23,7 +23,7 @@ Tracing walls takes four steps.
    Pieces of fewer than ``ExtractParams.min_points`` cells or shorter than
    ``ExtractParams.min_length_m`` are left out, as in a scan.
 4. Segments within half a cell across and one cell along are fused
-   (``mapping.fuse_segments``), and a segment lying within half a cell of a longer one
+   (``fusion.fuse_segments``), and a segment lying within half a cell of a longer one
    is dropped: a thin wall's ways there and back become one segment, while the faces of
    thicker walls stay apart, one per side, as a scanner sees them.
 """
@@ -74,7 +74,7 @@ def line_cells(segments_grid: np.ndarray, resolution_m: float) -> tuple[np.ndarr
 def trace_walls(occupied: np.ndarray, resolution_m: float) -> np.ndarray:
     """Segments (K, 4), metres, grid frame, along the occupied cells of a mask (rows,
     columns) of cells ``resolution_m`` wide (see the module docstring)."""
-    from segloc_cli.mapping import fuse_segments  # kernels: loaded to trace, not to draw
+    from segloc_cli.maps.fusion import fuse_segments  # kernels: loaded to trace, not to draw
 
     params = ExtractParams(split_m=SPLIT_CELLS * resolution_m)
     cells, chains = _chains(*_surface_rings(occupied))
@@ -87,7 +87,7 @@ def _covered(segments: np.ndarray, within_m: float) -> np.ndarray:
     """Mask (M,) of the segments (M, 4) both of whose ends lie within ``within_m`` of one
     longer segment (of equal length: one listed before): a short piece of a face that fusion
     could not join, its direction too uncertain to pass the test both ways."""
-    from segloc_cli.spatial import SegmentGrid
+    from segloc_cli.method.spatial import SegmentGrid
 
     lengths = segment_lengths(segments)
     offsets, near = SegmentGrid(segments).within(segments.reshape(-1, 2), within_m)
@@ -312,7 +312,7 @@ def _chain_segments(
     (``_trimmed``) before its fit.
     """
     # The scan extraction's kernels: to them a chain of cells is a run of points.
-    from segloc_cli.extract import pieces_of_run, segment_of_piece, split_points
+    from segloc_cli.method.extract import pieces_of_run, segment_of_piece, split_points
 
     xs = np.ascontiguousarray((cells[:, 0] + 0.5) * resolution_m)
     ys = np.ascontiguousarray((cells[:, 1] + 0.5) * resolution_m)
@@ -349,7 +349,7 @@ def _trimmed(xs: np.ndarray, ys: np.ndarray, first: int, last: int, limit_m: flo
     """The piece [first, last) of points less its leading and trailing points farther than
     ``limit_m`` from its line (refitted as they go): the cells a merge took from the next
     wall round a corner, which a digital line's own cells (within half a cell) never are."""
-    from segloc_cli.extract import fit_line, line_residuals
+    from segloc_cli.method.extract import fit_line, line_residuals
 
     while last - first > 2:
         points = np.column_stack([xs[first:last], ys[first:last]])
@@ -364,7 +364,7 @@ def _trimmed(xs: np.ndarray, ys: np.ndarray, first: int, last: int, limit_m: flo
 def _folds_back(xs: np.ndarray, ys: np.ndarray, slack_m: float) -> bool:
     """Whether points (K,) in order run along their fitted line beyond the span between the
     first and the last by more than ``slack_m`` metres: out and back again."""
-    from segloc_cli.extract import fit_line
+    from segloc_cli.method.extract import fit_line
 
     centroid, direction = fit_line(np.column_stack([xs, ys]))
     along = (xs - centroid[0]) * direction[0] + (ys - centroid[1]) * direction[1]

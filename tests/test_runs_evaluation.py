@@ -1,4 +1,4 @@
-"""``scoring_run``: evaluate's options, typed, and what they say of themselves."""
+"""``runs.evaluation``: evaluate's options, typed, and what they say of themselves."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from segloc_cli.scoring_run import GATE_SHOWN, EvaluateOptions, SurveyScores
+from segloc_cli.runs.evaluation import GATE_SHOWN, EvaluateOptions, SurveyScores
 
 EST = Path("est.csv")
 

@@ -36,9 +36,9 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from segloc_cli.config import ExtractParams, RefineParams, TrackParams, WindowParams
-from segloc_cli.extract import extract_segments
 from segloc_cli.geometry import Pose2, transform_points, transform_segments, wrap_angle
-from segloc_cli.refine import refine_pose, support
+from segloc_cli.method.extract import extract_segments
+from segloc_cli.method.refine import refine_pose, support
 from segloc_cli.scan import Scan
 
 

@@ -36,11 +36,11 @@ from typing import NamedTuple
 import numpy as np
 
 from segloc_cli.estimates import EstimateRow
-from segloc_cli.extract import ExtractParams
 from segloc_cli.geometry import Pose2
-from segloc_cli.localize import ScanMatcher, localize_scans
+from segloc_cli.method.extract import ExtractParams
+from segloc_cli.method.localize import ScanMatcher, localize_scans
+from segloc_cli.method.window import Windows
 from segloc_cli.scan import Scan
-from segloc_cli.window import Windows
 
 BLOCK_SCANS = 4
 """Scans per task: small enough to keep both cores busy to the end of a short log."""

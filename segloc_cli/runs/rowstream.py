@@ -25,8 +25,8 @@ import numpy as np
 from segloc_cli.config import ExtractParams
 from segloc_cli.estimates import EstimateRow
 from segloc_cli.io.log import Log
-from segloc_cli.pipeline import LogRun
 from segloc_cli.progress import Progress, ProgressFactory, silent
+from segloc_cli.runs.pipeline import LogRun
 
 PROGRESS_LABELS = {"guided": "localizing", "global": "global search", "track": "tracking"}
 """What the progress display says a run of each mode (``pipeline.MODES``) is doing."""
@@ -55,7 +55,7 @@ class RowOutputs:
     ) -> RowOutputs:
         """The outputs of ``--out``, ``--tum``, ``--mcap`` and, with ``--hypotheses K``, the
         table of K poses per scan beside OUT (est.csv → est.hypotheses.csv)."""
-        from segloc_cli.runfile import beside
+        from segloc_cli.runs.runfile import beside
 
         listed = None if hypotheses is None else (beside(out, ".hypotheses.csv"), hypotheses)
         return cls(out, tum, listed, view)
@@ -63,7 +63,7 @@ class RowOutputs:
     def by_option(self) -> dict[str, Path | None]:
         """Every file the run writes, by the option that names it (as ``io/files.check_outputs``
         takes them), the run file beside OUT among them."""
-        from segloc_cli.runfile import run_file_path
+        from segloc_cli.runs.runfile import run_file_path
 
         hypotheses = None if self.hypotheses is None else self.hypotheses[0]
         return {
@@ -199,7 +199,7 @@ def _writers(stack: ExitStack, outputs: RowOutputs) -> list[RowWriter]:
 def _shown(view, runs: Sequence, shown: RunView) -> Iterator[EstimateRow]:
     """The rows of ``runs``, each also added to the run ``view`` with its scan and the scan's
     local segments."""
-    from segloc_cli.extract import extract_segments
+    from segloc_cli.method.extract import extract_segments
 
     for run, log in zip(runs, shown.logs, strict=True):
         scans = {scan.time_s: scan for scan in log.scans}

@@ -26,8 +26,8 @@ import numpy as np
 from segloc_cli.config import RefineParams
 from segloc_cli.geometry import Pose2
 from segloc_cli.jit import njit
-from segloc_cli.kernels import point_segment_distance, wrap_remainder
-from segloc_cli.spatial import SegmentGrid, filed_within, near_mask, nearest_filed
+from segloc_cli.method.kernels import point_segment_distance, wrap_remainder
+from segloc_cli.method.spatial import SegmentGrid, filed_within, near_mask, nearest_filed
 
 
 @dataclass(frozen=True)

@@ -19,7 +19,7 @@ import numpy as np
 
 from segloc_cli.geometry import as_segments, point_segment_distances
 from segloc_cli.jit import njit
-from segloc_cli.kernels import point_segment_distance
+from segloc_cli.method.kernels import point_segment_distance
 
 DEFAULT_CELL_M = 4.0
 """Cell side: about a room's wall; small enough that a query's square holds little else."""

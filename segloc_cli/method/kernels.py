@@ -2,7 +2,7 @@
 
 Compiled code can only call compiled functions, so these are the scalar twins
 of helpers in ``geometry.py`` (which work on numpy arrays), written once here
-and called from the kernels of ``overlap.py``, ``refine.py`` and ``field.py``.
+and called from the kernels of ``overlap.py``, ``refine.py`` and ``score_raster.py``.
 Units are metres and radians; a segment is ``x1 y1 x2 y2`` and every argument
 of one call is in the same frame unless a docstring says otherwise.
 

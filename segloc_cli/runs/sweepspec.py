@@ -23,8 +23,8 @@ import numpy as np
 
 from segloc_cli.config import GUESSES_KEYWORD, LOCALIZE_SETTINGS, Setting
 from segloc_cli.errors import InputError
-from segloc_cli.sweep import Task, task_key
-from segloc_cli.tablevalues import Takes, setting_value, table_value
+from segloc_cli.runs.sweep import Task, task_key
+from segloc_cli.runs.tablevalues import Takes, setting_value, table_value
 
 SPEC_KEYS = {
     "map": "the segment map (MAP.json) of every log that names none",
@@ -65,7 +65,7 @@ class Plan:
 
 def read_spec(path: Path) -> Plan:
     """The plan of the spec ``path``; a bad key or value is an ``InputError`` naming it."""
-    from segloc_cli.runfile import load_toml
+    from segloc_cli.runs.runfile import load_toml
 
     document = load_toml(path, "a sweep spec (TOML)")
     swept = _swept()
@@ -238,7 +238,7 @@ def _guesses(
     document: dict, path: Path
 ) -> tuple[tuple[str, float, float] | None, Path | None, str]:
     """(init errors, guesses file, what identifies them) from ``init-errors`` or ``initial``."""
-    from segloc_cli.runfile import sha256
+    from segloc_cli.runs.runfile import sha256
     from segloc_cli.sim import parse_init_errors
 
     if "init-errors" in document and "initial" in document:
@@ -274,7 +274,7 @@ class _Inputs:
 def _read_inputs(logs: list[_Log], guess_file: Path | None) -> _Inputs:
     from segloc_cli.io.maps import read_map
     from segloc_cli.io.tables import read_pose_table
-    from segloc_cli.runfile import sha256
+    from segloc_cli.runs.runfile import sha256
 
     files = _Inputs({}, {}, {}, [] if guess_file is None else [("initial", guess_file)])
     for log in logs:

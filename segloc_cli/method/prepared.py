@@ -15,10 +15,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from segloc_cli.align import RTable
 from segloc_cli.config import LocalizeParams, SearchParams
-from segloc_cli.search import HypothesisSearch
-from segloc_cli.spatial import NEAR_CELL_M, SegmentGrid
+from segloc_cli.method.align import RTable
+from segloc_cli.method.search import HypothesisSearch
+from segloc_cli.method.spatial import NEAR_CELL_M, SegmentGrid
 
 
 def search_needed(params: LocalizeParams, global_search: bool = False) -> bool:

@@ -48,7 +48,7 @@ import numpy as np
 
 from segloc_cli.geometry import Pose2
 from segloc_cli.jit import njit
-from segloc_cli.kernels import (
+from segloc_cli.method.kernels import (
     angular_interval,
     out_of_frame,
     point_into_frame,
@@ -56,7 +56,7 @@ from segloc_cli.kernels import (
     segment_distance_ends,
     wrap,
 )
-from segloc_cli.spatial import SegmentGrid, cell_span
+from segloc_cli.method.spatial import SegmentGrid, cell_span
 
 
 @njit(cache=True)

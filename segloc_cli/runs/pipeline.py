@@ -106,7 +106,7 @@ def localizer_for(segments_world: np.ndarray, config: Config, mode: str):
     ``mode`` (one of ``MODES``). The two-stage method's map is prepared here, all of it the
     mode runs (``prepared.prepare_map``), so that no scan's time includes building it."""
     if config.method == "two-stage":
-        from segloc_cli.localize import Localizer
+        from segloc_cli.method.localize import Localizer
 
         return Localizer.on_map(segments_world, config.localize, global_search=mode == "global")
     from segloc_cli.peers import peer_localizer
@@ -173,7 +173,7 @@ def localize_guessed(
     its window where the log has odometry (``scan_windows``), on ``config.jobs`` processes
     (``stop`` is asked between blocks of scans); the rows are made as ``LogRun.rows`` is
     read."""
-    from segloc_cli.parallel import localize_scans_parallel
+    from segloc_cli.runs.parallel import localize_scans_parallel
 
     index = guesses.index
     scans = [log.scans[i] for i in index]
@@ -206,7 +206,7 @@ def scan_windows(log: Log, log_path: Path, index: np.ndarray, localizer, config:
     log's odometry (``window.py``); None when each scan is to be localized alone (the
     window is off, the matcher takes single scans, ``--no-refine`` asks for the paper's
     method, or the log has no odometry)."""
-    from segloc_cli.window import Windows, neighbour_indices, relative_pose
+    from segloc_cli.method.window import Windows, neighbour_indices, relative_pose
 
     if alone_because(log, localizer, config) is not None:
         return None
@@ -256,7 +256,7 @@ def window_note(log: Log, localizer, config: Config, windows) -> str:
 
 def _track(log: Log, log_path: Path, localizer, guesses: Guesses, config: Config):
     """(scan indices, rows) of a track from the first guessed scan, carried by odometry."""
-    from segloc_cli.tracking import track_scans
+    from segloc_cli.method.tracking import track_scans
 
     tolerance_s = config.tolerance_ms / 1e3
     missing = "; tracking needs odometry between scans"
@@ -357,11 +357,11 @@ def build_map(
     progress: ProgressFactory = silent,
 ) -> BuiltMap:
     """Fuse the local maps of the scans that have a survey row, each placed at its pose (after
-    ``config.fuse.polish_rounds`` rounds of ``mapping.polish_poses``, if any; ``BuiltMap.poses``
+    ``config.fuse.polish_rounds`` rounds of ``maps.fusion.polish_poses``, if any; ``BuiltMap.poses``
     holds the poses used); the extraction (scans), polishing and fusion (rounds) report to
     ``progress``."""
-    from segloc_cli.extract import extract_segments
-    from segloc_cli.mapping import build_global_map, polish_poses
+    from segloc_cli.maps.fusion import build_global_map, polish_poses
+    from segloc_cli.method.extract import extract_segments
 
     times = log.scan_times_s
     rows = pair_by_time(

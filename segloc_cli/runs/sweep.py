@@ -123,10 +123,10 @@ def run_task(task: Task) -> pd.DataFrame:
     without a scan, or without a guess, keeps its row, with status ``STATUS_NO_SCAN`` or
     ``STATUS_NO_GUESS`` and no estimate: a miss. Raises on bad input, which the sweep
     records as the task's failure."""
-    from segloc_cli import pipeline
     from segloc_cli.config import Config
-    from segloc_cli.evaluate import final_errors
-    from segloc_cli.parallel import warm_localizer
+    from segloc_cli.runs import pipeline
+    from segloc_cli.runs.parallel import warm_localizer
+    from segloc_cli.scoring.evaluate import final_errors
 
     log = _log_of(task.log_path)
     config = Config.from_values(dict(task.settings))
@@ -164,8 +164,8 @@ def _survey_pairing(task: Task, log, tolerance_s: float):
     frame; none for a global search), those scans' indices, guesses and the rows' pose ids;
     and for each survey row the status of a row that lies within the log's time span but
     lacks a scan or a guess (None elsewhere)."""
-    from segloc_cli import pipeline
     from segloc_cli.geometry import Pose2
+    from segloc_cli.runs import pipeline
     from segloc_cli.timing import pair_by_time
 
     survey_s = task.survey.time_s
@@ -192,7 +192,7 @@ def _guesses_of_rows(task: Task, log, scan: np.ndarray, tolerance_s: float):
     """For each survey row, the row of its guess (−1: none) and that guess (x m, y m, θ rad;
     world frame): the log's /odom at the row's scan, or the task's guess nearest the row's
     time."""
-    from segloc_cli import pipeline
+    from segloc_cli.runs import pipeline
     from segloc_cli.timing import pair_by_time
 
     if task.guesses is None:
@@ -493,7 +493,7 @@ def _local_cluster(workers: int, warn: Callable[[str], None]):
 
     from distributed import LocalCluster
 
-    from segloc_cli.parallel import PROCESS_LIMIT_HINT, lacks_room
+    from segloc_cli.runs.parallel import PROCESS_LIMIT_HINT, lacks_room
 
     # Dask's own lines (a worker that failed to start, one reaped at exit) are said better
     # here, and a failed task is kept with its error.
@@ -609,7 +609,7 @@ def summary(
     ``fail_above_cm``, |err_theta| ≤ ``fail_above_deg`` and an accepted status), median and
     95th percentile of the position (cm) and heading (°) errors, a pose without an estimate
     counting as infinitely wrong, and the median time per scan (ms)."""
-    from segloc_cli.evaluate import gate_masks
+    from segloc_cli.scoring.evaluate import gate_masks
 
     rows = []
     for combination, group in table.groupby("combination", sort=True):

@@ -20,11 +20,11 @@ import math
 import numpy as np
 import pandas as pd
 
-from segloc_cli.confidence import RIGHT_PLACE_DEG, RIGHT_PLACE_M
 from segloc_cli.config import TIME_TOLERANCE_MS
 from segloc_cli.errors import InputError
 from segloc_cli.estimates import ESTIMATE_COLUMNS, ESTIMATED, PoseTable
 from segloc_cli.geometry import wrap_angle
+from segloc_cli.method.confidence import RIGHT_PLACE_DEG, RIGHT_PLACE_M
 from segloc_cli.timing import pair_by_time
 
 ERROR_COLUMNS = (

@@ -27,7 +27,7 @@ import numpy as np
 
 from segloc_cli.geometry import as_segments
 from segloc_cli.jit import njit
-from segloc_cli.kernels import point_segment_distance
+from segloc_cli.method.kernels import point_segment_distance
 
 INDEX_LIMIT = 2**40
 """Cell indices are clipped to ±this before they reach the compiled sums: far beyond any

@@ -25,10 +25,16 @@ from segloc_cli.estimates import (
     STATUS_TOO_FEW_SEGMENTS,
     EstimateRow,
 )
-from segloc_cli.extract import extract_segments
 from segloc_cli.geometry import Pose2, wrap_angle
-from segloc_cli.localize import Estimate, Localizer, estimate_row, scan_is_degenerate, usable_points
-from segloc_cli.refine import inlier_ratio, refine_pose
+from segloc_cli.method.extract import extract_segments
+from segloc_cli.method.localize import (
+    Estimate,
+    Localizer,
+    estimate_row,
+    scan_is_degenerate,
+    usable_points,
+)
+from segloc_cli.method.refine import inlier_ratio, refine_pose
 from segloc_cli.scan import Scan
 
 __all__ = ["TrackParams", "track_scans"]

@@ -12,15 +12,6 @@ from typing import Protocol, overload
 
 import numpy as np
 
-from segloc_cli.align import align
-from segloc_cli.confidence import (
-    LOCAL_MAPS,
-    ConfidenceModel,
-    Evidence,
-    judge,
-    points_status,
-    shipped_models,
-)
 from segloc_cli.config import ExtractParams, LocalizeParams, RefineParams, SearchParams
 from segloc_cli.estimates import (
     STATUS_NO_OVERLAP,
@@ -29,15 +20,24 @@ from segloc_cli.estimates import (
     EstimateRow,
     HypothesisRow,
 )
-from segloc_cli.extract import extract_segments
-from segloc_cli.freespace import crossing_ratio
 from segloc_cli.geometry import Pose2
-from segloc_cli.overlap import coarse_to_fine
-from segloc_cli.prepared import PreparedMap, prepare_map
-from segloc_cli.refine import Refinement, refine_pose, support
+from segloc_cli.method.align import align
+from segloc_cli.method.confidence import (
+    LOCAL_MAPS,
+    ConfidenceModel,
+    Evidence,
+    judge,
+    points_status,
+    shipped_models,
+)
+from segloc_cli.method.extract import extract_segments
+from segloc_cli.method.freespace import crossing_ratio
+from segloc_cli.method.overlap import coarse_to_fine
+from segloc_cli.method.prepared import PreparedMap, prepare_map
+from segloc_cli.method.refine import Refinement, refine_pose, support
+from segloc_cli.method.search import HypothesisSearch, distinct
+from segloc_cli.method.window import Windows, scan_window_map
 from segloc_cli.scan import Scan
-from segloc_cli.search import HypothesisSearch, distinct
-from segloc_cli.window import Windows, scan_window_map
 
 
 @dataclass(frozen=True)

@@ -347,8 +347,8 @@ def polish_poses(
     than ``polish_max_shift_m`` or puts less than ``polish_min_inlier_ratio`` of the points on
     the map is not taken. ``progress`` counts the rounds.
     """
-    from segloc_cli.refine import refine_pose
-    from segloc_cli.spatial import NEAR_CELL_M, SegmentGrid
+    from segloc_cli.method.refine import refine_pose
+    from segloc_cli.method.spatial import NEAR_CELL_M, SegmentGrid
 
     n = len(poses)
     if not (len(local_maps) == len(points) == n):

@@ -19,7 +19,7 @@ import numpy as np
 
 from segloc_cli.geometry import Pose2
 from segloc_cli.jit import njit
-from segloc_cli.spatial import SegmentGrid
+from segloc_cli.method.spatial import SegmentGrid
 
 SHORTEN_M = 0.3
 """Metres cut from the end of each beam before it is tested against the walls."""

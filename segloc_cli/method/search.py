@@ -5,7 +5,7 @@ stage-2 overlap is nearly flat across a wide area, and a single descent from
 the initial guess often ends on a wrong pose that overlaps just as well. The
 search here asks the scan's points instead. For each candidate heading it
 sums, over a grid of positions, the raster scores of the rotated and shifted
-points (``field.py``): first per coarse block, whose sums bound every shift
+points (``score_raster.py``): first per coarse block, whose sums bound every shift
 inside it, then at the fine resolution only inside the blocks whose bound
 can still compete, best first. The result is a ranked list of distinct grid
 poses, which the caller polishes by refinement and compares.
@@ -19,7 +19,10 @@ from typing import NamedTuple
 import numpy as np
 
 from segloc_cli.config import SearchParams
-from segloc_cli.field import (
+from segloc_cli.geometry import Pose2, wrap_angle
+from segloc_cli.jit import njit
+from segloc_cli.method.kernels import wrap
+from segloc_cli.method.score_raster import (
     BOUND_LEVELS,
     INDEX_LIMIT,
     level_cell,
@@ -32,9 +35,6 @@ from segloc_cli.field import (
     pyramid_depth,
     score_raster,
 )
-from segloc_cli.geometry import Pose2, wrap_angle
-from segloc_cli.jit import njit
-from segloc_cli.kernels import wrap
 
 
 @dataclass(frozen=True)
@@ -79,7 +79,7 @@ class Pruning(NamedTuple):
 def _point_cells(points, cos_sin, start, origin, cell):
     """Fine cells (H, P) of points (P, 2), robot frame, turned by each heading (cos, sin per
     row of ``cos_sin``) and moved by ``start``, on the raster with cell (0, 0) at
-    ``origin``: what ``field.cell_indices`` gives, rounded half to even and clipped to
+    ``origin``: what ``score_raster.cell_indices`` gives, rounded half to even and clipped to
     ±``INDEX_LIMIT`` (NaN to −``INDEX_LIMIT``)."""
     n_h, n_p = cos_sin.shape[0], points.shape[0]
     ix = np.empty((n_h, n_p), dtype=np.int64)

@@ -1,4 +1,4 @@
-"""Compile segloc's numba kernels ahead of the first run: ``python -m segloc_cli.warmup``.
+"""Compile segloc's numba kernels ahead of the first run: ``python -m segloc_cli.runs.warmup``.
 
 The kernels (``@njit(cache=True)``) are compiled on first use and kept in numba's
 on-disk cache beside their modules (``segloc_cli/__pycache__/*.nbi``, ``*.nbc``).
@@ -34,13 +34,13 @@ from typing import Any
 import numpy as np
 from numba.core.dispatcher import Dispatcher
 
-from segloc_cli import pipeline
 from segloc_cli.config import Config
 from segloc_cli.errors import SeglocError
 from segloc_cli.estimates import PoseTable
 from segloc_cli.geometry import Pose2
 from segloc_cli.io.log import Log
-from segloc_cli.refine import nearest_segments
+from segloc_cli.method.refine import nearest_segments
+from segloc_cli.runs import pipeline
 from segloc_cli.sim import (
     SensorModel,
     initial_guesses,

@@ -1,0 +1,1 @@
+"""Building segment maps: fusing the segments of many scans, and tracing walls in rasters."""
