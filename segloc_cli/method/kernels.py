@@ -47,6 +47,21 @@ def point_segment_distance(
 
 
 @njit(cache=True)
+def list_if_within(px, py, segments, j, radius_m, listed, listed_d, count):
+    """Segment ``j`` of ``segments`` (M, 4) and its distance (m) from the point (px, py),
+    written at ``count`` into ``listed`` and ``listed_d`` when it lies within ``radius_m``;
+    returns how many are listed then."""
+    d = point_segment_distance(
+        px, py, segments[j, 0], segments[j, 1], segments[j, 2], segments[j, 3]
+    )
+    if d <= radius_m:  # not ``d > radius_m``: a NaN distance lists nothing
+        listed[count] = j
+        listed_d[count] = d
+        return count + 1
+    return count
+
+
+@njit(cache=True)
 def angular_interval(x1: float, y1: float, x2: float, y2: float) -> tuple[float, float]:
     """Centre (in [-π, π)) and half-width (radians) of the angle the segment subtends at
     the origin of its frame, taking the shorter way round between its ends."""

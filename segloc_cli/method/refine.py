@@ -26,7 +26,7 @@ import numpy as np
 from segloc_cli.config import RefineParams
 from segloc_cli.geometry import Pose2
 from segloc_cli.jit import njit
-from segloc_cli.method.kernels import point_segment_distance, wrap_remainder
+from segloc_cli.method.kernels import list_if_within, point_segment_distance, wrap_remainder
 from segloc_cli.method.spatial import SegmentGrid, filed_within, near_mask, nearest_filed
 
 
@@ -332,14 +332,7 @@ def _narrowed(points_world, segments, listed_from, listed, radius_m):
     for i in range(n):
         px, py = points_world[i, 0], points_world[i, 1]
         for k in range(listed_from[i], listed_from[i + 1]):
-            j = listed[k]
-            d = point_segment_distance(
-                px, py, segments[j, 0], segments[j, 1], segments[j, 2], segments[j, 3]
-            )
-            if d <= radius_m:
-                kept[count] = j
-                kept_d[count] = d
-                count += 1
+            count = list_if_within(px, py, segments, listed[k], radius_m, kept, kept_d, count)
         kept_from[i + 1] = count
     return kept_from, kept[:count], kept_d[:count]
 

@@ -19,7 +19,7 @@ import numpy as np
 
 from segloc_cli.geometry import as_segments, point_segment_distances
 from segloc_cli.jit import njit
-from segloc_cli.method.kernels import point_segment_distance
+from segloc_cli.method.kernels import list_if_within, point_segment_distance
 
 DEFAULT_CELL_M = 4.0
 """Cell side: about a room's wall; small enough that a query's square holds little else."""
@@ -270,12 +270,6 @@ def filed_within(cells, segments, allowed, points, radius_m):
                 if not allowed[j] or listed_for[j] == i:
                     continue
                 listed_for[j] = i
-                d = point_segment_distance(
-                    px, py, segments[j, 0], segments[j, 1], segments[j, 2], segments[j, 3]
-                )
-                if d <= radius_m:
-                    found[count] = j
-                    found_d[count] = d
-                    count += 1
+                count = list_if_within(px, py, segments, j, radius_m, found, found_d, count)
         starts[i + 1] = count
     return starts, found[:count], found_d[:count]
