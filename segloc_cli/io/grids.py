@@ -57,7 +57,7 @@ from segloc_cli.io.plans import FloorPlan, checked_plan_segments
 from segloc_cli.limits import MAX_COORDINATE_M
 from segloc_cli.maps.wall_tracing import SPLIT_CELLS, line_cells, trace_walls
 
-MODES = ("trinary", "scale", "raw")
+OCCUPANCY_MODES = ("trinary", "scale", "raw")
 """Values of the YAML's ``mode`` key; ``trinary`` when it is absent."""
 
 OCCUPIED = 100
@@ -100,7 +100,7 @@ class GridHeader:
     """The YAML of a nav2 map: ``image`` the image's path (joined to the YAML's folder
     unless absolute, as map_server joins it); ``resolution_m`` the side of a cell;
     ``origin`` (x m, y m, yaw rad) of the bottom-left cell's outer corner in the world
-    frame; ``negate``; the thresholds (0–1); ``mode`` one of ``MODES``."""
+    frame; ``negate``; the thresholds (0–1); ``mode`` one of ``OCCUPANCY_MODES``."""
 
     image: Path
     resolution_m: float
@@ -194,8 +194,9 @@ def read_header(path: Path) -> GridHeader:
     if negate not in (0, 1):  # True and False are 1 and 0
         raise InputError(f"`negate` must be 0 or 1, got {_shown(negate)}", path=path)
     mode = document.get("mode", "trinary")
-    if not isinstance(mode, str) or mode.lower() not in MODES:
-        raise InputError(f"`mode` must be one of {', '.join(MODES)}, got {_shown(mode)}", path=path)
+    if not isinstance(mode, str) or mode.lower() not in OCCUPANCY_MODES:
+        modes = ", ".join(OCCUPANCY_MODES)
+        raise InputError(f"`mode` must be one of {modes}, got {_shown(mode)}", path=path)
     return GridHeader(
         image=path.parent / image,
         resolution_m=resolution,

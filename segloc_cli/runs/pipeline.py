@@ -30,7 +30,7 @@ from segloc_cli.io.log import Log
 from segloc_cli.progress import ProgressFactory, silent
 from segloc_cli.timing import pair_by_time, time_range
 
-MODES = ("guided", "global", "track")
+RUN_MODES = ("guided", "global", "track")
 """How a log is localized: each scan from its own guess, each with none, or along a track."""
 
 
@@ -103,7 +103,7 @@ def paired_guesses(log: Log, log_path: Path, initial: Path | None, tolerance_ms:
 
 def localizer_for(segments_world: np.ndarray, config: Config, mode: str):
     """The ``ScanMatcher`` of ``config.method`` on a map (M, 4), world frame, for a run in
-    ``mode`` (one of ``MODES``). The two-stage method's map is prepared here, all of it the
+    ``mode`` (one of ``RUN_MODES``). The two-stage method's map is prepared here, all of it the
     mode runs (``prepared.prepare_map``), so that no scan's time includes building it."""
     if config.method == "two-stage":
         from segloc_cli.method.localize import Localizer
@@ -141,13 +141,13 @@ def localize_log(
 ) -> LogRun:
     """Plan the localization of one log; its rows are made as ``LogRun.rows`` is read.
 
-    ``mode`` is one of ``MODES``. Guided runs localize the scans with a guess from
+    ``mode`` is one of ``RUN_MODES``. Guided runs localize the scans with a guess from
     ``initial`` (None: the log's /odom); global runs every scan, or with ``initial`` only
     the scans it lists; a track starts at the first scan with a guess and follows the
     odometry. ``stop`` is asked between blocks of scans on worker processes.
     """
-    if mode not in MODES:
-        raise ValueError(f"mode {mode!r} is not one of {', '.join(MODES)}")
+    if mode not in RUN_MODES:
+        raise ValueError(f"mode {mode!r} is not one of {', '.join(RUN_MODES)}")
     if mode == "global" and initial is None:
         index = np.arange(len(log.scans))
         guesses = Guesses(index, [], log.scan_numbers)

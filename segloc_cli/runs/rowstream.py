@@ -29,7 +29,7 @@ from segloc_cli.progress import Progress, ProgressFactory, silent
 from segloc_cli.runs.pipeline import LogRun
 
 PROGRESS_LABELS = {"guided": "localizing", "global": "global search", "track": "tracking"}
-"""What the progress display says a run of each mode (``pipeline.MODES``) is doing."""
+"""What the progress display says a run of each mode (``pipeline.RUN_MODES``) is doing."""
 
 
 class RowWriter(Protocol):

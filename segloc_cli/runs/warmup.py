@@ -69,7 +69,7 @@ LOCALIZE_RUNS: dict[str, tuple[str, dict[str, Any]]] = {
     "--method icp": ("guided", {"method": "icp"}),
     "--method correlative": ("guided", {"method": "correlative"}),
 }
-"""The ``localize`` runs, by their options: (``pipeline.MODES`` entry, settings as
+"""The ``localize`` runs, by their options: (``pipeline.RUN_MODES`` entry, settings as
 ``Config.from_values`` takes them)."""
 
 
