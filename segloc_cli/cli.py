@@ -19,7 +19,7 @@ from segloc_cli.commands.info import info_command
 from segloc_cli.commands.localize import localize
 from segloc_cli.commands.logs import simulate
 from segloc_cli.commands.maps import map_group
-from segloc_cli.commands.record import record
+from segloc_cli.commands.record import record_command
 from segloc_cli.commands.sweep import sweep
 from segloc_cli.errors import (
     EXIT_BAD_INPUT,
@@ -56,7 +56,16 @@ def cli() -> None:
     """
 
 
-for command in (simulate, import_group, map_group, localize, evaluate, sweep, emulate, record):
+for command in (
+    simulate,
+    import_group,
+    map_group,
+    localize,
+    evaluate,
+    sweep,
+    emulate,
+    record_command,
+):
     cli.add_command(command)
 cli.add_command(info_command, "info")
 

@@ -1,4 +1,4 @@
-"""``segloc info``: what a file holds. A log is summarised by ``logs.info_command``; a run
+"""``segloc info``: what a file holds. A log is summarised by ``logs.log_info``; a run
 view (``localize --mcap``, ``map build --mcap``) is described here from its summary and
 metadata; ``--foxglove-layout`` prints where the installed layout for run views is."""
 
@@ -38,7 +38,7 @@ def info_command(log_path: Path) -> None:
     A run view (localize --mcap, map build --mcap): the run it shows, its map,
     scans and their statuses, message counts, and the layout to open it with.
     """
-    from segloc_cli.commands.logs import info_command as log_info
+    from segloc_cli.commands.logs import log_info
     from segloc_cli.io.runview import read_run_view
 
     view = read_run_view(log_path)

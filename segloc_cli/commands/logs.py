@@ -1,5 +1,5 @@
 """Commands that make and read logs: ``simulate``, and the log part of ``info``
-(``info_command``; ``commands/info.py`` is the command, and describes run views);
+(``log_info``; ``commands/info.py`` is the command, and describes run views);
 ``commands/imports.py`` holds ``import carmen|rosbag``."""
 
 from __future__ import annotations
@@ -154,7 +154,7 @@ def windows_line(log) -> str:
 
 @click.command("info")
 @click.argument("log_path", metavar="LOG.mcap", type=click.Path(path_type=Path))
-def info_command(log_path):
+def log_info(log_path):
     """Summarise a log: channels and message counts, time span, sensor settings, whether
     the file was finished (a recording cut short still shows every complete scan)."""
     from segloc_cli.timing import time_range

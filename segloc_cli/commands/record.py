@@ -82,9 +82,9 @@ RECORD_OPTIONS = (
 )
 
 
-@click.command()
+@click.command("record")
 @with_options(*RECORD_OPTIONS)
-def record(
+def record_command(
     device, out_path, scans, duration_s, readings, rev_per_s, baud, timeout_s, stall_s, force
 ):
     """Record laser scans from a serial scanner into an MCAP log.
@@ -102,8 +102,7 @@ def record(
       segloc info hall.mcap
     """
     from segloc_cli.devices import driver_class, parse_device
-    from segloc_cli.devices.record import RecordSettings
-    from segloc_cli.devices.record import record as run_record
+    from segloc_cli.devices.record import RecordSettings, record
     from segloc_cli.io.files import check_outputs
 
     protocol, port = parsed(parse_device, device, "--device")
@@ -111,7 +110,7 @@ def record(
     settings = RecordSettings(scans, duration_s, readings, rev_per_s, stall_s)
     driver = driver_class(protocol)(port, baud, timeout_s)
     display = _RecordDisplay(port, out_path, sys.stderr.isatty())
-    progress = run_record(driver, out_path, settings, display.started, display.scanned)
+    progress = record(driver, out_path, settings, display.started, display.scanned)
     if display.interactive:
         click.echo("", err=True)
     Invocation.current().write_run_file(out_path)

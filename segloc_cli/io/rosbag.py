@@ -88,14 +88,13 @@ from segloc_cli.io.tf import (
     root_of,
     transform_matrix,
 )
-from segloc_cli.io.times import importer_times
+from segloc_cli.io.times import NS_PER_S, importer_times
 from segloc_cli.progress import Progress, ProgressFactory, silent
 from segloc_cli.scan import MAX_RANGE_M, MAX_READINGS, Scan, fan_defect
 
 SCAN_TYPE = "sensor_msgs/msg/LaserScan"
 ODOM_TYPE = "nav_msgs/msg/Odometry"
 EXPECTED_BAG = "a ROS 1 .bag file, a ROS 2 bag folder with metadata.yaml, or a ROS 2 .mcap file"
-NS_PER_S = 1_000_000_000
 TF_TOPICS = (TF_STATIC_TOPIC, TF_TOPIC)
 MAX_TILT_DEG = 3.0
 """Largest tilt (degrees) of a scan plane from the robot's floor plane taken as level; a
