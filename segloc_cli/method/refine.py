@@ -419,18 +419,6 @@ def _normal_equations(world, rotated, segments, lists, listed_where, hints, gate
 
 
 @njit(cache=True)
-def _damped_step(hessian, gradient, pose, initial, prior):
-    """The step (3,) that solves the system of ``_normal_equations`` at ``pose``, damped
-    and with the prior (weights ``prior`` (3,)) pulling towards ``initial``, and whether
-    the system was regular (``_solve3``). ``hessian`` is damped in place."""
-    offset = pose - initial
-    offset[2] = wrap_remainder(offset[2])
-    for a in range(3):
-        hessian[a, a] += prior[a] + 1e-6
-    return _solve3(hessian, -gradient - prior * offset)
-
-
-@njit(cache=True)
 def _gauss_newton(points, segments, allowed, cells, initial, rounds, reach_m):
     """The fitted pose (3,): damped Gauss-Newton ``rounds``, one per gate, of point-to-line
     residuals with Cauchy weights and a prior on ``initial``.
@@ -476,7 +464,12 @@ def _gauss_newton(points, segments, allowed, cells, initial, rounds, reach_m):
             )
             if used < rounds.min_points:
                 break
-            step, regular = _damped_step(hessian, gradient, pose, initial, prior)
+            # The damped step, with the prior pulling towards ``initial``.
+            offset = pose - initial
+            offset[2] = wrap_remainder(offset[2])
+            for a in range(3):
+                hessian[a, a] += prior[a] + 1e-6
+            step, regular = _solve3(hessian, -gradient - prior * offset)
             if not regular or not np.all(np.isfinite(step)):
                 break
             pose += step

@@ -311,11 +311,8 @@ def level_cells(pyramid: PyramidArrays, level: int, cells: int) -> int:
 def level_square(pyramid: PyramidArrays, level: int, x: int, y: int) -> tuple[int, int, int]:
     """The square of 2^level shifts at corner (x, y), multiples of the stride of level
     ``level``, in that level's cells: its corner and side (x, y, side)."""
-    return (
-        level_cells(pyramid, level, x),
-        level_cells(pyramid, level, y),
-        level_cells(pyramid, level, 2**level),
-    )
+    shift = pyramid.shifts[level - 1]
+    return x >> shift, y >> shift, 2**level >> shift
 
 
 def _strided_max(window: np.ndarray, stride: int, axis: int) -> np.ndarray:

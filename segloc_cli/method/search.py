@@ -492,28 +492,6 @@ class _Squares(NamedTuple):
 
 
 @njit(cache=True)
-def _no_poses(size):
-    """Room for ``size`` ``_Poses``, all 0."""
-    return _Poses(
-        np.zeros(size),
-        np.zeros(size, dtype=np.int64),
-        np.zeros(size, dtype=np.int64),
-        np.zeros(size, dtype=np.int64),
-    )
-
-
-@njit(cache=True)
-def _no_squares(size):
-    """Room for ``size`` ``_Squares``, all 0."""
-    return _Squares(
-        np.zeros(size, dtype=np.int64),
-        np.zeros(size, dtype=np.int64),
-        np.zeros(size, dtype=np.int64),
-        np.zeros(size),
-    )
-
-
-@njit(cache=True)
 def _top_square_bounds(pyramid, grid, merged, top_mask, whole):
     """The bound of every top square of every heading, flat (H·A·A,), heading first, then x,
     then y (A = ⌈n_cells / 2^depth⌉): whole 255ths from the level split by phase
@@ -541,22 +519,18 @@ def _top_square_bounds(pyramid, grid, merged, top_mask, whole):
 @njit(cache=True)
 def _place_leaf(kept, n_kept, grid, pruning, h, x, y, total):
     """Place the grid pose (h, x, y) summing ``total`` among the first ``n_kept`` ``kept``
-    poses, in order, and keep the best ``k`` distinct ones; returns how many are kept."""
+    poses, in order, and keep the best ``k`` distinct ones; returns how many are kept and
+    the sum a square's bound must now beat to be searched: the k-th best kept sum (0 until
+    k are kept), and at least ``keep`` times the best."""
     e = n_kept
     while e > 0 and kept.sums[e - 1] < total:
         kept.sums[e], kept.h[e] = kept.sums[e - 1], kept.h[e - 1]
         kept.x[e], kept.y[e] = kept.x[e - 1], kept.y[e - 1]
         e -= 1
     kept.sums[e], kept.h[e], kept.x[e], kept.y[e] = total, h, x, y
-    return min(_keep_distinct(kept, n_kept + 1, grid, pruning), pruning.k)
-
-
-@njit(cache=True)
-def _threshold(kept, n_kept, pruning):
-    """The sum a square's bound must beat to be searched once a pose is kept: the k-th best
-    kept sum (0 until k are kept), and at least ``keep`` times the best."""
     k = pruning.k
-    return max(kept.sums[k - 1] if n_kept == k else 0.0, pruning.keep * kept.sums[0])
+    n_kept = min(_keep_distinct(kept, n_kept + 1, grid, pruning), k)
+    return n_kept, max(kept.sums[k - 1] if n_kept == k else 0.0, pruning.keep * kept.sums[0])
 
 
 @njit(cache=True)
@@ -583,27 +557,44 @@ def _push_children(stack, n_stack, sums, level, x, y, n_cells, threshold):
 
 
 @njit(cache=True)
-def _best_first(pyramid, grid, pruning, merged, top, known, first_batch):
-    """The kept poses (``_Poses``, best first) and how many, from the bounds ``top`` of
-    every top square (``_top_square_bounds``): the squares are taken best bound first,
-    ``first_batch`` at a time, then 4 times as many (``_batches``), each searched depth
-    first, a square split in four while its bound beats the threshold and it is not
-    ``_shadowed``. The threshold is the k-th best distinct sum kept so far (0 until k are
-    kept), and at least ``keep`` times the best, ``known`` being a sum already found."""
+def _branch_and_bound(pyramid, grid, pruning, top_mask, known, whole, first_batch):
+    """The ``pruning.k`` best distinct grid poses (``_Poses``: sums, heading indices, x, y),
+    best first, of the fine sums over the ``grid``, by depth-first branch and bound over the
+    bound pyramid (``PyramidArrays``).
+
+    The search bounds every square of 2^``depth`` shifts that ``top_mask`` allows at every
+    heading in one pass (``_top_square_bounds``), takes them best bound first, and splits a
+    square in four while its bound beats the threshold and it is not ``_shadowed``: the
+    threshold is the k-th best distinct sum kept so far (0 until k are kept), and at least
+    ``keep`` times the best, ``known`` being a sum already found. The best sum is exact;
+    the runner-ups are the best distinct sums the pruning leaves (a better pose that is not
+    distinct from one kept replaces it). ``whole`` (A, A) holds one heading's top bounds,
+    A = ⌈n_cells / 2^depth⌉, of an integer type wide enough for their sums. The top squares
+    are sorted and searched ``first_batch`` at a time, then 4 times as many (``_batches``).
+    """
     depth, step = grid.depth, 2**grid.depth
     n_top = -(-grid.n_cells // step)
+    # Sorting pays once the search spans many top squares (a global search).
+    merged = _level_cells(pyramid, grid, n_top > 2)
+    top = _top_square_bounds(pyramid, grid, merged, top_mask, whole)
     divisor = float(BOUND_LEVELS) if depth > 0 else 1.0
-    kept = _no_poses(pruning.k + 1)  # best first, and room for one more while a leaf is placed
+    # The kept poses, best first, and room for one more while a leaf is placed.
+    hxy = np.zeros((3, pruning.k + 1), dtype=np.int64)
+    kept = _Poses(np.zeros(pruning.k + 1), hxy[0], hxy[1], hxy[2])
     n_kept = np.int64(0)  # not the literal 0, which numba would compile callees for as well
     threshold = pruning.keep * known  # a sum already found is at most the best
-    stack, sums = _no_squares(4 * depth + 4), np.zeros(4)  # and the bounds of four children
-    fine, ix, iy = pyramid.fine, grid.ix, grid.iy
+    # The squares left to search (at most three per level, and one), and the bounds of the
+    # four squares making one.
+    lxy = np.zeros((3, 4 * depth + 4), dtype=np.int64)
+    stack, sums = _Squares(lxy[0], lxy[1], lxy[2], np.zeros(4 * depth + 4)), np.zeros(4)
     bins, tally = _batch_bins(top, 1024)
+    done = False
     for low, high in _batches(tally, first_batch):
         members = np.flatnonzero((bins >= low) & (bins <= high))
         for flat in members[np.argsort(-top[members])]:
             if top[flat] / divisor <= threshold:
-                return kept, n_kept
+                done = True
+                break
             h = flat // (n_top * n_top)
             stack.level[0], stack.x[0] = depth, (flat // n_top) % n_top * step
             stack.y[0], stack.bound[0] = flat % n_top * step, top[flat] / divisor
@@ -617,48 +608,20 @@ def _best_first(pyramid, grid, pruning, merged, top, known, first_batch):
                 if _shadowed(kept, n_kept, grid, pruning, h, x, y, 2**level - 1, bound):
                     continue
                 if level == 0:  # a leaf, whose bound is its exact sum: place it among the kept
-                    n_kept = _place_leaf(kept, n_kept, grid, pruning, h, x, y, bound)
-                    threshold = _threshold(kept, n_kept, pruning)
+                    n_kept, threshold = _place_leaf(kept, n_kept, grid, pruning, h, x, y, bound)
                     continue
                 # The four squares making this one: their bounds, in the order _push_children
                 # takes them (their exact sums when they are single shifts).
                 if level == 1:
-                    _children_exact(fine, ix[h], iy[h], merged.fine_boxes[h], x, y, sums)
+                    box = merged.fine_boxes[h]
+                    _children_exact(pyramid.fine, grid.ix[h], grid.iy[h], box, x, y, sums)
                 else:
                     lower, row = level - 1, _merged_row(merged, level - 1, h)
                     square = level_square(pyramid, lower, x, y)
                     _children_bound(level_grid(pyramid, lower), row, square, sums)
                 n_stack = _push_children(stack, n_stack, sums, level, x, y, grid.n_cells, threshold)
-    return kept, n_kept
-
-
-@njit(cache=True)
-def _branch_and_bound(pyramid, grid, pruning, top_mask, known, whole, first_batch):
-    """The ``pruning.k`` best distinct grid poses (``_Poses``: sums, heading indices, x, y),
-    best first, of the fine sums over the ``grid``, by depth-first branch and bound over the
-    bound pyramid (``PyramidArrays``).
-
-    The search bounds every square of 2^``depth`` shifts that ``top_mask`` allows at every
-    heading in one pass (the grid's level split by phase in ``pyramid.phased``), takes them
-    best bound first, and splits a square in four while its bound beats the threshold: the
-    k-th best distinct sum kept so far (0 until k are kept), and at least ``keep`` times
-    the best, ``known`` being a sum already found. The best sum is exact; the runner-ups
-    are the best distinct sums the pruning leaves (a better pose that is not distinct from
-    one kept replaces it). ``whole`` (A, A) holds one heading's top bounds, A = ⌈n_cells /
-    2^depth⌉, of an integer type wide enough for their sums. The top squares are sorted
-    and searched ``first_batch`` at a time, then 4 times as many (``_batches``).
-    """
-    n_top = -(-grid.n_cells // 2**grid.depth)
-    # Sorting pays once the search spans many top squares (a global search).
-    merged = _level_cells(pyramid, grid, n_top > 2)
-    top = _top_square_bounds(pyramid, grid, merged, top_mask, whole)
-    kept, n_kept = _best_first(pyramid, grid, pruning, merged, top, known, first_batch)
-    return _best_kept(kept, n_kept, pruning)
-
-
-@njit(cache=True)
-def _best_kept(kept, n_kept, pruning):
-    """The first ``n_kept`` ``kept`` poses that score at least ``keep`` times the best."""
+        if done:
+            break
     n_kept = np.searchsorted(-kept.sums[:n_kept], -pruning.keep * kept.sums[0], side="right")
     return _Poses(kept.sums[:n_kept], kept.h[:n_kept], kept.x[:n_kept], kept.y[:n_kept])
 
