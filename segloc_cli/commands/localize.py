@@ -97,7 +97,7 @@ def localize(
     global_search,
     track,
     **_,
-):
+) -> None:
     """Localize every scan of one or more logs against a map.
 
     For each scan: extract its segments, find the heading by the stage-1 vote
