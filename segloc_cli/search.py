@@ -279,19 +279,6 @@ class _MergedRow(NamedTuple):
 
 
 @njit(cache=True)
-def _merged_row(merged, level, h):
-    """The ``_MergedRow`` of level ``level`` and heading index h."""
-    lv = level - 1
-    return _MergedRow(
-        merged.cells[lv, h],
-        merged.linear[lv, h],
-        merged.weights[lv, h],
-        merged.counts[lv, h],
-        merged.boxes[lv, h],
-    )
-
-
-@njit(cache=True)
 def _children_bound(level_bounds, row, square, out):
     """The bounds of one pyramid level (``level_grid``: values, nx, ny) at the four moves
     (xs, ys), (xs + half, ys), (xs, ys + half), (xs + half, ys + half) level cells of the
@@ -616,9 +603,16 @@ def _branch_and_bound(pyramid, grid, pruning, top_mask, known, whole, first_batc
                     box = merged.fine_boxes[h]
                     _children_exact(pyramid.fine, grid.ix[h], grid.iy[h], box, x, y, sums)
                 else:
-                    lower, row = level - 1, _merged_row(merged, level - 1, h)
-                    square = level_square(pyramid, lower, x, y)
-                    _children_bound(level_grid(pyramid, lower), row, square, sums)
+                    lv = level - 2  # the children's level, less one
+                    row = _MergedRow(
+                        merged.cells[lv, h],
+                        merged.linear[lv, h],
+                        merged.weights[lv, h],
+                        merged.counts[lv, h],
+                        merged.boxes[lv, h],
+                    )
+                    square = level_square(pyramid, level - 1, x, y)
+                    _children_bound(level_grid(pyramid, level - 1), row, square, sums)
                 n_stack = _push_children(stack, n_stack, sums, level, x, y, grid.n_cells, threshold)
         if done:
             break
