@@ -72,7 +72,7 @@ MIN_INCIDENCE_DEG = 5.0
 # times per pose, on a handful of scalars each; compiled, they cost less than
 # the array bookkeeping a vectorised version needs at these sizes.
 
-# Columns of the per-local-segment table built once per search (``_local_table``).
+# Columns of the per-local-segment table built once per search (``_local_map``).
 _FAR, _MID, _HALF, _DX, _DY, _LEN = range(6)
 
 
