@@ -72,7 +72,7 @@ MIN_INCIDENCE_DEG = 5.0
 # times per pose, on a handful of scalars each; compiled, they cost less than
 # the array bookkeeping a vectorised version needs at these sizes.
 
-# Columns of the per-local-segment table built once per search (``_local_table``).
+# Columns of the per-local-segment table built once per search (``_local_map``).
 _FAR, _MID, _HALF, _DX, _DY, _LEN = range(6)
 
 
@@ -329,17 +329,6 @@ class _PairTable(NamedTuple):
 
 
 @njit(cache=True)
-def _no_pairs(n_map, n_local):
-    """Room for the ``_PairTable`` of a map of ``n_map`` and a local map of ``n_local``
-    segments."""
-    return _PairTable(
-        np.empty(n_map, dtype=np.int64),
-        np.empty(n_map, dtype=np.int64),
-        np.empty(n_map * n_local, dtype=np.int64),
-    )
-
-
-@njit(cache=True)
 def _local_map(loc):
     """The ``_LocalMap`` of local segments (N, 4), robot frame."""
     table = np.empty((loc.shape[0], 6))
@@ -505,7 +494,12 @@ def _grouped_overlaps(g, local, poses, pairs, n_groups, band_m, sin2_min):
 def _pairs_at(g, local, around, active, n_active):
     """``candidate_pairs`` of the ``local`` map for the poses ``around`` serves, among the
     global segments ``active[:n_active]``: (global indices, local indices)."""
-    pairs = _no_pairs(g.shape[0], local.segments.shape[0])
+    n_map = g.shape[0]
+    pairs = _PairTable(
+        np.empty(n_map, dtype=np.int64),
+        np.empty(n_map, dtype=np.int64),
+        np.empty(n_map * local.segments.shape[0], dtype=np.int64),
+    )
     # keep_m inf: leaves `active` as it is
     n_groups, _ = _filter_pairs(g, local, around, active, n_active, np.inf, pairs)
     group_g, group_end, pair_l = pairs
@@ -627,7 +621,11 @@ def _search_kernel(g, loc, start, schedule, sin_min):
     n_map = g.shape[0]
     local = _local_map(loc)
     active, n_active = np.arange(n_map), n_map
-    pairs = _no_pairs(n_map, loc.shape[0])
+    pairs = _PairTable(
+        np.empty(n_map, dtype=np.int64),
+        np.empty(n_map, dtype=np.int64),
+        np.empty(n_map * loc.shape[0], dtype=np.int64),
+    )
     steps, halvings, repeats_left = 0, 0, recentres
     while halvings < iterations:
         band = band_halfwidth(eta)

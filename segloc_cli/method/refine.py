@@ -365,18 +365,6 @@ def _solve3(a, b):
 
 
 @njit(cache=True)
-def _place_points(points, pose, rotated, world):
-    """The points (P, 2), robot frame, turned by the heading of ``pose`` (3,) into
-    ``rotated`` (P, 2) and placed at it into ``world`` (P, 2), world frame."""
-    c, s = np.cos(pose[2]), np.sin(pose[2])
-    for i in range(points.shape[0]):
-        rotated[i, 0] = points[i, 0] * c - points[i, 1] * s
-        rotated[i, 1] = points[i, 0] * s + points[i, 1] * c
-        world[i, 0] = rotated[i, 0] + pose[0]
-        world[i, 1] = rotated[i, 1] + pose[1]
-
-
-@njit(cache=True)
 def _normal_equations(world, rotated, segments, lists, listed_where, hints, gate):
     """The Gauss-Newton system of one step: the Hessian (3, 3) and gradient (3,) of the
     point-to-line residuals, with Cauchy weights, of the points at ``world`` (``rotated``
@@ -447,7 +435,12 @@ def _gauss_newton(points, segments, allowed, cells, initial, rounds, reach_m):
     gates, prior = rounds.gates, rounds.prior
     for gate in gates:
         for _ in range(rounds.steps_per_round):
-            _place_points(points, pose, rotated, world)
+            c, s = np.cos(pose[2]), np.sin(pose[2])
+            for i in range(n):  # the points turned by the pose's heading, and placed at it
+                rotated[i, 0] = points[i, 0] * c - points[i, 1] * s
+                rotated[i, 1] = points[i, 0] * s + points[i, 1] * c
+                world[i, 0] = rotated[i, 0] + pose[0]
+                world[i, 1] = rotated[i, 1] + pose[1]
             travel = _travel(pose, lists_at, reach_m)
             renew = not travel <= radius - gate  # and on the first step, or at a NaN pose
             narrow = not renew and radius > 2.0 * gate and radius - travel >= 2.0 * gate

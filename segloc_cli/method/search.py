@@ -279,19 +279,6 @@ class _MergedRow(NamedTuple):
 
 
 @njit(cache=True)
-def _merged_row(merged, level, h):
-    """The ``_MergedRow`` of level ``level`` and heading index h."""
-    lv = level - 1
-    return _MergedRow(
-        merged.cells[lv, h],
-        merged.linear[lv, h],
-        merged.weights[lv, h],
-        merged.counts[lv, h],
-        merged.boxes[lv, h],
-    )
-
-
-@njit(cache=True)
 def _children_bound(level_bounds, row, square, out):
     """The bounds of one pyramid level (``level_grid``: values, nx, ny) at the four moves
     (xs, ys), (xs + half, ys), (xs, ys + half), (xs + half, ys + half) level cells of the
@@ -539,8 +526,8 @@ def _push_children(stack, n_stack, sums, level, x, y, n_cells, threshold):
     making the square of 2^level at corner (x, y), whose bounds ``sums`` (4,) holds in the
     order of ``_children_exact``, that lie on the grid of ``n_cells``² shifts and beat
     ``threshold``: the weakest first, so that the strongest is searched first, and of equal
-    ones the first first (as a stable sort, and np.argsort of so few, order them); returns
-    the stack's new height."""
+    ones the first of the four first (the order np.argsort gave them: it sorts so few by a
+    stable insertion sort); returns the stack's new height."""
     half, bottom = 2 ** (level - 1), n_stack
     for c in range(4):
         cx, cy = x + (c % 2) * half, y + (c // 2) * half
@@ -579,13 +566,13 @@ def _branch_and_bound(pyramid, grid, pruning, top_mask, known, whole, first_batc
     top = _top_square_bounds(pyramid, grid, merged, top_mask, whole)
     divisor = float(BOUND_LEVELS) if depth > 0 else 1.0
     # The kept poses, best first, and room for one more while a leaf is placed.
-    hxy = np.zeros((3, pruning.k + 1), dtype=np.int64)
+    hxy = np.zeros((3, pruning.k + 1), dtype=np.int64)  # their heading indices, x and y
     kept = _Poses(np.zeros(pruning.k + 1), hxy[0], hxy[1], hxy[2])
     n_kept = np.int64(0)  # not the literal 0, which numba would compile callees for as well
     threshold = pruning.keep * known  # a sum already found is at most the best
     # The squares left to search (at most three per level, and one), and the bounds of the
     # four squares making one.
-    lxy = np.zeros((3, 4 * depth + 4), dtype=np.int64)
+    lxy = np.zeros((3, 4 * depth + 4), dtype=np.int64)  # their levels, x and y
     stack, sums = _Squares(lxy[0], lxy[1], lxy[2], np.zeros(4 * depth + 4)), np.zeros(4)
     bins, tally = _batch_bins(top, 1024)
     done = False
@@ -616,9 +603,16 @@ def _branch_and_bound(pyramid, grid, pruning, top_mask, known, whole, first_batc
                     box = merged.fine_boxes[h]
                     _children_exact(pyramid.fine, grid.ix[h], grid.iy[h], box, x, y, sums)
                 else:
-                    lower, row = level - 1, _merged_row(merged, level - 1, h)
-                    square = level_square(pyramid, lower, x, y)
-                    _children_bound(level_grid(pyramid, lower), row, square, sums)
+                    lv = level - 2  # where the children's level is in `merged`
+                    row = _MergedRow(
+                        merged.cells[lv, h],
+                        merged.linear[lv, h],
+                        merged.weights[lv, h],
+                        merged.counts[lv, h],
+                        merged.boxes[lv, h],
+                    )
+                    square = level_square(pyramid, level - 1, x, y)
+                    _children_bound(level_grid(pyramid, level - 1), row, square, sums)
                 n_stack = _push_children(stack, n_stack, sums, level, x, y, grid.n_cells, threshold)
         if done:
             break
