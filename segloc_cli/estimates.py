@@ -114,6 +114,18 @@ ESTIMATE_LATER_COLUMNS = ["confidence", "window_scans"]
 ``UNSAID_COUNT`` for a count."""
 UNSAID_COUNT = 0
 """``window_scans`` of a row made before the column was: the count was not kept."""
+COVARIANCE_COLUMNS = (
+    "var_x_m2",
+    "cov_xy_m2",
+    "var_y_m2",
+    "cov_x_theta_m_rad",
+    "cov_y_theta_m_rad",
+    "var_theta_rad2",
+)
+"""The pose covariance an estimate may carry (another localizer's, read by
+``io/trajectories.py``): the upper triangle of the symmetric 3×3 covariance of (x m, y m,
+θ rad), world frame, row by row. Not columns of segloc's own estimates CSV; NaN where the
+input has none."""
 ESTIMATE_FORMER_NAMES = {"overlap_m": "overlap"}
 """Columns that files of segloc 0.1 name otherwise: the column → its name there."""
 ESTIMATE_LATER_COUNTS = [c for c in ESTIMATE_LATER_COLUMNS if c in ESTIMATE_INT_COLUMNS]
