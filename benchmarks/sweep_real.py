@@ -41,7 +41,7 @@ from protocol import (
 )
 
 from segloc_cli.estimates import ESTIMATED
-from segloc_cli.scoring.evaluate import gate_masks
+from segloc_cli.scoring.gates import Gates, failing_mask
 
 GRID_KEY = "search-half-width-m"
 HALF_WIDTHS_M = (1.0, 2.0, 3.0)
@@ -150,7 +150,7 @@ def compare_tables(first: pd.DataFrame, second: pd.DataFrame) -> str | None:
 def within_gates(rows: pd.DataFrame) -> np.ndarray:
     """(N,) bool: within ``SUCCESS_M`` and ``SUCCESS_DEG`` with an accepted status, by
     ``segloc evaluate``'s gate; no estimate fails."""
-    return ~gate_masks(rows, SUCCESS_M * 100, SUCCESS_DEG)[1]
+    return ~failing_mask(rows, Gates(axis_cm=SUCCESS_M * 100, deg=SUCCESS_DEG))
 
 
 def padded_median(values: np.ndarray, expected: int) -> float:

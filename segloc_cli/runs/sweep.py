@@ -609,13 +609,15 @@ def summary(
     ``fail_above_cm``, |err_theta| ≤ ``fail_above_deg`` and an accepted status), median and
     95th percentile of the position (cm) and heading (°) errors, a pose without an estimate
     counting as infinitely wrong, and the median time per scan (ms)."""
-    from segloc_cli.scoring.evaluate import gate_masks
+    from segloc_cli.scoring.gates import Gates, failing_mask
+
+    gates = Gates(axis_cm=fail_above_cm, deg=fail_above_deg)
 
     rows = []
     for combination, group in table.groupby("combination", sort=True):
         failed = group["status"] == STATUS_TASK_FAILED
         poses = group[~failed]
-        _, failing = gate_masks(poses, fail_above_cm, fail_above_deg)
+        failing = failing_mask(poses, gates)
         position = _misses_infinite(poses["err_xy_cm"])
         heading = _misses_infinite(poses["err_theta_deg"].abs())
         row: dict[str, Any] = {k: group[k].iloc[0] for k in grid_keys}

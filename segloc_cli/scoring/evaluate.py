@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import json
 import math
+from dataclasses import asdict
 
 import numpy as np
 import pandas as pd
@@ -25,6 +26,13 @@ from segloc_cli.errors import InputError
 from segloc_cli.estimates import ESTIMATE_COLUMNS, ESTIMATED, PoseTable
 from segloc_cli.geometry import wrap_angle
 from segloc_cli.method.confidence import RIGHT_PLACE_DEG, RIGHT_PLACE_M
+from segloc_cli.scoring.gates import (
+    Gates,
+    beyond_mask,
+    outcomes_json,
+    pose_failures,
+    survey_outcomes,
+)
 from segloc_cli.timing import pair_by_time
 
 ERROR_COLUMNS = (
@@ -45,12 +53,14 @@ FINAL_ERROR_COLUMNS = ("err_x_cm", "err_y_cm", "err_theta_deg", "err_xy_cm")
 NO_ESTIMATE = "no_estimate"
 """Status counted for a surveyed pose with no estimate row within the time tolerance."""
 
-TABLE_COLUMNS = ("pose_id", *ERROR_COLUMNS, "status")
+TABLE_COLUMNS = ("pose_id", "time_s", "travelled_m", *ERROR_COLUMNS, "status")
+"""Columns of Table 1: the survey's pose id and time (s), the distance travelled along the
+surveyed poses up to it (m), the errors, the estimate's status."""
 
 FORMATS = ("md", "csv", "latex", "json")
 
 # Columns shown in the md and latex tables, with their decimals (the paper's: 0.1 cm, 0.01°)
-# and headers. err_xy_cm stays in csv and json only, as the paper has no such column.
+# and headers: the paper's, and the position error's magnitude beside X and Y.
 _DISPLAY = (
     ("ae_deg", 2, "AE (°)", r"AE ($^\circ$)"),
     ("init_x_cm", 1, "init X (cm)", r"init $X$ (cm)"),
@@ -58,14 +68,13 @@ _DISPLAY = (
     ("init_theta_deg", 2, "init θ (°)", r"init $\theta$ ($^\circ$)"),
     ("err_x_cm", 1, "X (cm)", r"$X$ (cm)"),
     ("err_y_cm", 1, "Y (cm)", r"$Y$ (cm)"),
+    ("err_xy_cm", 1, "|XY| (cm)", r"$|XY|$ (cm)"),
     ("err_theta_deg", 2, "θ (°)", r"$\theta$ ($^\circ$)"),
 )
+_STAT_LABELS = {"RMS": "RMS", "max": "max abs"}
+"""How the summary rows are labelled in the md and latex tables: ``max`` is of magnitudes."""
 _MISSING_MD = "—"
 _MISSING_LATEX = "--"
-
-# Errors pass through degree/radian conversions; a pose exactly at a limit must not fail on
-# the last bits of that round trip.
-_GATE_SLACK = 1e-9
 
 
 def _time_span(times_s: np.ndarray) -> str:
@@ -100,7 +109,9 @@ def table1(
     time nearest a survey row, or two survey rows with one time, are refused
     with an ``InputError`` naming ``estimates_path`` or ``survey_path`` and the
     rows). Unmatched survey rows are left out and the rest keep survey order.
-    Columns (TABLE_COLUMNS): ``pose_id`` (the survey's id), ``ae_deg``
+    Columns (TABLE_COLUMNS): ``pose_id`` (the survey's id), ``time_s`` (the survey's time),
+    ``travelled_m`` (the path length along every surveyed pose in time order, from the
+    first, up to this one: a distance axis for errors that grow with travel), ``ae_deg``
     (surveyed heading minus the stage-1 heading; NaN when the row has no
     initial heading, as in a ``--global`` run, whose stage 1 has no window to
     search), ``init_x_cm``, ``init_y_cm``, ``init_theta_deg`` (surveyed minus
@@ -155,6 +166,8 @@ def table1(
     table = pd.DataFrame(
         {
             "pose_id": survey_ids[matched].astype(np.int64),
+            "time_s": survey_times_s[matched],
+            "travelled_m": travelled_m(survey_times_s, survey_poses)[matched],
             "ae_deg": _wrapped_deg(truth_theta_rad - np.deg2rad(align_theta_deg)),
             "init_x_cm": 100.0 * (truth_x_m - col("init_x_m")),
             "init_y_cm": 100.0 * (truth_y_m - col("init_y_m")),
@@ -167,6 +180,16 @@ def table1(
     table.attrs["n_surveyed"] = int(survey_times_s.size)
     table.attrs["tolerance_s"] = float(tolerance_s)
     return table
+
+
+def travelled_m(times_s: np.ndarray, poses: np.ndarray) -> np.ndarray:
+    """(N,) the path length (m) along ``poses`` (N, 3: x m, y m, θ rad) taken in time order,
+    from the earliest pose (0) to each, in the given order; straight lines between poses."""
+    order = np.argsort(times_s, kind="stable")
+    steps = np.hypot(*np.diff(poses[order, :2], axis=0).T)
+    along = np.empty(len(order))
+    along[order] = np.concatenate([[0.0], np.cumsum(steps)])
+    return along
 
 
 def final_errors(
@@ -222,46 +245,40 @@ def _status_counts(table: pd.DataFrame) -> dict[str, int]:
     return result
 
 
-def summary(
-    table: pd.DataFrame,
-    only_ok: bool = False,
-    fail_above_cm: float | None = None,
-    fail_above_deg: float | None = None,
-) -> pd.DataFrame:
+def summary(table: pd.DataFrame, only_ok: bool = False, gates: Gates | None = None) -> pd.DataFrame:
     """RMS and maximum absolute value of each error column of a ``table1`` result.
 
     Returns a DataFrame indexed ``RMS``, ``max`` with the ERROR_COLUMNS as
-    columns. The final-error columns (FINAL_ERROR_COLUMNS) cover the scored
-    poses (``scored``: every pose with a final estimate, or with ``only_ok``
-    those with an accepted status); the others use every pose. NaN values are
-    skipped; a column with no value left is NaN. ``attrs`` holds the counts:
+    columns, every column over the same poses: the scored ones (``scored``:
+    every pose with a final estimate, or with ``only_ok`` those with an
+    accepted status). NaN values are skipped; a column with no value left is
+    NaN. ``attrs`` holds the counts:
 
     - ``n_surveyed``: survey rows; ``n_poses``: those matched to an estimate row;
-    - ``n_scored``: poses in the final-error summary; ``only_ok``: the option;
+    - ``n_scored``: poses in the summary; ``only_ok``: the option;
     - ``n_no_estimate``: surveyed poses without a final estimate (unmatched in
       time, or matched to a row without a pose);
     - ``n_failed``: matched poses whose status is not an accepted one;
     - ``status_counts``: poses per status (dict, most frequent first; surveyed
       poses without an estimate row as ``no_estimate``);
     - ``verdict``: how the statuses bear out (``verdict_quality``);
-    - ``fail_above_cm``, ``fail_above_deg``: the limits given; ``n_beyond``:
-      poses whose final |X|, |Y| or |θ| exceeds a limit, and ``n_gate_failed``:
-      the poses ``gate`` reports (beyond, or not accepted, or missing an error);
-      both None without a limit.
+    - ``gates``: the ``Gates`` given (None: none); ``outcomes``: each gate's
+      ``GateOutcome``; ``n_beyond``: poses whose final error exceeds a per-pose
+      limit, and ``n_gate_failed``: the poses failing the per-pose limits
+      (beyond, or not accepted, or missing an error); both None without a
+      per-pose limit.
     """
     score = scored(table, only_ok)
     stats = {}
     for name in ERROR_COLUMNS:
-        values = table[name].to_numpy(dtype=float)
-        if name in FINAL_ERROR_COLUMNS:
-            values = values[score]
+        values = table[name].to_numpy(dtype=float)[score]
         stats[name] = [_rms(values), _max_abs(values)]
     result = pd.DataFrame(stats, index=pd.Index(["RMS", "max"], name="stat"))
     n_surveyed = int(table.attrs.get("n_surveyed", len(table)))
     has_pose = scored(table)
     accepted = table["status"].isin(ESTIMATED).to_numpy()
-    gated = fail_above_cm is not None or fail_above_deg is not None
-    beyond, failing = gate_masks(table, fail_above_cm, fail_above_deg)
+    gates = gates if gates is not None and gates.any else None
+    per_pose = gates is not None and gates.per_pose
     result.attrs["verdict"] = verdict_quality(table)
     result.attrs.update(
         {
@@ -273,10 +290,10 @@ def summary(
             "n_failed": int(np.count_nonzero(~accepted)),
             "status_counts": _status_counts(table),
             "tolerance_s": table.attrs.get("tolerance_s"),
-            "fail_above_cm": fail_above_cm,
-            "fail_above_deg": fail_above_deg,
-            "n_beyond": int(np.count_nonzero(beyond)) if gated else None,
-            "n_gate_failed": int(np.count_nonzero(failing)) if gated else None,
+            "gates": gates,
+            "outcomes": [] if gates is None else survey_outcomes(table, score, gates),
+            "n_beyond": int(np.count_nonzero(beyond_mask(table, gates))) if per_pose else None,
+            "n_gate_failed": len(pose_failures(table, gates)) if per_pose else None,
         }
     )
     return result
@@ -306,86 +323,6 @@ def verdict_quality(table: pd.DataFrame) -> dict[str, int]:
     }
 
 
-def _exceeding_pair(value: float, limit: float, decimals: int) -> tuple[str, str]:
-    """``value`` and ``limit`` as text, with enough decimals to show value > limit."""
-    # At the table's precision 1.04 cm against a 1.0 cm gate would read "1.0 cm > 1.0 cm".
-    while decimals < 9 and (
-        round(value, decimals) <= round(limit, decimals) or round(limit, decimals) != limit
-    ):
-        decimals += 1
-    return f"{value:.{decimals}f}", f"{limit:.{decimals}f}"
-
-
-def _check_limit(limit: float | None, name: str) -> None:
-    if limit is not None and not limit >= 0.0:
-        raise ValueError(f"{name} must be a non-negative number, got {limit}")
-
-
-def _gate_checks(fail_above_cm: float | None, fail_above_deg: float | None) -> list[tuple]:
-    """(label, column, limit, decimals, unit) of each gated error."""
-    _check_limit(fail_above_cm, "fail_above_cm")
-    _check_limit(fail_above_deg, "fail_above_deg")
-    checks = []
-    if fail_above_cm is not None:
-        checks += [("err_x", "err_x_cm", fail_above_cm, 1, " cm")]
-        checks += [("err_y", "err_y_cm", fail_above_cm, 1, " cm")]
-    if fail_above_deg is not None:
-        checks += [("err_theta", "err_theta_deg", fail_above_deg, 2, "°")]
-    return checks
-
-
-def gate_masks(
-    table: pd.DataFrame, fail_above_cm: float | None, fail_above_deg: float | None
-) -> tuple[np.ndarray, np.ndarray]:
-    """(N,) bool each: poses beyond a limit, and poses that fail the gate (see ``gate``)."""
-    checks = _gate_checks(fail_above_cm, fail_above_deg)
-    n = len(table)
-    beyond = np.zeros(n, dtype=bool)
-    missing = np.zeros(n, dtype=bool)
-    for _, column, limit, _, _ in checks:
-        values = np.abs(table[column].to_numpy(dtype=float))
-        with np.errstate(invalid="ignore"):
-            beyond |= np.isfinite(values) & (values > limit + _GATE_SLACK)
-        missing |= ~np.isfinite(values)
-    if not checks:
-        return beyond, beyond.copy()
-    accepted = table["status"].isin(ESTIMATED).to_numpy()
-    return beyond, beyond | missing | ~accepted
-
-
-def gate(
-    table: pd.DataFrame,
-    fail_above_cm: float | None = None,
-    fail_above_deg: float | None = None,
-) -> list[str]:
-    """Violations of the error limits by a ``table1`` result, one message each, in table order.
-
-    ``fail_above_cm`` limits |err_x_cm| and |err_y_cm|; ``fail_above_deg`` limits
-    |err_theta_deg|. When either limit is set, a pose whose status is not ``ok``
-    (or ``recovered``) or whose gated error is missing is a violation too,
-    whatever ``summary``'s ``only_ok``. Empty list: all pass.
-    """
-    checks = _gate_checks(fail_above_cm, fail_above_deg)
-    if not checks:
-        return []
-    abs_errors = {col: np.abs(table[col].to_numpy(dtype=float)) for _, col, *_ in checks}
-    messages = []
-    for row, (pose_id, status) in enumerate(zip(table["pose_id"], table["status"], strict=True)):
-        if status not in ESTIMATED:
-            messages.append(f"pose {pose_id}: status {status}")
-            continue
-        for label, col, limit, decimals, unit in checks:
-            value = abs_errors[col][row]
-            if not np.isfinite(value):
-                messages.append(f"pose {pose_id}: {label} is missing")
-            elif value > limit + _GATE_SLACK:
-                value_text, limit_text = _exceeding_pair(value, limit, decimals)
-                messages.append(
-                    f"pose {pose_id}: |{label}| {value_text}{unit} > {limit_text}{unit}"
-                )
-    return messages
-
-
 def _number_text(value: float, decimals: int, missing: str) -> str:
     if not np.isfinite(value):
         return missing
@@ -402,25 +339,16 @@ def _display_rows(table: pd.DataFrame, stats: pd.DataFrame, missing: str) -> lis
         rows.append([str(record["pose_id"]), *cells, str(record["status"])])
     for stat, record in stats.iterrows():
         cells = [_number_text(record[c], d, missing) for c, d, *_ in _DISPLAY]
-        rows.append([str(stat), *cells, ""])
+        rows.append([_STAT_LABELS.get(str(stat), str(stat)), *cells, ""])
     return rows
-
-
-def _limits_text(stats: pd.DataFrame) -> str:
-    limits = []
-    if stats.attrs["fail_above_cm"] is not None:
-        limits.append(f"{stats.attrs['fail_above_cm']:g} cm")
-    if stats.attrs["fail_above_deg"] is not None:
-        limits.append(f"{stats.attrs['fail_above_deg']:g}°")
-    return " / ".join(limits)
 
 
 def summary_lines(stats: pd.DataFrame) -> list[str]:
     """The counts of a ``summary`` in words, one sentence a line.
 
-    Poses by status; which poses the RMS and max of the final errors cover and
-    how many surveyed poses have no estimate; with a gate, how many poses lie
-    beyond its limits and how many fail it.
+    Poses by status; which poses the RMS and max cover and how many surveyed
+    poses have no estimate; how the statuses bear out; with per-pose limits,
+    how many poses exceed them and how many fail them; each gate's outcome.
     """
     attrs = stats.attrs
     counts = ", ".join(f"{status} {n}" for status, n in attrs["status_counts"].items())
@@ -432,8 +360,8 @@ def summary_lines(stats: pd.DataFrame) -> list[str]:
     without = attrs["n_no_estimate"]
     none = f"; {without} surveyed {'pose has' if without == 1 else 'poses have'} no estimate"
     lines.append(
-        f"RMS and max of X, Y, θ cover {cover}{none if without else ''}. "
-        "Errors are surveyed minus computed."
+        f"RMS and max (of absolute values) cover {cover}{none if without else ''}. "
+        "Errors are surveyed minus computed; |XY| is the position error's magnitude."
     )
     v = attrs["verdict"]
     lines.append(
@@ -444,7 +372,8 @@ def summary_lines(stats: pd.DataFrame) -> list[str]:
     )
     if attrs["n_beyond"] is not None:
         with_estimate = attrs["n_surveyed"] - without
-        line = f"{attrs['n_beyond']} of {with_estimate} poses beyond {_limits_text(stats)}"
+        limits = attrs["gates"].limits_text()
+        line = f"{attrs['n_beyond']} of {with_estimate} poses exceed the per-pose limits ({limits})"
         more = attrs["n_gate_failed"] - attrs["n_beyond"]
         if more:
             line += (
@@ -452,6 +381,7 @@ def summary_lines(stats: pd.DataFrame) -> list[str]:
                 "accepted estimate (status other than ok)"
             )
         lines.append(line + ".")
+    lines += [f"Gate: {outcome.text}." for outcome in attrs["outcomes"]]
     return lines
 
 
@@ -508,8 +438,7 @@ def _pose_flags(table: pd.DataFrame, stats: pd.DataFrame) -> tuple[np.ndarray, n
     score = scored(table, stats.attrs["only_ok"])
     if stats.attrs["n_beyond"] is None:
         return score, None
-    beyond, _ = gate_masks(table, stats.attrs["fail_above_cm"], stats.attrs["fail_above_deg"])
-    return score, beyond
+    return score, beyond_mask(table, stats.attrs["gates"])
 
 
 def _format_csv(table: pd.DataFrame, stats: pd.DataFrame) -> str:
@@ -547,10 +476,12 @@ def _format_json(table: pd.DataFrame, stats: pd.DataFrame) -> str:
     summary_out["verdict"] = dict(attrs["verdict"])
     summary_out["gate"] = (
         None
-        if attrs["n_beyond"] is None
+        if attrs["gates"] is None
         else {
-            name: _json_value(attrs[name])
-            for name in ("fail_above_cm", "fail_above_deg", "n_beyond", "n_gate_failed")
+            "limits": {k: v for k, v in asdict(attrs["gates"]).items() if v is not None},
+            "n_beyond": attrs["n_beyond"],
+            "n_gate_failed": attrs["n_gate_failed"],
+            "outcomes": outcomes_json(attrs["outcomes"]),
         }
     )
     for stat, record in stats.iterrows():
@@ -570,8 +501,8 @@ def format_table(table: pd.DataFrame, summary: pd.DataFrame, fmt: str) -> str:
     - ``json``: ``{"poses": [...], "summary": {...}}``: each pose with TABLE_COLUMNS,
       ``scored`` and ``beyond_gate``; the summary with ``n_surveyed``, ``n_poses``,
       ``n_scored``, ``n_no_estimate``, ``n_failed``, ``only_ok``, ``tolerance_s``,
-      ``status_counts``, ``gate`` (null, or ``fail_above_cm``, ``fail_above_deg``,
-      ``n_beyond``, ``n_gate_failed``), ``RMS`` and ``max``; full precision, NaN
+      ``status_counts``, ``gate`` (null, or the ``limits`` set, ``n_beyond``,
+      ``n_gate_failed`` and each gate's ``outcomes``), ``RMS`` and ``max``; full precision, NaN
       written as null.
     """
     if fmt == "md":
