@@ -96,8 +96,8 @@ class ComparisonRow:
 class Comparison:
     """A run against its baseline: a ``ComparisonRow`` per figure, over the ``n_shared``
     poses both runs have and score; ``n_only_baseline`` and ``n_only_now`` poses were in one
-    run only, ``n_left_out`` in both but left out (an error missing in either run, or with
-    ``only_ok`` a status not accepted in either). ``failed``: some figure is worse beyond
+    run only, ``n_left_out`` in both but left out (an error missing, or with ``only_ok`` a
+    status not accepted, in at least one run). ``failed``: some figure is worse beyond
     its limit."""
 
     rows: list[ComparisonRow]
@@ -109,13 +109,11 @@ class Comparison:
     failed: bool
 
     def _counts_line(self) -> str:
-        left_out = "an error missing in either run"
-        if self.only_ok:
-            left_out += ", or a status not accepted in either"
+        why = "an error missing or a status not accepted" if self.only_ok else "an error missing"
         return (
             f"{self.n_shared} poses of both runs compared; {self.n_only_baseline} only in the "
             f"baseline, {self.n_only_now} only in this run; {self.n_left_out} of both left out "
-            f"({left_out})."
+            f"({why} in at least one run)."
         )
 
     def _verdict_line(self) -> str:
