@@ -39,7 +39,8 @@ def make_table(ids, err_x_cm, err_y_cm, err_theta_deg, status=None) -> pd.DataFr
             "status": ["ok"] * len(err_x_cm) if status is None else status,
         }
     )
-    for column in ("ae_deg", "init_x_cm", "init_y_cm", "init_theta_deg"):
+    # The columns these scores do not read (initial errors, times) hold zeros.
+    for column in set(TABLE_COLUMNS) - set(table.columns):
         table[column] = 0.0
     return table[list(TABLE_COLUMNS)]
 

@@ -32,7 +32,8 @@ def make_table(rows: list[tuple[int, float, float, float, str]]) -> pd.DataFrame
         }
     )
     table["err_xy_cm"] = [math.hypot(x, y) for x, y in zip(xs, ys, strict=True)]
-    for column in ("ae_deg", "init_x_cm", "init_y_cm", "init_theta_deg"):
+    # The columns these scores do not read (initial errors, times) hold zeros.
+    for column in set(TABLE_COLUMNS) - set(table.columns):
         table[column] = 0.0
     return table[list(TABLE_COLUMNS)]
 
