@@ -124,7 +124,7 @@ COVARIANCE_COLUMNS = (
 )
 """The pose covariance an estimate may carry (another localizer's, read by
 ``io/trajectories.py``): the upper triangle of the symmetric 3×3 covariance of (x m, y m,
-θ rad), world frame, row by row. Not columns of segloc's own estimates CSV; NaN where the
+θ rad), world frame, column by column. Not columns of segloc's own estimates CSV; NaN where the
 input has none."""
 ESTIMATE_FORMER_NAMES = {"overlap_m": "overlap"}
 """Columns that files of segloc 0.1 name otherwise: the column → its name there."""

@@ -88,6 +88,20 @@ class Pose2:
         )
 
 
+def relative_motion(from_poses: np.ndarray, to_poses: np.ndarray) -> np.ndarray:
+    """``from⁻¹ ⊕ to`` row by row: poses (K, 3) ``x_m, y_m, theta_rad`` in one frame →
+    (K, 3) motions ``dx_m, dy_m, dtheta_rad`` expressed in the frame of ``from``,
+    dtheta wrapped to [-pi, pi)."""
+    from_poses = np.asarray(from_poses, dtype=float).reshape(-1, 3)
+    to_poses = np.asarray(to_poses, dtype=float).reshape(-1, 3)
+    c, s = np.cos(from_poses[:, 2]), np.sin(from_poses[:, 2])
+    dx = to_poses[:, 0] - from_poses[:, 0]
+    dy = to_poses[:, 1] - from_poses[:, 1]
+    return np.column_stack(
+        [c * dx + s * dy, -s * dx + c * dy, wrap_angle(to_poses[:, 2] - from_poses[:, 2])]
+    )
+
+
 def rotation(theta_rad: float) -> np.ndarray:
     """2×2 rotation matrix."""
     c, s = np.cos(theta_rad), np.sin(theta_rad)

@@ -28,6 +28,12 @@ HALL_POSE = (11.0, 1.6, 90.0)
 START_TIMEOUT_S = 20.0
 
 
+@pytest.fixture(autouse=True)
+def _no_step_summary(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Runs of the suite inside a GitHub job keep its step summary out of the tests."""
+    monkeypatch.delenv("GITHUB_STEP_SUMMARY", raising=False)
+
+
 class SilentDevice(EmulatedDevice):
     """A device that never says anything."""
 

@@ -12,6 +12,7 @@ import pandas as pd
 import pytest
 
 from segloc_cli.errors import InputError
+from segloc_cli.runs.evaluation import read_baseline
 from segloc_cli.scoring.baseline import (
     BETTER,
     NO_CHANGE,
@@ -19,7 +20,6 @@ from segloc_cli.scoring.baseline import (
     WORSE_WITHIN_LIMIT,
     compare,
     parse_baseline,
-    read_baseline,
 )
 from segloc_cli.scoring.evaluate import TABLE_COLUMNS, format_table, summary
 
@@ -268,7 +268,7 @@ def test_a_wrong_file_says_how_to_make_a_baseline(tmp_path):
         (tmp_path / "old.json").write_text(content, encoding="utf-8")
         with pytest.raises(InputError, match=r"--format json --out OLD\.json"):
             read_baseline(tmp_path / "old.json")
-    with pytest.raises(InputError, match=r"file not found.*--format json"):
+    with pytest.raises(InputError, match="file not found; check the path"):
         read_baseline(tmp_path / "missing.json")
     with pytest.raises(InputError, match="is a directory"):
         read_baseline(tmp_path)

@@ -13,7 +13,8 @@ from test_cli import run_cli
 
 from segloc_cli.errors import InputError
 from segloc_cli.estimates import ESTIMATE_COLUMNS, PoseTable
-from segloc_cli.scoring.evaluate import format_table, gate, summary, table1
+from segloc_cli.scoring.evaluate import format_table, summary, table1
+from segloc_cli.scoring.gates import Gates, pose_failures
 
 
 def make_survey(rows: list[tuple[int, float, float, float, float]]) -> PoseTable:
@@ -351,22 +352,25 @@ def test_summary_scores_every_pose_with_an_estimate_whatever_its_status():
 
 def test_gate_counts_in_every_format():
     table = mixed_table()
-    stats = summary(table, fail_above_cm=3.5, fail_above_deg=0.3)
+    gates = Gates(axis_cm=3.5, deg=0.3)
+    stats = summary(table, gates=gates)
     assert (stats.attrs["n_beyond"], stats.attrs["n_gate_failed"]) == (3, 4)
     # Beyond: -4 cm (ok), 12 cm (ambiguous), -100 cm (lost); failing also too_few_segments.
-    assert len({m.split(":")[0] for m in gate(table, 3.5, 0.3)}) == 4
-    md = format_table(table, stats, "md")
-    assert md.splitlines()[-1] == (
-        "3 of 4 poses beyond 3.5 cm / 0.3°; the gate fails 4, counting 1 without an accepted "
-        "estimate (status other than ok)."
+    assert len(pose_failures(table, gates)) == 4
+    md = format_table(table, stats, "md").splitlines()
+    assert md[-4] == (
+        "3 of 4 poses exceed the per-pose limits (|X|, |Y| ≤ 3.5 cm; |θ| ≤ 0.3°); the gate "
+        "fails 4, counting 1 without an accepted estimate (status other than ok)."
+    )
+    assert md[-1] == (
+        "Gate: poses accepted and within |X|, |Y| ≤ 3.5 cm; |θ| ≤ 0.3° (1 of 5) 20.0 % < 100 %: "
+        "FAIL."
     )
     document = json.loads(format_table(table, stats, "json"))
-    assert document["summary"]["gate"] == {
-        "fail_above_cm": 3.5,
-        "fail_above_deg": 0.3,
-        "n_beyond": 3,
-        "n_gate_failed": 4,
-    }
+    gate_json = document["summary"]["gate"]
+    assert gate_json["limits"] == {"axis_cm": 3.5, "deg": 0.3, "percentile": 95.0}
+    assert (gate_json["n_beyond"], gate_json["n_gate_failed"]) == (3, 4)
+    assert [o["passed"] for o in gate_json["outcomes"]] == [False, False, False]
     assert [p["beyond_gate"] for p in document["poses"]] == [False, True, True, True, False]
     assert [p["scored"] for p in document["poses"]] == [True, True, True, True, False]
     assert document["summary"]["status_counts"]["no_estimate"] == 1
@@ -375,7 +379,7 @@ def test_gate_counts_in_every_format():
     assert back["beyond_gate"].tolist() == [0, 1, 1, 1, 0]
     assert back["scored"].tolist() == [1, 1, 1, 1, 0]
     latex = format_table(table, stats, "latex")
-    assert r"3 of 4 poses beyond 3.5 cm / 0.3$^\circ$" in latex
+    assert r"exceed the per-pose limits (|X|, |Y| ≤ 3.5 cm; |$\theta$| ≤ 0.3$^\circ$)" in latex
     # Without a gate the csv column is empty and the json gate null.
     plain = summary(table)
     assert pd.read_csv(io.StringIO(format_table(table, plain, "csv")))["beyond_gate"].isna().all()
@@ -412,31 +416,28 @@ def test_summary_of_paper_rows():
 
 
 def test_gate_messages():
-    messages = gate(small_table(), fail_above_cm=3.5, fail_above_deg=0.2)
-    assert messages == [
-        "pose 2: |err_x| 4.0 cm > 3.5 cm",
-        "pose 2: |err_theta| 0.30° > 0.20°",
-        "pose 3: status diverged",
-    ]
+    failures = pose_failures(small_table(), Gates(axis_cm=3.5, deg=0.2))
+    assert failures == {2: ["|X| 4.0 cm > 3.5 cm", "|θ| 0.30° > 0.20°"], 3: ["status diverged"]}
 
 
 def test_gate_shows_enough_decimals_to_tell_value_from_limit():
     survey = make_survey([(4, 0.0, 0.0, 0.0, 0.0)])
     estimates = make_estimates([{"time_s": 0.0, "y_m": 0.0104}])
-    assert gate(table1(estimates, survey), fail_above_cm=1.0) == [
-        "pose 4: |err_y| 1.04 cm > 1.00 cm"
-    ]
+    table = table1(estimates, survey)
+    assert pose_failures(table, Gates(axis_cm=1.0)) == {4: ["|Y| 1.04 cm > 1.00 cm"]}
+    assert pose_failures(table, Gates(xy_cm=1.0)) == {4: ["|XY| 1.04 cm > 1.00 cm"]}
+    assert pose_failures(table, Gates(xy_cm=1.05)) == {}
 
 
 def test_gate_passes_and_ignores_status_without_limits():
     table = small_table()
-    assert gate(table) == []
-    assert gate(table[table["status"] == "ok"], fail_above_cm=4.0, fail_above_deg=0.3) == []
+    assert pose_failures(table, Gates()) == {}
+    assert pose_failures(table[table["status"] == "ok"], Gates(axis_cm=4.0, deg=0.3)) == {}
 
 
 def test_gate_rejects_negative_limit():
-    with pytest.raises(ValueError, match="fail_above_cm must be a non-negative number, got -1"):
-        gate(small_table(), fail_above_cm=-1.0)
+    with pytest.raises(ValueError, match="axis_cm must be a non-negative number, got -1"):
+        Gates(axis_cm=-1.0)
 
 
 # --- formats ------------------------------------------------------------------------------

@@ -303,7 +303,7 @@ def test_scans_of_the_lab_localize_on_its_map_read_back_from_a_5cm_grid(tmp_path
 def test_the_run_file_of_an_import_names_the_grid_s_image_too(tmp_path, capsys):
     import tomllib
 
-    from segloc_cli.runs.runfile import sha256
+    from segloc_cli.io.files import sha256
 
     write_map(tmp_path / "lab.json", lab(0.0))
     assert (

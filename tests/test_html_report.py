@@ -20,6 +20,7 @@ from matplotlib.figure import Figure
 from PIL import Image
 
 from segloc_cli.errors import InputError
+from segloc_cli.io.files import sha256 as run_file_sha256
 from segloc_cli.io.html_report import (
     PipeTable,
     ReportSection,
@@ -29,7 +30,6 @@ from segloc_cli.io.html_report import (
     size_text,
     write_html_report,
 )
-from segloc_cli.runs.runfile import sha256 as run_file_sha256
 from segloc_cli.scoring.gates import GateOutcome
 
 HOSTILE = "<script>alert('x')</script>"

@@ -15,7 +15,7 @@ from hypothesis import strategies as st
 
 from segloc_cli.errors import InputError
 from segloc_cli.estimates import ESTIMATE_COLUMNS, Relations
-from segloc_cli.geometry import Pose2
+from segloc_cli.geometry import Pose2, relative_motion
 from segloc_cli.io.relations import read_relations
 from segloc_cli.scoring.relations import (
     CSV_COLUMNS,
@@ -23,7 +23,6 @@ from segloc_cli.scoring.relations import (
     PUBLISHED_SQUARED,
     format_relations,
     relation_errors,
-    relative_motion,
     trajectory_from_estimates,
 )
 

@@ -7,7 +7,8 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from segloc_cli.runs.evaluation import GATE_SHOWN, EvaluateOptions, SurveyScores
+from segloc_cli.runs.evaluation import GATE_SHOWN, EvaluateOptions, Scores
+from segloc_cli.scoring.gates import Gates
 
 EST = Path("est.csv")
 
@@ -18,8 +19,15 @@ EST = Path("est.csv")
         ({}, "give exactly one of --survey and --relations"),
         ({"survey_path": Path("s"), "relations_path": Path("r")}, "give exactly one of"),
         ({"survey_path": Path("s"), "map_path": Path("m")}, "--map and --log go with --plots"),
-        ({"relations_path": Path("r"), "plots_dir": Path("p")}, "--plots goes with --survey"),
-        ({"relations_path": Path("r"), "fail_above_cm": 1.0}, "--fail-above-cm/--fail-above"),
+        ({"relations_path": Path("r"), "plots_dir": Path("p")}, None),
+        ({"relations_path": Path("r"), "gates": Gates(axis_cm=1.0)}, "relations bound no single"),
+        ({"relations_path": Path("r"), "gates": Gates(mean_cm=1.0)}, None),
+        ({"relations_path": Path("r"), "plots_dir": Path("p"), "log_path": Path("l")}, "--log"),
+        ({"relations_path": Path("r"), "baseline_path": Path("b")}, "--baseline goes with"),
+        ({"survey_path": Path("s"), "gates": Gates(min_within_pct=90)}, "--min-within-pct"),
+        ({"survey_path": Path("s"), "gates": Gates(percentile=50)}, "--percentile goes with"),
+        ({"survey_path": Path("s"), "fail_if_worse_cm": 1.0}, "--fail-if-worse-cm/"),
+        ({"survey_path": Path("s"), "html_path": Path("h"), "map_path": Path("m")}, None),
         ({"survey_path": Path("s"), "published": "intel"}, "--published goes with --relations"),
         ({"survey_path": Path("s"), "plots_dir": Path("p"), "log_path": Path("l")}, None),
         ({"relations_path": Path("r"), "published": "intel"}, None),
@@ -32,15 +40,28 @@ def test_options_that_do_not_go_together_are_named(given, problem):
 
 def test_the_files_read_and_written_are_listed():
     options = EvaluateOptions(EST, survey_path=Path("s.csv"), out_path=Path("t.md"))
-    assert options.inputs == [EST, Path("s.csv"), None, None, None]
-    assert options.outputs == {"--out": Path("t.md"), "--out (run file)": Path("t.run.toml")}
-    assert EvaluateOptions(EST).outputs == {"--out": None}
+    assert options.inputs == [EST, Path("s.csv"), None, None, None, None]
+    assert options.outputs == {
+        "--out": Path("t.md"),
+        "--out (run file)": Path("t.run.toml"),
+        "--junit": None,
+        "--summary-md": None,
+        "--html": None,
+    }
+    assert EvaluateOptions(EST).outputs["--out"] is None
     assert not options.with_map
-    assert options.tolerance_s == 0.05 and options.limits == (None, None)
+    assert options.tolerance_s == 0.05 and not options.gates.any
+
+
+def test_gate_options_become_gates():
+    given = {"survey_path": Path("s"), "fail_above_xy_cm": 5.0, "fail_rms_above_deg": 1.0}
+    options = EvaluateOptions.from_options(EST, given | {"fail_above_cm": None})
+    assert options.gates == Gates(xy_cm=5.0, rms_deg=1.0)
 
 
 def test_the_violations_line_names_the_first_few():
     violations = [f"pose {i}: status lost" for i in range(GATE_SHOWN + 2)]
-    line = SurveyScores(pd.DataFrame(), "", violations).violations_line
+    failures = {i: ["status lost"] for i in range(GATE_SHOWN + 2)}
+    line = Scores("", "", [], failures, pd.DataFrame()).violations_line
     assert line.startswith("pose 0: status lost; pose 1") and line.endswith("; and 2 more")
-    assert SurveyScores(pd.DataFrame(), "", violations[:1]).violations_line == violations[0]
+    assert Scores("", "", [], {0: ["status lost"]}).violations_line == violations[0]

@@ -16,7 +16,9 @@ from segloc_cli.commands.options import holds_path
 from segloc_cli.commands.printing import warn
 from segloc_cli.config import GUESSES_KEYWORD, Config
 
-OUTPUT_KEYS = frozenset({"out", "tum", "mcap", "survey-out", "plots", "config", "force"})
+OUTPUT_KEYS = frozenset(
+    {"out", "tum", "mcap", "survey-out", "plots", "config", "force", "junit", "summary-md", "html"}
+)
 """Options that name what a run writes (or how), not what it computes: no run file holds
 them, and they are no inputs (a run file that named ``--mcap`` would have its repetition
 write over the first run's view)."""

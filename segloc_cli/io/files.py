@@ -15,6 +15,7 @@ not writable, so that minutes of work never end in "No such file or directory".
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import os
 import tempfile
 from collections.abc import Iterable, Iterator, Mapping
@@ -174,3 +175,20 @@ def _umask() -> int:
     mask = os.umask(0)
     os.umask(mask)
     return mask
+
+
+def sha256(path: Path) -> str:
+    """Hex SHA-256 of a file's bytes; of a folder (a ROS 2 bag), of each file's path
+    relative to it and its bytes, in sorted order, so that a changed, added, removed or
+    renamed file changes it."""
+    digest = hashlib.sha256()
+    if path.is_dir():
+        files = sorted(p for p in path.rglob("*") if p.is_file())
+        for file in files:
+            digest.update(file.relative_to(path).as_posix().encode() + b"\0")
+            digest.update(sha256(file).encode())
+        return digest.hexdigest()
+    with reading(path, "a file to hash"), path.open("rb") as stream:
+        for block in iter(lambda: stream.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()

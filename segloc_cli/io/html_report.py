@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import base64
 import functools
-import hashlib
 import io
 import itertools
 import re
@@ -27,7 +26,7 @@ import jinja2
 import numpy as np
 
 from segloc_cli import __version__
-from segloc_cli.io.files import reading, write_text_atomic
+from segloc_cli.io.files import reading, sha256, write_text_atomic
 from segloc_cli.scoring.gates import GateOutcome
 
 if TYPE_CHECKING:
@@ -279,26 +278,10 @@ def _setting_text(value: object) -> str:
 def _input_of(role: str, path: Path) -> _Input:
     with reading(path, "an input of this report"):
         if path.is_dir():
-            files = sorted(p for p in path.rglob("*") if p.is_file())
-            n_bytes = sum(file.stat().st_size for file in files)
-            # A folder's digest as a run file records it (runs/runfile.sha256), so the two agree.
-            digest = hashlib.sha256()
-            for file in files:
-                digest.update(file.relative_to(path).as_posix().encode() + b"\0")
-                digest.update(_file_sha256(file).encode())
-            sha256 = digest.hexdigest()
+            n_bytes = sum(file.stat().st_size for file in path.rglob("*") if file.is_file())
         else:
             n_bytes = path.stat().st_size
-            sha256 = _file_sha256(path)
-    return _Input(str(role), path.name or str(path), size_text(n_bytes), sha256)
-
-
-def _file_sha256(path: Path) -> str:
-    digest = hashlib.sha256()
-    with path.open("rb") as stream:
-        for block in iter(lambda: stream.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
+    return _Input(str(role), path.name or str(path), size_text(n_bytes), sha256(path))
 
 
 def size_text(n_bytes: int) -> str:

@@ -14,28 +14,56 @@ raises ``InputError`` naming the file.
 
 from __future__ import annotations
 
+import json
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
 
 from segloc_cli.config import TIME_TOLERANCE_MS
 from segloc_cli.errors import InputError
-from segloc_cli.estimates import PoseTable
+from segloc_cli.estimates import PoseTable, Relations
 from segloc_cli.io.log import Log
+from segloc_cli.scoring.gates import GateOutcome, Gates, outcomes_json
 from segloc_cli.timing import time_range
+
+if TYPE_CHECKING:
+    from segloc_cli.scoring.baseline import Comparison
+    from segloc_cli.scoring.relations import RelationErrors
+
+
+GATE_FIELDS = {
+    "fail_above_cm": "axis_cm",
+    "fail_above_xy_cm": "xy_cm",
+    "fail_above_deg": "deg",
+    "min_within_pct": "min_within_pct",
+    "fail_rms_above_cm": "rms_cm",
+    "fail_rms_above_deg": "rms_deg",
+    "fail_mean_above_cm": "mean_cm",
+    "fail_mean_above_deg": "mean_deg",
+    "fail_percentile_above_cm": "percentile_cm",
+    "fail_percentile_above_deg": "percentile_deg",
+    "percentile": "percentile",
+}
+"""The command's gate options (as click names them) → the ``Gates`` field each sets."""
+
+PER_POSE_OPTIONS = "--fail-above-cm, --fail-above-xy-cm or --fail-above-deg"
 
 
 @dataclass(frozen=True)
 class EvaluateOptions:
-    """What ``segloc evaluate`` was asked: the estimates (``estimates_path``) and the truth to
-    score them against, a survey (``survey_path``) or reference relations (``relations_path``,
-    with the ``published`` errors of a dataset beside); the table's format ``fmt`` and file
-    ``out_path`` (None: standard output); whether only accepted poses count (``only_ok``);
-    the gates on |X|, |Y| (cm) and |θ| (°); the figures' folder ``plots_dir`` and the map and
-    log they draw from; and the largest time difference (ms) when pairing rows by time."""
+    """What ``segloc evaluate`` was asked: the estimates (``estimates_path``, in format
+    ``est_format``, None to tell by the name; a bag's or MCAP's ``topic`` and, for TF, the
+    ``frames`` parent, child) and the truth to score them against, a survey
+    (``survey_path``) or reference relations (``relations_path``, with the ``published``
+    errors of a dataset beside); the table's format ``fmt`` and file ``out_path`` (None:
+    standard output); whether only accepted poses count (``only_ok``); the ``gates``; the
+    figures' folder ``plots_dir`` and the map and log they draw from; the largest time
+    difference (ms) when pairing rows by time; the CI outputs (JUnit, Markdown summary,
+    HTML page) and the earlier run to compare with (``baseline_path``) with its limits."""
 
     estimates_path: Path
     survey_path: Path | None = None
@@ -44,37 +72,51 @@ class EvaluateOptions:
     fmt: str = "md"
     out_path: Path | None = None
     only_ok: bool = False
-    fail_above_cm: float | None = None
-    fail_above_deg: float | None = None
+    gates: Gates = field(default_factory=Gates)
     plots_dir: Path | None = None
     map_path: Path | None = None
     log_path: Path | None = None
     tolerance_ms: float = TIME_TOLERANCE_MS
+    est_format: str | None = None
+    topic: str | None = None
+    frames: tuple[str, str] | None = None
+    junit_path: Path | None = None
+    summary_md_path: Path | None = None
+    html_path: Path | None = None
+    baseline_path: Path | None = None
+    fail_if_worse_cm: float | None = None
+    fail_if_worse_deg: float | None = None
+
+    @classmethod
+    def from_options(cls, estimates_path: Path, given: dict) -> EvaluateOptions:
+        """From the command's options by their click names (the gate options among them)."""
+        given = dict(given)
+        limits = {GATE_FIELDS[k]: given.pop(k) for k in GATE_FIELDS if k in given}
+        limits = {k: v for k, v in limits.items() if v is not None}
+        return cls(estimates_path, gates=Gates(**limits), **given)
 
     @property
     def tolerance_s(self) -> float:
         return self.tolerance_ms / 1e3
 
     @property
-    def limits(self) -> tuple[float | None, float | None]:
-        """The gates: (|X| and |Y| in cm, |θ| in degrees), each None when not set."""
-        return self.fail_above_cm, self.fail_above_deg
-
-    @property
     def inputs(self) -> list[Path | None]:
         """Every file it reads (None where not given)."""
         paths = (self.survey_path, self.relations_path, self.map_path, self.log_path)
-        return [self.estimates_path, *paths]
+        return [self.estimates_path, *paths, self.baseline_path]
 
     @property
     def outputs(self) -> dict[str, Path | None]:
         """Every file it writes besides the figures, by the option that names it (as
-        ``io/files.check_outputs`` takes them): the table's, and the run file beside it."""
+        ``io/files.check_outputs`` takes them): the table's and the run file beside it, the
+        JUnit file, the Markdown summary, the HTML page."""
         from segloc_cli.runs.runfile import run_file_path
 
-        if self.out_path is None:
-            return {"--out": None}
-        return {"--out": self.out_path, "--out (run file)": run_file_path(self.out_path)}
+        named: dict[str, Path | None] = {"--out": self.out_path}
+        if self.out_path is not None:
+            named["--out (run file)"] = run_file_path(self.out_path)
+        named |= {"--junit": self.junit_path, "--summary-md": self.summary_md_path}
+        return named | {"--html": self.html_path}
 
     @property
     def with_map(self) -> bool:
@@ -83,25 +125,43 @@ class EvaluateOptions:
 
     def usage_problem(self) -> str | None:
         """Why these options do not go together (in the command line's words), or None."""
+        gates = self.gates
         if (self.survey_path is None) == (self.relations_path is None):
             return "give exactly one of --survey and --relations"
-        if self.plots_dir is None and (self.map_path is not None or self.log_path is not None):
-            return "--map and --log go with --plots"
-        if self.plots_dir is not None and self.survey_path is None:
-            return "--plots goes with --survey"
-        gates = self.fail_above_cm is not None or self.fail_above_deg is not None
-        if self.relations_path is not None and gates:
-            return "--fail-above-cm/--fail-above-deg go with --survey"
-        if self.relations_path is None and self.published is not None:
+        drawn = self.plots_dir is not None or self.html_path is not None
+        if not drawn and (self.map_path is not None or self.log_path is not None):
+            return "--map and --log go with --plots or --html"
+        if self.relations_path is not None:
+            if gates.per_pose or gates.min_within_pct is not None:
+                return (
+                    "relations bound no single pose: with --relations gate the mean, RMS or "
+                    "a percentile of the relation errors (--fail-mean-above-cm/-deg, "
+                    "--fail-rms-above-cm/-deg, --fail-percentile-above-cm/-deg)"
+                )
+            if self.log_path is not None:
+                return "--log goes with --survey (the stages' figures); --relations takes --map"
+            if self.baseline_path is not None:
+                return "--baseline goes with --survey: it compares pose by pose"
+        elif self.published is not None:
             return "--published goes with --relations"
+        if gates.min_within_pct is not None and not gates.per_pose:
+            return f"--min-within-pct goes with {PER_POSE_OPTIONS}"
+        bounded = gates.percentile_cm is not None or gates.percentile_deg is not None
+        if gates.percentile != 95.0 and not bounded:
+            return "--percentile goes with --fail-percentile-above-cm or -deg"
+        worse = self.fail_if_worse_cm is not None or self.fail_if_worse_deg is not None
+        if worse and self.baseline_path is None:
+            return "--fail-if-worse-cm/--fail-if-worse-deg go with --baseline OLD.json"
         return None
 
 
-def read_scored_estimates(path: Path) -> pd.DataFrame:
-    """The estimates CSV at ``path``, refused when it holds no row."""
-    from segloc_cli.io.tables import read_estimates
+def read_scored_estimates(options: EvaluateOptions) -> pd.DataFrame:
+    """The estimates to score, from any format ``io/trajectories`` reads, refused when they
+    hold no row."""
+    from segloc_cli.io.trajectories import read_trajectory
 
-    estimates = read_estimates(path)
+    path = options.estimates_path
+    estimates = read_trajectory(path, options.est_format, options.topic, options.frames)
     if estimates.empty:
         raise InputError(
             "has a header but no rows: no estimate to score (did `segloc localize` stop "
@@ -112,18 +172,38 @@ def read_scored_estimates(path: Path) -> pd.DataFrame:
 
 
 GATE_SHOWN = 5
-"""Violations of a gate named on its one line; the table shows them all."""
+"""Violations of a gate named on its one line; the tables show them all."""
 
 
 @dataclass(frozen=True)
-class SurveyScores:
-    """Table 1 of a run (a row per surveyed pose with an estimate: ``evaluate.table1``), as
-    ``text`` in the format asked with its summary, and the gates' ``violations`` (one phrase
-    each; empty when every pose is within them or no gate was set)."""
+class Scores:
+    """A scored run: ``text`` in the format asked, ``markdown`` the same in Markdown (for
+    the CI summary and the HTML page) with the extra figures beside (drift, covariance,
+    baseline), each gate's ``outcomes``, the per-pose ``failures`` (pose id → reasons; with
+    --survey alone), Table 1 (``table``; None with --relations), the ``comparison`` with a
+    baseline, ``pairing``: how the estimates met the truth, in one line, and the Markdown
+    in titled ``sections`` (the HTML page shows each under its title)."""
 
-    table: pd.DataFrame
     text: str
-    violations: list[str]
+    markdown: str
+    outcomes: list[GateOutcome]
+    failures: dict[int, list[str]]
+    table: pd.DataFrame | None = None
+    comparison: Comparison | None = None
+    pairing: str = ""
+    sections: tuple[tuple[str, str], ...] = ()
+
+    @property
+    def violations(self) -> list[str]:
+        """Every failed gate in a phrase: the poses beyond their limits, then the others."""
+        poses = [f"pose {p}: {r}" for p, reasons in self.failures.items() for r in reasons]
+        others = [o.text for o in self.outcomes if not o.passed and not o.name.startswith("poses ")]
+        worse = [] if self.comparison is None else self.comparison.failures
+        return poses + others + worse
+
+    @property
+    def passed(self) -> bool:
+        return not self.violations
 
     @property
     def violations_line(self) -> str:
@@ -133,10 +213,25 @@ class SurveyScores:
         return shown + (f"; and {more} more" if more > 0 else "")
 
 
-def survey_scores(estimates: pd.DataFrame, survey: PoseTable, options: EvaluateOptions):
-    """Score ``estimates`` against the surveyed poses ``survey`` (paired by time); a pairing
-    that fails names the survey when it names no file."""
-    from segloc_cli.scoring.evaluate import format_table, gate, summary, table1
+def _with_extras(text: str, fmt: str, sections: dict[str, tuple[str, object]]) -> str:
+    """``text`` with the extra figures (name → (Markdown, JSON value)) added where the
+    format has room: after the table in md, under ``summary`` in json."""
+    if fmt == "md":
+        return text + "".join(f"\n{md}" for md, _ in sections.values() if md)
+    if fmt == "json":
+        document = json.loads(text)
+        document["summary"] |= {name: value for name, (_, value) in sections.items()}
+        return json.dumps(document, indent=2, allow_nan=False) + "\n"
+    return text
+
+
+def survey_scores(estimates: pd.DataFrame, survey: PoseTable, options: EvaluateOptions) -> Scores:
+    """Score ``estimates`` against the surveyed poses ``survey`` (paired by time): Table 1,
+    its gates, the drift per travelled length, the covariance's consistency where the
+    estimates carry one, and the comparison with a baseline where asked. A pairing that fails
+    names the survey when it names no file."""
+    from segloc_cli.scoring.evaluate import format_table, summary, table1
+    from segloc_cli.scoring.gates import pose_failures
 
     paths = {"estimates_path": options.estimates_path, "survey_path": options.survey_path}
     try:
@@ -145,8 +240,127 @@ def survey_scores(estimates: pd.DataFrame, survey: PoseTable, options: EvaluateO
         if exc.path is not None:
             raise
         raise InputError(str(exc), path=options.survey_path) from None
-    text = format_table(table, summary(table, options.only_ok, *options.limits), options.fmt)
-    return SurveyScores(table, text, gate(table, *options.limits))
+    stats = summary(table, options.only_ok, options.gates)
+    sections = _survey_extras(table, survey, estimates, options)
+    comparison = _comparison(table, options)
+    if comparison is not None:
+        sections["baseline"] = (comparison.format_md(), comparison.as_json())
+    table_md = format_table(table, stats, "md")
+    text = _with_extras(format_table(table, stats, options.fmt), options.fmt, sections)
+    titled = (("Table 1", table_md), *((SECTION_TITLES[k], md) for k, (md, _) in sections.items()))
+    return Scores(
+        text,
+        _with_extras(table_md, "md", sections),
+        stats.attrs["outcomes"],
+        pose_failures(table, options.gates),
+        table,
+        comparison,
+        _pairing_line(estimates, stats.attrs["n_surveyed"], len(table), options),
+        titled,
+    )
+
+
+SECTION_TITLES = {
+    "drift": "Drift per travelled length",
+    "covariance": "Covariance consistency",
+    "baseline": "Change against the baseline",
+}
+
+
+def _survey_extras(
+    table: pd.DataFrame, survey: PoseTable, estimates: pd.DataFrame, options: EvaluateOptions
+) -> dict[str, tuple[str, object]]:
+    """The drift per travelled length and, where the estimates carry a covariance, its
+    consistency: name → (Markdown, JSON value)."""
+    from segloc_cli.scoring.consistency import consistency, covariance_matrices
+    from segloc_cli.scoring.drift import drift_per_length, format_drift_md
+
+    extras: dict[str, tuple[str, object]] = {}
+    truth, estimated = _truth_and_estimates(table, survey)
+    if len(table) >= 2:
+        drift = drift_per_length(truth, estimated)
+        records = drift.astype(object).where(drift.notna(), None).to_dict(orient="records")
+        md = "Drift per travelled length (relative pose error, pairs along the survey):\n\n"
+        extras["drift"] = (md + format_drift_md(drift), records)
+    errors = np.column_stack(
+        [
+            table["err_x_cm"].to_numpy(float) / 100.0,
+            table["err_y_cm"].to_numpy(float) / 100.0,
+            np.deg2rad(table["err_theta_deg"].to_numpy(float)),
+        ]
+    )
+    scored = _summarised(table, options.only_ok)
+    checked = consistency(errors[scored], covariance_matrices(table)[scored])
+    if checked is not None:
+        md = "Covariance: " + " ".join(checked.lines()) + "\n"
+        extras["covariance"] = (md, checked.as_json())
+    return extras
+
+
+def _summarised(table: pd.DataFrame, only_ok: bool) -> np.ndarray:
+    from segloc_cli.scoring.evaluate import scored
+
+    return scored(table, only_ok)
+
+
+def _truth_and_estimates(table: pd.DataFrame, survey: PoseTable) -> tuple[np.ndarray, np.ndarray]:
+    """The surveyed poses of Table 1's rows and the estimates made there (each (N, 3): x m,
+    y m, θ rad, world frame; NaN where no estimate), in time order."""
+    order = np.argsort(table["time_s"].to_numpy(float), kind="stable")
+    rows = table.iloc[order]
+    index = {int(pose_id): i for i, pose_id in enumerate(np.asarray(survey.pose_id))}
+    truth = np.asarray(survey.poses, float)[[index[int(p)] for p in rows["pose_id"]]]
+    estimated = truth - np.column_stack(
+        [
+            rows["err_x_cm"].to_numpy(float) / 100.0,
+            rows["err_y_cm"].to_numpy(float) / 100.0,
+            np.deg2rad(rows["err_theta_deg"].to_numpy(float)),
+        ]
+    )
+    return truth, estimated
+
+
+def read_baseline(path: Path) -> dict:
+    """The poses of an earlier run from the JSON ``segloc evaluate --format json`` wrote
+    (``scoring/baseline.parse_baseline``), refused in one line when not such a file."""
+    from segloc_cli.io.files import reading
+    from segloc_cli.scoring.baseline import HOW_TO_MAKE, parse_baseline
+
+    with reading(path, f"a baseline JSON ({HOW_TO_MAKE})"):
+        text = Path(path).read_text(encoding="utf-8")
+    return parse_baseline(text, path)
+
+
+def _comparison(table: pd.DataFrame, options: EvaluateOptions) -> Comparison | None:
+    if options.baseline_path is None:
+        return None
+    from segloc_cli.scoring.baseline import compare
+
+    return compare(
+        read_baseline(options.baseline_path),
+        table,
+        only_ok=options.only_ok,
+        fail_if_worse_cm=options.fail_if_worse_cm,
+        fail_if_worse_deg=options.fail_if_worse_deg,
+    )
+
+
+def _pairing_line(
+    estimates: pd.DataFrame, n_truth: int, n_paired: int, options: EvaluateOptions
+) -> str:
+    """How the estimates met the truth in one line: paired, unpaired and dropped counts."""
+    n_estimates = len(estimates)
+    dropped = estimates.attrs.get("dropped") or {}
+    source = estimates.attrs.get("source")
+    line = f"read {n_estimates} estimates" + (f" ({source})" if source else "")
+    line += (
+        f"; {n_paired} of {n_truth} surveyed poses paired within {options.tolerance_ms:g} ms, "
+        f"{n_truth - n_paired} unpaired"
+    )
+    if dropped:
+        reasons = ", ".join(f"{n} {why}" for why, n in dropped.items())
+        line += f"; dropped {sum(dropped.values())} ({reasons})"
+    return line
 
 
 def check_plots(plots_dir: Path, with_map: bool, force: bool) -> None:
@@ -171,7 +385,7 @@ def check_plots(plots_dir: Path, with_map: bool, force: bool) -> None:
 
 def figures_of(
     options: EvaluateOptions,
-    scores: SurveyScores,
+    scores: Scores,
     estimates: pd.DataFrame,
     survey: PoseTable,
     segments_world: np.ndarray | None = None,
@@ -196,11 +410,37 @@ def figures_of(
     return evaluation_figures(scores.table, segments_world, items)
 
 
-def relation_scores(estimates: pd.DataFrame, relations_path: Path, options: EvaluateOptions) -> str:
+def relation_figures_of(
+    run: RelationRun, segments_world: np.ndarray | None = None
+) -> Mapping[str, Callable]:
+    """The figures of a relations run (name → drawing function): the estimated trajectory,
+    over the map (M, 4; world frame) when given, and the relation errors over time."""
+    from segloc_cli.scoring.plots import relation_figures
+
+    return relation_figures(run.times_s, run.poses, run.errors, run.relations, segments_world)
+
+
+@dataclass(frozen=True)
+class RelationRun:
+    """What the relation figures draw: the estimated trajectory (``times_s`` (N,) s,
+    ``poses`` (N, 3) x m, y m, θ rad, world frame), the relation ``errors`` and the
+    reference ``relations``."""
+
+    times_s: np.ndarray
+    poses: np.ndarray
+    errors: RelationErrors
+    relations: Relations
+
+
+def relation_scores(
+    estimates: pd.DataFrame, options: EvaluateOptions
+) -> tuple[Scores, RelationRun]:
     """The relation errors of the estimates' trajectory against the reference relations of
-    ``relations_path``, as text in the format asked (with the published errors beside, where
-    asked); refused when no relation has estimates at both of its times."""
+    ``options.relations_path``, as text in the format asked (with the published errors
+    beside, where asked) and the gates' outcomes over them; refused when no relation has
+    estimates at both of its times."""
     from segloc_cli.io.relations import read_relations
+    from segloc_cli.scoring.gates import relation_outcomes
     from segloc_cli.scoring.relations import (
         PUBLISHED,
         format_relations,
@@ -208,7 +448,8 @@ def relation_scores(estimates: pd.DataFrame, relations_path: Path, options: Eval
         trajectory_from_estimates,
     )
 
-    relations = read_relations(relations_path)
+    assert options.relations_path is not None
+    relations = read_relations(options.relations_path)
     times_s, poses = trajectory_from_estimates(estimates, only_ok=options.only_ok)
     errors = relation_errors(
         times_s,
@@ -225,4 +466,23 @@ def relation_scores(estimates: pd.DataFrame, relations_path: Path, options: Eval
             path=options.relations_path,
         )
     reference = None if options.published is None else PUBLISHED.get(options.published)
-    return format_relations(errors.summary(), options.fmt, reference)
+    outcomes = relation_outcomes(100.0 * errors.trans_m, errors.rot_deg, options.gates)
+    gate_lines = "".join(f"Gate: {o.text}.\n" for o in outcomes)
+    markdown = format_relations(errors.summary(), "md", reference) + gate_lines
+    text = format_relations(errors.summary(), options.fmt, reference)
+    if options.fmt == "md":
+        text = markdown
+    elif options.fmt == "json":
+        document = json.loads(text)
+        document["gate"] = outcomes_json(outcomes) if outcomes else None
+        text = json.dumps(document, indent=2, allow_nan=False) + "\n"
+    pairing = (
+        f"read {len(estimates)} estimates"
+        + (f" ({estimates.attrs['source']})" if estimates.attrs.get("source") else "")
+        + f"; {errors.used} of {len(relations)} relations have estimates at both times "
+        f"(within {options.tolerance_ms:g} ms), {errors.skipped} skipped"
+    )
+    scores = Scores(
+        text, markdown, outcomes, {}, pairing=pairing, sections=(("Relations", markdown),)
+    )
+    return scores, RelationRun(times_s, poses, errors, relations)

@@ -11,7 +11,6 @@ relative to the file's own folder.
 
 from __future__ import annotations
 
-import hashlib
 import os
 import tomllib
 from collections.abc import Mapping, Sequence
@@ -22,7 +21,7 @@ import tomli_w
 
 from segloc_cli import __version__
 from segloc_cli.errors import InputError
-from segloc_cli.io.files import reading, write_text_atomic
+from segloc_cli.io.files import reading, sha256, write_text_atomic
 
 RUN_TABLE = "run"
 """The table of a run file that records how the file was made; ``--config`` skips it."""
@@ -133,23 +132,6 @@ def version_note(path: Path) -> str | None:
     if made_by == __version__:
         return None
     return f"{path} was written by segloc {made_by}, this is {__version__}; results may differ"
-
-
-def sha256(path: Path) -> str:
-    """Hex SHA-256 of a file's bytes; of a folder (a ROS 2 bag), of each file's path
-    relative to it and its bytes, in sorted order, so that a changed, added, removed or
-    renamed file changes it."""
-    digest = hashlib.sha256()
-    if path.is_dir():
-        files = sorted(p for p in path.rglob("*") if p.is_file())
-        for file in files:
-            digest.update(file.relative_to(path).as_posix().encode() + b"\0")
-            digest.update(sha256(file).encode())
-        return digest.hexdigest()
-    with reading(path, "a file to record in the run file"), path.open("rb") as stream:
-        for block in iter(lambda: stream.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
 
 
 def portable(value: Any, folder: Path) -> Any:

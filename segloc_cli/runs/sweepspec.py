@@ -238,7 +238,7 @@ def _guesses(
     document: dict, path: Path
 ) -> tuple[tuple[str, float, float] | None, Path | None, str]:
     """(init errors, guesses file, what identifies them) from ``init-errors`` or ``initial``."""
-    from segloc_cli.runs.runfile import sha256
+    from segloc_cli.io.files import sha256
     from segloc_cli.sim import parse_init_errors
 
     if "init-errors" in document and "initial" in document:
@@ -272,9 +272,9 @@ class _Inputs:
 
 
 def _read_inputs(logs: list[_Log], guess_file: Path | None) -> _Inputs:
+    from segloc_cli.io.files import sha256
     from segloc_cli.io.maps import read_map
     from segloc_cli.io.tables import read_pose_table
-    from segloc_cli.runs.runfile import sha256
 
     files = _Inputs({}, {}, {}, [] if guess_file is None else [("initial", guess_file)])
     for log in logs:

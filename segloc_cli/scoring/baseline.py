@@ -18,7 +18,6 @@ from __future__ import annotations
 import json
 import math
 from dataclasses import asdict, dataclass
-from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
@@ -26,6 +25,7 @@ import pandas as pd
 
 from segloc_cli.errors import InputError
 from segloc_cli.estimates import ESTIMATED
+from segloc_cli.scoring.gates import GateOutcome
 
 ERROR_KEYS = ("err_x_cm", "err_y_cm", "err_xy_cm", "err_theta_deg")
 """The final errors a baseline's poses carry (cm, cm, cm, degrees)."""
@@ -107,6 +107,32 @@ class Comparison:
     n_left_out: int
     only_ok: bool
     failed: bool
+
+    @property
+    def outcomes(self) -> list[GateOutcome]:
+        """A gate per figure that has a limit: the low end of its interval against it."""
+        return [
+            GateOutcome(
+                f"worsening of {row.figure} against the baseline (95 % interval's low end)",
+                row.low,
+                row.limit,
+                row.unit,
+                not row.failed,
+            )
+            for row in self.rows
+            if row.limit is not None
+        ]
+
+    @property
+    def failures(self) -> list[str]:
+        """The figures worse beyond their limit, a phrase each."""
+        return [
+            f"{row.figure} worse by {_with_unit(_num(row.change, row.unit), row.unit)} "
+            f"({_INTERVAL} {_with_unit(_interval(row), row.unit)}) beyond "
+            f"{_with_unit(f'{row.limit:g}', row.unit)}"
+            for row in self.rows
+            if row.failed and row.limit is not None
+        ]
 
     def _counts_line(self) -> str:
         why = "an error missing or a status not accepted" if self.only_ok else "an error missing"
@@ -192,29 +218,6 @@ def _with_unit(text: str, unit: str) -> str:
 
 def _interval(row: ComparisonRow) -> str:
     return f"[{_num(row.low, row.unit, sign=True)}, {_num(row.high, row.unit, sign=True)}]"
-
-
-def read_baseline(path: Path) -> dict:
-    """The poses of an earlier run from the JSON ``segloc evaluate --format json`` wrote.
-
-    Returns the file's JSON object, checked as ``parse_baseline`` does. Raises a one-line
-    ``InputError`` naming ``path`` when it cannot be read or is not such a file, saying how
-    to make one.
-    """
-    path = Path(path)
-    if path.exists() and not path.is_file() and not path.is_dir():
-        raise InputError("is not a regular file; expected a baseline JSON", path=path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise InputError(f"file not found; check the path, or {HOW_TO_MAKE}", path=path) from None
-    except IsADirectoryError:
-        raise InputError("is a directory, expected a baseline JSON", path=path) from None
-    except UnicodeDecodeError:
-        raise InputError(f"not a text file; {HOW_TO_MAKE}", path=path) from None
-    except OSError as exc:
-        raise InputError(f"cannot read file ({exc.strerror or exc})", path=path) from None
-    return parse_baseline(text, path)
 
 
 def parse_baseline(text: str, path: object = "baseline") -> dict:
@@ -318,7 +321,7 @@ def compare(
     n_resamples: int = 2000,
     seed: int = 0,
 ) -> Comparison:
-    """This run's ``table`` (a ``table1`` result) against ``baseline`` (``read_baseline``).
+    """This run's ``table`` (a ``table1`` result) against ``baseline`` (``parse_baseline``).
 
     Poses are paired by ``pose_id``; those whose final errors are missing (NaN) in either
     run are left out, and with ``only_ok`` those whose status is not accepted

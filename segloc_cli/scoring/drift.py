@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from segloc_cli.scoring.relations import relative_motion
+from segloc_cli.geometry import relative_motion
 
 DRIFT_LENGTHS_M = (1.0, 2.0, 5.0, 10.0)
 """Lengths travelled (m) over which drift is measured: room and corridor scales."""

@@ -23,9 +23,10 @@ import pandas as pd
 
 from segloc_cli.config import TIME_TOLERANCE_MS
 from segloc_cli.errors import InputError
-from segloc_cli.estimates import ESTIMATE_COLUMNS, ESTIMATED, PoseTable
+from segloc_cli.estimates import COVARIANCE_COLUMNS, ESTIMATE_COLUMNS, ESTIMATED, PoseTable
 from segloc_cli.geometry import wrap_angle
 from segloc_cli.method.confidence import RIGHT_PLACE_DEG, RIGHT_PLACE_M
+from segloc_cli.scoring.drift import travelled_m
 from segloc_cli.scoring.gates import (
     Gates,
     beyond_mask,
@@ -117,7 +118,8 @@ def table1(
     search), ``init_x_cm``, ``init_y_cm``, ``init_theta_deg`` (surveyed minus
     initial guess), ``err_x_cm``, ``err_y_cm``, ``err_theta_deg`` (surveyed
     minus final estimate), ``err_xy_cm`` (Euclidean position error) and the
-    estimate's ``status``. World frame; cm and degrees, headings wrapped to
+    estimate's ``status``; then the estimates' ``COVARIANCE_COLUMNS`` where they have
+    them. World frame; cm and degrees, headings wrapped to
     [-180, 180). ``survey`` is a PoseTable or any object with its ``pose_id``
     (N,), ``time_s`` (N,) and ``poses`` (N, 3: x m, y m, θ rad) arrays. Errors
     are NaN where the estimate holds NaN (e.g. a failed pose).
@@ -167,7 +169,7 @@ def table1(
         {
             "pose_id": survey_ids[matched].astype(np.int64),
             "time_s": survey_times_s[matched],
-            "travelled_m": travelled_m(survey_times_s, survey_poses)[matched],
+            "travelled_m": _travelled_m(survey_times_s, survey_poses)[matched],
             "ae_deg": _wrapped_deg(truth_theta_rad - np.deg2rad(align_theta_deg)),
             "init_x_cm": 100.0 * (truth_x_m - col("init_x_m")),
             "init_y_cm": 100.0 * (truth_y_m - col("init_y_m")),
@@ -177,18 +179,19 @@ def table1(
         },
         columns=list(TABLE_COLUMNS),
     )
+    for name in COVARIANCE_COLUMNS:
+        if name in est.columns:
+            table[name] = col(name)
     table.attrs["n_surveyed"] = int(survey_times_s.size)
     table.attrs["tolerance_s"] = float(tolerance_s)
     return table
 
 
-def travelled_m(times_s: np.ndarray, poses: np.ndarray) -> np.ndarray:
-    """(N,) the path length (m) along ``poses`` (N, 3: x m, y m, θ rad) taken in time order,
-    from the earliest pose (0) to each, in the given order; straight lines between poses."""
+def _travelled_m(times_s: np.ndarray, poses: np.ndarray) -> np.ndarray:
+    """(N,) ``drift.travelled_m`` along ``poses`` taken in time order, in the given order."""
     order = np.argsort(times_s, kind="stable")
-    steps = np.hypot(*np.diff(poses[order, :2], axis=0).T)
     along = np.empty(len(order))
-    along[order] = np.concatenate([[0.0], np.cumsum(steps)])
+    along[order] = travelled_m(poses[order])
     return along
 
 

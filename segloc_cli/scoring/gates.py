@@ -178,19 +178,22 @@ def failing_mask(table: pd.DataFrame, gates: Gates) -> np.ndarray:
 def pose_failures(table: pd.DataFrame, gates: Gates) -> dict[int, list[str]]:
     """Why each pose of a Table 1 fails the per-pose limits (pose id → reasons, in table
     order; only failing poses), empty without such limits: a status other than an accepted
-    one, a bounded error missing, or one beyond its limit (``|X| 1.04 cm > 1.00 cm``)."""
+    one (the one reason given then), a bounded error missing, or one beyond its limit
+    (``|X| 1.04 cm > 1.00 cm``)."""
     checks = gates._checks()
     if not checks:
         return {}
     columns = {column: np.abs(table[column].to_numpy(dtype=float)) for _, column, *_ in checks}
     failures: dict[int, list[str]] = {}
     for row, (pose_id, status) in enumerate(zip(table["pose_id"], table["status"], strict=True)):
-        reasons = [] if status in ESTIMATED else [f"status {status}"]
+        if status not in ESTIMATED:
+            failures[int(pose_id)] = [f"status {status}"]
+            continue
+        reasons = []
         for label, column, limit, decimals, unit in checks:
             value = columns[column][row]
             if not np.isfinite(value):
-                if status in ESTIMATED:
-                    reasons.append(f"{label} error is missing")
+                reasons.append(f"{label} error is missing")
             elif value > limit + GATE_SLACK:
                 value_text, limit_text = _exceeding_pair(value, limit, decimals)
                 reasons.append(f"|{label}| {value_text}{unit} > {limit_text}{unit}")
@@ -239,7 +242,7 @@ def survey_outcomes(table: pd.DataFrame, scored: np.ndarray, gates: Gates) -> li
     ((N,) bool: the poses the summary covers)."""
     outcomes = []
     if gates.per_pose and gates.min_within_pct is None:
-        for label, column, limit, _, unit in _grouped_checks(gates):
+        for label, column, limit, unit in _grouped_checks(gates):
             values = np.abs(table[list(column)].to_numpy(dtype=float)).max(axis=1)
             finite = values[np.isfinite(values)]
             measured = float(finite.max()) if finite.size else math.nan

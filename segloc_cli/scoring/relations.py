@@ -36,7 +36,7 @@ import pandas as pd
 from segloc_cli.config import TIME_TOLERANCE_MS
 from segloc_cli.errors import InputError
 from segloc_cli.estimates import ESTIMATE_COLUMNS, ESTIMATED, Relations
-from segloc_cli.geometry import wrap_angle
+from segloc_cli.geometry import relative_motion, wrap_angle
 from segloc_cli.scoring.evaluate import FORMATS
 from segloc_cli.timing import pair_by_time
 
@@ -131,20 +131,6 @@ def _mean_std(values: np.ndarray) -> dict[str, float]:
 
 def _rms(values: np.ndarray) -> float:
     return float(np.sqrt(np.mean(values**2))) if values.size else math.nan
-
-
-def relative_motion(from_poses: np.ndarray, to_poses: np.ndarray) -> np.ndarray:
-    """``from⁻¹ ⊕ to`` row by row: poses (K, 3) ``x_m, y_m, theta_rad`` in one frame →
-    (K, 3) motions ``dx_m, dy_m, dtheta_rad`` expressed in the frame of ``from``,
-    dtheta wrapped to [-pi, pi)."""
-    from_poses = np.asarray(from_poses, dtype=float).reshape(-1, 3)
-    to_poses = np.asarray(to_poses, dtype=float).reshape(-1, 3)
-    c, s = np.cos(from_poses[:, 2]), np.sin(from_poses[:, 2])
-    dx = to_poses[:, 0] - from_poses[:, 0]
-    dy = to_poses[:, 1] - from_poses[:, 1]
-    return np.column_stack(
-        [c * dx + s * dy, -s * dx + c * dy, wrap_angle(to_poses[:, 2] - from_poses[:, 2])]
-    )
 
 
 def relation_errors(
