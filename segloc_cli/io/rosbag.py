@@ -141,14 +141,15 @@ class _Messages(NamedTuple):
     failures: dict[str, list[str]]
 
 
-def _stamp_ns(message: Any) -> int:
+def header_stamp_ns(message: Any) -> int:
+    """A stamped message's ``header.stamp`` in integer nanoseconds."""
     stamp = message.header.stamp
     return int(stamp.sec) * NS_PER_S + int(stamp.nanosec)
 
 
 def _raw_scan(m: Any) -> _RawScan:
     return _RawScan(
-        stamp_ns=_stamp_ns(m),
+        stamp_ns=header_stamp_ns(m),
         frame_id=str(m.header.frame_id),
         angle_min=float(m.angle_min),
         angle_max=float(m.angle_max),
@@ -187,7 +188,7 @@ def _raw_odom(message: Any) -> _RawOdom:
     when it is not finite or its orientation is no rotation."""
     pose = message.pose.pose
     q = pose.orientation
-    row = (_stamp_ns(message), pose.position.x, pose.position.y, q.x, q.y, q.z, q.w)
+    row = (header_stamp_ns(message), pose.position.x, pose.position.y, q.x, q.y, q.z, q.w)
     values = np.array(row[1:], dtype=float)
     if not np.all(np.isfinite(values)):
         raise ValueError("the pose is not finite")
@@ -209,8 +210,9 @@ def ros1_typestore():
     return store
 
 
-def _open(path: Path) -> AnyReader:
-    """Open ``path`` as a bag; every way that fails becomes an ``InputError``."""
+def open_bag(path: Path) -> AnyReader:
+    """Open ``path`` as a bag (an opened ``AnyReader``, the caller closes it); every way that
+    fails becomes an ``InputError``."""
     if not path.exists():
         raise InputError("file or folder not found; check the path", path=path)
     if not path.is_file() and not path.is_dir():
@@ -230,12 +232,12 @@ def _open(path: Path) -> AnyReader:
         raise InputError(f"cannot read ({exc.strerror or exc})", path=path) from None
     except Exception as exc:  # the bag library meets damaged bytes in many ways
         raise InputError(
-            f"not a readable ROS bag ({_why(exc)}); expected {EXPECTED_BAG}", path=path
+            f"not a readable ROS bag ({failure_text(exc)}); expected {EXPECTED_BAG}", path=path
         ) from None
     return reader
 
 
-def _why(exc: Exception) -> str:
+def failure_text(exc: Exception) -> str:
     """An exception as a short phrase for a one-line message."""
     text = " ".join(str(exc).split())[:200]
     return (
@@ -425,7 +427,7 @@ def _bag_messages(
     (a ROS 1 bag the reader refused) or none."""
     refusal: InputError
     try:
-        reader = _open(path)
+        reader = open_bag(path)
     except InputError as refused:
         refusal = refused
     else:
@@ -435,7 +437,7 @@ def _bag_messages(
         except InputError:
             raise
         except Exception as exc:  # the bag library meets damaged bytes in many ways
-            refusal = InputError(f"the bag is damaged ({_why(exc)})", path=path)
+            refusal = InputError(f"the bag is damaged ({failure_text(exc)})", path=path)
         finally:
             with contextlib.suppress(Exception):
                 reader.close()
