@@ -274,16 +274,18 @@ def small_table() -> pd.DataFrame:
     return table1(estimates, survey)
 
 
-def test_summary_only_ok_covers_the_ok_poses_for_final_errors():
+def test_summary_only_ok_covers_the_ok_poses_in_every_column():
     stats = summary(small_table(), only_ok=True)
     assert stats.index.tolist() == ["RMS", "max"]
     assert stats.loc["RMS", "err_x_cm"] == pytest.approx(math.sqrt((3.0**2 + 4.0**2) / 2))
     assert stats.loc["max", "err_x_cm"] == pytest.approx(4.0)
     assert stats.loc["RMS", "err_theta_deg"] == pytest.approx(math.sqrt((0.1**2 + 0.3**2) / 2))
     assert stats.loc["max", "err_theta_deg"] == pytest.approx(0.3)
-    # Initial errors count every pose, the failed one included.
-    assert stats.loc["RMS", "init_x_cm"] == pytest.approx(math.sqrt((10**2 + 20**2 + 20**2) / 3))
+    # One set of poses in every column: the initial errors of the ok poses alone.
+    assert stats.loc["RMS", "init_x_cm"] == pytest.approx(math.sqrt((10**2 + 20**2) / 2))
     assert stats.loc["max", "init_x_cm"] == pytest.approx(20.0)
+    every = summary(small_table())
+    assert every.loc["RMS", "init_x_cm"] == pytest.approx(math.sqrt((10**2 + 20**2 + 20**2) / 3))
     assert (stats.attrs["n_poses"], stats.attrs["n_failed"], stats.attrs["n_scored"]) == (3, 1, 2)
 
 
@@ -338,15 +340,16 @@ def test_summary_scores_every_pose_with_an_estimate_whatever_its_status():
     text = format_table(table, stats, "md")
     assert text.splitlines()[-3:] == [
         "6 surveyed poses: ok 2, ambiguous 1, lost 1, too_few_segments 1, no_estimate 1.",
-        "RMS and max of X, Y, θ cover the 4 poses with an estimate, whatever their status; "
-        "2 surveyed poses have no estimate. Errors are surveyed minus computed.",
+        "RMS and max (of absolute values) cover the 4 poses with an estimate, whatever their "
+        "status; 2 surveyed poses have no estimate. Errors are surveyed minus computed; XY is "
+        "the position error's magnitude √(X² + Y²).",
         "Verdict (right = within 30 cm and 3° of the survey): 2 of 2 accepted answers right; "
         "1 of 3 right answers flagged; 2 of 2 wrong answers flagged.",
     ]
     assert (
         format_table(table, old, "md")
         .splitlines()[-2]
-        .startswith("RMS and max of X, Y, θ cover the 2 poses with status ok; 2 surveyed poses")
+        .startswith("RMS and max (of absolute values) cover the 2 poses with status ok; 2 surveyed")
     )
 
 
@@ -475,11 +478,11 @@ def test_markdown_table_has_paper_header_precision_and_summary_rows():
     table = small_table()
     rows = md_rows(format_table(table, summary(table), "md"))
     header = ["pose", "AE (°)", "init X (cm)", "init Y (cm)", "init θ (°)"]
-    header += ["X (cm)", "Y (cm)", "θ (°)", "status"]
+    header += ["X (cm)", "Y (cm)", "XY (cm)", "θ (°)", "status"]
     assert rows[0] == header
     body = rows[2:]  # rows[1] is the alignment line
-    assert [r[0] for r in body] == ["1", "2", "3", "RMS", "max"]
-    assert body[0] == ["1", "0.00", "10.0", "0.0", "0.00", "3.0", "0.0", "0.10", "ok"]
+    assert [r[0] for r in body] == ["1", "2", "3", "RMS", "max abs"]
+    assert body[0] == ["1", "0.00", "10.0", "0.0", "0.00", "3.0", "0.0", "3.0", "0.10", "ok"]
     assert body[4][5] == "100.0"  # the diverged pose has an estimate, so it is scored
     assert md_rows(format_table(table, summary(table, only_ok=True), "md"))[6][5] == "4.0"
 
@@ -501,11 +504,11 @@ def test_latex_is_a_tabular_with_escaped_status():
     estimates = make_estimates([{"time_s": 0.0, "status": "too_few_segments"}])
     table = table1(estimates, survey)
     text = format_table(table, summary(table), "latex")
-    assert text.startswith("\\begin{tabular}{lrrrrrrrl}")
+    assert text.startswith("\\begin{tabular}{lrrrrrrrrl}")
     assert text.rstrip().endswith("\\end{tabular}")
     assert "too\\_few\\_segments" in text
     assert text.count("\\midrule") == 3
-    assert "\\multicolumn{9}{l}{\\footnotesize 1 surveyed poses: too\\_few\\_segments 1.}" in text
+    assert "\\multicolumn{10}{l}{\\footnotesize 1 surveyed poses: too\\_few\\_segments 1.}" in text
 
 
 def test_unknown_format_names_the_choices():
@@ -543,14 +546,14 @@ def test_cli_scores_all_poses_and_only_ok_on_request(run_files, capsys):
     assert json.loads(out)["summary"]["max"]["err_x_cm"] == pytest.approx(3.0)
     code, out, err = run_cli(capsys, "evaluate", est, "--survey", survey, "--fail-above-cm", 5)
     assert code == 1
-    assert out.splitlines()[-2] == "1 of 2 poses beyond 5 cm."
-    assert err.splitlines() == ["segloc: gate: pose 2: status ambiguous"]
+    assert "1 of 2 poses exceed the per-pose limits (|X|, |Y| ≤ 5 cm)." in out.splitlines()
+    assert err.splitlines()[-1] == "segloc: gate: pose 2: status ambiguous"
     code, out, err = run_cli(capsys, "evaluate", est, "--survey", survey, "--fail-above-cm", 20)
     assert code == 1
-    assert out.splitlines()[-2] == (
-        "0 of 2 poses beyond 20 cm; the gate fails 1, counting 1 without an accepted estimate "
-        "(status other than ok)."
-    )
+    assert (
+        "0 of 2 poses exceed the per-pose limits (|X|, |Y| ≤ 20 cm); the gate fails 1, counting "
+        "1 without an accepted estimate (status other than ok)."
+    ) in out.splitlines()
 
 
 def test_cli_out_needs_force_and_is_checked_before_the_inputs(run_files, tmp_path, capsys):

@@ -8,7 +8,7 @@ import pandas as pd
 import pytest
 
 from segloc_cli.runs.evaluation import GATE_SHOWN, EvaluateOptions, Scores
-from segloc_cli.scoring.gates import Gates
+from segloc_cli.scoring.gates import GateOutcome, Gates
 
 EST = Path("est.csv")
 
@@ -62,6 +62,11 @@ def test_gate_options_become_gates():
 def test_the_violations_line_names_the_first_few():
     violations = [f"pose {i}: status lost" for i in range(GATE_SHOWN + 2)]
     failures = {i: ["status lost"] for i in range(GATE_SHOWN + 2)}
-    line = Scores("", "", [], failures, pd.DataFrame()).violations_line
+    share = GateOutcome("poses accepted and within", 0.0, 100.0, "%", False, True, True)
+    line = Scores("", "", [share], failures, pd.DataFrame()).violations_line
     assert line.startswith("pose 0: status lost; pose 1") and line.endswith("; and 2 more")
-    assert Scores("", "", [], {0: ["status lost"]}).violations_line == violations[0]
+    assert Scores("", "", [share], {0: ["status lost"]}).violations_line == violations[0]
+    # With --min-within-pct the share held: the poses beyond are no violation.
+    held = GateOutcome("poses accepted and within", 90.0, 80.0, "%", True, True, True)
+    assert Scores("", "", [held], failures).passed
+    assert Scores("", "", [held], failures).violations == []

@@ -195,15 +195,22 @@ class Scores:
 
     @property
     def violations(self) -> list[str]:
-        """Every failed gate in a phrase: the poses beyond their limits, then the others."""
-        poses = [f"pose {p}: {r}" for p, reasons in self.failures.items() for r in reasons]
-        others = [o.text for o in self.outcomes if not o.passed and not o.name.startswith("poses ")]
+        """Every failed gate in a phrase: the poses beyond their limits when a gate over
+        them failed, then the other gates, then the figures worse than the baseline's."""
+        failed = [o for o in self.outcomes if not o.passed]
+        poses = []
+        if any(o.per_pose for o in failed):
+            poses = [f"pose {p}: {r}" for p, reasons in self.failures.items() for r in reasons]
+        others = [o.text for o in failed if not o.per_pose]
         worse = [] if self.comparison is None else self.comparison.failures
         return poses + others + worse
 
     @property
     def passed(self) -> bool:
-        return not self.violations
+        """Whether every gate held and nothing got worse than the baseline beyond its limit."""
+        return all(o.passed for o in self.outcomes) and not (
+            self.comparison is not None and self.comparison.failed
+        )
 
     @property
     def violations_line(self) -> str:

@@ -61,7 +61,8 @@ surveyed poses up to it (m), the errors, the estimate's status."""
 FORMATS = ("md", "csv", "latex", "json")
 
 # Columns shown in the md and latex tables, with their decimals (the paper's: 0.1 cm, 0.01°)
-# and headers: the paper's, and the position error's magnitude beside X and Y.
+# and headers: the paper's, and the position error's magnitude (XY) beside X and Y; a "|" in
+# a header would split the Markdown cell.
 _DISPLAY = (
     ("ae_deg", 2, "AE (°)", r"AE ($^\circ$)"),
     ("init_x_cm", 1, "init X (cm)", r"init $X$ (cm)"),
@@ -69,7 +70,7 @@ _DISPLAY = (
     ("init_theta_deg", 2, "init θ (°)", r"init $\theta$ ($^\circ$)"),
     ("err_x_cm", 1, "X (cm)", r"$X$ (cm)"),
     ("err_y_cm", 1, "Y (cm)", r"$Y$ (cm)"),
-    ("err_xy_cm", 1, "|XY| (cm)", r"$|XY|$ (cm)"),
+    ("err_xy_cm", 1, "XY (cm)", r"$XY$ (cm)"),
     ("err_theta_deg", 2, "θ (°)", r"$\theta$ ($^\circ$)"),
 )
 _STAT_LABELS = {"RMS": "RMS", "max": "max abs"}
@@ -364,7 +365,7 @@ def summary_lines(stats: pd.DataFrame) -> list[str]:
     none = f"; {without} surveyed {'pose has' if without == 1 else 'poses have'} no estimate"
     lines.append(
         f"RMS and max (of absolute values) cover {cover}{none if without else ''}. "
-        "Errors are surveyed minus computed; |XY| is the position error's magnitude."
+        "Errors are surveyed minus computed; XY is the position error's magnitude √(X² + Y²)."
     )
     v = attrs["verdict"]
     lines.append(

@@ -39,7 +39,9 @@ class GateOutcome:
     ``measured`` and ``limit`` are in ``unit`` (``"cm"``, ``"°"`` or ``"%"``), ``passed``
     whether ``measured`` keeps to ``limit`` (``at_least``: a lower bound, as for the share
     of poses within limits; otherwise an upper bound). ``measured`` is NaN when nothing was
-    there to measure, which fails the gate."""
+    there to measure, which fails the gate. ``per_pose``: the gate sums up the per-pose
+    limits (their max, or the share of poses within them), so the poses beyond them say
+    why it failed."""
 
     name: str
     measured: float
@@ -47,6 +49,7 @@ class GateOutcome:
     unit: str
     passed: bool
     at_least: bool = False
+    per_pose: bool = False
 
     @property
     def text(self) -> str:
@@ -60,12 +63,14 @@ class GateOutcome:
         return f"{self.name} {measured} {sign} {_with_unit(self.limit, self.unit)}: {verdict}"
 
 
-def _outcome(name: str, measured: float, limit: float, unit: str, at_least=False) -> GateOutcome:
+def _outcome(
+    name: str, measured: float, limit: float, unit: str, at_least=False, per_pose=False
+) -> GateOutcome:
     if at_least:
         passed = math.isfinite(measured) and measured >= limit - GATE_SLACK
     else:
         passed = math.isfinite(measured) and measured <= limit + GATE_SLACK
-    return GateOutcome(name, float(measured), float(limit), unit, bool(passed), at_least)
+    return GateOutcome(name, float(measured), float(limit), unit, bool(passed), at_least, per_pose)
 
 
 @dataclass(frozen=True)
@@ -246,14 +251,14 @@ def survey_outcomes(table: pd.DataFrame, scored: np.ndarray, gates: Gates) -> li
             values = np.abs(table[list(column)].to_numpy(dtype=float)).max(axis=1)
             finite = values[np.isfinite(values)]
             measured = float(finite.max()) if finite.size else math.nan
-            outcomes.append(_outcome(f"max {label}", measured, limit, unit))
+            outcomes.append(_outcome(f"max {label}", measured, limit, unit, per_pose=True))
     if gates.per_pose:
         n = len(table)
         passing = n - len(pose_failures(table, gates))
         required = 100.0 if gates.min_within_pct is None else gates.min_within_pct
         name = f"poses accepted and within {gates.limits_text()} ({passing} of {n})"
         share = 100.0 * passing / n if n else math.nan
-        outcomes.append(_outcome(name, share, required, "%", at_least=True))
+        outcomes.append(_outcome(name, share, required, "%", at_least=True, per_pose=True))
     elif gates.min_within_pct is not None:
         raise ValueError("min_within_pct needs a per-pose limit")
     position = table["err_xy_cm"].to_numpy(dtype=float)[scored]
@@ -295,6 +300,7 @@ def outcomes_json(outcomes: list[GateOutcome]) -> list[Mapping[str, object]]:
             "limit": o.limit,
             "unit": o.unit,
             "at_least": o.at_least,
+            "per_pose": o.per_pose,
             "passed": o.passed,
         }
         for o in outcomes
