@@ -170,13 +170,12 @@ class _McapSource(Source):
             raise InputError("not an MCAP file (it lacks the MCAP magic bytes)", path=path)
         stream.seek(0)
         self._reader = make_reader(stream)
+        why: str | None = None
         try:
             summary = self._reader.get_summary()
-        except Exception as exc:  # no footer or summary: a file cut short, or not MCAP
+        except Exception as exc:  # no footer or summary: a file cut short
             summary, why = None, failure_text(exc)
-        else:
-            why = "the file has no summary"
-        if summary is not None and summary.chunk_indexes:
+        if summary is not None:
             self._channels = [
                 (c, summary.schemas.get(c.schema_id)) for c in summary.channels.values()
             ]
@@ -185,9 +184,10 @@ class _McapSource(Source):
         self.topics = _topic_types([(c.topic, _type_of(c, s)) for c, s in self._channels])
         self.encodings = {c.topic: c.message_encoding for c, _ in self._channels}
 
-    def _read_through(self, why: str) -> list[tuple[Any, Any]]:
-        """Every channel and every message of a supported type of a file without a usable
-        summary, read record by record up to the first damage."""
+    def _read_through(self, why: str | None) -> list[tuple[Any, Any]]:
+        """Every channel and every message of a supported type of a file without a
+        summary, read record by record up to the first damage (``why``: why the summary
+        could not be read; None when the file has none)."""
         from mcap.reader import NonSeekingReader
 
         self._stream.seek(0)
@@ -203,7 +203,7 @@ class _McapSource(Source):
         except Exception as exc:  # the cut: a record that ends early, or bytes gone bad
             self.damage = f"unreadable past some point ({failure_text(exc)})"
         else:
-            if why != "the file has no summary":
+            if why is not None:
                 self.damage = f"its summary is unreadable ({why})"
         return list(channels.values())
 
