@@ -120,15 +120,25 @@ def _listing(topics: dict[str, str]) -> str:
     return ", ".join(shown + ([f"{more} more"] if more else [])) or "none"
 
 
+def _damage_note(source: Source) -> str:
+    """What a message about the topics adds when the file was read only up to damage."""
+    return f"; the {source.kind} is damaged: {source.damage}" if source.damage else ""
+
+
 def _chosen_topic(path: Path, source: Source, topic: str | None) -> tuple[str, bool]:
     """The topic to read, and whether it was picked as the file's only pose topic."""
     kind = source.kind
+    if not source.topics and source.damage:
+        raise InputError(
+            f"the {kind} is damaged before its first message: {source.damage}", path=path
+        )
     if topic is not None:
         if topic not in source.topics and f"/{topic}" in source.topics:
             return f"/{topic}", False
         if topic not in source.topics:
             raise InputError(
-                f"no topic {topic} in the {kind}; topics found: {_listing(source.topics)}",
+                f"no topic {topic} in the {kind}; topics found: {_listing(source.topics)}"
+                f"{_damage_note(source)}",
                 path=path,
             )
         return topic, False
@@ -142,7 +152,7 @@ def _chosen_topic(path: Path, source: Source, topic: str | None) -> tuple[str, b
     if not candidates:
         raise InputError(
             f"the {kind} has no topic of a pose type ({', '.join(SUPPORTED_TYPES)}); topics "
-            f"found: {_listing(source.topics)}",
+            f"found: {_listing(source.topics)}{_damage_note(source)}",
             path=path,
         )
     raise InputError(

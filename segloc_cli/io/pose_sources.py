@@ -26,6 +26,7 @@ from segloc_cli.errors import InputError
 from segloc_cli.io.pose_messages import SUPPORTED_TYPES
 from segloc_cli.io.ros1_salvage import salvage_ros1
 from segloc_cli.io.rosbag import failure_text, open_bag, ros1_typestore
+from segloc_cli.io.trajectories import TOPIC_OPTION
 
 SEVERAL_TYPES = "several types"
 MCAP_MAGIC = b"\x89MCAP0\r\n"
@@ -97,7 +98,7 @@ class _BagSource(Source):
                 decode = partial(self._reader.deserialize, data, connection.msgtype)
                 yield Message(connection.topic, connection.msgtype, log_time_ns, decode)
         except Exception as exc:  # damaged bytes fail the bag library in many ways
-            self.damage = f"reading stopped at damage ({failure_text(exc)})"
+            self.damage = f"unreadable past some point ({failure_text(exc)})"
 
     def close(self) -> None:
         with contextlib.suppress(Exception):
@@ -165,14 +166,16 @@ class _McapSource(Source):
         self._stream = stream
         self._decoders = _Decoders()
         self._kept: list[tuple[Any, Any, Any]] | None = None  # a damaged file's messages
+        if stream.read(len(MCAP_MAGIC)) != MCAP_MAGIC:
+            raise InputError("not an MCAP file (it lacks the MCAP magic bytes)", path=path)
+        stream.seek(0)
         self._reader = make_reader(stream)
+        why: str | None = None
         try:
             summary = self._reader.get_summary()
-        except Exception as exc:  # no footer or summary: a file cut short, or not MCAP
+        except Exception as exc:  # no footer or summary: a file cut short
             summary, why = None, failure_text(exc)
-        else:
-            why = "the file has no summary"
-        if summary is not None and summary.chunk_indexes:
+        if summary is not None:
             self._channels = [
                 (c, summary.schemas.get(c.schema_id)) for c in summary.channels.values()
             ]
@@ -181,17 +184,15 @@ class _McapSource(Source):
         self.topics = _topic_types([(c.topic, _type_of(c, s)) for c, s in self._channels])
         self.encodings = {c.topic: c.message_encoding for c, _ in self._channels}
 
-    def _read_through(self, why: str) -> list[tuple[Any, Any]]:
-        """Every channel and every message of a supported type of a file without a usable
-        summary, read record by record up to the first damage."""
+    def _read_through(self, why: str | None) -> list[tuple[Any, Any]]:
+        """Every channel and every message of a supported type of a file without a
+        summary, read record by record up to the first damage (``why``: why the summary
+        could not be read; None when the file has none)."""
         from mcap.reader import NonSeekingReader
 
         self._stream.seek(0)
         channels: dict[int, tuple[Any, Any]] = {}
         self._kept = []
-        if self._stream.read(len(MCAP_MAGIC)) != MCAP_MAGIC:
-            raise InputError("not an MCAP file (it lacks the MCAP magic bytes)", path=self._path)
-        self._stream.seek(0)
         try:
             for schema, channel, message in NonSeekingReader(self._stream).iter_messages(
                 log_time_order=False
@@ -200,9 +201,9 @@ class _McapSource(Source):
                 if _type_of(channel, schema) in SUPPORTED_TYPES:
                     self._kept.append((schema, channel, message))
         except Exception as exc:  # the cut: a record that ends early, or bytes gone bad
-            self.damage = f"reading stopped at damage ({failure_text(exc)})"
+            self.damage = f"unreadable past some point ({failure_text(exc)})"
         else:
-            if why != "the file has no summary":
+            if why is not None:
                 self.damage = f"its summary is unreadable ({why})"
         return list(channels.values())
 
@@ -218,7 +219,7 @@ class _McapSource(Source):
                         channel.topic, _type_of(channel, schema), message.log_time, decode
                     )
         except Exception as exc:  # damaged bytes fail the reader in many ways
-            self.damage = f"reading stopped at damage ({failure_text(exc)})"
+            self.damage = f"unreadable past some point ({failure_text(exc)})"
 
     def close(self) -> None:
         self._stream.close()
@@ -229,38 +230,50 @@ def open_source(path: Path, fmt: str, topic: str | None) -> Source:
     MCAP file. ``InputError`` when it cannot be opened; ``topic`` is needed to read a ROS 1
     bag whose index is damaged (record by record, only the topic and ``/tf_static``)."""
     if fmt == "mcap" or (fmt == "ros2" and path.is_file()):
-        try:
-            stream = path.open("rb")
-        except OSError as exc:
-            raise InputError(f"cannot read ({exc.strerror or exc})", path=path) from None
-        try:
-            return _McapSource(path, stream)
-        except InputError:
-            stream.close()
-            raise
-        except Exception as exc:  # what the reader makes of bytes that are not MCAP
-            stream.close()
-            raise InputError(f"not a readable MCAP file ({failure_text(exc)})", path=path) from None
+        return _open_mcap(path)
     kind = "ROS 1 bag" if fmt == "ros1" else "ROS 2 bag"
     try:
         return _BagSource(kind, open_bag(path))
     except InputError as refusal:
+        inside = sorted(path.glob("*.mcap")) if path.is_dir() else []
+        if fmt == "ros2" and len(inside) == 1:  # a recording cut short: its one file
+            source = _open_mcap(inside[0])
+            source.kind = "ROS 2 bag"
+            source.damage = source.damage or "its metadata is unreadable"
+            return source
         if fmt != "ros1" or not path.is_file():
             raise
         return _salvaged(path, topic, refusal)
+
+
+def _open_mcap(path: Path) -> Source:
+    try:
+        stream = path.open("rb")
+    except OSError as exc:
+        raise InputError(f"cannot read ({exc.strerror or exc})", path=path) from None
+    try:
+        return _McapSource(path, stream)
+    except InputError:
+        stream.close()
+        raise
+    except Exception as exc:  # what the reader makes of bytes that are not MCAP
+        stream.close()
+        raise InputError(f"not a readable MCAP file ({failure_text(exc)})", path=path) from None
 
 
 def _salvaged(path: Path, topic: str | None, refusal: InputError) -> Source:
     """A ROS 1 bag the reader refused (its index is missing: a recording cut short), read
     record by record; ``refusal`` extended when that is not possible."""
     if topic is None:
-        raise InputError(f"{refusal}; give the topic to read it record by record") from None
+        raise InputError(f"{refusal}; give {TOPIC_OPTION} to read it record by record") from None
     from segloc_cli.io.tf import TF_STATIC_TOPIC
 
     try:
         salvage = salvage_ros1(path, {topic, TF_STATIC_TOPIC})
     except (OSError, ValueError):
         raise refusal from None
+    if not salvage.messages:
+        raise refusal
     where = "" if salvage.stopped is None else f" up to where {salvage.stopped}"
     note = f"its index is missing or damaged; read record by record{where}"
     return _SalvagedSource(salvage.messages, note)

@@ -5,11 +5,12 @@ chain changes.
 The chain is the way up the transform tree from the child frame to the parent frame (each
 frame's parent is the one its latest transform names; a static transform's parent wins).
 A link given by a static transform (``Link.static``: from ``/tf_static``) is fixed, its
-latest value used at every stamp whatever its own stamp; every other link holds its latest
-value until its next stamp (no interpolation: tf2 would interpolate, but a localizer's
-``map → odom`` is meant to hold until the next correction). At each stamp of a moving link
-the chain is composed once every link has been given, so a chain of ``map → odom`` from a
-localizer and ``odom → base_link`` from odometry gives a pose at each stamp of either.
+latest value used at every stamp whatever its own stamp. Every other link holds its latest
+value until its next stamp, for at most ``MAX_LINK_AGE_S``: no interpolation (tf2 would
+interpolate, but a localizer's ``map → odom`` is meant to hold until its next correction).
+At each stamp of a moving link the chain is composed once every link is held, so a chain of
+``map → odom`` from a localizer and ``odom → base_link`` from odometry gives a pose at each
+stamp of either.
 """
 
 from __future__ import annotations
@@ -22,6 +23,11 @@ import numpy as np
 
 from segloc_cli.io.pose_messages import Link
 from segloc_cli.io.tf import transform_matrix
+from segloc_cli.io.times import NS_PER_S
+
+MAX_LINK_AGE_S = 10.0
+"""Longest time (s) a moving link is held after its stamp, tf2's default buffer length: a
+chain whose link is older at a stamp is not composed there."""
 
 
 class ChainError(ValueError):
@@ -38,6 +44,16 @@ class Chain(NamedTuple):
     stamps_ns: np.ndarray
     matrices: np.ndarray
     dropped: dict[str, int]
+
+
+def _span(moving: list[tuple[int, str, np.ndarray]], child: str, parent: str) -> str:
+    """When the moving link from ``parent`` to ``child`` was given, in words."""
+    stamps = [stamp / NS_PER_S for stamp, below, _ in moving if below == child]
+    if not stamps:
+        return f"{parent} → {child} static"
+    if len(stamps) == 1:
+        return f"{parent} → {child} once, at {stamps[0]:.3f} s"
+    return f"{parent} → {child} {len(stamps)}× from {min(stamps):.3f} to {max(stamps):.3f} s"
 
 
 def _frames_seen(links: list[Link]) -> list[str]:
@@ -116,35 +132,51 @@ def _composed(
     dropped: Counter[str],
 ) -> Chain:
     """The chain composed at each stamp of ``moving`` (stamp ns, child frame, its pose in
-    its parent), the ``fixed`` links held throughout."""
+    its parent), the ``fixed`` links held throughout and each moving link for at most
+    ``MAX_LINK_AGE_S``."""
     moving.sort(key=lambda m: m[0])  # stable: among equal stamps, bag order
-    current = dict(fixed)
+    current = {child: (-1, matrix) for child, matrix in fixed.items()}  # -1: never stale
     stamps: list[int] = []
     matrices: list[np.ndarray] = []
     given: set[tuple[int, str]] = set()
     incomplete = 0
+    max_age_ns = round(MAX_LINK_AGE_S * NS_PER_S)
     for i, (stamp_ns, child, matrix) in enumerate(moving):
         if (stamp_ns, child) in given:
             dropped["transforms repeating a link's stamp (the first kept)"] += 1
         else:
             given.add((stamp_ns, child))
-            current[child] = matrix
+            current[child] = (stamp_ns, matrix)
         if i + 1 < len(moving) and moving[i + 1][0] == stamp_ns:
             continue  # the stamp's other links first
-        if len(current) < len(frames) - 1:
+        held = [
+            current[frame][1]
+            for frame in frames[:-1]
+            if frame in current
+            and (current[frame][0] < 0 or stamp_ns - current[frame][0] <= max_age_ns)
+        ]
+        if len(held) < len(frames) - 1:
             incomplete += 1
             continue
         pose = np.eye(4)
-        for frame in frames[:-1]:
-            pose = current[frame] @ pose
+        for link in held:  # from the child up
+            pose = link @ pose
         stamps.append(stamp_ns)
         matrices.append(pose)
     shown = " → ".join(reversed(frames))
     if not stamps:
-        never = [f"{above} → {below}" for below, above in pairwise(frames) if below not in current]
-        raise ChainError(f"the chain {shown} is never complete: {', '.join(never)} never given")
+        spans = "; ".join(
+            _span(moving, below, above) for below, above in reversed(list(pairwise(frames)))
+        )
+        raise ChainError(
+            f"the chain {shown} is never complete: at no stamp had each moving link been given "
+            f"within {MAX_LINK_AGE_S:g} s ({spans})"
+        )
     if incomplete:
-        dropped[f"stamps before the chain {shown} was complete"] += incomplete
+        dropped[
+            f"stamps at which a link of {shown} was not yet given or older than "
+            f"{MAX_LINK_AGE_S:g} s"
+        ] += incomplete
     return Chain(
         frames=frames,
         stamps_ns=np.array(stamps, dtype=np.int64),
