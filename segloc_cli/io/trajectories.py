@@ -56,8 +56,8 @@ from segloc_cli.limits import MAX_COORDINATE_M
 
 EST_FORMATS = ("segloc", "tum", "ros1", "ros2", "mcap")
 FORMAT_OPTION = "--est-format"
-TOPIC_OPTION = "--est-topic"
-FRAMES_OPTION = "--est-frames"
+TOPIC_OPTION = "--topic"
+FRAMES_OPTION = "--frames"
 """The options of ``segloc evaluate`` that set ``fmt``, ``topic`` and ``frames``, as the
 messages name them."""
 MAX_TILT_DEG = 5.0
