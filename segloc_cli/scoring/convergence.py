@@ -270,6 +270,10 @@ def _percent(rate: float) -> str:
     return f"{100.0 * rate:.1f}" if np.isfinite(rate) else "–"
 
 
+_DODGE = 0.04
+"""How far apart (in bin widths) the points of two combinations are drawn in a bin."""
+
+
 def draw_convergence(table: pd.DataFrame) -> Figure:
     """Two panels, success (%) against initial position error and against initial heading
     error: a line per combination through its bins' rates, its Wilson interval as a band.
@@ -288,9 +292,10 @@ def draw_convergence(table: pd.DataFrame) -> Figure:
     for ax, axis in zip(axes, AXES, strict=True):
         part = table[table["axis"] == axis]
         edges = np.unique(np.concatenate([part["bin_lo"], part["bin_hi"]]))
-        for label in labels:
+        for j, label in enumerate(labels):
             bins = part[part["combination"] == label]
-            centres = np.arange(len(bins)) + 0.5
+            # Side by side within each bin, so that curves that agree stay visible.
+            centres = np.arange(len(bins)) + 0.5 + _DODGE * (j - (len(labels) - 1) / 2)
             colour = colours[label]
             ax.fill_between(centres, 100.0 * bins["wilson_lo"], 100.0 * bins["wilson_hi"],
                             color=colour, alpha=0.2, linewidth=0)  # fmt: skip
