@@ -259,9 +259,13 @@ def test_a_failing_task_is_kept_with_its_error_and_the_sweep_goes_on(tmp_path):
     spec = _spec(tmp_path, text.replace("grid-m = [1.0, 1.5]\n", ""))  # 2 × 2 tasks a log
     (tmp_path / "broken.mcap").write_bytes(b"\x89MCAP0\r\n" + b"\0" * 64)
     out = tmp_path / "results.parquet"
-    done = _sweep(spec, "--out", out, "--jobs", "2")
+    curves = tmp_path / "curves"
+    done = _sweep(spec, "--out", out, "--jobs", "2", "--convergence", curves)
     assert done.returncode == 1, done.stderr
     assert "Traceback" not in done.stderr
+    # Curves of a sweep with failed tasks would be of part of it: none until the rerun.
+    assert "no convergence curves of a sweep with failed tasks" in done.stderr
+    assert not list(tmp_path.glob("curves.*"))
     table = pd.read_parquet(out)
     failed = table[table["status"] == STATUS_TASK_FAILED]
     assert len(failed) == 4 and set(failed["log"]) == {"broken.mcap"}
@@ -270,10 +274,12 @@ def test_a_failing_task_is_kept_with_its_error_and_the_sweep_goes_on(tmp_path):
     assert "4 task(s) failed" in done.stderr
     # Mended, only the failed tasks run again.
     shutil.copy(HALL / "log.mcap", tmp_path / "broken.mcap")
-    again = _sweep(spec, "--out", out, "--jobs", "2")
+    again = _sweep(spec, "--out", out, "--jobs", "2", "--convergence", curves)
     assert again.returncode == 0, again.stderr
     assert "8 tasks, 4 done before; running 4" in again.stderr
     assert len(pd.read_parquet(out)) == 8 * SCANS
+    assert sorted(p.name for p in tmp_path.glob("curves.*")) == ["curves.md", "curves.pdf",
+                                                                 "curves.png"]  # fmt: skip
 
 
 def test_a_failed_task_is_tried_once_more_then_recorded(tmp_path):
@@ -415,3 +421,52 @@ def test_an_output_that_cannot_be_written_is_refused_before_any_work(
     result = run_cli(capsys, "sweep", spec, "--out", target, "--force")
     assert_one_line_error(result, fragment)
     assert (target.read_bytes() if target.exists() else None) == before
+
+
+def _md_counts(text: str, combination: str, unit: str) -> list[tuple[int, int]]:
+    """(trials, successes) of each bin of one combination and axis in a convergence table."""
+    cells = [[c.strip() for c in line.strip("|").split("|")] for line in text.splitlines()]
+    return [
+        (int(row[2]), int(row[3]))
+        for row in cells
+        if len(row) == 6 and row[0] == combination and row[1].endswith(unit)
+    ]
+
+
+def test_convergence_curves_count_successes_by_initial_error(hall_sweep, tmp_path, capsys):
+    spec, out, _, _ = hall_sweep
+    results = tmp_path / "results.parquet"
+    shutil.copy(out, results)
+    prefix = tmp_path / "curves"
+    done = run_cli(capsys, "sweep", spec, "--out", results, "--convergence", prefix)
+    assert done.code == 0, done.err
+    assert "nothing to run" in done.err and "convergence curves: written to" in done.err
+    assert prefix.with_suffix(".png").read_bytes()[:4] == b"\x89PNG"
+    assert prefix.with_suffix(".pdf").read_bytes()[:4] == b"%PDF"
+    text = prefix.with_suffix(".md").read_text(encoding="utf-8")
+    # Counted here from the survey itself, with numpy's histogram (bins hold their lower
+    # edge, the last one its upper edge too).
+    table = pd.read_parquet(results)
+    survey = read_pose_table(spec.parent / "hall" / "survey.csv")
+    truth = dict(zip(survey.pose_id, survey.poses, strict=True))
+    poses = np.array([truth[i] for i in table["pose_id"]])
+    off_m = np.hypot(*(poses[:, :2] - table[["init_x_m", "init_y_m"]].to_numpy()).T)
+    turn_deg = np.abs((np.rad2deg(poses[:, 2]) - table["init_theta_deg"] + 180) % 360 - 180)
+    right = table["status"].isin(["ok", "recovered"]) & (table["err_xy_cm"] <= 30)
+    right = (right & (table["err_theta_deg"].abs() <= 3)).to_numpy()
+    grid = zip(table["iterations"], table["grid-m"], strict=True)
+    labels = np.array([f"iterations={i}, grid-m={g}" for i, g in grid])
+    assert len(set(labels)) == 4
+    for label in set(labels):
+        mine = labels == label
+        for values, edges, unit in (
+            (off_m, (0.0, 0.25, 0.5, 1.0, 2.0, 4.0), " m"),
+            (turn_deg, (0, 5, 10, 20, 45, 90, 180), "°"),
+        ):
+            n, _ = np.histogram(values[mine], bins=edges)
+            k, _ = np.histogram(values[mine & right], bins=edges)
+            assert _md_counts(text, label, unit) == list(zip(n, k, strict=True))
+            assert n.sum() == SCANS * 2  # every pose of both seeds has a guess in some bin
+    again = run_cli(capsys, "sweep", spec, "--out", results, "--convergence", prefix)
+    assert_one_line_error(again, "curves.md", "file exists", "--force")
+    assert prefix.with_suffix(".md").read_text(encoding="utf-8") == text

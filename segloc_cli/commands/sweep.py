@@ -7,12 +7,14 @@ import sys
 from pathlib import Path
 
 import click
+from click.core import ParameterSource
 
 from segloc_cli.commands.configfile import config_option
 from segloc_cli.commands.invocation import Invocation
 from segloc_cli.commands.options import force_option, format_option, path_option
 from segloc_cli.commands.printing import info, warn, within_cores
 from segloc_cli.errors import EXIT_INTERRUPTED, EXIT_TASKS_FAILED
+from segloc_cli.method.confidence import RIGHT_PLACE_DEG, RIGHT_PLACE_M
 
 
 @click.command()
@@ -33,9 +35,18 @@ from segloc_cli.errors import EXIT_INTERRUPTED, EXIT_TASKS_FAILED
     help="Worker processes of the local cluster (not with --scheduler).",
 )
 @format_option("segloc_cli.runs.sweep", "SUMMARY_FORMATS", "Format of the summary printed.")
+@click.option(
+    "--convergence",
+    metavar="PREFIX",
+    type=click.Path(path_type=Path),
+    help="Also write convergence curves, per combination the share of poses found within "
+    f"{100 * RIGHT_PLACE_M:g} cm and {RIGHT_PLACE_DEG:g}° of the truth against the guess's "
+    "position and heading errors, with 95 % Wilson intervals: PREFIX.md, PREFIX.png, "
+    "PREFIX.pdf (existing ones need --force, which runs the sweep afresh).",
+)
 @config_option
 @force_option
-def sweep(spec_path, out_path, scheduler, jobs, fmt, force):
+def sweep(spec_path, out_path, scheduler, jobs, fmt, convergence, force):
     """Localize and score every log × combination of settings × seed of a spec.
 
     \b
@@ -84,26 +95,22 @@ def sweep(spec_path, out_path, scheduler, jobs, fmt, force):
     from segloc_cli.runs.sweepspec import read_spec
 
     _check_extra()
-    if (
-        scheduler is not None
-        and click.get_current_context().get_parameter_source("jobs")
-        == click.core.ParameterSource.COMMANDLINE
-    ):
-        raise click.UsageError("--jobs sets the local cluster; with --scheduler, the cluster's "
-                               "workers are those started with `dask worker`")  # fmt: skip
     _check_scheduler(scheduler)
     from segloc_cli.io.files import check_outputs
     from segloc_cli.runs.runfile import run_file_path
+    from segloc_cli.runs.sweep import convergence_outputs
 
     run = Invocation.current()
+    curves = convergence_outputs(convergence)
+    check_outputs(curves, [], force)
     # An existing OUT is the sweep's to resume (force), but never one of its inputs.
-    outputs = {"--out": out_path, "--out (run file)": run_file_path(out_path)}
+    outputs = {"--out": out_path, "--out (run file)": run_file_path(out_path), **curves}
     check_outputs(outputs, [spec_path], force=True)
     plan = read_spec(spec_path)
     check_outputs(outputs, [path for _, path in plan.inputs], force=True)
     table, stops = _run(plan, out_path, scheduler, jobs, force)
     run.write_run_file(out_path, also_read=plan.inputs)
-    _report(plan, table, out_path, fmt, stops)
+    _report(plan, table, out_path, fmt, stops, convergence)
 
 
 def _check_extra() -> None:
@@ -118,10 +125,16 @@ def _check_extra() -> None:
 
 
 def _check_scheduler(scheduler: str | None) -> None:
-    """Refuse a ``--scheduler`` that names no scheduler (before the spec is read)."""
+    """Refuse ``--jobs`` with ``--scheduler``, and a ``--scheduler`` that names no scheduler
+    (before the spec is read)."""
     from segloc_cli.runs.sweep import address_problem
 
-    problem = None if scheduler is None else address_problem(scheduler)
+    if scheduler is None:
+        return
+    if click.get_current_context().get_parameter_source("jobs") == ParameterSource.COMMANDLINE:
+        raise click.UsageError("--jobs sets the local cluster; with --scheduler, the cluster's "
+                               "workers are those started with `dask worker`")  # fmt: skip
+    problem = address_problem(scheduler)
     if problem is not None:
         raise click.BadParameter(
             f"{scheduler!r}: {problem}; e.g. tcp://10.0.0.5:8786", param_hint="--scheduler"
@@ -134,7 +147,7 @@ def _local_workers(jobs: int, n_tasks: int) -> int:
     from segloc_cli.runs.parallel import usable_cores
 
     source = click.get_current_context().get_parameter_source("jobs")
-    if source == click.core.ParameterSource.DEFAULT:
+    if source == ParameterSource.DEFAULT:
         jobs = min(jobs, usable_cores())
     else:
         jobs = within_cores(jobs, "a local cluster of at most {cores} workers")
@@ -165,10 +178,11 @@ def _run(plan, out_path: Path, scheduler: str | None, jobs: int, force: bool):
     return table, stops
 
 
-def _report(plan, table, out_path: Path, fmt: str, stops: list[str]) -> None:
-    """Print the summary, then how the sweep ended; exit 130 if stopped, 1 if tasks failed."""
+def _report(plan, table, out_path: Path, fmt: str, stops: list[str], convergence) -> None:
+    """Print the summary, write the convergence curves of a sweep that ended without failed
+    tasks, then say how it ended; exit 130 if stopped, 1 if tasks failed."""
     from segloc_cli.estimates import STATUS_TASK_FAILED
-    from segloc_cli.runs.sweep import format_summary, summary
+    from segloc_cli.runs.sweep import format_summary, summary, write_convergence
 
     if len(table):
         stats = summary(table, plan.grid_keys, *plan.gates.values())
@@ -183,6 +197,10 @@ def _report(plan, table, out_path: Path, fmt: str, stops: list[str]) -> None:
         sys.exit(EXIT_INTERRUPTED)
     info(f"{out_path}: {len(table)} rows from {held} tasks")
     failures = table[table["status"] == STATUS_TASK_FAILED] if len(table) else table
+    if convergence is not None and not len(failures):
+        written, notes = write_convergence(table, plan.tasks, plan.grid_keys, convergence)
+        for line in [*notes, f"written to {', '.join(map(str, written))}"]:
+            info(f"convergence curves: {line}")
     if len(failures):
         first = failures.iloc[0]
         warn(
@@ -190,4 +208,6 @@ def _report(plan, table, out_path: Path, fmt: str, stops: list[str]) -> None:
             f"the first ({first['log']}, combination {first['combination']}, seed "
             f"{first['seed']}): {first['error']}"
         )
+        if convergence is not None:
+            warn("no convergence curves of a sweep with failed tasks; run it again to finish")
         sys.exit(EXIT_TASKS_FAILED)

@@ -668,3 +668,59 @@ def _number(value: float, decimals: int) -> str:
     if np.isinf(value):
         return "∞"
     return f"{value:.{decimals}f}" if np.isfinite(value) else "–"
+
+
+# --------------------------------------------------------------------------- convergence curves
+
+
+CONVERGENCE_SUFFIXES = (".md", ".png", ".pdf")
+"""The files of ``--convergence PREFIX``: the table (Markdown), then the figure."""
+
+
+def convergence_outputs(prefix: Path | None) -> dict[str, Path]:
+    """The files ``--convergence PREFIX`` writes, by the name an error gives each: PREFIX.md,
+    PREFIX.png and PREFIX.pdf; none without a prefix."""
+    if prefix is None:
+        return {}
+    return {
+        f"--convergence ({suffix[1:]})": prefix.with_name(prefix.name + suffix)
+        for suffix in CONVERGENCE_SUFFIXES
+    }
+
+
+def survey_truth(tasks: Sequence[Task]) -> pd.DataFrame:
+    """The surveyed poses of the tasks' logs, one row per log and pose: ``log``, ``pose_id``,
+    ``x_m``, ``y_m``, ``theta_deg`` (m, °; world frame)."""
+    frames = {}
+    for task in tasks:
+        if task.log not in frames:
+            poses = task.survey.poses
+            frames[task.log] = pd.DataFrame(
+                {"log": task.log, "pose_id": task.survey.pose_id, "x_m": poses[:, 0],
+                 "y_m": poses[:, 1], "theta_deg": np.rad2deg(poses[:, 2])}
+            )  # fmt: skip
+    if not frames:
+        return pd.DataFrame(columns=["log", "pose_id", "x_m", "y_m", "theta_deg"])
+    return pd.concat(frames.values(), ignore_index=True)
+
+
+def write_convergence(
+    table: pd.DataFrame, tasks: Sequence[Task], grid_keys: Sequence[str], prefix: Path
+) -> tuple[list[Path], list[str]]:
+    """Write the convergence curves of a sweep's rows (``scoring.convergence``), success
+    against initial error scored against the tasks' surveys: PREFIX.md, the table, and
+    PREFIX.png and PREFIX.pdf, the figure. Returns (the files written, the notes on rows
+    that fall in no bin)."""
+    from segloc_cli.io.figures import save_figure
+    from segloc_cli.io.files import write_text_atomic
+    from segloc_cli.scoring.convergence import (
+        convergence_table,
+        draw_convergence,
+        format_convergence_md,
+    )
+
+    curves = convergence_table(table, survey_truth(tasks), grid_keys)
+    markdown = convergence_outputs(prefix)["--convergence (md)"]
+    write_text_atomic(markdown, format_convergence_md(curves))
+    figures = save_figure(draw_convergence(curves), prefix.parent, prefix.name)
+    return [markdown, *figures], list(curves.attrs["notes"])
