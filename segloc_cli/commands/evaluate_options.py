@@ -17,18 +17,7 @@ from segloc_cli.commands.options import (
     path_option,
     setting_option,
 )
-
-
-def _frames(ctx: click.Context, param: click.Parameter, value: str | None):
-    """``--frames PARENT,CHILD`` as a pair of frame names."""
-    if value is None:
-        return None
-    parts = [part.strip().lstrip("/") for part in value.split(",")]
-    if len(parts) != 2 or not all(parts) or parts[0] == parts[1]:
-        raise click.BadParameter(
-            f"{value!r} is not two different frames; write PARENT,CHILD, e.g. map,base_link"
-        )
-    return parts[0], parts[1]
+from segloc_cli.commands.optionvalues import parse_frame_pair
 
 
 def _limit(name: str, help: str, maximum: float | None = None) -> click.Option:
@@ -51,7 +40,7 @@ ESTIMATE_OPTIONS = (
     ),
     click.option(
         "--frames",
-        callback=_frames,
+        callback=lambda ctx, param, value: parse_frame_pair(value),
         metavar="PARENT,CHILD",
         help="With a /tf topic: the chain to follow, e.g. map,base_link (map→odom→base_link "
         "composed at each stamp).",

@@ -53,3 +53,16 @@ def parsed(parse: Callable[[str], T], value: str, option: str) -> T:
         return parse(value)
     except ValueError as exc:
         raise click.BadParameter(str(exc), param_hint=option) from None
+
+
+def parse_frame_pair(value: str | None) -> tuple[str, str] | None:
+    """``PARENT,CHILD`` (``--frames``) as two different frame names, leading slashes left
+    out; None stays None."""
+    if value is None:
+        return None
+    parts = [part.strip().lstrip("/") for part in value.split(",")]
+    if len(parts) != 2 or not all(parts) or parts[0] == parts[1]:
+        raise click.BadParameter(
+            f"{value!r} is not two different frames; write PARENT,CHILD, e.g. map,base_link"
+        )
+    return parts[0], parts[1]
