@@ -8,6 +8,7 @@ from matplotlib.collections import LineCollection, PathCollection
 from test_trend_plots import legend_texts, overlapping_tick_labels
 
 from segloc_cli.estimates import Relations
+from segloc_cli.geometry import relative_motion
 from segloc_cli.scoring.relation_plots import (
     PERCENTILE,
     RELATION_ERRORS_OVER_TIME,
@@ -16,7 +17,7 @@ from segloc_cli.scoring.relation_plots import (
     relation_figures,
     relation_start_errors,
 )
-from segloc_cli.scoring.relations import RelationErrors, relation_errors, relative_motion
+from segloc_cli.scoring.relations import RelationErrors, relation_errors
 
 WALLS = np.array([[-6, -4, 6, -4], [6, -4, 6, 4], [6, 4, -6, 4], [-6, 4, -6, -4]], dtype=float)
 

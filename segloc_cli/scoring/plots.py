@@ -14,6 +14,8 @@ Figure names (files ``NAME.png`` and ``NAME.pdf``):
 - ``coarse_to_fine``: stage-2 tracks from guesses on a ring around one pose;
 - ``errors``, ``errors_over_time``, ``errors_over_distance``: the final errors of Table 1
   per pose and along the run (drawn in ``trend_plots``, from the table alone);
+- ``trajectory``, ``relation_errors_over_time``: a run scored by relations
+  (``relation_plots.relation_figures``, also importable from here);
 - ``success_vs_initial_error``: success rate against the initial position
   error, per method and dataset, from a table of trials.
 """
@@ -37,6 +39,8 @@ from segloc_cli.method.extract import ExtractParams, extract_segments
 from segloc_cli.method.overlap import coarse_to_fine
 from segloc_cli.scan import Scan
 from segloc_cli.scoring import relation_plots, trend_plots
+from segloc_cli.scoring.relation_plots import RELATION_FIGURES as RELATION_FIGURES
+from segloc_cli.scoring.relation_plots import relation_figures as relation_figures
 from segloc_cli.scoring.trend_plots import (
     ERRORS,
     ERRORS_OVER_DISTANCE,
