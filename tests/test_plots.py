@@ -12,8 +12,9 @@ import pytest
 from conftest import HALL
 from matplotlib.image import imread
 from test_cli import run_script
+from test_trend_plots import legend_texts, overlapping_tick_labels
 
-from segloc_cli.geometry import wrap_angle
+from segloc_cli.geometry import Pose2, wrap_angle
 from segloc_cli.io.figures import FIGURE_DPI
 from segloc_cli.io.maps import read_map
 from segloc_cli.io.mcap_log import read_log
@@ -21,17 +22,26 @@ from segloc_cli.io.tables import read_estimates, read_pose_table
 from segloc_cli.method.align import VOTE_SCHEMES
 from segloc_cli.scoring.evaluate import table1
 from segloc_cli.scoring.plots import (
-    ERRORS,
+    ACCUMULATOR,
+    COARSE_TO_FINE,
     EVALUATION_FIGURES,
     MAP_FIGURES,
     OVERLAY,
+    RELATION_FIGURES,
+    TABLE_FIGURES,
+    OverlayPanel,
     SurveyedScan,
     accumulator_curves,
     coarse_to_fine_tracks,
+    draw_heading_by_vote,
+    draw_overlay,
+    evaluation_figures,
     figure_size_in,
     heading_errors_by_vote,
+    overlay_caption,
     overlay_pose_ids,
     ring_guesses,
+    stage_pose,
     success_rates,
     surveyed_scans,
 )
@@ -128,13 +138,93 @@ def test_coarse_to_fine_tracks_start_at_the_guesses_and_end_at_the_truth(hall):
     assert np.count_nonzero((miss_cm < 2.0) & (miss_deg < 0.1)) >= 7, (miss_cm, miss_deg)
 
 
-def test_overlay_shows_the_first_poses_and_the_worst():
+def test_overlay_shows_poses_evenly_spaced_from_best_to_worst():
     ids = np.arange(1, 11)
-    errors = np.array([1.0, 2.0, 1.0, 1.0, 1.0, 1.0, 1.0, 9.0, np.nan, 1.0])
-    np.testing.assert_array_equal(overlay_pose_ids(ids, errors), [1, 2, 3, 4, 5, 8])
-    errors[1] = 20.0
-    np.testing.assert_array_equal(overlay_pose_ids(ids, errors), [1, 2, 3, 4, 5, 6])
-    np.testing.assert_array_equal(overlay_pose_ids(ids[:3], errors[:3]), [1, 2, 3])
+    errors = np.array([5.0, 1.0, 9.0, 3.0, np.nan, 7.0, 2.0, 8.0, 4.0, 6.0])
+    # Ranked by |XY|: 2, 7, 4, 9, 1, 10, 6, 8, 3; the median of nine is the fifth, pose 1.
+    shown = overlay_pose_ids(ids, errors)
+    np.testing.assert_array_equal(shown, [2, 4, 1, 10, 6, 3])
+    assert overlay_caption(ids, errors, shown, n_poses=37) == (
+        "poses 2 (best), 4, 1 (median), 10, 6, 3 (worst) of 37: evenly spaced from the best "
+        "to the worst |XY| of the 9 with an estimate"
+    )
+    np.testing.assert_array_equal(overlay_pose_ids(ids[:3], errors[:3]), [2, 1, 3])
+    assert overlay_caption(ids[:3], errors[:3], [2, 1, 3]) == (
+        "poses 2 (best), 1 (median), 3 (worst) of 3: every one with an estimate, best to worst |XY|"
+    )
+
+
+def test_overlay_names_its_poses_and_why_in_the_title():
+    segments = np.array([[0.0, 0.0, 2.0, 0.0], [2.0, 0.0, 2.0, 2.0]])
+    panels = [
+        OverlayPanel(
+            pose_id=pose_id,
+            estimate=Pose2(1.0, 1.0, 0.0),
+            truth=Pose2(1.0, 1.0, 0.0),
+            segments_world=segments,
+            points_world=segments.reshape(-1, 2),
+            extent_m=(-1.0, 3.0, -1.0, 3.0),
+            err_xy_cm=error,
+            err_theta_deg=0.1,
+        )
+        for pose_id, error in ((12, 0.5), (901, 9.0))
+    ]
+    caption = overlay_caption([12, 901], [0.5, 9.0], [12, 901], n_poses=37)
+    fig = draw_overlay(segments, panels, caption)
+    assert fig.get_suptitle().endswith("\npose" + caption.removeprefix("pose"))
+    assert "12 (best), 901 (worst) of 37" in fig.get_suptitle()
+    assert [ax.get_title() for ax in fig.axes if ax.get_visible()] == [
+        "pose 12: 0.5 cm, +0.10°",
+        "pose 901: 9.0 cm, +0.10°",
+    ]
+    assert set(legend_texts(fig.axes[0])) == {"global map", "readings", "local map", "estimate"}
+
+
+def _stand_in(pose_id: int) -> SurveyedScan:
+    nowhere = Pose2(0.0, 0.0, 0.0)
+    return SurveyedScan(pose_id, nowhere, nowhere, nowhere, np.zeros((0, 4)), np.zeros((0, 2)))
+
+
+def test_stage_pose_takes_the_first_ok_pose_and_says_its_status():
+    items = [_stand_in(i) for i in (1, 4, 9)]
+    table = pd.DataFrame({"pose_id": [1, 4, 9], "status": ["too_few_segments", "lost", "ok"]})
+    item, status = stage_pose(items, table)
+    assert (item.pose_id, status) == (9, "ok")
+    item, status = stage_pose(items, table, pose_id=4)
+    assert (item.pose_id, status) == (4, "lost")
+    table["status"] = ["too_few_segments", "lost", "ambiguous"]
+    item, status = stage_pose(items, table)
+    assert (item.pose_id, status) == (1, "too_few_segments; no pose is ok")
+    with pytest.raises(ValueError, match="pose 5 is not among"):
+        stage_pose(items, table, pose_id=5)
+
+
+def test_heading_by_vote_labels_forty_slots_readably():
+    rng = np.random.default_rng(7)
+    ids = np.r_[1, np.sort(rng.choice(np.arange(2, 901), 38, replace=False)), 901]
+    errors = pd.DataFrame(
+        {scheme: rng.normal(0.0, 0.5, 40) for scheme in VOTE_SCHEMES},
+        index=pd.Index(ids, name="pose_id"),
+    )
+    fig = draw_heading_by_vote(errors)
+    ax = fig.axes[0]
+    labels = [t.get_text() for t in ax.get_xticklabels() if t.get_text()]
+    assert labels == [str(i) for i in ids[::2]]
+    product = next(line for line in ax.get_lines() if line.get_label() == "product")
+    assert np.ptp(np.diff(product.get_xdata())) == pytest.approx(0.0)  # evenly spaced slots
+    assert set(legend_texts(ax)) == set(VOTE_SCHEMES)
+    assert not overlapping_tick_labels(fig)
+
+
+def test_stage_figures_take_the_first_ok_pose_of_the_hall(hall):
+    table = hall.table.copy()
+    table.loc[table["pose_id"] == 1, "status"] = "too_few_segments"
+    figures = evaluation_figures(table, hall.segments_world, hall.items)
+    accumulator = figures[ACCUMULATOR]()
+    assert "pose 2 (ok)" in accumulator.get_suptitle()
+    assert not overlapping_tick_labels(accumulator)
+    stage_two = figures[COARSE_TO_FINE]()
+    assert "around pose 2 (ok)" in stage_two.get_suptitle()
 
 
 def test_success_rates_per_bin():
@@ -209,24 +299,26 @@ def test_evaluate_plots_without_map_and_log_draws_the_errors_only(hall, tmp_path
         "evaluate", hall.estimates_csv, "--survey", SURVEY, "--plots", plots, cwd=tmp_path
     )
     assert result.code == 0, result.err
-    assert {p.name for p in plots.iterdir()} == figure_files([ERRORS])
+    assert {p.name for p in plots.iterdir()} == figure_files(TABLE_FIGURES)
     skipped = [ln for ln in result.err.splitlines() if ln.startswith("skipped")]
     assert len(skipped) == 1, result.err
     for fragment in (*MAP_FIGURES, "--map", "--log"):
         assert fragment in skipped[0]
 
 
-def test_evaluate_plots_goes_with_survey(hall, tmp_path):
+def test_evaluate_plots_with_relations_draws_the_relation_figures(hall, tmp_path):
+    estimates = read_estimates(hall.estimates_csv)
+    t = estimates["time_s"].to_numpy()
     relations = tmp_path / "rel.txt"
-    relations.write_text("1 2 0 0 0 0 0 0\n", encoding="utf-8")
+    lines = [f"{t[k]:.6f} {t[k + 1]:.6f} 0.1 0 0 0 0 0" for k in range(len(t) - 1)]
+    relations.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    plots = tmp_path / "p"
     result = run_script(
-        "evaluate", hall.estimates_csv, "--relations", relations, "--plots", tmp_path / "p",
-        cwd=tmp_path,
+        "evaluate", hall.estimates_csv, "--relations", relations, "--plots", plots,
+        "--map", MAP, cwd=tmp_path,
     )  # fmt: skip
-    assert result.code == 2
-    lines = result.err.splitlines()
-    assert len(lines) == 1 and lines[0].startswith("segloc: error:") and "--plots" in lines[0]
-    assert not (tmp_path / "p").exists()
+    assert result.code == 0, result.err
+    assert {p.name for p in plots.iterdir()} == figure_files(RELATION_FIGURES)
 
 
 def test_evaluate_plots_with_a_missing_log_fails_before_writing(hall, tmp_path):

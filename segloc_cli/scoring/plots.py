@@ -12,7 +12,10 @@ Figure names (files ``NAME.png`` and ``NAME.pdf``):
 - ``heading_by_vote``: stage-1 heading error per pose for each vote scheme;
 - ``accumulator``: the stage-1 votes of one pose, weighted against unweighted;
 - ``coarse_to_fine``: stage-2 tracks from guesses on a ring around one pose;
-- ``errors``: final position and heading error per pose (Table 1);
+- ``errors``, ``errors_over_time``, ``errors_over_distance``: the final errors of Table 1
+  per pose and along the run (drawn in ``trend_plots``, from the table alone);
+- ``trajectory``, ``relation_errors_over_time``: a run scored by relations
+  (``relation_plots.relation_figures``, also importable from here);
 - ``success_vs_initial_error``: success rate against the initial position
   error, per method and dataset, from a table of trials.
 """
@@ -25,30 +28,41 @@ from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
-from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.collections import LineCollection
 from matplotlib.figure import Figure
 
 from segloc_cli.config import TIME_TOLERANCE_MS, LocalizeParams
-from segloc_cli.estimates import ESTIMATED, PoseTable
+from segloc_cli.estimates import STATUS_OK, PoseTable
 from segloc_cli.geometry import Pose2, transform_points, transform_segments, wrap_angle
 from segloc_cli.method.align import VOTE_SCHEMES, RTable, accumulate, align, candidate_headings
 from segloc_cli.method.extract import ExtractParams, extract_segments
 from segloc_cli.method.overlap import coarse_to_fine
 from segloc_cli.scan import Scan
+from segloc_cli.scoring import relation_plots, trend_plots
+from segloc_cli.scoring.relation_plots import RELATION_FIGURES as RELATION_FIGURES
+from segloc_cli.scoring.relation_plots import relation_figures as relation_figures
+from segloc_cli.scoring.trend_plots import (
+    ERRORS,
+    ERRORS_OVER_DISTANCE,
+    ERRORS_OVER_TIME,
+    TABLE_FIGURES,
+    draw_error_trend,
+    draw_errors,
+    errors_by_pose,
+    slot_ticks,
+)
 from segloc_cli.timing import pair_by_time
 
 OVERLAY = "overlay"
 HEADING_BY_VOTE = "heading_by_vote"
 ACCUMULATOR = "accumulator"
 COARSE_TO_FINE = "coarse_to_fine"
-ERRORS = "errors"
 SUCCESS_VS_INITIAL_ERROR = "success_vs_initial_error"
 
 MAP_FIGURES = (OVERLAY, HEADING_BY_VOTE, ACCUMULATOR, COARSE_TO_FINE)
-"""Figures that need the global map and the scans, besides the Table 1 errors."""
-EVALUATION_FIGURES = (*MAP_FIGURES, ERRORS)
-"""Figures drawn from one evaluated run, in drawing order."""
+"""Figures that need the global map and the scans, besides those of Table 1 alone."""
+EVALUATION_FIGURES = (*MAP_FIGURES, *TABLE_FIGURES)
+"""Figures drawn from one evaluated run, in drawing order; ``TABLE_FIGURES`` need no map."""
 
 INIT_ERROR_BINS_M = (0.0, 0.5, 1.0, 1.5, 2.0)
 """Edges of the initial position-error bins of ``success_vs_initial_error`` (metres)."""
@@ -71,6 +85,8 @@ _POINT_COLOUR = "0.15"
 _TRACK_COLOUR = "tab:purple"
 _TRUTH_COLOUR = "black"
 
+_AXES_SHARE = 0.8
+"""The share of a figure's width its axes get beside their labels and legend."""
 _PANEL_IN = 4.0
 """Side of one map panel (inches)."""
 _MAX_COLUMNS = 3
@@ -185,7 +201,8 @@ def figure_size_in(name: str, n_panels: int = 1) -> tuple[float, float]:
         HEADING_BY_VOTE: (8.0, 4.0),
         ACCUMULATOR: (10.0, 4.0),
         COARSE_TO_FINE: (10.0, 5.0),
-        ERRORS: (10.0, 4.0),
+        **trend_plots.FIGURE_SIZES_IN,
+        **relation_plots.FIGURE_SIZES_IN,
     }
     if name not in sizes:
         raise ValueError(f"unknown figure {name!r}")
@@ -198,9 +215,7 @@ def _grid(n_panels: int) -> tuple[int, int]:
 
 
 def _new_figure(name: str, n_panels: int = 1) -> Figure:
-    fig = Figure(figsize=figure_size_in(name, n_panels), layout="constrained")
-    FigureCanvasAgg(fig)
-    return fig
+    return trend_plots.new_figure(figure_size_in(name, n_panels))
 
 
 # --------------------------------------------------------------------------- overlay
@@ -226,37 +241,68 @@ class OverlayPanel:
 
 
 def overlay_pose_ids(pose_ids: np.ndarray, err_xy_cm: np.ndarray, n: int = 6) -> np.ndarray:
-    """Which poses to show: the first ``n``, the last of them swapped for the worst if needed.
+    """Which poses to show, from best to worst position error: ``n`` evenly spaced in rank
+    of |XY|, so the best and the worst are among them, and the median too when ``n`` ≥ 3.
 
-    ``pose_ids`` (P,) in survey order, ``err_xy_cm`` (P,) their position
-    errors (NaN: no estimate, never chosen as the worst).
+    ``pose_ids`` (P,) in survey order, ``err_xy_cm`` (P,) their position errors (cm; NaN:
+    no estimate, never chosen while a pose has one). Every pose with an error when there
+    are no more than ``n``; the first ``n`` when no pose has one.
     """
     pose_ids = np.asarray(pose_ids)
+    ranked = _ranked_ids(pose_ids, err_xy_cm)
+    k = ranked.size
+    if n <= 0:
+        return pose_ids[:0]
+    if k == 0:
+        return pose_ids[:n]
+    if k <= n:
+        return ranked
+    picks = np.round(np.linspace(0, k - 1, n)).astype(np.int64)
+    median = (k - 1) // 2
+    interior = np.arange(1, n - 1)
+    if interior.size and median not in picks:
+        picks[interior[np.argmin(np.abs(picks[interior] - median))]] = median
+    return ranked[picks]
+
+
+def overlay_caption(
+    pose_ids: np.ndarray, err_xy_cm: np.ndarray, shown: np.ndarray, n_poses: int | None = None
+) -> str:
+    """Which poses an overlay shows and why, e.g. "poses 7 (best), 3, 12 (median), 9,
+    4 (worst) of 37: evenly spaced from the best to the worst |XY| of the 30 with an
+    estimate". ``pose_ids`` and ``err_xy_cm`` (P,) are the candidates (cm, NaN: no
+    estimate), ``shown`` the chosen ids, ``n_poses`` the table's size (default P)."""
+    ranked = _ranked_ids(np.asarray(pose_ids), err_xy_cm)
+    total = len(pose_ids) if n_poses is None else n_poses
+    if ranked.size == 0:
+        return f"poses {', '.join(str(i) for i in shown)} of {total}: none has an estimate"
+    tags = {ranked[-1]: "worst", ranked[(ranked.size - 1) // 2]: "median", ranked[0]: "best"}
+    names = ", ".join(f"{i} ({tags[i]})" if i in tags else str(i) for i in shown)
+    if len(shown) == ranked.size:
+        return f"poses {names} of {total}: every one with an estimate, best to worst |XY|"
+    return (
+        f"poses {names} of {total}: evenly spaced from the best to the worst |XY| "
+        f"of the {ranked.size} with an estimate"
+    )
+
+
+def _ranked_ids(pose_ids: np.ndarray, err_xy_cm: np.ndarray) -> np.ndarray:
+    """The ids of the poses with a finite error, from the smallest error to the largest."""
     err_xy_cm = np.asarray(err_xy_cm, dtype=float)
-    chosen = pose_ids[:n].copy()
-    finite = np.isfinite(err_xy_cm)
-    if n <= 0 or not finite.any():
-        return chosen
-    worst = pose_ids[np.flatnonzero(finite)[np.argmax(err_xy_cm[finite])]]
-    if worst not in chosen:
-        chosen[-1] = worst
-    return chosen
+    finite = np.flatnonzero(np.isfinite(err_xy_cm))
+    return np.asarray(pose_ids)[finite[np.argsort(err_xy_cm[finite], kind="stable")]]
 
 
 def overlay_panels(
     items: Sequence[SurveyedScan], table: pd.DataFrame, n: int = 6, margin_m: float = 1.0
 ) -> list[OverlayPanel]:
-    """Panels of the overlay figure for up to ``n`` poses (see ``overlay_pose_ids``).
+    """Panels of the overlay figure for up to ``n`` poses (see ``overlay_pose_ids``), from
+    the best position error to the worst.
 
     ``table`` is a ``evaluate.table1`` result; poses without an estimate or a
     local map are not shown.
     """
-    by_id = {
-        item.pose_id: item
-        for item in items
-        if np.isfinite(item.estimate.as_array()).all() and item.segments_robot.shape[0] > 0
-    }
-    rows = table[table["pose_id"].isin(list(by_id))]
+    by_id, rows = _overlay_candidates(items, table)
     errors = rows.set_index("pose_id")
     panels = []
     for pose_id in overlay_pose_ids(rows["pose_id"].to_numpy(), rows["err_xy_cm"].to_numpy(), n):
@@ -275,6 +321,28 @@ def overlay_panels(
             )
         )
     return panels
+
+
+def _overlay_candidates(
+    items: Sequence[SurveyedScan], table: pd.DataFrame
+) -> tuple[dict[int, SurveyedScan], pd.DataFrame]:
+    """The items an overlay may show (an estimate and a local map), by id, and their rows."""
+    by_id = {
+        item.pose_id: item
+        for item in items
+        if np.isfinite(item.estimate.as_array()).all() and item.segments_robot.shape[0] > 0
+    }
+    return by_id, table[table["pose_id"].isin(list(by_id))]
+
+
+def _overlay_figure(
+    segments_world: np.ndarray, items: Sequence[SurveyedScan], table: pd.DataFrame, n: int = 6
+) -> Figure:
+    panels = overlay_panels(items, table, n)
+    _, rows = _overlay_candidates(items, table)
+    shown = np.array([panel.pose_id for panel in panels], dtype=np.int64)
+    caption = overlay_caption(rows["pose_id"].to_numpy(), rows["err_xy_cm"], shown, len(table))
+    return draw_overlay(segments_world, panels, caption)
 
 
 def _number(value: float, decimals: int, sign: bool = False) -> str:
@@ -314,8 +382,11 @@ def _draw_pose(ax, pose: Pose2, colour: str, marker: str, label: str, size_m: fl
     )
 
 
-def draw_overlay(segments_world: np.ndarray, panels: Sequence[OverlayPanel]) -> Figure:
-    """Global map (grey) with each panel's local map and readings at its estimated pose."""
+def draw_overlay(
+    segments_world: np.ndarray, panels: Sequence[OverlayPanel], caption: str | None = None
+) -> Figure:
+    """Global map (grey) with each panel's local map and readings at its estimated pose;
+    ``caption`` (e.g. ``overlay_caption``) says under the title which poses and why."""
     fig = _new_figure(OVERLAY, len(panels))
     rows, cols = _grid(len(panels))
     axes = fig.subplots(rows, cols, squeeze=False).ravel()
@@ -347,7 +418,8 @@ def draw_overlay(segments_world: np.ndarray, panels: Sequence[OverlayPanel]) -> 
         ax.set_visible(False)
     if panels:
         axes[0].legend(loc="upper left", fontsize=7, framealpha=0.9)
-    fig.suptitle("Local maps at their estimated poses over the global map")
+    title = "Local maps at their estimated poses over the global map"
+    fig.suptitle(title if caption is None else f"{title}\n{caption}")
     return fig
 
 
@@ -388,16 +460,18 @@ def heading_errors_by_vote(
 
 
 def draw_heading_by_vote(errors: pd.DataFrame, window_deg: float = 20.0) -> Figure:
-    """One marker series per vote scheme: heading error (°) against pose id."""
+    """One marker series per vote scheme: heading error (°) on one evenly spaced slot per
+    pose, labelled by pose id (thinned to a readable count)."""
     fig = _new_figure(HEADING_BY_VOTE)
     ax = fig.subplots()
     colours = method_colours(errors.columns)
     n = len(errors.columns)
+    slots = np.arange(len(errors), dtype=float)
     for k, scheme in enumerate(errors.columns):
-        # Side by side within each pose, so equal errors do not hide each other.
+        # Side by side within each slot, so equal errors do not hide each other.
         shift = (k - (n - 1) / 2) * 0.12
         ax.plot(
-            errors.index.to_numpy() + shift,
+            slots + shift,
             errors[scheme].to_numpy(),
             _SCHEME_MARKERS.get(scheme, "o"),
             color=colours[scheme],
@@ -405,11 +479,16 @@ def draw_heading_by_vote(errors: pd.DataFrame, window_deg: float = 20.0) -> Figu
             linestyle="none",
         )
     ax.axhline(0.0, color="0.5", linewidth=0.8)
-    ax.set_xticks(errors.index.to_numpy())
-    ax.set_xlabel("pose id")
+    width_in = figure_size_in(HEADING_BY_VOTE)[0] * _AXES_SHARE
+    slot_ticks(ax, [str(v) for v in errors.index], width_in)
+    ax.set_xlabel("pose id (one slot per pose)")
     ax.set_ylabel("heading error (°)")
-    ax.set_title(f"Stage-1 heading error by vote scheme (±{window_deg:g}° around the initial)")
-    ax.legend(title="vote", fontsize=8)
+    ax.set_title(
+        f"Stage-1 heading error (surveyed − voted) by vote scheme, "
+        f"±{window_deg:g}° around the initial",
+        fontsize=10,
+    )
+    ax.legend(title="vote", fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     ax.grid(True, axis="y", alpha=0.3)
     return fig
 
@@ -593,55 +672,6 @@ def draw_coarse_to_fine(
     return fig
 
 
-# --------------------------------------------------------------------------- Table 1 errors
-
-
-def errors_by_pose(table: pd.DataFrame) -> pd.DataFrame:
-    """Per pose of a ``table1`` result: ``pose_id``, ``err_xy_cm``, ``err_theta_deg``
-    (surveyed minus final estimate, world frame) and ``accepted`` (status ok or recovered)."""
-    return pd.DataFrame(
-        {
-            "pose_id": table["pose_id"].to_numpy(dtype=np.int64),
-            "err_xy_cm": table["err_xy_cm"].to_numpy(dtype=float),
-            "err_theta_deg": table["err_theta_deg"].to_numpy(dtype=float),
-            "accepted": table["status"].isin(ESTIMATED).to_numpy(),
-        }
-    )
-
-
-def draw_errors(errors: pd.DataFrame) -> Figure:
-    """Two bar charts against pose id: position error (cm) and heading error (°).
-
-    Poses without an accepted estimate are hatched; a missing error is written
-    as "no pose".
-    """
-    fig = _new_figure(ERRORS)
-    axes = fig.subplots(1, 2)
-    ids = errors["pose_id"].to_numpy()
-    accepted = errors["accepted"].to_numpy(dtype=bool)
-    panels = (
-        ("err_xy_cm", "position error (cm)", "Final position error"),
-        ("err_theta_deg", "heading error (°)", "Final heading error (surveyed − computed)"),
-    )
-    for ax, (column, label, title) in zip(axes, panels, strict=True):
-        values = errors[column].to_numpy(dtype=float)
-        bars = ax.bar(ids, np.nan_to_num(values), color="tab:blue", width=0.6)
-        for bar, ok, value in zip(bars, accepted, values, strict=True):
-            if not ok:
-                bar.set_hatch("//")
-                bar.set_facecolor("white")
-                bar.set_edgecolor("tab:red")
-            if not np.isfinite(value):
-                ax.annotate("no pose", (bar.get_x() + bar.get_width() / 2, 0.0), ha="center")
-        ax.axhline(0.0, color="0.5", linewidth=0.8)
-        ax.set_xticks(ids)
-        ax.set_xlabel("pose id")
-        ax.set_ylabel(label)
-        ax.set_title(title, fontsize=10)
-        ax.grid(True, axis="y", alpha=0.3)
-    return fig
-
-
 # --------------------------------------------------------------------------- trials
 
 
@@ -738,51 +768,78 @@ def evaluation_figures(
     items: Sequence[SurveyedScan] | None = None,
     pose_id: int | None = None,
     window_deg: float = 20.0,
+    *,
+    flagged: np.ndarray | None = None,
 ) -> dict[str, Callable[[], Figure]]:
     """The figures of one evaluated run, by name, each drawn when called (``io/figures``
     writes them).
 
-    ``table`` is a ``evaluate.table1`` result. With the global map
-    ``segments_world`` (M, 4) and the run's ``items`` (``surveyed_scans``)
-    all of ``EVALUATION_FIGURES`` are drawn, the accumulator and the
-    coarse-to-fine tracks for ``pose_id`` (default: the first item);
-    otherwise only ``errors``.
+    ``table`` is a ``evaluate.table1`` result. ``TABLE_FIGURES`` are always drawn;
+    ``flagged`` (N,) bool, one per table row, marks the poses that failed the gates in
+    them (default: those whose status is not accepted). With the global map
+    ``segments_world`` (M, 4) and the run's ``items`` (``surveyed_scans``) all of
+    ``EVALUATION_FIGURES`` are drawn, the accumulator and the coarse-to-fine tracks for
+    ``pose_id`` (default: ``stage_pose``'s choice).
     """
-    figures = {}
+    figures: dict[str, Callable[[], Figure]] = {}
     if segments_world is not None and items:
         segments_world = np.asarray(segments_world, dtype=float)
-        chosen = [i for i in items if pose_id is None or i.pose_id == pose_id]
-        if not chosen:
-            raise ValueError(f"pose {pose_id} is not among the surveyed scans")
-        item = chosen[0]
+        item, status = stage_pose(items, table, pose_id)
         figures = {
-            OVERLAY: lambda: draw_overlay(segments_world, overlay_panels(items, table)),
+            OVERLAY: lambda: _overlay_figure(segments_world, items, table),
             HEADING_BY_VOTE: lambda: draw_heading_by_vote(
                 heading_errors_by_vote(segments_world, items, window_deg), window_deg
             ),
-            ACCUMULATOR: lambda: _accumulator_figure(segments_world, item, window_deg),
-            COARSE_TO_FINE: lambda: _coarse_to_fine_figure(segments_world, item),
+            ACCUMULATOR: lambda: _accumulator_figure(segments_world, item, status, window_deg),
+            COARSE_TO_FINE: lambda: _coarse_to_fine_figure(segments_world, item, status),
         }
-    figures[ERRORS] = lambda: draw_errors(errors_by_pose(table))
+    figures[ERRORS] = lambda: draw_errors(errors_by_pose(table), flagged=flagged)
+    figures[ERRORS_OVER_TIME] = lambda: draw_error_trend(table, "time", flagged)
+    figures[ERRORS_OVER_DISTANCE] = lambda: draw_error_trend(table, "distance", flagged)
     return figures
 
 
+def stage_pose(
+    items: Sequence[SurveyedScan], table: pd.DataFrame, pose_id: int | None = None
+) -> tuple[SurveyedScan, str]:
+    """The pose the accumulator and stage-2 figures show, and the words for its status.
+
+    ``pose_id``'s item when given (ValueError when it is not among ``items``); else the
+    first item whose status in ``table`` (a ``table1`` result) is ok, else the first item,
+    its status then saying that no pose is ok.
+    """
+    if not items:
+        raise ValueError("no surveyed scan to choose from")
+    status = dict(zip(table["pose_id"].astype(int), table["status"].astype(str), strict=True))
+    if pose_id is not None:
+        chosen = [item for item in items if item.pose_id == pose_id]
+        if not chosen:
+            raise ValueError(f"pose {pose_id} is not among the surveyed scans")
+        return chosen[0], status.get(pose_id, "not in the table")
+    for item in items:
+        if status.get(item.pose_id) == STATUS_OK:
+            return item, STATUS_OK
+    first = items[0]
+    return first, f"{status.get(first.pose_id, 'not in the table')}; no pose is {STATUS_OK}"
+
+
 def _accumulator_figure(
-    segments_world: np.ndarray, item: SurveyedScan, window_deg: float
+    segments_world: np.ndarray, item: SurveyedScan, status: str, window_deg: float
 ) -> Figure:
     curves = [
         accumulator_curves(segments_world, item, window_deg),
         accumulator_curves(segments_world, item, None),
     ]
-    titles = [
-        f"pose {item.pose_id}: ±{window_deg:g}° around the initial heading",
-        f"pose {item.pose_id}: whole circle",
-    ]
-    return draw_accumulator(curves, titles)
+    titles = [f"±{window_deg:g}° around the initial heading", "whole circle"]
+    fig = draw_accumulator(curves, titles)
+    fig.suptitle(f"Stage-1 votes of pose {item.pose_id} ({status}), weighted and unweighted")
+    return fig
 
 
-def _coarse_to_fine_figure(segments_world: np.ndarray, item: SurveyedScan) -> Figure:
+def _coarse_to_fine_figure(segments_world: np.ndarray, item: SurveyedScan, status: str) -> Figure:
     tracks = coarse_to_fine_tracks(segments_world, item.segments_robot, ring_guesses(item.truth))
     fig = draw_coarse_to_fine(segments_world, tracks, item.truth)
-    fig.suptitle(f"Stage 2 from {tracks['guess'].nunique()} guesses around pose {item.pose_id}")
+    fig.suptitle(
+        f"Stage 2 from {tracks['guess'].nunique()} guesses around pose {item.pose_id} ({status})"
+    )
     return fig
