@@ -514,9 +514,7 @@ def test_a_tum_line_of_the_wrong_count_is_named(tmp_path):
 
 def test_options_that_do_not_apply_and_unknown_formats_are_refused(written):
     tum = written["tum"][0]
-    assert_one_line(
-        InputError(read_error(tum, topic="/amcl_pose")), "--topic applies to ROS bags"
-    )
+    assert_one_line(InputError(read_error(tum, topic="/amcl_pose")), "--topic applies to ROS bags")
     assert_one_line(
         InputError(read_error(tum, fmt="csv")), "unknown trajectory format 'csv'", "--est-format"
     )

@@ -67,7 +67,7 @@ def evaluate(estimates_path, force, **given):
     # Outputs are checked before any input is read, so a refusal costs no work.
     check_outputs(options.outputs, options.inputs, force)
     if options.plots_dir is not None:
-        evaluation.check_plots(options.plots_dir, with_map=options.with_map, force=force)
+        evaluation.check_plots(options, force)
     estimates = evaluation.read_scored_estimates(options)
     scores, figures = _score(estimates, options)
     info(scores.pairing)

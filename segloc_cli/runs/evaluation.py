@@ -356,13 +356,11 @@ def _pairing_line(
     estimates: pd.DataFrame, n_truth: int, n_paired: int, options: EvaluateOptions
 ) -> str:
     """How the estimates met the truth in one line: paired, unpaired and dropped counts."""
-    n_estimates = len(estimates)
     dropped = estimates.attrs.get("dropped") or {}
-    source = estimates.attrs.get("source")
-    line = f"read {n_estimates} estimates" + (f" ({source})" if source else "")
-    line += (
-        f"; {n_paired} of {n_truth} surveyed poses paired within {options.tolerance_ms:g} ms, "
-        f"{n_truth - n_paired} unpaired"
+    source = estimates.attrs.get("source") or f"{len(estimates)} estimates"
+    line = (
+        f"{source}: {n_paired} of {n_truth} surveyed poses paired within "
+        f"{options.tolerance_ms:g} ms, {n_truth - n_paired} unpaired"
     )
     if dropped:
         reasons = ", ".join(f"{n} {why}" for why, n in dropped.items())
@@ -370,12 +368,13 @@ def _pairing_line(
     return line
 
 
-def check_plots(plots_dir: Path, with_map: bool, force: bool) -> None:
+def check_plots(options: EvaluateOptions, force: bool) -> None:
     """Refuse, before any work, figures of ``--plots`` that exist (without ``force``) and a
-    folder that cannot be made or written; ``with_map``: the map's figures are drawn too."""
+    folder that cannot be made or written."""
     from segloc_cli.io.files import OutputError, check_output
-    from segloc_cli.scoring.plots import ERRORS, EVALUATION_FIGURES
 
+    plots_dir = options.plots_dir
+    assert plots_dir is not None
     if plots_dir.exists() and not plots_dir.is_dir():
         raise OutputError("is not a folder; --plots takes a folder", path=plots_dir)
     if not plots_dir.exists():
@@ -385,9 +384,20 @@ def check_plots(plots_dir: Path, with_map: bool, force: bool) -> None:
             ancestor = ancestor.parent
         check_output(ancestor / ".segloc-plots", force=True, option="--plots")
         return
-    for name in EVALUATION_FIGURES if with_map else (ERRORS,):
+    for name in figure_names(options):
         for suffix in (".png", ".pdf"):
             check_output(plots_dir / f"{name}{suffix}", force, option="--plots")
+
+
+def figure_names(options: EvaluateOptions) -> tuple[str, ...]:
+    """The figures a run draws: of the relations, or of Table 1 (with the map's and the
+    stages' when given the map and the log)."""
+    from segloc_cli.scoring.plots import EVALUATION_FIGURES, TABLE_FIGURES
+    from segloc_cli.scoring.relation_plots import RELATION_FIGURES
+
+    if options.relations_path is not None:
+        return RELATION_FIGURES
+    return EVALUATION_FIGURES if options.with_map else TABLE_FIGURES
 
 
 def figures_of(
@@ -402,10 +412,12 @@ def figures_of(
     and with the map (M, 4; world frame) and the log also the local maps over the map, the
     stage-1 heading error of each vote scheme, the vote accumulator and the stage-2 tracks;
     refused when no scan of the log lies near a surveyed estimate."""
+    from segloc_cli.scoring.gates import failing_mask
     from segloc_cli.scoring.plots import evaluation_figures, surveyed_scans
 
+    flagged = failing_mask(scores.table, options.gates) if options.gates.per_pose else None
     if segments_world is None or log is None:
-        return evaluation_figures(scores.table)
+        return evaluation_figures(scores.table, flagged=flagged)
     paths = (options.survey_path, options.estimates_path, options.log_path)
     items = surveyed_scans(estimates, survey, log.scans, options.tolerance_s, paths=paths)
     if not items:
@@ -414,7 +426,7 @@ def figures_of(
             f"(scans {time_range(log.scan_times_s)}); is this the log of the estimates?",
             path=options.log_path,
         )
-    return evaluation_figures(scores.table, segments_world, items)
+    return evaluation_figures(scores.table, segments_world, items, flagged=flagged)
 
 
 def relation_figures_of(
@@ -483,10 +495,9 @@ def relation_scores(
         document = json.loads(text)
         document["gate"] = outcomes_json(outcomes) if outcomes else None
         text = json.dumps(document, indent=2, allow_nan=False) + "\n"
+    source = estimates.attrs.get("source") or f"{len(estimates)} estimates"
     pairing = (
-        f"read {len(estimates)} estimates"
-        + (f" ({estimates.attrs['source']})" if estimates.attrs.get("source") else "")
-        + f"; {errors.used} of {len(relations)} relations have estimates at both times "
+        f"{source}: {errors.used} of {len(relations)} relations have estimates at both times "
         f"(within {options.tolerance_ms:g} ms), {errors.skipped} skipped"
     )
     scores = Scores(
