@@ -159,6 +159,22 @@ def write_bag(kind: str, path: Path, topics: dict[str, str], messages: list[tupl
     return path
 
 
+def amcl_messages(
+    store: Typestore,
+    stamps: list[int],
+    poses: np.ndarray,
+    covariances: np.ndarray,
+    frame: str = "map",
+) -> list[tuple]:
+    """``/amcl_pose`` records (topic, record ns, message) for ``write_bag``: one
+    ``PoseWithCovarianceStamped`` per pose (x m, y m, θ rad) with its (3, 3) covariance,
+    stamped at ``stamps`` (ns) and recorded 5 ms later, as AMCL publishes its estimates."""
+    return [
+        ("/amcl_pose", stamp + 5_000_000, pose_with_covariance(store, stamp, frame, p, c))
+        for stamp, p, c in zip(stamps, np.asarray(poses), np.asarray(covariances), strict=True)
+    ]
+
+
 def write_amcl_bag(
     path: Path,
     times_s: np.ndarray,
@@ -171,11 +187,7 @@ def write_amcl_bag(
     ``times_s`` (s, whole nanoseconds kept) and recorded 5 ms later, as AMCL publishes its
     estimates. ``poses`` (N, 3) x m, y m, θ rad; ``covariances`` (N, 3, 3) over (x, y, yaw);
     ``storage`` "mcap" or "sqlite3". Returns ``path``."""
-    stamps = stamps_ns(times_s)
-    messages = [
-        ("/amcl_pose", stamp + 5_000_000, pose_with_covariance(ROS2_STORE, stamp, "map", p, c))
-        for stamp, p, c in zip(stamps, np.asarray(poses), np.asarray(covariances), strict=True)
-    ]
+    messages = amcl_messages(ROS2_STORE, stamps_ns(times_s), poses, covariances)
     return write_bag(storage, path, {"/amcl_pose": PWCS}, messages)
 
 
