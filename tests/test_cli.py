@@ -688,7 +688,17 @@ HELP_CASES = {
     "simulate": ["--poses", "--out", "--readings", "--seed", "--init-errors", "WORLD.json"],
     "map build": ["--survey", "--out", "--tolerance-ms", "LOG.mcap"],
     "localize": ["--map", "--out", "--initial", "--vote", "--bin-deg", "--grid-m", "LOG.mcap"],
-    "evaluate": ["--survey", "--format", "--fail-above-cm", "--fail-above-deg", "EST", "--topic", "--junit", "--baseline", "--html"],
+    "evaluate": [
+        "--survey",
+        "--format",
+        "--fail-above-cm",
+        "--fail-above-deg",
+        "EST",
+        "--topic",
+        "--junit",
+        "--baseline",
+        "--html",
+    ],
     "info": ["LOG.mcap"],
     "map": ["build"],
     "record": [

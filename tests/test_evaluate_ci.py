@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
+from PIL import Image
 from test_cli import assert_one_line_error, run_cli
 from trajectory_samples import (
     NS,
@@ -207,17 +208,17 @@ def test_the_bags_carrying_one_covariance_judge_it_alike(scored_by_format):
 def test_the_pairing_line_names_the_counts(scored_by_format, name):
     _, _, err = scored_by_format[name]
     line = pairing_line(err)
-    assert line.startswith(f"read {N} estimates (")
-    assert line.endswith(f"; {N} of {N} surveyed poses paired within 50 ms, 0 unpaired")
+    assert line.endswith(f": {N} of {N} surveyed poses paired within 50 ms, 0 unpaired")
+    assert f"{N} rows" in line or f"{N} poses" in line
 
 
 def test_a_bag_with_a_nan_pose_says_what_it_dropped(run_files, scored_by_format, capsys):
     code, out, err = evaluate(capsys, run_files["nan"], run_files["survey"], "--format", "json")
     assert code == 0
     line = pairing_line(err)
-    assert line.startswith(f"read {N - 1} estimates (")
+    assert f", {N - 1} poses in frame map: " in line
     assert line.endswith(
-        f"; {N - 1} of {N} surveyed poses paired within 50 ms, 1 unpaired; "
+        f": {N - 1} of {N} surveyed poses paired within 50 ms, 1 unpaired; "
         "dropped 1 (1 not finite (or an all-zero quaternion))"
     )
     full = scored_by_format["ros2"][0]["poses"]
@@ -398,11 +399,6 @@ def test_a_run_against_its_own_baseline_changes_by_exactly_nothing(
         assert figure["verdict"] == "no change shown"
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="baseline verdicts have no slack for rounding: the same poses read from a TUM file "
-    "(quaternions) change RMS θ by ~2e-15°, judged 'worse' and failing --fail-if-worse-deg 0",
-)
 def test_the_same_poses_in_another_format_are_no_change(run_files, baseline_json, capsys):
     args = ("--baseline", baseline_json, "--fail-if-worse-cm", 0, "--fail-if-worse-deg", 0)
     code, out, err = evaluate(
@@ -488,11 +484,6 @@ def test_covariances_ten_times_too_small_are_judged_over_confident(covariance_ru
     assert "Covariance verdict: over-confident" in text
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="the md covariance section prefixes 'Covariance: ' to lines whose first already "
-    "begins so, printing 'Covariance: Covariance: N of N poses carry a usable one.'",
-)
 def test_the_covariance_section_says_covariance_once(covariance_run, capsys):
     survey, honest, _, _ = covariance_run
     code, out, _ = evaluate(capsys, honest, survey)
@@ -555,7 +546,7 @@ def test_the_mean_relation_gate_holds_the_simulated_mean(
     assert gate in result.out.splitlines()
     assert (f"segloc: gate: mean translational error {mean_cm:.1f} cm" in result.err) == bool(code)
     n = len(RELATION_PAIRS)
-    assert f"; {n} of {n} relations have estimates at both times" in result.err
+    assert f": {n} of {n} relations have estimates at both times" in result.err
 
 
 @pytest.mark.parametrize(("factor", "code"), [(1.02, 0), (0.98, 1)])
@@ -579,12 +570,6 @@ def test_a_per_pose_limit_with_relations_points_at_the_figure_gates(
     assert_one_line_error(result, "--fail-mean-above-cm", "--fail-percentile-above-cm")
 
 
-@pytest.mark.xfail(
-    not HAS_RELATION_FIGURES,
-    strict=False,
-    reason="segloc_cli.scoring.plots has no relation_figures yet, which --plots with "
-    "--relations calls",
-)
 def test_relation_figures_are_drawn_as_pngs(run_files, relations_file, tmp_path, capsys):
     from PIL import Image
 
@@ -602,12 +587,6 @@ def test_relation_figures_are_drawn_as_pngs(run_files, relations_file, tmp_path,
         assert f"wrote {png}" in result.err
 
 
-@pytest.mark.xfail(
-    not HAS_RELATION_FIGURES,
-    strict=False,
-    reason="segloc_cli.scoring.plots has no relation_figures yet, which --html with "
-    "--relations calls",
-)
 def test_a_relations_page_holds_the_relation_table(run_files, relations_file, tmp_path, capsys):
     page = tmp_path / "relations.html"
     result = relations_run(capsys, run_files, relations_file, "--html", page)
@@ -620,7 +599,9 @@ def test_a_relations_page_holds_the_relation_table(run_files, relations_file, tm
 
 
 def test_a_browser_shows_the_report_with_its_table_gates_and_figures(run_files, tmp_path, capsys):
-    from test_html_report import _chromium
+    from test_html_report import _chromium, _not_blank
+
+    from segloc_cli.scoring.plots import TABLE_FIGURES
 
     executable = _chromium()
     from playwright.sync_api import sync_playwright
@@ -647,13 +628,23 @@ def test_a_browser_shows_the_report_with_its_table_gates_and_figures(run_files, 
             widths = page.eval_on_selector_all(
                 "img", "els => els.map(e => e.complete ? e.naturalWidth : 0)"
             )
+            boxes = [element.bounding_box() for element in page.query_selector_all("img")]
+            shot = page.screenshot(full_page=True)
             text = page.inner_text("body")
         finally:
             browser.close()
     assert complaints == []
-    # Without --map and --log the run draws one figure: the errors of each pose.
-    assert len(widths) == 1
+    # Without --map and --log the run draws the figures of the table alone.
+    assert len(widths) == len(TABLE_FIGURES)
     assert all(width > 0 for width in widths)
+    # The screenshot shows each figure: its region holds a drawing, not a blank.
+    with Image.open(io.BytesIO(shot)) as screenshot:
+        for box in boxes:
+            assert box is not None
+            left, top = round(box["x"]), round(box["y"])
+            right, bottom = left + round(box["width"]), top + round(box["height"])
+            n_colours, inked = _not_blank(screenshot.crop((left, top, right, bottom)))
+            assert n_colours > 8 and 0.01 < inked < 0.9
     for header in ("pose", "X (cm)", "Y (cm)", "XY (cm)", "θ (°)", "status"):
         assert header in text
     assert (

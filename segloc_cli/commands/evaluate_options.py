@@ -4,6 +4,7 @@ outputs and the figures."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 
 import click
@@ -20,7 +21,7 @@ from segloc_cli.commands.options import (
 from segloc_cli.commands.optionvalues import parse_frame_pair
 
 
-def _limit(name: str, help: str, maximum: float | None = None) -> click.Option:
+def _limit(name: str, help: str, maximum: float | None = None) -> Callable:
     return click.option(name, type=FiniteRange(min=0, max=maximum), help=help)
 
 

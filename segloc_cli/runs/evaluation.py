@@ -299,7 +299,7 @@ def _survey_extras(
     scored = _summarised(table, options.only_ok)
     checked = consistency(errors[scored], covariance_matrices(table)[scored])
     if checked is not None:
-        md = "Covariance: " + " ".join(checked.lines()) + "\n"
+        md = " ".join(checked.lines()) + "\n"
         extras["covariance"] = (md, checked.as_json())
     return extras
 

@@ -25,7 +25,7 @@ import pandas as pd
 
 from segloc_cli.errors import InputError
 from segloc_cli.estimates import ESTIMATED
-from segloc_cli.scoring.gates import GateOutcome
+from segloc_cli.scoring.gates import GATE_SLACK, GateOutcome
 
 ERROR_KEYS = ("err_x_cm", "err_y_cm", "err_xy_cm", "err_theta_deg")
 """The final errors a baseline's poses carry (cm, cm, cm, degrees)."""
@@ -302,11 +302,13 @@ def _check_limit(limit: float | None, name: str) -> None:
 
 
 def _verdict(low: float, high: float, limit: float | None) -> str:
-    if limit is not None and low > limit:
+    # The same poses read from another format (a heading from a quaternion) differ in the
+    # last bits; a change that small is no change.
+    if limit is not None and low > limit + GATE_SLACK:
         return WORSE
-    if low > 0.0:
+    if low > GATE_SLACK:
         return WORSE_WITHIN_LIMIT
-    if high < 0.0:
+    if high < -GATE_SLACK:
         return BETTER
     return NO_CHANGE
 

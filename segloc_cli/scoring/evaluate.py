@@ -283,6 +283,7 @@ def summary(table: pd.DataFrame, only_ok: bool = False, gates: Gates | None = No
     accepted = table["status"].isin(ESTIMATED).to_numpy()
     gates = gates if gates is not None and gates.any else None
     per_pose = gates is not None and gates.per_pose
+    limits = gates if gates is not None else Gates()
     result.attrs["verdict"] = verdict_quality(table)
     result.attrs.update(
         {
@@ -296,8 +297,8 @@ def summary(table: pd.DataFrame, only_ok: bool = False, gates: Gates | None = No
             "tolerance_s": table.attrs.get("tolerance_s"),
             "gates": gates,
             "outcomes": [] if gates is None else survey_outcomes(table, score, gates),
-            "n_beyond": int(np.count_nonzero(beyond_mask(table, gates))) if per_pose else None,
-            "n_gate_failed": len(pose_failures(table, gates)) if per_pose else None,
+            "n_beyond": int(np.count_nonzero(beyond_mask(table, limits))) if per_pose else None,
+            "n_gate_failed": len(pose_failures(table, limits)) if per_pose else None,
         }
     )
     return result
@@ -335,14 +336,28 @@ def _number_text(value: float, decimals: int, missing: str) -> str:
     return text[1:] if text.startswith("-") and float(text) == 0.0 else text
 
 
+_STAGE_COLUMNS = ("ae_deg", "init_x_cm", "init_y_cm", "init_theta_deg")
+"""Columns only a localizer with stages and initial guesses fills (segloc's own)."""
+
+
+def _displayed(table: pd.DataFrame) -> tuple[tuple[str, int, str, str], ...]:
+    """The columns the md and latex tables show: all of ``_DISPLAY``, less AE and the initial
+    errors when no pose has any (another localizer's estimates, which have neither)."""
+    stages = table[list(_STAGE_COLUMNS)].to_numpy(dtype=float)
+    if len(table) and not np.isfinite(stages).any():
+        return tuple(d for d in _DISPLAY if d[0] not in _STAGE_COLUMNS)
+    return _DISPLAY
+
+
 def _display_rows(table: pd.DataFrame, stats: pd.DataFrame, missing: str) -> list[list[str]]:
     """Table rows then the RMS and max rows, as text cells (pose, displayed columns, status)."""
     rows = []
+    shown = _displayed(table)
     for _, record in table.iterrows():
-        cells = [_number_text(record[c], d, missing) for c, d, *_ in _DISPLAY]
+        cells = [_number_text(record[c], d, missing) for c, d, *_ in shown]
         rows.append([str(record["pose_id"]), *cells, str(record["status"])])
     for stat, record in stats.iterrows():
-        cells = [_number_text(record[c], d, missing) for c, d, *_ in _DISPLAY]
+        cells = [_number_text(record[c], d, missing) for c, d, *_ in shown]
         rows.append([_STAT_LABELS.get(str(stat), str(stat)), *cells, ""])
     return rows
 
@@ -390,12 +405,13 @@ def summary_lines(stats: pd.DataFrame) -> list[str]:
 
 
 def _format_md(table: pd.DataFrame, stats: pd.DataFrame) -> str:
-    headers = ["pose", *(md for _, _, md, _ in _DISPLAY), "status"]
+    shown = _displayed(table)
+    headers = ["pose", *(md for _, _, md, _ in shown), "status"]
     frame = pd.DataFrame(_display_rows(table, stats, _MISSING_MD), columns=headers)
     body = frame.to_markdown(
         index=False,
         disable_numparse=True,
-        colalign=("left", *("right" for _ in _DISPLAY), "left"),
+        colalign=("left", *("right" for _ in shown), "left"),
     )
     return body + "\n\n" + "\n".join(summary_lines(stats)) + "\n"
 
@@ -409,14 +425,15 @@ def _latex_text(text: str) -> str:
 def _format_latex(table: pd.DataFrame, stats: pd.DataFrame) -> str:
     """A booktabs ``tabular`` (needs ``\\usepackage{booktabs}``), summary rows under a rule and
     the counts of ``summary_lines`` in full-width rows under another."""
-    headers = ["Pose", *(tex for _, _, _, tex in _DISPLAY), "Status"]
+    shown = _displayed(table)
+    headers = ["Pose", *(tex for _, _, _, tex in shown), "Status"]
     rows = _display_rows(table, stats, _MISSING_LATEX)
     for row in rows:
         row[1:-1] = [f"${cell}$" if cell != _MISSING_LATEX else cell for cell in row[1:-1]]
     frame = pd.DataFrame(rows, columns=headers)
     styler = frame.style.hide(axis="index").format(escape="latex", subset=["Status"])
-    n_columns = len(_DISPLAY) + 2
-    latex = styler.to_latex(column_format="l" + "r" * len(_DISPLAY) + "l", hrules=True)
+    n_columns = len(shown) + 2
+    latex = styler.to_latex(column_format="l" + "r" * len(shown) + "l", hrules=True)
     lines = latex.splitlines()
     # Styler puts no rule between body rows; set the summary rows (last in the body) apart.
     lines.insert(lines.index(r"\bottomrule") - len(stats), r"\midrule")
@@ -497,7 +514,8 @@ def format_table(table: pd.DataFrame, summary: pd.DataFrame, fmt: str) -> str:
     """Render a ``table1`` result and its ``summary`` as text in format ``fmt``.
 
     - ``md``: a Markdown table like the paper's (0.1 cm, 0.01°), RMS and max rows
-      after the poses, then the counts of ``summary_lines``.
+      after the poses, then the counts of ``summary_lines``; AE and the initial errors
+      are left out when no pose has them (another localizer's estimates).
     - ``csv``: the per-pose rows, TABLE_COLUMNS at full precision then ``scored``
       (1 when the pose is in the RMS and max) and ``beyond_gate`` (1 when an
       error exceeds a --fail-above limit, 0 when not, empty without limits).

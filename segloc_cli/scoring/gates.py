@@ -208,7 +208,7 @@ def pose_failures(table: pd.DataFrame, gates: Gates) -> dict[int, list[str]]:
 
 
 def _figure_outcomes(
-    position_cm: np.ndarray, heading_deg: np.ndarray, gates: Gates, noun: str
+    position_cm: np.ndarray, heading_deg: np.ndarray, gates: Gates, noun: tuple[str, str]
 ) -> list[GateOutcome]:
     """The RMS, mean and percentile gates over finite errors (magnitudes), in gate order."""
     position = np.abs(position_cm[np.isfinite(position_cm)])
@@ -268,7 +268,7 @@ def survey_outcomes(table: pd.DataFrame, scored: np.ndarray, gates: Gates) -> li
 
 def _grouped_checks(gates: Gates) -> list[tuple[str, tuple[str, ...], float, str]]:
     """Per-pose bounds as the max gates name them: |X| and |Y| together."""
-    grouped = []
+    grouped: list[tuple[str, tuple[str, ...], float, str]] = []
     if gates.axis_cm is not None:
         grouped.append(("|X|, |Y|", ("err_x_cm", "err_y_cm"), gates.axis_cm, "cm"))
     if gates.xy_cm is not None:
