@@ -126,6 +126,9 @@ COVARIANCE_COLUMNS = (
 ``io/trajectories.py``): the upper triangle of the symmetric 3×3 covariance of (x m, y m,
 θ rad), world frame, column by column. Not columns of segloc's own estimates CSV; NaN where the
 input has none."""
+COVARIANCE_CELLS = ((0, 0), (0, 1), (1, 1), (0, 2), (1, 2), (2, 2))
+"""Where each of ``COVARIANCE_COLUMNS`` sits in the 3×3 covariance of (x, y, θ): (row,
+column), the matrix being symmetric."""
 ESTIMATE_FORMER_NAMES = {"overlap_m": "overlap"}
 """Columns that files of segloc 0.1 name otherwise: the column → its name there."""
 ESTIMATE_LATER_COUNTS = [c for c in ESTIMATE_LATER_COLUMNS if c in ESTIMATE_INT_COLUMNS]

@@ -98,15 +98,10 @@ def test_single_pose_has_the_nees_worked_by_hand(error, nees_position, nees_head
 
 
 def covariance_frame(matrices: list[np.ndarray]) -> pd.DataFrame:
-    cells = {
-        "var_x_m2": (0, 0),
-        "cov_xy_m2": (0, 1),
-        "var_y_m2": (1, 1),
-        "cov_x_theta_m_rad": (0, 2),
-        "cov_y_theta_m_rad": (1, 2),
-        "var_theta_rad2": (2, 2),
-    }
-    return pd.DataFrame({name: [m[cells[name]] for m in matrices] for name in COVARIANCE_COLUMNS})
+    # The cells written out, not taken from the package: a wrong placement there must fail.
+    cells = [(0, 0), (0, 1), (1, 1), (0, 2), (1, 2), (2, 2)]
+    columns = zip(COVARIANCE_COLUMNS, cells, strict=True)
+    return pd.DataFrame({name: [m[cell] for m in matrices] for name, cell in columns})
 
 
 def test_covariance_matrices_are_built_symmetric_from_the_columns():

@@ -14,7 +14,6 @@ import re
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
 import pytest
 from PIL import Image
 from test_cli import assert_one_line_error, run_cli
@@ -25,6 +24,7 @@ from trajectory_samples import (
     ROS1_STORE,
     ROS2_STORE,
     amcl_messages,
+    estimates_frame,
     odometry,
     write_amcl_bag,
     write_bag,
@@ -33,7 +33,7 @@ from trajectory_samples import (
 )
 
 from segloc_cli.cli import main
-from segloc_cli.estimates import ESTIMATE_COLUMNS, PoseTable
+from segloc_cli.estimates import PoseTable
 from segloc_cli.io.tables import write_estimates, write_pose_table
 
 N = 30
@@ -61,19 +61,6 @@ for _i, _angle in enumerate(_rotations):
 SURVEY = PoseTable(np.arange(1, N + 1, dtype=np.int64), TIMES_S.copy(), TRUTH.copy())
 NAN_POSE = 9
 """The index of the pose the bag with a damaged message holds as NaN."""
-
-
-def estimates_frame(times_s: np.ndarray, poses: np.ndarray) -> pd.DataFrame:
-    """An estimates frame of ``poses`` at ``times_s`` as segloc writes one (no stage data)."""
-    frame = pd.DataFrame({c: np.full(len(poses), np.nan) for c in ESTIMATE_COLUMNS})
-    frame["pose_id"] = np.arange(1, len(poses) + 1)
-    frame["time_s"] = times_s
-    frame["x_m"], frame["y_m"] = poses[:, 0], poses[:, 1]
-    frame["theta_deg"] = np.degrees(poses[:, 2])
-    frame["n_local_segments"] = 0
-    frame["window_scans"] = 0
-    frame["status"] = "ok"
-    return frame
 
 
 def write_csv_estimates(path: Path, poses: np.ndarray, times_s: np.ndarray = TIMES_S) -> Path:
@@ -571,7 +558,6 @@ def test_a_per_pose_limit_with_relations_points_at_the_figure_gates(
 
 
 def test_relation_figures_are_drawn_as_pngs(run_files, relations_file, tmp_path, capsys):
-    from PIL import Image
 
     plots = tmp_path / "plots"
     result = relations_run(capsys, run_files, relations_file, "--plots", plots)
@@ -599,52 +585,22 @@ def test_a_relations_page_holds_the_relation_table(run_files, relations_file, tm
 
 
 def test_a_browser_shows_the_report_with_its_table_gates_and_figures(run_files, tmp_path, capsys):
-    from test_html_report import _chromium, _not_blank
+    from test_html_report import assert_images_drawn, browse
 
     from segloc_cli.scoring.plots import TABLE_FIGURES
-
-    executable = _chromium()
-    from playwright.sync_api import sync_playwright
 
     page_path = tmp_path / "report.html"
     limit = ERR_XY_CM.max() + 1.0
     args = ("--fail-above-xy-cm", f"{limit:.3f}", "--html", page_path)
     code, _, err = evaluate(capsys, run_files["segloc"], run_files["survey"], *args)
     assert code == 0, err
-    complaints: list[str] = []
-    with sync_playwright() as p:
-        browser = p.chromium.launch(
-            executable_path=executable,
-            args=["--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage"],
-        )
-        try:
-            page = browser.new_page(viewport={"width": 1200, "height": 800})
-            page.on(
-                "console",
-                lambda m: complaints.append(f"{m.type}: {m.text}") if m.type == "error" else None,
-            )
-            page.on("pageerror", lambda error: complaints.append(f"page error: {error}"))
-            page.goto(page_path.as_uri(), wait_until="load")
-            widths = page.eval_on_selector_all(
-                "img", "els => els.map(e => e.complete ? e.naturalWidth : 0)"
-            )
-            boxes = [element.bounding_box() for element in page.query_selector_all("img")]
-            shot = page.screenshot(full_page=True)
-            text = page.inner_text("body")
-        finally:
-            browser.close()
-    assert complaints == []
-    # Without --map and --log the run draws the figures of the table alone.
-    assert len(widths) == len(TABLE_FIGURES)
-    assert all(width > 0 for width in widths)
-    # The screenshot shows each figure: its region holds a drawing, not a blank.
-    with Image.open(io.BytesIO(shot)) as screenshot:
-        for box in boxes:
-            assert box is not None
-            left, top = round(box["x"]), round(box["y"])
-            right, bottom = left + round(box["width"]), top + round(box["height"])
-            n_colours, inked = _not_blank(screenshot.crop((left, top, right, bottom)))
-            assert n_colours > 8 and 0.01 < inked < 0.9
+    seen = browse(page_path)
+    assert seen.complaints == []
+    # Without --map and --log the run draws the figures of the table alone, each shown.
+    assert len(seen.images) == len(TABLE_FIGURES)
+    assert all(image["natural"] > 0 for image in seen.images)
+    assert_images_drawn(seen)
+    text = seen.text
     for header in ("pose", "X (cm)", "Y (cm)", "XY (cm)", "θ (°)", "status"):
         assert header in text
     assert (

@@ -9,6 +9,7 @@ import io
 import os
 import shutil
 from collections.abc import Callable
+from dataclasses import dataclass
 from html.parser import HTMLParser
 from pathlib import Path
 
@@ -325,12 +326,27 @@ def _not_blank(region: Image.Image) -> tuple[int, float]:
     return n_colours, float(np.mean(pixels.min(axis=1) < 230))
 
 
-def test_a_browser_shows_the_page_without_complaint(tmp_path: Path) -> None:
+@dataclass(frozen=True)
+class Browsed:
+    """What headless Chromium saw of a page: console errors and warnings and page errors
+    (``complaints``), every URL it requested, each image's natural, declared and shown
+    width with its box on the page, the computed alignment of the first table's first
+    row, the page's text and a full-page screenshot (PNG bytes)."""
+
+    complaints: list[str]
+    requested: list[str]
+    images: list[dict]
+    boxes: list[dict]
+    aligns: list[str]
+    text: str
+    shot: bytes
+
+
+def browse(path: Path) -> Browsed:
+    """Open ``path`` in Debian's headless Chromium (skipped without it, but under CI)."""
     executable = _chromium()
     from playwright.sync_api import sync_playwright
 
-    path = tmp_path / "report.html"
-    write_html_report(path, page_of(tmp_path))
     complaints: list[str] = []
     requested: list[str] = []
     with sync_playwright() as p:
@@ -365,6 +381,29 @@ def test_a_browser_shows_the_page_without_complaint(tmp_path: Path) -> None:
             shot = page.screenshot(full_page=True)
         finally:
             browser.close()
+    return Browsed(complaints, requested, images, boxes, aligns, text, shot)
+
+
+def assert_images_drawn(seen: Browsed) -> None:
+    """Each image's region of the screenshot holds a drawing: colours and ink, not a blank."""
+    with Image.open(io.BytesIO(seen.shot)) as screenshot:
+        for box in seen.boxes:
+            assert box is not None
+            left, top = round(box["x"]), round(box["y"])
+            region = screenshot.crop(
+                (left, top, left + round(box["width"]), top + round(box["height"]))
+            )
+            n_colours, inked = _not_blank(region)
+            assert n_colours > 8
+            assert 0.01 < inked < 0.9
+
+
+def test_a_browser_shows_the_page_without_complaint(tmp_path: Path) -> None:
+    path = tmp_path / "report.html"
+    write_html_report(path, page_of(tmp_path))
+    seen = browse(path)
+    complaints, requested, images = seen.complaints, seen.requested, seen.images
+    aligns, text = seen.aligns, seen.text
 
     assert complaints == []
     assert [url for url in requested if not url.startswith(("file:", "data:"))] == []
@@ -377,13 +416,4 @@ def test_a_browser_shows_the_page_without_complaint(tmp_path: Path) -> None:
         assert phrase in text
     assert "RMS position error" in text and "80.0 % < 95 %" in text
 
-    with Image.open(io.BytesIO(shot)) as screenshot:
-        for box in boxes:
-            assert box is not None
-            left, top = round(box["x"]), round(box["y"])
-            region = screenshot.crop(
-                (left, top, left + round(box["width"]), top + round(box["height"]))
-            )
-            n_colours, inked = _not_blank(region)
-            assert n_colours > 8
-            assert 0.01 < inked < 0.9
+    assert_images_drawn(seen)

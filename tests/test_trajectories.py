@@ -21,6 +21,7 @@ from trajectory_samples import (
     SCAN,
     TF,
     empty_scan,
+    estimates_frame,
     odometry,
     pose_stamped,
     pose_with_covariance,
@@ -57,19 +58,6 @@ COVARIANCES = _A @ np.transpose(_A, (0, 2, 1)) + 1e-4 * np.eye(3)
 SURVEY = PoseTable(np.arange(1, N + 1, dtype=np.int64), TIMES_S.copy(), TRUTH.copy())
 
 
-def estimates_frame(poses: np.ndarray) -> pd.DataFrame:
-    """An estimates frame of ``poses`` at ``TIMES_S`` as segloc writes one."""
-    frame = pd.DataFrame({c: np.full(len(poses), np.nan) for c in ESTIMATE_COLUMNS})
-    frame["pose_id"] = np.arange(1, len(poses) + 1)
-    frame["time_s"] = TIMES_S
-    frame["x_m"], frame["y_m"] = poses[:, 0], poses[:, 1]
-    frame["theta_deg"] = np.degrees(poses[:, 2])
-    frame["n_local_segments"] = 0
-    frame["window_scans"] = 0
-    frame["status"] = "ok"
-    return frame
-
-
 def amcl_messages(store, frame: str = "map") -> list[tuple]:
     return [
         ("/amcl_pose", stamp + 5_000_000, pose_with_covariance(store, stamp, frame, p, c))
@@ -81,7 +69,7 @@ def amcl_messages(store, frame: str = "map") -> list[tuple]:
 def written(tmp_path_factory) -> dict[str, tuple[Path, bool]]:
     """Every format of the one trajectory: name → (path, whether it carries covariance)."""
     where = tmp_path_factory.mktemp("formats")
-    write_estimates(where / "est.csv", estimates_frame(POSES))
+    write_estimates(where / "est.csv", estimates_frame(TIMES_S, POSES))
     for storage in ("sqlite3", "mcap"):
         write_bag(storage, where / storage, {"/amcl_pose": PWCS}, amcl_messages(ROS2_STORE))
     shutil.copy(where / "mcap" / "mcap.mcap", where / "ros2.mcap")

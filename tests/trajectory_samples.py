@@ -13,12 +13,14 @@ from collections.abc import Iterable
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 from rosbags.rosbag1 import Writer as Ros1Writer
 from rosbags.rosbag2 import StoragePlugin
 from rosbags.rosbag2 import Writer as Ros2Writer
 from rosbags.typesys import Stores, get_typestore
 from rosbags.typesys.store import Typestore
 
+from segloc_cli.estimates import ESTIMATE_COLUMNS
 from segloc_cli.geometry import heading_to_quaternion
 from segloc_cli.io.rosbag import ros1_typestore
 
@@ -252,3 +254,16 @@ def write_tum(path: Path, stamps: list[int], poses: np.ndarray) -> Path:
         lines.append(" ".join(repr(float(v)) for v in (stamp / NS, x, y, 0.0, *q)))
     path.write_text("\n".join(lines) + "\n")
     return path
+
+
+def estimates_frame(times_s: np.ndarray, poses: np.ndarray) -> pd.DataFrame:
+    """An estimates frame of ``poses`` at ``times_s`` as segloc writes one (no stage data)."""
+    frame = pd.DataFrame({c: np.full(len(poses), np.nan) for c in ESTIMATE_COLUMNS})
+    frame["pose_id"] = np.arange(1, len(poses) + 1)
+    frame["time_s"] = times_s
+    frame["x_m"], frame["y_m"] = poses[:, 0], poses[:, 1]
+    frame["theta_deg"] = np.degrees(poses[:, 2])
+    frame["n_local_segments"] = 0
+    frame["window_scans"] = 0
+    frame["status"] = "ok"
+    return frame

@@ -17,6 +17,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any, NamedTuple
 
+from segloc_cli.estimates import COVARIANCE_CELLS
 from segloc_cli.io.rosbag import header_stamp_ns
 from segloc_cli.io.tf import TF_TYPES, bare
 from segloc_cli.io.times import NS_PER_S
@@ -31,10 +32,11 @@ LINK_TYPES = (*TF_TYPES, FOXGLOVE_TF_TYPE)
 POSE_TYPES = (POSE_WITH_COVARIANCE_TYPE, POSE_STAMPED_TYPE, ODOMETRY_TYPE, FOXGLOVE_POSE_TYPE)
 """Message types that carry one pose each."""
 SUPPORTED_TYPES = (*POSE_TYPES, *LINK_TYPES)
-COVARIANCE_INDICES = (0, 1, 7, 5, 11, 35)
+_PLANAR_AXES = (0, 1, 5)
+"""x, y and yaw among the axes of a ROS pose covariance (x, y, z, roll, pitch, yaw)."""
+COVARIANCE_INDICES = tuple(6 * _PLANAR_AXES[r] + _PLANAR_AXES[c] for r, c in COVARIANCE_CELLS)
 """Where the entries of ``estimates.COVARIANCE_COLUMNS`` lie in a ROS 6×6 row-major pose
-covariance over (x, y, z, roll, pitch, yaw): var x, cov xy, var y, cov x-yaw, cov y-yaw,
-var yaw."""
+covariance: var x, cov xy, var y, cov x-yaw, cov y-yaw, var yaw (0, 1, 7, 5, 11, 35)."""
 
 
 class Pose(NamedTuple):

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from segloc_cli.estimates import COVARIANCE_COLUMNS
+from segloc_cli.estimates import COVARIANCE_CELLS, COVARIANCE_COLUMNS
 from segloc_cli.geometry import wrap_angle
 
 SIGMAS = (1, 2, 3)
@@ -36,15 +36,6 @@ INTERVAL_PROBABILITY = 0.95
 VERDICTS = ("consistent", "over-confident", "under-confident", "unknown")
 """``Consistency.verdict``: the last when no pose carries a usable covariance."""
 
-# Where each covariance column sits in the symmetric 3×3 matrix of (x, y, θ).
-_CELLS = {
-    "var_x_m2": (0, 0),
-    "cov_xy_m2": (0, 1),
-    "var_y_m2": (1, 1),
-    "cov_x_theta_m_rad": (0, 2),
-    "cov_y_theta_m_rad": (1, 2),
-    "var_theta_rad2": (2, 2),
-}
 # A covariance whose smallest eigenvalue is lost in the rounding of its largest is
 # singular in all but name: its inverse would be noise.
 _PD_RELATIVE_TOLERANCE = 1e-12
@@ -62,10 +53,9 @@ def covariance_matrices(frame: pd.DataFrame) -> np.ndarray:
     empty is NaN (a frame without any of the columns gives all-NaN matrices)."""
     n = len(frame)
     matrices = np.full((n, 3, 3), np.nan)
-    for name in COVARIANCE_COLUMNS:
+    for name, (row, col) in zip(COVARIANCE_COLUMNS, COVARIANCE_CELLS, strict=True):
         if name not in frame.columns:
             continue
-        row, col = _CELLS[name]
         values = frame[name].to_numpy(dtype=float)
         matrices[:, row, col] = values
         matrices[:, col, row] = values

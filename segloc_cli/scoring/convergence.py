@@ -140,7 +140,7 @@ def combination_labels(rows: pd.DataFrame, grid_keys: Sequence[str]) -> np.ndarr
     return np.full(len(rows), ALL, dtype=object) if len(set(labels)) <= 1 else labels
 
 
-def _bin_index(values: np.ndarray, edges: np.ndarray) -> np.ndarray:
+def bin_index(values: np.ndarray, edges: np.ndarray) -> np.ndarray:
     """The bin of each value (−1: in none): bins hold their lower edge, the last its upper."""
     index = np.searchsorted(edges, values, side="right") - 1
     index[values == edges[-1]] = edges.size - 2
@@ -175,8 +175,8 @@ def convergence_table(
     labels = combination_labels(rows, grid_keys)
     edges = {"position": np.asarray(POSITION_BINS_M), "heading": np.asarray(HEADING_BINS_DEG)}
     bins = {
-        "position": _bin_index(position_m, edges["position"]),
-        "heading": _bin_index(heading_deg, edges["heading"]),
+        "position": bin_index(position_m, edges["position"]),
+        "heading": bin_index(heading_deg, edges["heading"]),
     }
     parts = []
     for label in dict.fromkeys(labels):

@@ -702,17 +702,17 @@ def success_rates(
     missing = [c for c in TRIAL_COLUMNS if c not in trials.columns]
     if missing:
         raise ValueError(f"trials lack the column(s) {', '.join(missing)}")
+    from segloc_cli.scoring.convergence import bin_index
+
     edges = np.asarray(bins_m, dtype=float)
     n_bins = edges.size - 1
-    err_m = trials["init_err_m"].to_numpy(dtype=float)
-    bin_index = np.searchsorted(edges, err_m, side="right") - 1
-    bin_index[err_m == edges[-1]] = n_bins - 1
-    inside = np.isfinite(err_m) & (bin_index >= 0) & (bin_index < n_bins)
+    index = bin_index(trials["init_err_m"].to_numpy(dtype=float), edges)
+    inside = index >= 0
     frame = pd.DataFrame(
         {
             "dataset": trials["dataset"].to_numpy(),
             "method": trials["method"].to_numpy(),
-            "bin": bin_index,
+            "bin": index,
             "success": _as_bool(trials["success"]),
         }
     )
