@@ -5,11 +5,14 @@ paper's Table 1, its gates and its figures) or against reference relations.
 and return text and tables for the command to print or write. None prints; bad input
 raises ``InputError`` naming the file.
 
-- ``read_scored_estimates``: the estimates to score, refused when they hold no row.
-- ``survey_scores``: Table 1 of estimates against surveyed poses, as text, with the gates'
-  violations.
-- ``check_plots``, ``figures_of``: the figures of ``--plots``, checked before any work.
-- ``relation_scores``: the relation metric of Kümmerle et al. (2009), as text.
+- ``read_scored_estimates``: the estimates to score, from any localizer's output, refused
+  when they hold no row.
+- ``survey_scores``: Table 1 of estimates against surveyed poses with its gates, the drift,
+  the covariance's consistency and the comparison with a baseline (``read_baseline``), as
+  ``Scores``.
+- ``relation_scores``: the relation metric of Kümmerle et al. (2009) with its gates.
+- ``check_plots``, ``figure_names``, ``figures_of``, ``relation_figures_of``: the figures,
+  checked before any work.
 """
 
 from __future__ import annotations
