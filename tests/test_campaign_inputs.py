@@ -862,7 +862,10 @@ def test_the_run_file_of_an_evaluation_with_figures_repeats_its_table(inputs, ca
     result = run_cli(capsys, "evaluate", "est.csv", "--config", "t.run.toml", "--format", "json")
     assert result.code == 0, result.err
     assert json.loads(result.out)["summary"]["n_scored"] == 2
-    assert "--config sets --map, which serves --plots alone: not read" in result.err
+    assert (
+        "--config sets --map, which serves the figures alone (--plots, --html): not read"
+        in result.err
+    )
     result = run_cli(capsys, *EVALUATE, "--map", "gone.json")
     assert_one_line_error(result, "--map and --log go with --plots")
 

@@ -120,7 +120,10 @@ def _unused_figure_inputs(given: dict) -> None:
         and ctx.get_parameter_source(name) is click.core.ParameterSource.DEFAULT_MAP
     ]
     for name in from_file:
-        warn(f"--config sets --{name.removesuffix('_path')}, which serves --plots alone: not read")
+        option = name.removesuffix("_path")
+        warn(
+            f"--config sets --{option}, which serves the figures alone (--plots, --html): not read"
+        )
         given[name] = None
 
 
@@ -129,7 +132,7 @@ def _write_reports(options, scores, figures) -> None:
     the HTML page; each said."""
     from segloc_cli.runs.reports import write_reports
 
-    for path in write_reports(options, scores, figures, Invocation.current()):
+    for path in write_reports(options, scores, figures, Invocation.current().options):
         info(f"wrote {path}")
 
 

@@ -17,8 +17,8 @@ import pandas as pd
 from segloc_cli.io.files import OutputError
 
 if TYPE_CHECKING:
-    from segloc_cli.commands.invocation import Invocation
     from segloc_cli.runs.evaluation import EvaluateOptions, Scores
+    from segloc_cli.scoring.gates import GateOutcome
 
 GITHUB_STEP_SUMMARY = "GITHUB_STEP_SUMMARY"
 """The variable GitHub Actions sets to the file a step appends its Markdown summary to."""
@@ -31,21 +31,33 @@ def verdict_word(scores: Scores) -> str:
     return "PASS" if scores.outcomes or scores.comparison is not None else "no gates"
 
 
+def _scored_against(options: EvaluateOptions) -> tuple[str, str]:
+    """The names of the estimates and of the truth they were scored against."""
+    truth = options.survey_path or options.relations_path
+    return options.estimates_path.name, truth.name if truth is not None else ""
+
+
+def _outcomes(scores: Scores) -> list[GateOutcome]:
+    """Every gate's outcome, the baseline's last."""
+    baseline = [] if scores.comparison is None else scores.comparison.outcomes
+    return [*scores.outcomes, *baseline]
+
+
 def summary_markdown(options: EvaluateOptions, scores: Scores) -> str:
     """The Markdown summary: a heading with the outcome and what was scored against what,
     how the estimates were paired, then every table and line the run printed in md."""
-    truth = options.survey_path or options.relations_path
+    estimates, truth = _scored_against(options)
     heading = f"### segloc evaluate: {verdict_word(scores)}"
-    what = f"`{options.estimates_path.name}` against `{truth.name if truth else ''}`"
+    what = f"`{estimates}` against `{truth}`"
     parts = [heading, "", f"{what}: {scores.pairing}.", "", scores.markdown.rstrip("\n")]
     if not scores.passed:
         parts += ["", "Failed: " + "; ".join(scores.violations) + "."]
     return "\n".join(parts) + "\n"
 
 
-def _settings(invocation: Invocation) -> dict[str, object]:
+def _given(settings: Mapping[str, object]) -> dict[str, object]:
     """The options the run was given, by key, those left unset out."""
-    return {key: value for key, value in invocation.options.items() if value not in (None, ())}
+    return {key: value for key, value in settings.items() if value not in (None, ())}
 
 
 def _inputs(options: EvaluateOptions) -> dict[str, Path]:
@@ -60,38 +72,31 @@ def _inputs(options: EvaluateOptions) -> dict[str, Path]:
     return {role: path for role, path in named.items() if path is not None}
 
 
-def _junit_text(options: EvaluateOptions, scores: Scores, invocation: Invocation) -> str:
+def _junit_text(scores: Scores, settings: Mapping[str, object]) -> str:
     from segloc_cli.io.junit import junit_xml
 
     table = scores.table if scores.table is not None else pd.DataFrame({"pose_id": []})
-    properties = {key: str(value) for key, value in _settings(invocation).items()}
-    outcomes = list(scores.outcomes)
-    if scores.comparison is not None:
-        outcomes += scores.comparison.outcomes
-    return junit_xml(table, scores.failures, outcomes, properties=properties)
+    properties = {key: str(value) for key, value in _given(settings).items()}
+    return junit_xml(table, scores.failures, _outcomes(scores), properties=properties)
 
 
 def _html_text(
     options: EvaluateOptions,
     scores: Scores,
     figures: Mapping[str, Callable],
-    invocation: Invocation,
+    settings: Mapping[str, object],
 ) -> str:
     from segloc_cli.io.html_report import ReportSection, html_report
 
-    truth = options.survey_path or options.relations_path
-    title = f"segloc evaluate: {options.estimates_path.name} against {truth.name if truth else ''}"
+    estimates, truth = _scored_against(options)
     sections = [ReportSection("Pairing", lines=(scores.pairing + ".",))]
     sections += [ReportSection(name, markdown_table=md) for name, md in scores.sections]
-    outcomes = list(scores.outcomes)
-    if scores.comparison is not None:
-        outcomes += scores.comparison.outcomes
     return html_report(
-        title=title,
+        title=f"segloc evaluate: {estimates} against {truth}",
         sections=sections,
-        gates=outcomes,
+        gates=_outcomes(scores),
         figures=figures,
-        settings=_settings(invocation),
+        settings=_given(settings),
         inputs=_inputs(options),
     )
 
@@ -117,17 +122,18 @@ def write_reports(
     options: EvaluateOptions,
     scores: Scores,
     figures: Mapping[str, Callable],
-    invocation: Invocation,
+    settings: Mapping[str, object],
 ) -> list[Path]:
     """Write the CI outputs ``options`` asks for (JUnit, Markdown summary, GitHub's step
-    summary, HTML page) and return the paths written, in that order."""
+    summary, HTML page) and return the paths written, in that order; ``settings`` are the
+    options the run was given by key, as the JUnit properties and the page show them."""
     from segloc_cli.io.files import write_text_atomic
     from segloc_cli.io.html_report import write_html_report
     from segloc_cli.io.junit import write_junit
 
     written = []
     if options.junit_path is not None:
-        write_junit(options.junit_path, _junit_text(options, scores, invocation))
+        write_junit(options.junit_path, _junit_text(scores, settings))
         written.append(options.junit_path)
     markdown = summary_markdown(options, scores)
     if options.summary_md_path is not None:
@@ -137,6 +143,6 @@ def write_reports(
     if step_summary is not None:
         written.append(step_summary)
     if options.html_path is not None:
-        write_html_report(options.html_path, _html_text(options, scores, figures, invocation))
+        write_html_report(options.html_path, _html_text(options, scores, figures, settings))
         written.append(options.html_path)
     return written
