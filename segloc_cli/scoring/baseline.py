@@ -25,7 +25,7 @@ import pandas as pd
 
 from segloc_cli.errors import InputError
 from segloc_cli.estimates import ESTIMATED
-from segloc_cli.scoring.gates import GATE_SLACK, GateOutcome
+from segloc_cli.scoring.gates import GATE_SLACK, GateOutcome, with_unit
 
 ERROR_KEYS = ("err_x_cm", "err_y_cm", "err_xy_cm", "err_theta_deg")
 """The final errors a baseline's poses carry (cm, cm, cm, degrees)."""
@@ -127,9 +127,9 @@ class Comparison:
     def failures(self) -> list[str]:
         """The figures worse beyond their limit, a phrase each."""
         return [
-            f"{row.figure} worse by {_with_unit(_num(row.change, row.unit), row.unit)} "
-            f"({_INTERVAL} {_with_unit(_interval(row), row.unit)}) beyond "
-            f"{_with_unit(f'{row.limit:g}', row.unit)}"
+            f"{row.figure} worse by {with_unit(_num(row.change, row.unit), row.unit)} "
+            f"({_INTERVAL} {with_unit(_interval(row), row.unit)}) beyond "
+            f"{with_unit(f'{row.limit:g}', row.unit)}"
             for row in self.rows
             if row.failed and row.limit is not None
         ]
@@ -147,7 +147,7 @@ class Comparison:
         if not limits:
             return "No limit given: no figure can fail."
         worse_by = " or ".join(
-            f"{_with_unit(f'{limit:g}', unit)} ({unit} figures)" for unit, limit in limits.items()
+            f"{with_unit(f'{limit:g}', unit)} ({unit} figures)" for unit, limit in limits.items()
         )
         failing = [row.figure for row in self.rows if row.failed]
         verdict = f"{', '.join(failing)} worse beyond it: FAIL" if failing else "none is: pass"
@@ -156,10 +156,10 @@ class Comparison:
     def lines(self) -> list[str]:
         """The comparison in plain lines: one per figure, then the counts and the verdict."""
         figures = [
-            f"{row.figure}: {_with_unit(_num(row.baseline, row.unit), row.unit)} → "
-            f"{_with_unit(_num(row.now, row.unit), row.unit)}, change "
-            f"{_with_unit(_num(row.change, row.unit, sign=True), row.unit)} ({_INTERVAL} "
-            f"{_with_unit(_interval(row), row.unit)}): {row.verdict}"
+            f"{row.figure}: {with_unit(_num(row.baseline, row.unit), row.unit)} → "
+            f"{with_unit(_num(row.now, row.unit), row.unit)}, change "
+            f"{with_unit(_num(row.change, row.unit, sign=True), row.unit)} ({_INTERVAL} "
+            f"{with_unit(_interval(row), row.unit)}): {row.verdict}"
             for row in self.rows
         ]
         return [*figures, self._counts_line(), self._verdict_line()]
@@ -210,10 +210,6 @@ def _num(value: float, unit: str, sign: bool = False) -> str:
     text = f"{value:{'+' if sign else ''}.{_DECIMALS[unit]}f}"
     # A sign the precision shown cannot support reads as a change that is not there.
     return text.replace("+", "").replace("-", "") if float(text) == 0.0 else text
-
-
-def _with_unit(text: str, unit: str) -> str:
-    return text + unit if unit == "°" else f"{text} {unit}"
 
 
 def _interval(row: ComparisonRow) -> str:

@@ -26,11 +26,16 @@ GATE_SLACK = 1e-9
 _DECIMALS = {"cm": 1, "°": 2, "%": 1}
 
 
+def with_unit(text: str, unit: str) -> str:
+    """A number's ``text`` with its ``unit``: degrees close up (``1.5°``), others spaced
+    (``1.5 cm``, ``80 %``)."""
+    return text + unit if unit == "°" else f"{text} {unit}"
+
+
 def _with_unit(value: float, unit: str, decimals: int | None = None) -> str:
     if not math.isfinite(value):
         return "none"
-    text = f"{value:g}" if decimals is None else f"{value:.{decimals}f}"
-    return text + unit if unit == "°" else f"{text} {unit}"
+    return with_unit(f"{value:g}" if decimals is None else f"{value:.{decimals}f}", unit)
 
 
 @dataclass(frozen=True)
