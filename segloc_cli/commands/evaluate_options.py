@@ -97,7 +97,7 @@ GATE_OPTIONS = (
     _limit(
         "--min-within-pct",
         "With a per-pose limit: pass when at least this share (%) of "
-        "poses keeps to it (default 100: every pose).",
+        "poses keeps to it (default 100: every pose); --junit still marks each pose beyond.",
         maximum=100,
     ),
     _limit(
