@@ -28,10 +28,11 @@ demo: $(STAMP)
 	$(BIN)/segloc localize $(HALL)/log.mcap --map $(DEMO_OUT)/map.json --out $(DEMO_OUT)/estimates.csv --force
 	$(BIN)/segloc evaluate $(DEMO_OUT)/estimates.csv --survey $(HALL)/survey.csv --fail-above-cm 1 --fail-above-deg 0.2
 
-# The HTML report's test opens it in Debian's headless Chromium; as root (CI) it is installed
-# when missing, elsewhere that one test is skipped and says why.
+# On every core (pytest-xdist), the 30 slowest tests listed at the end. The HTML report's
+# test opens it in Debian's headless Chromium; as root (CI) it is installed when missing,
+# elsewhere that one test is skipped and says why.
 test: $(STAMP) browser
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n auto --durations=30
 
 browser:
 	@if ! command -v chromium >/dev/null 2>&1 && [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
