@@ -5,9 +5,10 @@ maps, localizing, drawing figures) reports its steps to a ``Progress``. On a ter
 tqdm draws a bar with the rate and the time left once the work has run that long; when
 standard error is a file or a pipe (a CI log, ``2> run.log``), a plain line with the same
 figures is written every ``PLAIN_EVERY_S`` seconds instead, and a last one when it ends.
-Work that ends sooner shows nothing. The library functions take a ``Progress`` (or a
-``ProgressFactory`` for several stretches) and default to showing nothing, so they print
-only when a command asks.
+Work that ends sooner shows nothing. The rate and the time left leave the first step out:
+it may include compiling the kernels or reading a map, which the steps after it do not.
+The library functions take a ``Progress`` (or a ``ProgressFactory`` for several stretches)
+and default to showing nothing, so they print only when a command asks.
 """
 
 from __future__ import annotations
@@ -46,6 +47,8 @@ class Progress:
         self._stream = sys.stderr if stream is None else stream
         self._terminal = _is_terminal(self._stream) if terminal is None else terminal
         self._started = time.monotonic()
+        self._first: tuple[int, float] | None = None
+        """Steps done and the time when the first step ended: the rate counts from there."""
         self._next_line = self._started + max(SHOW_AFTER_S, PLAIN_EVERY_S)
         self._lines = 0
         self._shown_done = -1
@@ -59,6 +62,7 @@ class Progress:
                 delay=SHOW_AFTER_S,
                 leave=False,
                 dynamic_ncols=True,
+                smoothing=0,  # the average rate since the first step (see advance)
             )
 
     def __enter__(self) -> Progress:
@@ -70,13 +74,27 @@ class Progress:
     def advance(self, steps: int = 1) -> None:
         """``steps`` more steps are done."""
         self.done += steps
+        now = time.monotonic()
+        first = self._first is None
+        if first:
+            self._first = (self.done, now)
         if self._bar is not None:
             self._bar.update(steps)
+            if first:
+                self._count_from_here(now)
             return
-        now = time.monotonic()
         if now >= self._next_line:
             self._write_line(now)
             self._next_line = now + PLAIN_EVERY_S
+
+    def _count_from_here(self, now: float) -> None:
+        """Have the bar's rate count from the end of the first step: tqdm's average rate is
+        (n - initial) / (time since start_t); the bar stays hidden for what is left of
+        ``SHOW_AFTER_S``, and is cleared when it closes as any shown bar is."""
+        assert self._bar is not None
+        self._bar.initial = self._bar.n
+        self._bar.start_t = self._bar.last_print_t = time.time()
+        self._bar.delay = max(0.0, SHOW_AFTER_S - (now - self._started))
 
     def close(self) -> None:
         """End the display: the bar is removed; plain lines end with a last one."""
@@ -89,18 +107,28 @@ class Progress:
             self._lines = 0
 
     def _write_line(self, now: float) -> None:
-        self._stream.write(
-            plain_line(self.what, self.done, self.total, self.unit, now - self._started) + "\n"
-        )
+        first_done, first_at = self._first or (0, self._started)
+        rate = (self.done - first_done) / (now - first_at) if now > first_at else 0.0
+        line = plain_line(self.what, self.done, self.total, self.unit, now - self._started, rate)
+        self._stream.write(line + "\n")
         self._stream.flush()
         self._lines += 1
         self._shown_done = self.done
 
 
-def plain_line(what: str, done: int, total: int | None, unit: str, elapsed_s: float) -> str:
+def plain_line(
+    what: str,
+    done: int,
+    total: int | None,
+    unit: str,
+    elapsed_s: float,
+    rate: float | None = None,
+) -> str:
     """``segloc: localizing: 30/100 scans (30%), 2.4 scans/s, 00:28 left``: the line
-    written where no bar can be drawn (an unknown total gives the time so far instead)."""
-    rate = done / elapsed_s if elapsed_s > 0 else 0.0
+    written where no bar can be drawn (an unknown total gives the time so far instead);
+    ``rate`` in steps per second, by default ``done`` over ``elapsed_s`` (0: not known)."""
+    if rate is None:
+        rate = done / elapsed_s if elapsed_s > 0 else 0.0
     speed = (
         "?" if rate == 0 else f"{rate:.1f} {unit}s/s" if rate >= 1 else f"{1 / rate:.1f} s/{unit}"
     )

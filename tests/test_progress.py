@@ -149,3 +149,21 @@ def test_an_import_reports_reading_and_writing(capsys, tmp_path, every_step_show
     assert _progress_lines(done.err, "writing the log")[-1].startswith(
         "segloc: writing the log: 4/4 scans (100%), "
     )
+
+
+def test_the_rate_and_time_left_leave_the_first_step_out(monkeypatch):
+    # A first scan of 20 s (compiling), then 0.5 s per scan: the time left after the third
+    # scan is 7 scans × 0.5 s, not 7 × the average with the first one in it.
+    clock = iter([0.0, 20.0, 20.5, 21.0, 21.0])
+    monkeypatch.setattr(progress_module.time, "monotonic", lambda: next(clock))
+    monkeypatch.setattr(progress_module, "SHOW_AFTER_S", 0.0)
+    monkeypatch.setattr(progress_module, "PLAIN_EVERY_S", 0.0)
+    stream = io.StringIO()
+    shown = Progress("localizing", 10, "scan", stream=stream, terminal=False)
+    for _ in range(3):
+        shown.advance()
+    assert stream.getvalue().splitlines() == [
+        "segloc: localizing: 1/10 scans (10%), ?, ? left",
+        "segloc: localizing: 2/10 scans (20%), 2.0 scans/s, 00:04 left",
+        "segloc: localizing: 3/10 scans (30%), 2.0 scans/s, 00:03 left",
+    ]

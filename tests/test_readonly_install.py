@@ -19,6 +19,7 @@ import pytest
 from conftest import HALL, SEGLOC
 
 from segloc_cli.estimates import ESTIMATE_COLUMNS
+from segloc_cli.jit import UNCACHED_COMPILE_S
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -69,6 +70,8 @@ def test_a_read_only_install_runs_uncached_with_the_same_results(tmp_path):
     assert run.returncode == 0, run.stderr
     # Said once by each run that compiles: map build and localize; evaluate loads no kernel.
     assert run.stderr.count("numba can write no cache") == 2
+    said = f"compiling segloc's kernels about {UNCACHED_COMPILE_S} s, in every run"
+    assert run.stderr.count(said) == 2
     assert not any(home.iterdir())
     subprocess.run(["bash", "-c", _commands(free)], check=True, capture_output=True)
     assert (locked / "map.json").read_bytes() == (free / "map.json").read_bytes()

@@ -9,6 +9,10 @@ width), the first real run would compile it again.
 
 A new kernel that fails the first test sits on a path the warm-up does not
 run: run that path in ``segloc_cli.runs.warmup``.
+
+Before the warm-up, the same cache gets what a first run's second process compiles
+ahead (``--late-stages``): the hypothesis search's and refinement's kernels, and no
+extraction; the warm-up after it must load those, not compile them again.
 """
 
 from __future__ import annotations
@@ -47,22 +51,34 @@ def cached(cache_dir: Path, suffix: str) -> set[str]:
     return {path.name for path in cache_dir.rglob(f"*{suffix}")}
 
 
+def _run(args: list[str], env: dict[str, str]) -> subprocess.CompletedProcess:
+    done = subprocess.run(args, env=env, capture_output=True, text=True, timeout=TIMEOUT_S)
+    assert done.returncode == 0, done.stderr[-4000:]
+    return done
+
+
 @pytest.fixture(scope="module")
-def warm_cache(tmp_path_factory) -> tuple[Path, dict[str, str]]:
-    """An empty numba cache after ``python -m segloc_cli.runs.warmup``, and the environment that
-    points numba at it."""
+def warm_cache(tmp_path_factory) -> tuple[Path, dict[str, str], dict[str, float]]:
+    """An empty numba cache after ``python -m segloc_cli.runs.warmup --late-stages`` then
+    ``python -m segloc_cli.runs.warmup``, the environment that points numba at it, and the
+    compiled files the first of them wrote with their modification times."""
     cache_dir = tmp_path_factory.mktemp("numba")
     env = dict(os.environ, NUMBA_CACHE_DIR=str(cache_dir))
-    done = subprocess.run(
-        [sys.executable, "-m", "segloc_cli.runs.warmup"],
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=TIMEOUT_S,
-    )
-    assert done.returncode == 0, done.stderr[-4000:]
+    _run([sys.executable, "-m", "segloc_cli.runs.warmup", "--late-stages"], env)
+    ahead = {path.name: path.stat().st_mtime for path in cache_dir.rglob("*.nbc")}
+    done = _run([sys.executable, "-m", "segloc_cli.runs.warmup"], env)
     assert len(done.stdout.splitlines()) == 1, done.stdout
-    return cache_dir, env
+    return cache_dir, env, ahead
+
+
+def test_compiling_ahead_takes_the_search_and_refinement_not_extraction(warm_cache):
+    cache_dir, _, ahead = warm_cache
+    for kernel in ("search._branch_and_bound-", "refine._fit-", "refine._gauss_newton-"):
+        assert any(name.startswith(kernel) for name in ahead), f"{kernel} not compiled ahead"
+    assert not any(name.startswith("extract.") for name in ahead), sorted(ahead)
+    # The warm-up after it loaded what was compiled ahead instead of compiling it again.
+    now = {path.name: path.stat().st_mtime for path in cache_dir.rglob("*.nbc")}
+    assert {name: now[name] for name in ahead} == ahead
 
 
 def test_the_source_holds_kernels():
@@ -70,7 +86,7 @@ def test_the_source_holds_kernels():
 
 
 def test_every_kernel_is_compiled_by_the_warm_up(warm_cache):
-    cache_dir, _ = warm_cache
+    cache_dir, _, _ = warm_cache
     indexed = cached(cache_dir, ".nbi")
     missing = [
         f"{stem}.{name}"
@@ -82,7 +98,7 @@ def test_every_kernel_is_compiled_by_the_warm_up(warm_cache):
 
 @pytest.mark.parametrize("options", [[], ["--track"], ["--method", "icp"]], ids=" ".join)
 def test_a_first_localize_after_the_warm_up_compiles_nothing(warm_cache, tmp_path, options):
-    cache_dir, env = warm_cache
+    cache_dir, env, _ = warm_cache
     before = cached(cache_dir, ".nbc")
     argv = [str(SEGLOC), "localize", str(HALL / "log.mcap"), "--map", str(HALL / "map.json")]
     done = subprocess.run(
@@ -94,3 +110,4 @@ def test_a_first_localize_after_the_warm_up_compiles_nothing(warm_cache, tmp_pat
     )
     assert done.returncode == 0, done.stderr[-4000:]
     assert cached(cache_dir, ".nbc") == before
+    assert "compiling segloc's kernels" not in done.stderr

@@ -21,6 +21,7 @@ from segloc_cli.estimates import (
     HypothesisRow,
 )
 from segloc_cli.geometry import Pose2
+from segloc_cli.jit import await_compiled
 from segloc_cli.method.align import align
 from segloc_cli.method.confidence import (
     LOCAL_MAPS,
@@ -332,6 +333,7 @@ class Localizer:
             return est if points_robot is None else self._checked_by_points(est, points_robot)
         seeds = [] if stage2 is None else [stage2.pose]
         if searching:
+            await_compiled()  # a first run: the search's kernels may be compiling elsewhere
             window = 180.0 if p.window_deg is None else p.window_deg
             known = None if stage2 is None else stage2.pose
             hyps = self._search().around(points_robot, initial, window, peaks, known)
