@@ -6,7 +6,7 @@ system install, a container run as another user, a read-only checkout). There se
 kernels are defined uncached instead: every run compiles the ones it uses, which costs
 time but never the result, and the first one defined says so once on stderr.
 
-A first run with an empty cache compiles on two cores (``watch_compiles``): when the
+A first run with an empty cache compiles on two cores (``watching_compiles``): when the
 first kernel is compiled, a second process starts compiling the hypothesis search's and
 refinement's kernels into the cache while this one compiles extraction and the two
 stages; the localizer waits for it (``await_compiled``) before its first search, then
@@ -16,9 +16,11 @@ loads them from the cache instead of compiling them a second time.
 from __future__ import annotations
 
 import os
+import select
 import subprocess
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from typing import Any
 
 from numba import njit as _numba_njit
@@ -32,14 +34,15 @@ a second process compiling ahead (measured on the shipped hall on two cores: 24 
 UNCACHED_COMPILE_S = 40
 """The same where nothing can be cached, so one process compiles everything (38 s)."""
 AHEAD_ENV = "SEGLOC_COMPILING_AHEAD"
-"""Set in the process that compiles ahead (and in its parent once it started one), so no
-process starts a second one."""
+"""Set in the process that compiles ahead, so that it starts no other."""
 AHEAD_MODULE = "segloc_cli.runs.warmup"
+AHEAD_READY = "ready"
+"""The line the process compiling ahead writes once the later stages' kernels are cached."""
 AHEAD_WAIT_S = 120.0
 """The longest a run waits for the process compiling ahead before compiling itself."""
 
 _ahead: subprocess.Popen | None = None
-_watching = False
+_ahead_started = False
 _announced = False
 
 
@@ -99,28 +102,30 @@ class _FirstCompile(event.Listener):
         pass
 
 
-def watch_compiles(ahead: bool = False) -> None:
-    """Say once, at the first kernel this process compiles, that it is compiling; with
-    ``ahead``, also start a second process compiling the later stages' kernels then (where
-    they can be cached, and unless this process is that one)."""
-    global _watching
-    if _watching or os.environ.get(AHEAD_ENV):
+@contextmanager
+def watching_compiles(ahead: bool = False) -> Iterator[None]:
+    """While in the block, say once, at the first kernel this process compiles, that it is
+    compiling; with ``ahead``, also start a second process compiling the later stages'
+    kernels then (where they can be cached, and unless this process is that one, or
+    already started one)."""
+    if os.environ.get(AHEAD_ENV):
+        yield
         return
-    _watching = True
-    event.register("numba:compile", _FirstCompile(ahead))
+    with event.install_listener("numba:compile", _FirstCompile(ahead)):
+        yield
 
 
 def _start_ahead() -> None:
-    global _ahead
-    if _said_uncached or os.environ.get(AHEAD_ENV):
+    global _ahead, _ahead_started
+    if _said_uncached or _ahead_started:
         return  # nothing compiled elsewhere could be loaded here, or it runs already
-    os.environ[AHEAD_ENV] = "started"  # forked workers inherit it and start none
+    _ahead_started = True  # forked workers inherit it and start none
     try:
         _ahead = subprocess.Popen(
             [sys.executable, "-m", AHEAD_MODULE, "--late-stages"],
             env={**os.environ, AHEAD_ENV: "compiling"},
             stdin=subprocess.DEVNULL,
-            stdout=subprocess.DEVNULL,
+            stdout=subprocess.PIPE,
             stderr=subprocess.DEVNULL,
         )
     except OSError:
@@ -129,12 +134,20 @@ def _start_ahead() -> None:
 
 def await_compiled() -> None:
     """Wait (at most ``AHEAD_WAIT_S``) for the process compiling the later stages ahead, if
-    one runs, so their kernels load from the cache; nothing to do otherwise."""
+    one runs, to say they are in the cache (its line ``AHEAD_READY``, or its end), so their
+    kernels load from there; nothing to do otherwise."""
     global _ahead
     if _ahead is None:
         return
-    try:
-        _ahead.wait(timeout=AHEAD_WAIT_S)
-    except subprocess.TimeoutExpired:
-        pass  # this process compiles what it needs itself
-    _ahead = None
+    ahead, _ahead = _ahead, None
+    assert ahead.stdout is not None
+    ready, _, _ = select.select([ahead.stdout], [], [], AHEAD_WAIT_S)
+    if ready:
+        ahead.stdout.readline()  # its "ready" line, or nothing when it ended
+    # Else it took too long: this process compiles what it needs itself.
+
+
+def say_ahead_ready() -> None:
+    """In the process compiling ahead: tell the run waiting for it that the later stages'
+    kernels are in the cache."""
+    print(AHEAD_READY, flush=True)

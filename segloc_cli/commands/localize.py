@@ -136,11 +136,11 @@ def localize(
     """
     from segloc_cli.io.files import check_outputs
     from segloc_cli.io.maps import read_map
-    from segloc_cli.jit import watch_compiles
+    from segloc_cli.jit import watching_compiles
     from segloc_cli.progress import Progress
     from segloc_cli.runs import pipeline
 
-    watch_compiles(ahead=True)
+    click.get_current_context().with_resource(watching_compiles(ahead=True))
     from segloc_cli.runs.rowstream import RowOutputs, write_rows
 
     run = Invocation.current()

@@ -68,11 +68,11 @@ def map_build(log_path, survey_path, out_path, mcap_path, force, **_):
     from segloc_cli.io.files import check_outputs
     from segloc_cli.io.maps import bounds_problem, write_map
     from segloc_cli.io.tables import read_pose_table
-    from segloc_cli.jit import watch_compiles
+    from segloc_cli.jit import watching_compiles
     from segloc_cli.progress import Progress
     from segloc_cli.runs.pipeline import build_map
 
-    watch_compiles()
+    click.get_current_context().with_resource(watching_compiles())
 
     run = Invocation.current()
     outputs = {"--out": out_path, "--mcap": mcap_path}

@@ -126,6 +126,7 @@ def compile_late_stages(seed: int = SEED) -> None:
     segments and runs the two stages. No extraction is needed: the walls, placed in the
     robot's frame, are the local map."""
     from segloc_cli.geometry import transform_segments
+    from segloc_cli.jit import say_ahead_ready
     from segloc_cli.method.refine import refine_pose
 
     rng = np.random.default_rng(seed)
@@ -137,9 +138,10 @@ def compile_late_stages(seed: int = SEED) -> None:
     guess = Pose2(truth.x + 0.3, truth.y - 0.2, truth.theta + 0.1)
     if localizer.prepared.search is not None:
         peaks = np.array([guess.theta])
-        localizer.prepared.search.around(points, guess, 20.0, peaks, None)
+        localizer.prepared.search.around(points, guess, 20.0, peaks, guess)
     near = localizer.prepared.near_index
     refine_pose(points, localizer.segments_world, guess, config.localize.refine, index=near)
+    say_ahead_ready()
     # The rest, whatever this run has not compiled yet (stage 1, stage 2, the verdict).
     local_map = transform_segments(world.segments, truth.inverse())
     localizer.localize(local_map, guess, points)
