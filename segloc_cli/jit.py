@@ -36,6 +36,8 @@ UNCACHED_COMPILE_S = 40
 AHEAD_ENV = "SEGLOC_COMPILING_AHEAD"
 """Set in the process that compiles ahead, so that it starts no other."""
 AHEAD_MODULE = "segloc_cli.runs.warmup"
+AHEAD_COMMAND = [sys.executable, "-m", AHEAD_MODULE, "--late-stages"]
+"""The second process of a first run: the warm-up of the later stages alone."""
 AHEAD_READY = "ready"
 """The line the process compiling ahead writes once the later stages' kernels are cached."""
 AHEAD_WAIT_S = 120.0
@@ -122,7 +124,7 @@ def _start_ahead() -> None:
     _ahead_started = True  # forked workers inherit it and start none
     try:
         _ahead = subprocess.Popen(
-            [sys.executable, "-m", AHEAD_MODULE, "--late-stages"],
+            AHEAD_COMMAND,
             env={**os.environ, AHEAD_ENV: "compiling"},
             stdin=subprocess.DEVNULL,
             stdout=subprocess.PIPE,

@@ -1,0 +1,93 @@
+"""``jit``: a first run says once that it compiles, and has a second process compile the
+later stages ahead, waiting for its word before it needs them.
+
+The kernels compiled here are tiny functions of this file, named into ``segloc_cli`` (the
+watch hears segloc's kernels only); the second process is a stand-in that answers as the
+warm-up's ``--late-stages`` does, so nothing here compiles segloc's own kernels.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+
+import pytest
+from numba import njit
+
+from segloc_cli import jit
+
+
+def fresh_kernel(module: str = "segloc_cli.stand_in"):
+    """A kernel not compiled yet (no cache), seen as defined in ``module``."""
+
+    def add_one(x):
+        return x + 1
+
+    add_one.__module__ = module
+    return njit(add_one)
+
+
+@pytest.fixture
+def first_run(monkeypatch):
+    """A process that has said nothing and started no second process yet."""
+    monkeypatch.setattr(jit, "_announced", False)
+    monkeypatch.setattr(jit, "_ahead_started", False)
+    monkeypatch.setattr(jit, "_ahead", None)
+    monkeypatch.setattr(jit, "_said_uncached", False)
+    monkeypatch.delenv(jit.AHEAD_ENV, raising=False)
+
+
+def test_the_first_kernel_compiled_is_said_once(first_run, capsys):
+    with jit.watching_compiles():
+        fresh_kernel()(1)
+        fresh_kernel()(2)
+    err = capsys.readouterr().err
+    assert err.count("segloc: compiling segloc's kernels once") == 1
+    # Outside the block, or for a kernel not segloc's, nothing is said.
+    jit._announced = False
+    fresh_kernel()(3)
+    with jit.watching_compiles():
+        fresh_kernel("elsewhere")(4)
+    assert capsys.readouterr().err == ""
+
+
+def test_the_run_waits_for_the_ready_line_not_for_the_end(first_run, monkeypatch):
+    # The stand-in says it is ready, then works on for a long while, as the warm-up does.
+    script = "import time; print('ready', flush=True); time.sleep(30)"
+    monkeypatch.setattr(jit, "AHEAD_COMMAND", [sys.executable, "-c", script])
+    with jit.watching_compiles(ahead=True):
+        fresh_kernel()(1)
+        started = jit._ahead
+        assert started is not None
+        t0 = time.monotonic()
+        jit.await_compiled()
+        waited_s = time.monotonic() - t0
+    try:
+        assert jit._ahead is None and started.poll() is None  # still working, not awaited
+        assert waited_s < jit.AHEAD_WAIT_S
+    finally:
+        started.kill()
+        started.wait()
+    # Once per process: a second first compile starts no other.
+    with jit.watching_compiles(ahead=True):
+        jit._announced = False
+        fresh_kernel()(2)
+    assert jit._ahead is None
+
+
+def test_no_second_process_where_nothing_can_be_cached_or_in_the_second_process(
+    first_run, monkeypatch, capsys
+):
+    monkeypatch.setattr(jit, "AHEAD_COMMAND", [sys.executable, "-c", "print('ready')"])
+    monkeypatch.setattr(jit, "_said_uncached", True)
+    with jit.watching_compiles(ahead=True):
+        fresh_kernel()(1)
+    assert jit._ahead is None
+    assert f"about {jit.UNCACHED_COMPILE_S} s, in every run" in capsys.readouterr().err
+    monkeypatch.setattr(jit, "_said_uncached", False)
+    monkeypatch.setattr(jit, "_announced", False)
+    monkeypatch.setenv(jit.AHEAD_ENV, "compiling")
+    with jit.watching_compiles(ahead=True):
+        fresh_kernel()(2)
+    assert jit._ahead is None and capsys.readouterr().err == ""
+    jit.await_compiled()  # nothing to wait for
