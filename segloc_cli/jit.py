@@ -79,8 +79,8 @@ class _FirstCompile(event.Listener):
     """Hears numba compile a kernel (not load one from the cache): the first of segloc's
     says what is happening, and may start the process that compiles ahead."""
 
-    def __init__(self, ahead: bool):
-        self.ahead = ahead
+    def __init__(self, ahead: bool, say: bool):
+        self.ahead, self.say = ahead, say
 
     def on_start(self, ev: event.Event) -> None:
         global _announced
@@ -89,6 +89,10 @@ class _FirstCompile(event.Listener):
         if _announced or not module.startswith("segloc_cli."):
             return
         _announced = True
+        if self.ahead:
+            _start_ahead()
+        if not self.say:
+            return
         if _said_uncached:
             said = f"about {UNCACHED_COMPILE_S} s, in every run as none can be cached here"
         else:
@@ -97,23 +101,21 @@ class _FirstCompile(event.Listener):
                 f"(`python -m {AHEAD_MODULE}` compiles them ahead)"
             )
         print(f"segloc: compiling segloc's kernels {said}", file=sys.stderr)
-        if self.ahead:
-            _start_ahead()
 
     def on_end(self, ev: event.Event) -> None:
         pass
 
 
 @contextmanager
-def watching_compiles(ahead: bool = False) -> Iterator[None]:
-    """While in the block, say once, at the first kernel this process compiles, that it is
-    compiling; with ``ahead``, also start a second process compiling the later stages'
-    kernels then (where they can be cached, and unless this process is that one, or
-    already started one)."""
+def watching_compiles(ahead: bool = False, say: bool = True) -> Iterator[None]:
+    """While in the block, at the first kernel this process compiles: say once that it is
+    compiling (unless not ``say``); with ``ahead``, start a second process compiling the
+    later stages' kernels then (where they can be cached, and unless this process is that
+    one, or already started one)."""
     if os.environ.get(AHEAD_ENV):
         yield
         return
-    with event.install_listener("numba:compile", _FirstCompile(ahead)):
+    with event.install_listener("numba:compile", _FirstCompile(ahead, say)):
         yield
 
 

@@ -166,11 +166,20 @@ def loaded_kernels() -> list[Dispatcher]:
 
 def main() -> None:
     """Warm the cache up and say in one line what was done."""
+    from segloc_cli.jit import watching_compiles
+
     t0 = time.perf_counter()
-    left_out = warm_up()
+    with watching_compiles(ahead=True, say=False):  # on two cores, as a first run
+        left_out = warm_up()
     ran = [option for option in LOCALIZE_RUNS if option not in left_out]
-    compiled = sum(bool(kernel.stats.cache_misses) for kernel in loaded_kernels())
-    done = f"{compiled} numba kernels compiled and cached" if compiled else "all were cached"
+    kernels = loaded_kernels()
+    compiled = sum(bool(kernel.stats.cache_misses) for kernel in kernels)
+    done = (
+        f"{len(kernels)} numba kernels in the cache, {compiled} compiled by this process and "
+        "the search's and refinement's by a second one"
+        if compiled
+        else "all were cached"
+    )
     missing = f" (not installed: {', '.join(left_out)})" if left_out else ""
     print(
         f"segloc warm-up: map build and localize ({', '.join(ran)}) run on a simulated room "
