@@ -372,28 +372,65 @@ def _children_bound(level_bounds, row, square, out):
     )
 
 
+SHORT_SUM_WEIGHT = 257
+"""Points' worth of bounds a 16-bit sum holds: 257 · 255 ≤ 2^16 − 1."""
+
+
 @njit(cache=True)
 def _top_bounds(phased, cells, weights, count, out):
     """The bounds of every top square (a, b) of one heading, into ``out`` (A, B) in whole
     255ths: the sum over the merged points of the level at their cell moved by (a, b) top
     squares, read from the level split by phase (``phased``, ``phase_split``) so that a
     point's reads over all squares are rows of consecutive cells, added as vectors (the
-    caller picks ``out``'s integer type wide enough for 255 per point)."""
+    caller picks ``out``'s integer type wide enough for 255 per point).
+
+    The points are summed ``SHORT_SUM_WEIGHT`` points' worth at a time in 16 bits, which
+    cannot overflow there and adds twice as many cells per vector, then added to ``out``.
+    """
+    n_a, n_b = out.shape
+    out[:, :] = 0
+    short = np.zeros((n_a, n_b), dtype=np.uint16)
+    held = 0
+    for q in range(count):
+        w = weights[q]
+        if w > SHORT_SUM_WEIGHT:  # too heavy for 16 bits: straight into ``out``
+            _add_rows(phased, cells[q, 0], cells[q, 1], out.dtype.type(w), out)
+            continue
+        if held + w > SHORT_SUM_WEIGHT:
+            _flush(short, out)
+            held = 0
+        held += w
+        _add_rows(phased, cells[q, 0], cells[q, 1], np.uint16(w), short)
+    _flush(short, out)
+
+
+@njit(cache=True)
+def _add_rows(phased, ci, cj, w, out):
+    """Add ``w`` times the level (split by phase) at cell (ci, cj) moved by (a, b) top
+    squares to ``out`` (A, B) at (a, b), in ``out``'s type; cells beyond the level add 0."""
     step, n_a, n_b = phased.shape[0], out.shape[0], out.shape[1]
     rows, columns = phased.shape[2], phased.shape[3]
-    out[:, :] = 0
-    for q in range(count):
-        ci, cj, w = cells[q, 0], cells[q, 1], out.dtype.type(weights[q])
-        lane = phased[ci % step, cj % step]
-        qa, qb = ci // step, cj // step
-        b0, b1 = max(0, -qb), min(n_b, columns - qb)
-        if b0 >= b1:  # (and a negative slice end would count from the row's end)
-            continue
-        for a in range(max(0, -qa), min(n_a, rows - qa)):
-            # Slices first: indexing them by a plain range lets the loop be vectorized.
-            row, total = lane[qa + a, qb + b0 : qb + b1], out[a, b0:b1]
-            for b in range(row.shape[0]):
-                total[b] += w * out.dtype.type(row[b])
+    lane = phased[ci % step, cj % step]
+    qa, qb = ci // step, cj // step
+    b0, b1 = max(0, -qb), min(n_b, columns - qb)
+    if b0 >= b1:  # (and a negative slice end would count from the row's end)
+        return
+    kind = out.dtype.type
+    for a in range(max(0, -qa), min(n_a, rows - qa)):
+        # Slices first: indexing them by a plain range lets the loop be vectorized.
+        row, total = lane[qa + a, qb + b0 : qb + b1], out[a, b0:b1]
+        for b in range(row.shape[0]):
+            total[b] += w * kind(row[b])
+
+
+@njit(cache=True)
+def _flush(short, out):
+    """Add the 16-bit sums ``short`` to ``out`` and clear them."""
+    for a in range(out.shape[0]):
+        row, total = short[a], out[a]
+        for b in range(row.shape[0]):
+            total[b] += row[b]
+            row[b] = 0
 
 
 @njit(cache=True)
