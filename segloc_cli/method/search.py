@@ -168,46 +168,96 @@ def _level_cells(pyramid, grid, sort):
     weights = np.empty((depth, n_h, n_p), dtype=np.int32)
     counts = np.zeros((depth, n_h), dtype=np.int64)
     boxes = np.zeros((depth, n_h, 4), dtype=np.int64)
-    qi = np.empty(n_p, dtype=np.int64)
-    qj = np.empty(n_p, dtype=np.int64)
-    keys = np.empty(n_p, dtype=np.int64)
+    # Per level: its cells in x and y, and how far before the level a kept cell may lie.
+    shapes = np.empty((depth, 3), dtype=np.int64)
     for lv in range(depth):
         _, nx, ny = level_grid(pyramid, lv + 1)
-        reach = level_cells(pyramid, lv + 1, grid.n_cells) + 1
-        for h in range(n_h):
-            m = 0
-            for p in range(n_p):
-                bx, by = ix[h, p], iy[h, p]
-                if _beyond_limit(bx, by):
-                    continue
+        shapes[lv, 0], shapes[lv, 1] = nx, ny
+        shapes[lv, 2] = level_cells(pyramid, lv + 1, grid.n_cells) + 1
+    top_shift = pyramid.shifts[depth - 1] if depth > 0 else 0
+    kept = np.empty(n_p, dtype=np.int64)
+    for h in range(n_h):
+        # The points some level keeps, as offsets u = b + W from the levels' cell 0.
+        m = 0
+        for p in range(n_p):
+            bx, by = ix[h, p], iy[h, p]
+            if _beyond_limit(bx, by):
+                continue
+            for lv in range(depth):
                 ci, cj = level_cell(pyramid, lv + 1, bx), level_cell(pyramid, lv + 1, by)
-                if -reach <= ci < nx and -reach <= cj < ny:
-                    qi[m], qj[m] = ci, cj
+                reach = shapes[lv, 2]
+                if -reach <= ci < shapes[lv, 0] and -reach <= cj < shapes[lv, 1]:
+                    kept[m] = p
                     m += 1
-            if sort:  # by x, then y: one sort of a key that orders both (|y| < reach + ny)
-                span = 2 * (reach + ny)
-                for e in range(m):
-                    keys[e] = qi[e] * span + qj[e] + reach
-                order = np.argsort(keys[:m])
-            else:
-                order = np.arange(m)
-            row_cells, row_weights, box = cells[lv, h], weights[lv, h], boxes[lv, h]
-            q = -1
-            for o in order:
-                ci, cj = qi[o], qj[o]
-                if q >= 0 and ci == row_cells[q, 0] and cj == row_cells[q, 1]:
-                    row_weights[q] += 1
-                    continue
-                q += 1
-                row_cells[q, 0], row_cells[q, 1], row_weights[q] = ci, cj, 1
-                linear[lv, h, q] = ci * ny + cj
-                if q == 0:
-                    box[0], box[1], box[2], box[3] = ci, ci, cj, cj
-                else:
-                    box[0], box[1] = min(box[0], ci), max(box[1], ci)
-                    box[2], box[3] = min(box[2], cj), max(box[3], cj)
-            counts[lv, h] = q + 1
+                    break
+        order = kept[:m]
+        if sort and m > 1:
+            order = order[_z_order(ix[h], iy[h], order, pyramid.pad, top_shift)]
+        for lv in range(depth):
+            row = _MergedRow(cells[lv, h], linear[lv, h], weights[lv, h], 0, boxes[lv, h])
+            counts[lv, h] = _merge_level(pyramid, lv + 1, ix[h], iy[h], order, shapes[lv], row)
     return _MergedPoints(cells, linear, weights, counts, boxes, _cell_box(ix, iy))
+
+
+@njit(cache=True)
+def _spread_bits(v):
+    """The low 32 bits of ``v`` (uint64) moved to the even bits."""
+    v &= np.uint64(0xFFFFFFFF)
+    v = (v | (v << np.uint64(16))) & np.uint64(0x0000FFFF0000FFFF)
+    v = (v | (v << np.uint64(8))) & np.uint64(0x00FF00FF00FF00FF)
+    v = (v | (v << np.uint64(4))) & np.uint64(0x0F0F0F0F0F0F0F0F)
+    v = (v | (v << np.uint64(2))) & np.uint64(0x3333333333333333)
+    return (v | (v << np.uint64(1))) & np.uint64(0x5555555555555555)
+
+
+@njit(cache=True)
+def _z_order(ix, iy, points, pad, top_shift):
+    """The order (indices into ``points``) that sorts the points' fine cells (``ix``, ``iy``
+    at ``points``) by their Z-order (bits of x and y interleaved) from b + ``pad``: every
+    level cell (b + W) >> s, s ≤ ``top_shift``, then holds consecutive points, so one sort
+    serves every level. The cells a level keeps lie within a few raster widths of it, well
+    within the 32 bits a coordinate gets here."""
+    n = points.shape[0]
+    lo_x, lo_y = ix[points[0]], iy[points[0]]
+    for e in range(n):
+        lo_x, lo_y = min(lo_x, ix[points[e]]), min(lo_y, iy[points[e]])
+    # From a multiple of the widest stride, so that shifting keeps the cells apart alike.
+    lo_x = ((lo_x + pad) >> top_shift) << top_shift
+    lo_y = ((lo_y + pad) >> top_shift) << top_shift
+    keys = np.empty(n, dtype=np.uint64)
+    for e in range(n):
+        u = np.uint64(ix[points[e]] + pad - lo_x)
+        v = np.uint64(iy[points[e]] + pad - lo_y)
+        keys[e] = _spread_bits(u) | (_spread_bits(v) << np.uint64(1))
+    return np.argsort(keys)
+
+
+@njit(cache=True)
+def _merge_level(pyramid, level, ix, iy, points, shape, row):
+    """Merge the ``points`` (indices into one heading's fine cells ``ix``, ``iy``) on pyramid
+    level ``level``, consecutive equal cells into one, into ``row`` (``_MergedRow``, its
+    count unused), leaving out the cells the level does not keep (``shape``: its cells in x
+    and y, and how far before it a kept cell may lie); returns how many cells it holds."""
+    row_cells, row_linear, row_weights, _, box = row
+    nx, ny, reach = shape[0], shape[1], shape[2]
+    q = -1
+    for e in range(points.shape[0]):
+        p = points[e]
+        ci, cj = level_cell(pyramid, level, ix[p]), level_cell(pyramid, level, iy[p])
+        if not (-reach <= ci < nx and -reach <= cj < ny):
+            continue
+        if q >= 0 and ci == row_cells[q, 0] and cj == row_cells[q, 1]:
+            row_weights[q] += 1
+            continue
+        q += 1
+        row_cells[q, 0], row_cells[q, 1], row_weights[q] = ci, cj, 1
+        row_linear[q] = ci * ny + cj
+        if q == 0:
+            box[0], box[1], box[2], box[3] = ci, ci, cj, cj
+        else:
+            box[0], box[1] = min(box[0], ci), max(box[1], ci)
+            box[2], box[3] = min(box[2], cj), max(box[3], cj)
+    return q + 1
 
 
 @njit(cache=True)
@@ -322,48 +372,139 @@ def _children_bound(level_bounds, row, square, out):
     )
 
 
+SHORT_SUM_WEIGHT = 257
+"""Points' worth of bounds a 16-bit sum holds: 257 · 255 ≤ 2^16 − 1."""
+
+
 @njit(cache=True)
 def _top_bounds(phased, cells, weights, count, out):
     """The bounds of every top square (a, b) of one heading, into ``out`` (A, B) in whole
     255ths: the sum over the merged points of the level at their cell moved by (a, b) top
     squares, read from the level split by phase (``phased``, ``phase_split``) so that a
     point's reads over all squares are rows of consecutive cells, added as vectors (the
-    caller picks ``out``'s integer type wide enough for 255 per point)."""
-    step, n_a, n_b = phased.shape[0], out.shape[0], out.shape[1]
-    rows, columns = phased.shape[2], phased.shape[3]
+    caller picks ``out``'s integer type wide enough for 255 per point).
+
+    The points are summed ``SHORT_SUM_WEIGHT`` points' worth at a time in 16 bits, which
+    cannot overflow there and adds twice as many cells per vector, then added to ``out``.
+    """
+    n_a, n_b = out.shape
     out[:, :] = 0
+    short = np.zeros((n_a, n_b), dtype=np.uint16)
+    held = 0
     for q in range(count):
-        ci, cj, w = cells[q, 0], cells[q, 1], out.dtype.type(weights[q])
-        lane = phased[ci % step, cj % step]
-        qa, qb = ci // step, cj // step
-        b0, b1 = max(0, -qb), min(n_b, columns - qb)
-        if b0 >= b1:  # (and a negative slice end would count from the row's end)
+        w = weights[q]
+        if w > SHORT_SUM_WEIGHT:  # too heavy for 16 bits: straight into ``out``
+            _add_rows(phased, cells[q, 0], cells[q, 1], out.dtype.type(w), out)
             continue
-        for a in range(max(0, -qa), min(n_a, rows - qa)):
-            # Slices first: indexing them by a plain range lets the loop be vectorized.
-            row, total = lane[qa + a, qb + b0 : qb + b1], out[a, b0:b1]
-            for b in range(row.shape[0]):
-                total[b] += w * out.dtype.type(row[b])
+        if held + w > SHORT_SUM_WEIGHT:
+            _flush(short, out)
+            held = 0
+        held += w
+        _add_rows(phased, cells[q, 0], cells[q, 1], np.uint16(w), short)
+    _flush(short, out)
 
 
 @njit(cache=True)
-def _batch_bins(top, n_bins):
-    """Bins (as many as ``top``) of the top bounds, ``n_bins`` of equal width from the least
-    to the best, and each bin's count; bin −1 for the squares left out (a bound below 0)."""
+def _add_rows(phased, ci, cj, w, out):
+    """Add ``w`` times the level (split by phase) at cell (ci, cj) moved by (a, b) top
+    squares to ``out`` (A, B) at (a, b), in ``out``'s type; cells beyond the level add 0."""
+    step, n_a, n_b = phased.shape[0], out.shape[0], out.shape[1]
+    rows, columns = phased.shape[2], phased.shape[3]
+    lane = phased[ci % step, cj % step]
+    qa, qb = ci // step, cj // step
+    b0, b1 = max(0, -qb), min(n_b, columns - qb)
+    if b0 >= b1:  # (and a negative slice end would count from the row's end)
+        return
+    kind = out.dtype.type
+    for a in range(max(0, -qa), min(n_a, rows - qa)):
+        # Slices first: indexing them by a plain range lets the loop be vectorized.
+        row, total = lane[qa + a, qb + b0 : qb + b1], out[a, b0:b1]
+        for b in range(row.shape[0]):
+            total[b] += w * kind(row[b])
+
+
+@njit(cache=True)
+def _flush(short, out):
+    """Add the 16-bit sums ``short`` to ``out`` and clear them."""
+    for a in range(out.shape[0]):
+        row, total = short[a], out[a]
+        for b in range(row.shape[0]):
+            total[b] += row[b]
+            row[b] = 0
+
+
+@njit(cache=True)
+def _bin_of(value, lo, width, n_bins):
+    """The bin of a top bound, of ``n_bins`` bins ``width`` wide from ``lo`` (``_tally``)."""
+    return min(int((value - lo) / width), n_bins - 1)
+
+
+class _Bins(NamedTuple):
+    """Bins of equal width over the top bounds, from the least (``lo``) to the best: how many
+    bounds each holds, and each one's least bound as a key (``_tally``)."""
+
+    tally: np.ndarray
+    lo: float
+    width: float
+    keys: np.ndarray
+    """(n_bins,) float64: the least key of a bound in each bin."""
+
+
+@njit(cache=True)
+def _tally(top, n_bins, whole):
+    """The ``_Bins`` of the top bounds (flat), ``n_bins`` of them, leaving out the squares
+    left out (a bound below 0). ``whole``: the bounds are whole numbers (in 255ths), which
+    are counted per value first, so that each value, not each square, is put in its bin."""
     lo, hi = np.inf, -np.inf
     for f in range(top.size):
-        if top[f] >= 0:
-            lo, hi = min(lo, top[f]), max(hi, top[f])
-    bins = np.full(top.size, -1, dtype=np.int16)
-    tally = np.zeros(n_bins, dtype=np.int64)
-    width = (hi - lo) / n_bins if hi > lo else 1.0
-    for f in range(top.size):
-        v = top[f]
+        v = float(top[f])
         if v >= 0:
-            b = min(int((v - lo) / width), n_bins - 1)
-            bins[f] = b
+            lo, hi = min(lo, v), max(hi, v)
+    width = (hi - lo) / n_bins if hi > lo else 1.0
+    tally = np.zeros(n_bins, dtype=np.int64)
+    keys = np.full(n_bins, np.inf)
+    if whole and lo <= hi:
+        per_value = np.zeros(int(hi - lo) + 1, dtype=np.int64)
+        base = int(lo)
+        for f in range(top.size):
+            if top[f] >= 0:
+                per_value[int(top[f]) - base] += 1
+        for r in range(per_value.size):
+            if per_value[r] > 0:
+                b = _bin_of(float(r + base), lo, width, n_bins)
+                tally[b] += per_value[r]
+                keys[b] = min(keys[b], float(r + base))
+        return _Bins(tally, lo, width, keys)
+    for f in range(top.size):
+        v = float(top[f])
+        if v >= 0:
+            b = _bin_of(v, lo, width, n_bins)
             tally[b] += 1
-    return bins, tally
+            keys[b] = min(keys[b], v)
+    return _Bins(tally, lo, width, keys)
+
+
+@njit(cache=True)
+def _batch(top, bins, low, high):
+    """The squares (flat indices into ``top``) whose bins (``_tally``) are ``low`` to
+    ``high``, best bound first."""
+    # Bins follow the bounds' order: the batch's bounds are those from the least of bin
+    # ``low`` to below the least of the first non-empty bin above ``high``.
+    floor, ceiling = bins.keys[low : high + 1].min(), np.inf
+    for b in range(high + 1, bins.tally.size):
+        if bins.tally[b] > 0:
+            ceiling = bins.keys[b]
+            break
+    members = np.empty(bins.tally[low : high + 1].sum(), dtype=np.int64)
+    m = 0
+    for f in range(top.size):
+        v = float(top[f])
+        if floor <= v < ceiling:
+            members[m] = f
+            m += 1
+    # As float64: the order of equal bounds is the sort's own, kept from earlier versions
+    # so that their searches meet squares (and find runner-ups) in the same order.
+    return members[np.argsort(-top[members].astype(np.float64))]
 
 
 @njit(cache=True)
@@ -479,28 +620,27 @@ class _Squares(NamedTuple):
 
 
 @njit(cache=True)
-def _top_square_bounds(pyramid, grid, merged, top_mask, whole):
-    """The bound of every top square of every heading, flat (H·A·A,), heading first, then x,
-    then y (A = ⌈n_cells / 2^depth⌉): whole 255ths from the level split by phase
-    (``_top_bounds`` into ``whole`` (A, A)), or without a pyramid (depth 0) the exact sums
-    of the single shifts. Squares ``top_mask`` (A, A) leaves out get −1."""
-    n_h, n_top = grid.ix.shape[0], -(-grid.n_cells // 2**grid.depth)
-    top = np.full((n_h, n_top, n_top), -1.0)
+def _top_square_bounds(pyramid, grid, merged, top_mask, top):
+    """The bound of every top square of every heading into ``top`` (H, A, A), heading first,
+    then x, then y (A = ⌈n_cells / 2^depth⌉): whole 255ths from the level split by phase
+    (``_top_bounds``), or without a pyramid (depth 0) the exact sums of the single shifts.
+    Squares ``top_mask`` (A, A) leaves out get −1."""
+    n_h, n_top = top.shape[0], top.shape[1]
     exact = grid.depth == 0  # no pyramid: the top squares are single shifts
     lv = grid.depth - 1
     for h in range(n_h):
-        if not exact:
+        out = top[h]
+        if exact:
+            for a in range(n_top):
+                for b in range(n_top):
+                    out[a, b] = _exact_sum(pyramid.fine, grid.ix[h], grid.iy[h], a, b)
+        else:
             cells, weights = merged.cells[lv, h], merged.weights[lv, h]
-            _top_bounds(pyramid.phased, cells, weights, merged.counts[lv, h], whole)
+            _top_bounds(pyramid.phased, cells, weights, merged.counts[lv, h], out)
         for a in range(n_top):
             for b in range(n_top):
-                if not top_mask[a, b]:  # squares left out keep −1
-                    continue
-                if exact:
-                    top[h, a, b] = _exact_sum(pyramid.fine, grid.ix[h], grid.iy[h], a, b)
-                else:
-                    top[h, a, b] = whole[a, b]
-    return top.reshape(-1)
+                if not top_mask[a, b]:
+                    out[a, b] = -1
 
 
 @njit(cache=True)
@@ -544,7 +684,7 @@ def _push_children(stack, n_stack, sums, level, x, y, n_cells, threshold):
 
 
 @njit(cache=True)
-def _branch_and_bound(pyramid, grid, pruning, top_mask, known, whole, first_batch):
+def _branch_and_bound(pyramid, grid, pruning, top_mask, known, top, first_batch):
     """The ``pruning.k`` best distinct grid poses (``_Poses``: sums, heading indices, x, y),
     best first, of the fine sums over the ``grid``, by depth-first branch and bound over the
     bound pyramid (``PyramidArrays``).
@@ -555,15 +695,17 @@ def _branch_and_bound(pyramid, grid, pruning, top_mask, known, whole, first_batc
     threshold is the k-th best distinct sum kept so far (0 until k are kept), and at least
     ``keep`` times the best, ``known`` being a sum already found. The best sum is exact;
     the runner-ups are the best distinct sums the pruning leaves (a better pose that is not
-    distinct from one kept replaces it). ``whole`` (A, A) holds one heading's top bounds,
-    A = ⌈n_cells / 2^depth⌉, of an integer type wide enough for their sums. The top squares
-    are sorted and searched ``first_batch`` at a time, then 4 times as many (``_batches``).
+    distinct from one kept replaces it). ``top`` (H, A, A), A = ⌈n_cells / 2^depth⌉, takes
+    the top squares' bounds: of an integer type wide enough for their sums in 255ths, or
+    float64 for a search without a pyramid (depth 0). The top squares are taken best bound
+    first, ``first_batch`` of them sorted at a time, then 4 times as many (``_batches``).
     """
     depth, step = grid.depth, 2**grid.depth
     n_top = -(-grid.n_cells // step)
     # Sorting pays once the search spans many top squares (a global search).
     merged = _level_cells(pyramid, grid, n_top > 2)
-    top = _top_square_bounds(pyramid, grid, merged, top_mask, whole)
+    _top_square_bounds(pyramid, grid, merged, top_mask, top)
+    top = top.reshape(-1)
     divisor = float(BOUND_LEVELS) if depth > 0 else 1.0
     # The kept poses, best first, and room for one more while a leaf is placed.
     hxy = np.zeros((3, pruning.k + 1), dtype=np.int64)  # their heading indices, x and y
@@ -574,11 +716,10 @@ def _branch_and_bound(pyramid, grid, pruning, top_mask, known, whole, first_batc
     # four squares making one.
     lxy = np.zeros((3, 4 * depth + 4), dtype=np.int64)  # their levels, x and y
     stack, sums = _Squares(lxy[0], lxy[1], lxy[2], np.zeros(4 * depth + 4)), np.zeros(4)
-    bins, tally = _batch_bins(top, 1024)
+    bins = _tally(top, 1024, depth > 0)
     done = False
-    for low, high in _batches(tally, first_batch):
-        members = np.flatnonzero((bins >= low) & (bins <= high))
-        for flat in members[np.argsort(-top[members])]:
+    for low, high in _batches(bins.tally, first_batch):
+        for flat in _batch(top, bins, low, high):
             if top[flat] / divisor <= threshold:
                 done = True
                 break
@@ -723,13 +864,17 @@ class HypothesisSearch:
         mask = self._reachable(start, n_cells, depth, reach_m)
         n_top = mask.shape[0]
         wide_enough = points.shape[0] * BOUND_LEVELS < 2**31  # int32 top bounds, summed fast
+        if depth == 0:
+            top_type: type = np.float64
+        else:
+            top_type = np.int32 if wide_enough else np.int64
         found = _branch_and_bound(
             self.pyramid.arrays(self.fine.score, self._phased(depth)),
             SearchGrid(headings, ix, iy, n_cells, depth, cell),
             Pruning(p.hypotheses, p.keep_fraction, p.distinct_m, np.deg2rad(p.distinct_deg)),
             mask,
             self._known_sum(ix, iy, headings, start, n_cells, known),
-            np.zeros((n_top, n_top), dtype=np.int32 if wide_enough else np.int64),
+            np.empty((headings.size, n_top, n_top), dtype=top_type),
             first_batch,
         )
         xy = start + cell * np.column_stack([found.x, found.y])
