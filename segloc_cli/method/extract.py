@@ -580,7 +580,7 @@ def _pairwise_sum(values: np.ndarray, count: int) -> float:
     halving is done here on explicit stacks, as numba cannot cache a recursive kernel.
     """
     if count <= _PAIRWISE_BLOCK:
-        return _pairwise_block(values, 0, count)
+        return _pairwise_block(values, np.int64(0), count)  # one specialization, no literal 0
     # Runs to sum, as (start, length, whether its halves are summed); each level of halving
     # leaves at most two on the stack, and a length below 2**63 has fewer than 64 levels.
     runs = np.empty((128, 3), dtype=np.int64)

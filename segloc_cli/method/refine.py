@@ -328,7 +328,7 @@ def _narrowed(points_world, segments, listed_from, listed, radius_m):
     kept_from = np.zeros(n + 1, dtype=np.int64)
     kept = np.empty(listed.size, dtype=np.int64)
     kept_d = np.empty(listed.size)
-    count = 0
+    count = np.int64(0)  # typed, so list_if_within compiles once, not for a literal 0
     for i in range(n):
         px, py = points_world[i, 0], points_world[i, 1]
         for k in range(listed_from[i], listed_from[i + 1]):

@@ -247,7 +247,7 @@ def filed_within(cells, segments, allowed, points, radius_m):
     starts = np.zeros(n + 1, dtype=np.int64)
     found = np.empty(max(64, 8 * n), dtype=np.int64)
     found_d = np.empty(found.size)
-    count = 0
+    count = np.int64(0)  # typed, so list_if_within compiles once, not for a literal 0
     listed_for = np.full(segments.shape[0], -1, dtype=np.int64)  # a segment filed in two cells
     for i in range(n):
         px, py = points[i, 0], points[i, 1]
