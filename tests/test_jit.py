@@ -91,3 +91,21 @@ def test_no_second_process_where_nothing_can_be_cached_or_in_the_second_process(
         fresh_kernel()(2)
     assert jit._ahead is None and capsys.readouterr().err == ""
     jit.await_compiled()  # nothing to wait for
+
+
+def test_compile_times_list_what_this_process_compiled_longest_first():
+    from segloc_cli.runs.warmup import compile_times
+
+    quick, slower = fresh_kernel(), fresh_kernel("segloc_cli.slower")
+    quick(1)
+    slower(1)
+    slower(1.5)  # a second specialization, listed on its own
+    times = compile_times([quick, slower])
+    assert len(times) == 3
+    assert [seconds for seconds, _ in times] == sorted((s for s, _ in times), reverse=True)
+    assert sorted(name for _, name in times) == [
+        "segloc_cli.slower.fresh_kernel.<locals>.add_one",
+        "segloc_cli.slower.fresh_kernel.<locals>.add_one",
+        "segloc_cli.stand_in.fresh_kernel.<locals>.add_one",
+    ]
+    assert all(seconds > 0 for seconds, _ in times)

@@ -17,6 +17,9 @@ libraries come compiled; their verdict is segloc's). Not run, as they compile
 nothing of their own: ``evaluate`` and ``--jobs`` (its workers are forked from
 a parent that has compiled already).
 
+``--times [N]`` compiles in one process and lists the N kernels (10 by default) that took
+longest; ``--late-stages`` is what a first run's second process does (``jit.py``).
+
 Numba drops a kernel's cache when its module's source file changes (for a kernel
 that calls others, only its own file counts: see ``kernels.py``). ``make setup``
 runs this warm-up again only when pyproject.toml changes; otherwise an edited
@@ -164,31 +167,50 @@ def loaded_kernels() -> list[Dispatcher]:
     return list(kernels.values())
 
 
-def main() -> None:
-    """Warm the cache up and say in one line what was done."""
+def compile_times(kernels: list[Dispatcher]) -> list[tuple[float, str]]:
+    """(seconds, kernel) of each specialization this process compiled, longest first: the
+    time in numba's compiler, the kernels it calls that were not compiled yet included."""
+    times = []
+    for kernel in kernels:
+        for signature in kernel.signatures:
+            timers = kernel.get_metadata(signature).get("timers", {})
+            if "compiler_lock" in timers:
+                name = f"{kernel.py_func.__module__}.{kernel.py_func.__qualname__}"
+                times.append((float(timers["compiler_lock"]), name))
+    return sorted(times, reverse=True)
+
+
+def main(show_times: int = 0) -> None:
+    """Warm the cache up and say in one line what was done; with ``show_times``, list that
+    many kernels this process compiled, longest first."""
     from segloc_cli.jit import watching_compiles
 
     t0 = time.perf_counter()
-    with watching_compiles(ahead=True, say=False):  # on two cores, as a first run
+    # On two cores, as a first run; alone when the compile times are asked for, so that
+    # each kernel's time is its own and not shared with a second process.
+    with watching_compiles(ahead=not show_times, say=False):
         left_out = warm_up()
     ran = [option for option in LOCALIZE_RUNS if option not in left_out]
     kernels = loaded_kernels()
     compiled = sum(bool(kernel.stats.cache_misses) for kernel in kernels)
-    done = (
-        f"{len(kernels)} numba kernels in the cache, {compiled} compiled by this process and "
-        "the search's and refinement's by a second one"
-        if compiled
-        else "all were cached"
-    )
+    done = f"{len(kernels)} numba kernels in the cache, {compiled} compiled by this process"
+    if not compiled:
+        done = "all were cached"
+    elif not show_times:
+        done += " and the search's and refinement's by a second one"
     missing = f" (not installed: {', '.join(left_out)})" if left_out else ""
     print(
         f"segloc warm-up: map build and localize ({', '.join(ran)}) run on a simulated room "
         f"in {time.perf_counter() - t0:.1f} s{missing}; {done}"
     )
+    for seconds, name in compile_times(kernels)[:show_times]:
+        print(f"  {seconds:5.1f} s  {name}")
 
 
 if __name__ == "__main__":
     if sys.argv[1:] == ["--late-stages"]:
         compile_late_stages()
+    elif sys.argv[1:2] == ["--times"]:
+        main(show_times=int(sys.argv[2]) if len(sys.argv) > 2 else 10)
     else:
         main()
