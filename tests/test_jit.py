@@ -109,3 +109,18 @@ def test_compile_times_list_what_this_process_compiled_longest_first():
         "segloc_cli.stand_in.fresh_kernel.<locals>.add_one",
     ]
     assert all(seconds > 0 for seconds, _ in times)
+
+
+def test_compile_times_leave_out_what_was_loaded_from_the_cache():
+    # A kernel numba loaded from its cache has no compile metadata: nothing to list.
+    from segloc_cli.runs.warmup import compile_times
+
+    class Loaded:
+        signatures = (("float64",),)
+        py_func = fresh_kernel().py_func
+
+        @staticmethod
+        def get_metadata(signature):
+            return None
+
+    assert compile_times([Loaded()]) == []

@@ -173,7 +173,8 @@ def compile_times(kernels: list[Dispatcher]) -> list[tuple[float, str]]:
     times = []
     for kernel in kernels:
         for signature in kernel.signatures:
-            timers = kernel.get_metadata(signature).get("timers", {})
+            metadata = kernel.get_metadata(signature) or {}  # none when loaded from the cache
+            timers = metadata.get("timers", {})
             if "compiler_lock" in timers:
                 name = f"{kernel.py_func.__module__}.{kernel.py_func.__qualname__}"
                 times.append((float(timers["compiler_lock"]), name))
@@ -203,8 +204,9 @@ def main(show_times: int = 0) -> None:
         f"segloc warm-up: map build and localize ({', '.join(ran)}) run on a simulated room "
         f"in {time.perf_counter() - t0:.1f} s{missing}; {done}"
     )
-    for seconds, name in compile_times(kernels)[:show_times]:
-        print(f"  {seconds:5.1f} s  {name}")
+    if show_times:
+        for seconds, name in compile_times(kernels)[:show_times]:
+            print(f"  {seconds:5.1f} s  {name}")
 
 
 if __name__ == "__main__":
