@@ -284,33 +284,32 @@ def _survey_extras(
     consistency: name → (Markdown, JSON value)."""
     from segloc_cli.scoring.consistency import consistency, covariance_matrices
     from segloc_cli.scoring.drift import drift_per_length, format_drift_md
+    from segloc_cli.scoring.evaluate import scored
 
     extras: dict[str, tuple[str, object]] = {}
-    truth, estimated = _truth_and_estimates(table, survey)
     if len(table) >= 2:
-        drift = drift_per_length(truth, estimated)
+        drift = drift_per_length(*_truth_and_estimates(table, survey))
         records = drift.astype(object).where(drift.notna(), None).to_dict(orient="records")
         md = "Drift per travelled length (relative pose error, pairs along the survey):\n\n"
         extras["drift"] = (md + format_drift_md(drift), records)
-    errors = np.column_stack(
-        [
-            table["err_x_cm"].to_numpy(float) / 100.0,
-            table["err_y_cm"].to_numpy(float) / 100.0,
-            np.deg2rad(table["err_theta_deg"].to_numpy(float)),
-        ]
-    )
-    scored = _summarised(table, options.only_ok)
-    checked = consistency(errors[scored], covariance_matrices(table)[scored])
+    summarised = scored(table, options.only_ok)
+    errors, covariances = _errors_m_rad(table)[summarised], covariance_matrices(table)
+    checked = consistency(errors, covariances[summarised])
     if checked is not None:
         md = " ".join(checked.lines()) + "\n"
         extras["covariance"] = (md, checked.as_json())
     return extras
 
 
-def _summarised(table: pd.DataFrame, only_ok: bool) -> np.ndarray:
-    from segloc_cli.scoring.evaluate import scored
-
-    return scored(table, only_ok)
+def _errors_m_rad(table: pd.DataFrame) -> np.ndarray:
+    """(N, 3) Table 1's final errors in metres and radians: x, y, θ (surveyed − estimate)."""
+    return np.column_stack(
+        [
+            table["err_x_cm"].to_numpy(float) / 100.0,
+            table["err_y_cm"].to_numpy(float) / 100.0,
+            np.deg2rad(table["err_theta_deg"].to_numpy(float)),
+        ]
+    )
 
 
 def _truth_and_estimates(table: pd.DataFrame, survey: PoseTable) -> tuple[np.ndarray, np.ndarray]:
@@ -320,14 +319,7 @@ def _truth_and_estimates(table: pd.DataFrame, survey: PoseTable) -> tuple[np.nda
     rows = table.iloc[order]
     index = {int(pose_id): i for i, pose_id in enumerate(np.asarray(survey.pose_id))}
     truth = np.asarray(survey.poses, float)[[index[int(p)] for p in rows["pose_id"]]]
-    estimated = truth - np.column_stack(
-        [
-            rows["err_x_cm"].to_numpy(float) / 100.0,
-            rows["err_y_cm"].to_numpy(float) / 100.0,
-            np.deg2rad(rows["err_theta_deg"].to_numpy(float)),
-        ]
-    )
-    return truth, estimated
+    return truth, truth - _errors_m_rad(rows)
 
 
 def read_baseline(path: Path) -> dict:
@@ -355,14 +347,18 @@ def _comparison(table: pd.DataFrame, options: EvaluateOptions) -> Comparison | N
     )
 
 
+def _source(estimates: pd.DataFrame) -> str:
+    """What the estimates were read from, in words (their reader's), or how many there are."""
+    return estimates.attrs.get("source") or f"{len(estimates)} estimates"
+
+
 def _pairing_line(
     estimates: pd.DataFrame, n_truth: int, n_paired: int, options: EvaluateOptions
 ) -> str:
     """How the estimates met the truth in one line: paired, unpaired and dropped counts."""
     dropped = estimates.attrs.get("dropped") or {}
-    source = estimates.attrs.get("source") or f"{len(estimates)} estimates"
     line = (
-        f"{source}: {n_paired} of {n_truth} surveyed poses paired within "
+        f"{_source(estimates)}: {n_paired} of {n_truth} surveyed poses paired within "
         f"{options.tolerance_ms:g} ms, {n_truth - n_paired} unpaired"
     )
     if dropped:
@@ -490,18 +486,16 @@ def relation_scores(
     reference = None if options.published is None else PUBLISHED.get(options.published)
     outcomes = relation_outcomes(100.0 * errors.trans_m, errors.rot_deg, options.gates)
     gate_lines = "".join(f"Gate: {o.text}.\n" for o in outcomes)
-    markdown = format_relations(errors.summary(), "md", reference) + gate_lines
-    text = format_relations(errors.summary(), options.fmt, reference)
-    if options.fmt == "md":
-        text = markdown
-    elif options.fmt == "json":
+    summary = errors.summary()
+    markdown = format_relations(summary, "md", reference) + gate_lines
+    text = markdown if options.fmt == "md" else format_relations(summary, options.fmt, reference)
+    if options.fmt == "json":
         document = json.loads(text)
         document["gate"] = outcomes_json(outcomes) if outcomes else None
         text = json.dumps(document, indent=2, allow_nan=False) + "\n"
-    source = estimates.attrs.get("source") or f"{len(estimates)} estimates"
     pairing = (
-        f"{source}: {errors.used} of {len(relations)} relations have estimates at both times "
-        f"(within {options.tolerance_ms:g} ms), {errors.skipped} skipped"
+        f"{_source(estimates)}: {errors.used} of {len(relations)} relations have estimates "
+        f"at both times (within {options.tolerance_ms:g} ms), {errors.skipped} skipped"
     )
     scores = Scores(
         text, markdown, outcomes, {}, pairing=pairing, sections=(("Relations", markdown),)
