@@ -136,6 +136,11 @@ def _start_ahead() -> None:
         _ahead = None  # no second process: this one compiles everything, as without it
 
 
+def started_ahead() -> bool:
+    """Whether this process started a second one compiling the later stages ahead."""
+    return _ahead_started
+
+
 def await_compiled() -> None:
     """Wait (at most ``AHEAD_WAIT_S``) for the process compiling the later stages ahead, if
     one runs, to say they are in the cache (its line ``AHEAD_READY``, or its end), so their

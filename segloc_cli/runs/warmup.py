@@ -184,7 +184,7 @@ def compile_times(kernels: list[Dispatcher]) -> list[tuple[float, str]]:
 def main(show_times: int = 0) -> None:
     """Warm the cache up and say in one line what was done; with ``show_times``, list that
     many kernels this process compiled, longest first."""
-    from segloc_cli.jit import watching_compiles
+    from segloc_cli.jit import started_ahead, watching_compiles
 
     t0 = time.perf_counter()
     # On two cores, as a first run; alone when the compile times are asked for, so that
@@ -197,7 +197,7 @@ def main(show_times: int = 0) -> None:
     done = f"{len(kernels)} numba kernels in the cache, {compiled} compiled by this process"
     if not compiled:
         done = "all were cached"
-    elif not show_times:
+    elif started_ahead():
         done += " and the search's and refinement's by a second one"
     missing = f" (not installed: {', '.join(left_out)})" if left_out else ""
     print(
