@@ -617,7 +617,7 @@ def _search_kernel(g, loc, start, schedule, sin_min):
     eta, dtheta, iterations, ratio, recentres = schedule
     track = np.empty((iterations + recentres + 1, 3))
     best_overlaps = np.empty(iterations + recentres)
-    track[0] = x, y, theta
+    track[0, 0], track[0, 1], track[0, 2] = x, y, theta
     n_map = g.shape[0]
     local = _local_map(loc)
     active, n_active = np.arange(n_map), n_map
@@ -648,7 +648,7 @@ def _search_kernel(g, loc, start, schedule, sin_min):
                     sc += w * np.cos(candidates[k, 2])
             x, y, theta = sx / sw, sy / sw, wrap(np.arctan2(ss, sc))
         steps += 1
-        track[steps] = x, y, theta
+        track[steps, 0], track[steps, 1], track[steps, 2] = x, y, theta
         moved_m = np.hypot(x - track[steps - 1, 0], y - track[steps - 1, 1])
         turned = abs(wrap(theta - track[steps - 1, 2]))
         if repeats_left > 0 and best > 0.0 and (moved_m > eta / 2.0 or turned > dtheta / 2.0):

@@ -407,6 +407,14 @@ def _normal_equations(world, rotated, segments, lists, listed_where, hints, gate
 
 
 @njit(cache=True)
+def _copy_into(dst, src):
+    """``dst[:] = src`` for 1-d arrays of one size, element by element: the slice assignment
+    compiles a shape check whose message formatting costs more compile time than the copy."""
+    for i in range(src.size):
+        dst[i] = src[i]
+
+
+@njit(cache=True)
 def _gauss_newton(points, segments, allowed, cells, initial, rounds, reach_m):
     """The fitted pose (3,): damped Gauss-Newton ``rounds``, one per gate, of point-to-line
     residuals with Cauchy weights and a prior on ``initial``.
@@ -449,8 +457,8 @@ def _gauss_newton(points, segments, allowed, cells, initial, rounds, reach_m):
             elif narrow:
                 lists = _narrowed(world, segments, lists[0], lists[1], 2.0 * gate)
             if renew or narrow:
-                lists_at[:] = pose
-                listed_where[:] = world
+                _copy_into(lists_at, pose)
+                _copy_into(listed_where.reshape(-1), world.reshape(-1))
                 radius = 2.0 * gate
             hessian, gradient, used = _normal_equations(
                 world, rotated, segments, lists, listed_where, hints, gate

@@ -502,23 +502,30 @@ def _batch(top, bins, low, high):
         if floor <= v < ceiling:
             members[m] = f
             m += 1
-    # As float64: the order of equal bounds is the sort's own, kept from earlier versions
-    # so that their searches meet squares (and find runner-ups) in the same order.
-    return members[np.argsort(-top[members].astype(np.float64))]
+    if m == 0:
+        return members
+    # Keyed by how far each bound lies below the batch's best: a float64 ≥ 0, whose bits
+    # read as a uint64 keep its order, so the sort is ``_z_order``'s, compiled once. The
+    # order of equal bounds is the sort's own, the same for any keys in the same order (it
+    # only compares them), kept from earlier versions so that their searches meet squares
+    # (and find runner-ups) in the same order.
+    values = top[members].astype(np.float64)
+    below = values.max() - values
+    return members[np.argsort(below.view(np.uint64))]
 
 
 @njit(cache=True)
 def _batches(tally, first):
-    """Ranges of bins (best first, as [low, high] pairs) holding at least ``first``, then 4
+    """Ranges of bins (best first, as rows [low, high]) holding at least ``first``, then 4
     times as many, … top squares each: the order the search takes them in."""
-    edges = []
-    size, held, high = first, 0, tally.size - 1
+    edges = np.empty((tally.size, 2), dtype=np.int64)
+    n, size, held, high = 0, first, 0, tally.size - 1
     for b in range(tally.size - 1, -1, -1):
         held += tally[b]
         if held >= size or b == 0:
-            edges.append((b, high))
-            high, held, size = b - 1, 0, 4 * size
-    return edges
+            edges[n, 0], edges[n, 1] = b, high
+            n, high, held, size = n + 1, b - 1, 0, 4 * size
+    return edges[:n]
 
 
 @njit(cache=True)
@@ -718,8 +725,8 @@ def _branch_and_bound(pyramid, grid, pruning, top_mask, known, top, first_batch)
     stack, sums = _Squares(lxy[0], lxy[1], lxy[2], np.zeros(4 * depth + 4)), np.zeros(4)
     bins = _tally(top, 1024, depth > 0)
     done = False
-    for low, high in _batches(bins.tally, first_batch):
-        for flat in _batch(top, bins, low, high):
+    for edges in _batches(bins.tally, first_batch):
+        for flat in _batch(top, bins, edges[0], edges[1]):
             if top[flat] / divisor <= threshold:
                 done = True
                 break

@@ -259,11 +259,10 @@ def filed_within(cells, segments, allowed, points, radius_m):
             filed += offsets[ix * ny + iy1 + 1] - offsets[ix * ny + iy0]
         if count + filed > found.size:
             grown = np.empty(max(2 * found.size, count + filed), dtype=np.int64)
-            grown[:count] = found[:count]
-            found = grown
             grown_d = np.empty(grown.size)
-            grown_d[:count] = found_d[:count]
-            found_d = grown_d
+            for k in range(count):  # not slices: their shape check's message is slow to compile
+                grown[k], grown_d[k] = found[k], found_d[k]
+            found, found_d = grown, grown_d
         for ix in range(ix0, ix1 + 1):
             for k in range(offsets[ix * ny + iy0], offsets[ix * ny + iy1 + 1]):
                 j = members[k]
