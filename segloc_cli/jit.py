@@ -11,6 +11,12 @@ first kernel is compiled, a second process starts compiling the hypothesis searc
 refinement's kernels into the cache while this one compiles extraction and the two
 stages; the localizer waits for it (``await_compiled``) before its first search, then
 loads them from the cache instead of compiling them a second time.
+
+A global search shares its work among numba's threads (``prange``, one per core by
+default; ``NUMBA_NUM_THREADS`` sets how many). They run on numba's own ``workqueue`` layer
+unless ``NUMBA_THREADING_LAYER`` names another: unlike GNU OpenMP, it keeps working in
+processes forked after a parallel kernel ran (``--jobs`` forks its workers, which use one
+thread each: ``one_thread``).
 """
 
 from __future__ import annotations
@@ -23,8 +29,13 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from typing import Any
 
+import numba
 from numba import njit as _numba_njit
+from numba import prange  # noqa: F401  (the kernels take it from here, beside njit)
 from numba.core import event
+
+if "NUMBA_THREADING_LAYER" not in os.environ:
+    numba.config.THREADING_LAYER = "workqueue"
 
 _said_uncached = False
 
@@ -134,6 +145,12 @@ def _start_ahead() -> None:
         )
     except OSError:
         _ahead = None  # no second process: this one compiles everything, as without it
+
+
+def one_thread() -> None:
+    """Run this process's parallel kernels on one thread: for a worker of several processes,
+    which share the cores already."""
+    numba.set_num_threads(1)
 
 
 def started_ahead() -> bool:

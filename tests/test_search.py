@@ -28,10 +28,18 @@ from segloc_cli.method.search import (
     Pruning,
     SearchGrid,
     _batches,
+    _best_first,
     _climbed,
+    _collect,
+    _collect_parallel,
+    _count_bounds,
     _exact_sum,
+    _merge_heading,
+    _merged_room,
     _point_cells,
     _Poses,
+    _quarter_bounds,
+    _quarters_may_beat,
     _segment_samples,
     _shadowed,
     _top_bounds,
@@ -220,6 +228,89 @@ def test_batches_take_the_best_bins_first_and_grow():
     # From the best bin down: 4 ≥ 3 held; then 2 + 1 + 9 ≥ 12; the rest at the last bin.
     assert _batches(tally, 3).tolist() == [[6, 6], [3, 5], [0, 2]]
     assert _batches(tally, 100).tolist() == [[0, 6]]
+
+
+@pytest.mark.parametrize("whole", [True, False])
+def test_batches_list_the_best_bound_first_and_equal_bounds_in_order(whole):
+    top = np.array([5, 7, 5, 7, 3, 7, 5], dtype=np.int32 if whole else np.float64)
+    members = np.arange(top.size)
+    assert _best_first(top, members).tolist() == [1, 3, 5, 0, 2, 6, 4]
+    assert _best_first(top, members[[0, 2, 4]]).tolist() == [0, 2, 4]
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_batches_collect_exactly_the_squares_of_their_bins_in_order(seed):
+    rng = np.random.default_rng(8700 + seed)
+    unit, n_h, n_top = BOUND_LEVELS, 7, 9
+    top = rng.integers(-1, 6 * unit, size=(n_h, n_top * n_top)).astype(np.int32)
+    counts = np.zeros((n_h, 8), dtype=np.int32)
+    for h in range(n_h):
+        _count_bounds(top[h].reshape(n_top, n_top), unit, counts[h])
+    flat = top.reshape(-1)
+    assert counts.sum() == np.count_nonzero(flat >= 0)
+    for low, high in [(5, 5), (2, 4), (0, 7)]:
+        expected = np.flatnonzero((flat >= low * unit) & (flat < (high + 1) * unit))
+        assert _collect(top, counts, low, high, unit).tolist() == expected.tolist()
+        assert _collect_parallel(top, counts, low, high, unit).tolist() == expected.tolist()
+
+
+def _global_grid(seed: int):
+    """A search of a random room at a few headings around a scan's true one, as a global
+    search makes it (``SearchGrid`` at level ``MIN_TOP_LEVEL``), its points merged."""
+    rng = np.random.default_rng(8800 + seed)
+    world = random_world(rng)
+    true = Pose2(*random_free_poses(world, 1, rng)[0])
+    points = simulate_scan(world, true, NOISE_FREE, rng, 0.0).points()[::4]
+    search = HypothesisSearch(world.segments)
+    headings = true.theta + np.deg2rad(np.arange(-6.0, 6.5, 1.0))
+    start = np.array([true.x, true.y]) - 1.6
+    cos_sin = np.column_stack([np.cos(headings), np.sin(headings)])
+    ix, iy = _point_cells(points, cos_sin, start, search.fine.origin, search.fine.cell_m)
+    grid = SearchGrid(headings, ix, iy, 65, MIN_TOP_LEVEL, search.fine.cell_m)
+    pyramid = search.pyramid.arrays(search.fine.score, search._phased(MIN_TOP_LEVEL))
+    merged, shapes = _merged_room(pyramid, grid)
+    for h in range(headings.size):
+        _merge_heading(pyramid, grid, True, shapes, merged, h)
+    return points, pyramid, grid, merged
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_quarters_checked_part_way_are_dropped_only_when_none_can_beat_the_threshold(seed):
+    points, pyramid, grid, merged = _global_grid(seed)
+    full, part = np.zeros(4), np.zeros(4)
+    step, checked, dropped = 2**MIN_TOP_LEVEL, 0, 0
+    for h in range(grid.headings.size):
+        for x in range(0, grid.n_cells, step):
+            for y in range(0, grid.n_cells, step):
+                _quarter_bounds(pyramid, grid, merged, h, MIN_TOP_LEVEL, x, y, full)
+                for share in (0.3, 0.6, 0.9):
+                    threshold = share * points.shape[0]
+                    level = MIN_TOP_LEVEL
+                    if _quarters_may_beat(pyramid, merged, h, level, x, y, threshold, part):
+                        assert part.tolist() == full.tolist()
+                    else:
+                        dropped += 1
+                        assert full.max() <= threshold
+                    checked += 1
+    assert 0 < dropped < checked
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_global_search_on_threads_finds_what_it_finds_on_one(seed):
+    """Threads bound the headings, collect the batches and drop the top squares none of
+    whose quarters beat the threshold: the same poses as one thread taking them one by one,
+    with a batch of one square first so that almost all come after it."""
+    rng = np.random.default_rng(8900 + seed)
+    world = random_world(rng)
+    true = Pose2(*random_free_poses(world, 1, rng)[0])
+    points = simulate_scan(world, true, NOISE_FREE, rng, 0.0).points()[::4]
+    search = HypothesisSearch(world.segments)
+    headings = np.deg2rad(np.arange(0.0, 360.0, 2.0))
+    centre, half = search.extent()
+    one = search.search(points, headings, centre, half, 30.0, first_batch=1, threads=False)
+    many = search.search(points, headings, centre, half, 30.0, first_batch=1, threads=True)
+    assert many == one
+    assert len(one) >= 1
 
 
 @pytest.mark.parametrize("seed", range(4))

@@ -73,7 +73,7 @@ def warm_cache(tmp_path_factory) -> tuple[Path, dict[str, str], dict[str, float]
 
 def test_compiling_ahead_takes_the_search_and_refinement_not_extraction(warm_cache):
     cache_dir, _, ahead = warm_cache
-    for kernel in ("search._branch_and_bound-", "refine._fit-", "refine._gauss_newton-"):
+    for kernel in ("search._descend-", "refine._fit-", "refine._gauss_newton-"):
         assert any(name.startswith(kernel) for name in ahead), f"{kernel} not compiled ahead"
     assert not any(name.startswith("extract.") for name in ahead), sorted(ahead)
     # The warm-up after it loaded what was compiled ahead instead of compiling it again.

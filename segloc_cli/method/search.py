@@ -20,11 +20,12 @@ import numpy as np
 
 from segloc_cli.config import SearchParams
 from segloc_cli.geometry import Pose2, wrap_angle
-from segloc_cli.jit import njit
+from segloc_cli.jit import njit, prange
 from segloc_cli.method.kernels import wrap
 from segloc_cli.method.score_raster import (
     BOUND_LEVELS,
     INDEX_LIMIT,
+    PyramidArrays,
     level_cell,
     level_cells,
     level_grid,
@@ -131,7 +132,7 @@ def _exact_sum(fine, ix, iy, x, y):
 
 
 class _MergedPoints(NamedTuple):
-    """The points' cells on each pyramid level, merged (``_level_cells``: ``cells``,
+    """The points' cells on each pyramid level, merged (``_merge_heading``: ``cells``,
     ``linear``, ``weights``, ``counts``, ``boxes``), and the box of their fine cells per
     heading (``_cell_box``: ``fine_boxes``)."""
 
@@ -144,9 +145,30 @@ class _MergedPoints(NamedTuple):
 
 
 @njit(cache=True)
-def _level_cells(pyramid, grid, sort):
-    """The points' cells on ``BoundPyramid`` levels 1 to the grid's depth, merged: per level
-    L (at index L − 1) and heading h, the level cells (Q, 2) of the points' squares at shift
+def _merged_room(pyramid, grid):
+    """Room for the points' merged cells (``_MergedPoints``, ``_merge_heading`` fills
+    them in at each heading; the boxes of the fine cells are filled in here), and per level
+    (depth, 3) its cells in x and y, and how far before the level a kept cell may lie."""
+    ix, iy, depth, (n_h, n_p) = grid.ix, grid.iy, grid.depth, grid.ix.shape
+    # Only the first counts[L, h] entries of a row are filled (and read).
+    cells = np.empty((depth, n_h, n_p, 2), dtype=np.int32)
+    linear = np.empty((depth, n_h, n_p), dtype=np.int64)
+    weights = np.empty((depth, n_h, n_p), dtype=np.int32)
+    counts = np.zeros((depth, n_h), dtype=np.int64)
+    boxes = np.zeros((depth, n_h, 4), dtype=np.int64)
+    shapes = np.empty((depth, 3), dtype=np.int64)
+    for lv in range(depth):
+        _, nx, ny = level_grid(pyramid, lv + 1)
+        shapes[lv, 0], shapes[lv, 1] = nx, ny
+        shapes[lv, 2] = level_cells(pyramid, lv + 1, grid.n_cells) + 1
+    return _MergedPoints(cells, linear, weights, counts, boxes, _cell_box(ix, iy)), shapes
+
+
+@njit(cache=True)
+def _merge_heading(pyramid, grid, sort, shapes, merged, h):
+    """The points' cells at heading index h on ``BoundPyramid`` levels 1 to the grid's
+    depth, merged, into ``merged`` (``_merged_room``, whose ``shapes`` it takes): per level
+    L (at index L − 1), the level cells (Q, 2) of the points' squares at shift
     (0, 0), how many points each stands for (Q,), with Q in ``counts[L − 1, h]``, each
     cell's index into its level stored row-major (Q,), and the cells' bounding box (min x,
     max x, min y, max y). With ``sort`` every cell is listed once; without, only consecutive
@@ -161,42 +183,30 @@ def _level_cells(pyramid, grid, sort):
     within ``n_cells`` brings onto the level are left out, as are points beyond
     ``INDEX_LIMIT``.
     """
-    ix, iy, depth, (n_h, n_p) = grid.ix, grid.iy, grid.depth, grid.ix.shape
-    # Only the first counts[L, h] entries of a row are filled (and read).
-    cells = np.empty((depth, n_h, n_p, 2), dtype=np.int32)
-    linear = np.empty((depth, n_h, n_p), dtype=np.int64)
-    weights = np.empty((depth, n_h, n_p), dtype=np.int32)
-    counts = np.zeros((depth, n_h), dtype=np.int64)
-    boxes = np.zeros((depth, n_h, 4), dtype=np.int64)
-    # Per level: its cells in x and y, and how far before the level a kept cell may lie.
-    shapes = np.empty((depth, 3), dtype=np.int64)
-    for lv in range(depth):
-        _, nx, ny = level_grid(pyramid, lv + 1)
-        shapes[lv, 0], shapes[lv, 1] = nx, ny
-        shapes[lv, 2] = level_cells(pyramid, lv + 1, grid.n_cells) + 1
-    top_shift = pyramid.shifts[depth - 1] if depth > 0 else 0
+    ix, iy, depth, n_p = grid.ix[h], grid.iy[h], grid.depth, grid.ix.shape[1]
+    # The points some level keeps, as offsets u = b + W from the levels' cell 0.
     kept = np.empty(n_p, dtype=np.int64)
-    for h in range(n_h):
-        # The points some level keeps, as offsets u = b + W from the levels' cell 0.
-        m = 0
-        for p in range(n_p):
-            bx, by = ix[h, p], iy[h, p]
-            if _beyond_limit(bx, by):
-                continue
-            for lv in range(depth):
-                ci, cj = level_cell(pyramid, lv + 1, bx), level_cell(pyramid, lv + 1, by)
-                reach = shapes[lv, 2]
-                if -reach <= ci < shapes[lv, 0] and -reach <= cj < shapes[lv, 1]:
-                    kept[m] = p
-                    m += 1
-                    break
-        order = kept[:m]
-        if sort and m > 1:
-            order = order[_z_order(ix[h], iy[h], order, pyramid.pad, top_shift)]
+    m = 0
+    for p in range(n_p):
+        bx, by = ix[p], iy[p]
+        if _beyond_limit(bx, by):
+            continue
         for lv in range(depth):
-            row = _MergedRow(cells[lv, h], linear[lv, h], weights[lv, h], 0, boxes[lv, h])
-            counts[lv, h] = _merge_level(pyramid, lv + 1, ix[h], iy[h], order, shapes[lv], row)
-    return _MergedPoints(cells, linear, weights, counts, boxes, _cell_box(ix, iy))
+            ci, cj = level_cell(pyramid, lv + 1, bx), level_cell(pyramid, lv + 1, by)
+            reach = shapes[lv, 2]
+            if -reach <= ci < shapes[lv, 0] and -reach <= cj < shapes[lv, 1]:
+                kept[m] = p
+                m += 1
+                break
+    order = kept[:m]
+    if sort and m > 1:
+        top_shift = pyramid.shifts[depth - 1]
+        order = order[_z_order(ix, iy, order, pyramid.pad, top_shift)]
+    for lv in range(depth):
+        row = _MergedRow(
+            merged.cells[lv, h], merged.linear[lv, h], merged.weights[lv, h], 0, merged.boxes[lv, h]
+        )
+        merged.counts[lv, h] = _merge_level(pyramid, lv + 1, ix, iy, order, shapes[lv], row)
 
 
 @njit(cache=True)
@@ -317,7 +327,7 @@ def _cell_box(ix, iy):
 
 
 class _MergedRow(NamedTuple):
-    """The merged points of one level and heading (``_level_cells``): their level cells
+    """The merged points of one level and heading (``_merge_heading``): their level cells
     (Q, 2), each one's index into the level (Q,), how many points each stands for (Q,), Q,
     and the cells' bounding box (min x, max x, min y, max y)."""
 
@@ -434,90 +444,105 @@ def _flush(short, out):
 
 
 @njit(cache=True)
-def _bin_of(value, lo, width, n_bins):
-    """The bin of a top bound, of ``n_bins`` bins ``width`` wide from ``lo`` (``_tally``)."""
-    return min(int((value - lo) / width), n_bins - 1)
-
-
-class _Bins(NamedTuple):
-    """Bins of equal width over the top bounds, from the least (``lo``) to the best: how many
-    bounds each holds, and each one's least bound as a key (``_tally``)."""
-
-    tally: np.ndarray
-    lo: float
-    width: float
-    keys: np.ndarray
-    """(n_bins,) float64: the least key of a bound in each bin."""
+def _count_bounds(out, unit, counts):
+    """Count the top bounds ``out`` (A, A) of one heading, those ≥ 0, per point's worth: a
+    bound b (``unit`` per point) in ``counts[b // unit]``."""
+    for a in range(out.shape[0]):
+        for b in range(out.shape[1]):
+            v = out[a, b]
+            if v >= 0:
+                counts[int(v) // unit] += 1
 
 
 @njit(cache=True)
-def _tally(top, n_bins, whole):
-    """The ``_Bins`` of the top bounds (flat), ``n_bins`` of them, leaving out the squares
-    left out (a bound below 0). ``whole``: the bounds are whole numbers (in 255ths), which
-    are counted per value first, so that each value, not each square, is put in its bin."""
-    lo, hi = np.inf, -np.inf
-    for f in range(top.size):
-        v = float(top[f])
-        if v >= 0:
-            lo, hi = min(lo, v), max(hi, v)
-    width = (hi - lo) / n_bins if hi > lo else 1.0
-    tally = np.zeros(n_bins, dtype=np.int64)
-    keys = np.full(n_bins, np.inf)
-    if whole and lo <= hi:
-        per_value = np.zeros(int(hi - lo) + 1, dtype=np.int64)
-        base = int(lo)
-        for f in range(top.size):
-            if top[f] >= 0:
-                per_value[int(top[f]) - base] += 1
-        for r in range(per_value.size):
-            if per_value[r] > 0:
-                b = _bin_of(float(r + base), lo, width, n_bins)
-                tally[b] += per_value[r]
-                keys[b] = min(keys[b], float(r + base))
-        return _Bins(tally, lo, width, keys)
-    for f in range(top.size):
-        v = float(top[f])
-        if v >= 0:
-            b = _bin_of(v, lo, width, n_bins)
-            tally[b] += 1
-            keys[b] = min(keys[b], v)
-    return _Bins(tally, lo, width, keys)
+def _batch_offsets(counts, low, high):
+    """Where each heading's top squares with bounds in points' worth ``low`` to ``high``
+    (``counts``, (H, bins)) start in a batch listing them heading by heading (H + 1,)."""
+    offsets = np.zeros(counts.shape[0] + 1, dtype=np.int64)
+    for h in range(counts.shape[0]):
+        held = 0
+        for b in range(low, high + 1):
+            held += counts[h, b]
+        offsets[h + 1] = offsets[h] + held
+    return offsets
 
 
 @njit(cache=True)
-def _batch(top, bins, low, high):
-    """The squares (flat indices into ``top``) whose bins (``_tally``) are ``low`` to
-    ``high``, best bound first."""
-    # Bins follow the bounds' order: the batch's bounds are those from the least of bin
-    # ``low`` to below the least of the first non-empty bin above ``high``.
-    floor, ceiling = bins.keys[low : high + 1].min(), np.inf
-    for b in range(high + 1, bins.tally.size):
-        if bins.tally[b] > 0:
-            ceiling = bins.keys[b]
-            break
-    members = np.empty(bins.tally[low : high + 1].sum(), dtype=np.int64)
-    m = 0
-    for f in range(top.size):
-        v = float(top[f])
-        if floor <= v < ceiling:
-            members[m] = f
+def _collect_heading(top, low_value, high_value, offsets, members, h):
+    """Write the flat indices of heading h's top squares (``top`` (H, A²), flat index h·A² +
+    a·A + b) whose bounds lie in [low_value, high_value) into ``members`` from
+    ``offsets[h]``, in order."""
+    m = offsets[h]
+    if offsets[h + 1] == m:
+        return
+    row, first = top[h], h * top.shape[1]
+    for f in range(row.size):
+        if low_value <= row[f] < high_value:
+            members[m] = first + f
             m += 1
-    if m == 0:
+
+
+@njit(cache=True)
+def _collect(top, counts, low, high, unit):
+    """The top squares (flat indices into ``top`` (H, A²), in order) whose bounds lie in
+    points' worth ``low`` to ``high`` (``unit`` per point; ``counts`` per heading and point's
+    worth, ``_count_bounds``)."""
+    offsets = _batch_offsets(counts, low, high)
+    members = np.empty(offsets[-1], dtype=np.int64)
+    for h in range(top.shape[0]):
+        _collect_heading(top, low * unit, (high + 1) * unit, offsets, members, h)
+    return members
+
+
+@njit(cache=True, parallel=True)
+def _collect_parallel(top, counts, low, high, unit):
+    """``_collect`` with the headings shared among numba's threads."""
+    offsets = _batch_offsets(counts, low, high)
+    members = np.empty(offsets[-1], dtype=np.int64)
+    for h in prange(top.shape[0]):
+        _collect_heading(top, low * unit, (high + 1) * unit, offsets, members, h)
+    return members
+
+
+@njit(cache=True)
+def _best_first(top, members):
+    """The top squares ``members`` (flat indices into ``top``, in order), best bound first,
+    and of equal bounds the first in ``top`` first: an order of all the squares that
+    batching does not change."""
+    if members.size < 2:
         return members
-    # Keyed by how far each bound lies below the batch's best: a float64 ≥ 0, whose bits
-    # read as a uint64 keep its order, so the sort is ``_z_order``'s, compiled once. The
-    # order of equal bounds is the sort's own, the same for any keys in the same order (it
-    # only compares them), kept from earlier versions so that their searches meet squares
-    # (and find runner-ups) in the same order.
+    # Keyed by how far each bound lies below the best: a float64 ≥ 0, whose bits read as a
+    # uint64 keep its order, so the sort is ``_z_order``'s, compiled once.
     values = top[members].astype(np.float64)
-    below = values.max() - values
-    return members[np.argsort(below.view(np.uint64))]
+    keys = (values.max() - values).view(np.uint64)
+    order = np.argsort(keys)
+    _first_of_equals_first(order, keys, members)
+    return members[order]
+
+
+@njit(cache=True)
+def _first_of_equals_first(order, keys, members):
+    """Reorder each run of ``order`` (an order of ``keys``) with equal keys so that the
+    lowest of their ``members`` comes first (a sort that only compares keys leaves equal
+    ones in an order of its own)."""
+    start = 0
+    for e in range(1, order.size + 1):
+        if e < order.size and keys[order[e]] == keys[order[start]]:
+            continue
+        for a in range(start + 1, e):  # insertion sort: runs of equal sums are short
+            held, b = order[a], a
+            while b > start and members[order[b - 1]] > members[held]:
+                order[b] = order[b - 1]
+                b -= 1
+            order[b] = held
+        start = e
 
 
 @njit(cache=True)
 def _batches(tally, first):
-    """Ranges of bins (best first, as rows [low, high]) holding at least ``first``, then 4
-    times as many, … top squares each: the order the search takes them in."""
+    """Ranges of bins of top squares (``tally``: how many squares each bin holds, the best
+    bin last), best first, as rows [low, high], holding at least ``first``, then 4 times as
+    many, … squares each: the order the search takes them in."""
     edges = np.empty((tally.size, 2), dtype=np.int64)
     n, size, held, high = 0, first, 0, tally.size - 1
     for b in range(tally.size - 1, -1, -1):
@@ -627,27 +652,46 @@ class _Squares(NamedTuple):
 
 
 @njit(cache=True)
-def _top_square_bounds(pyramid, grid, merged, top_mask, top):
-    """The bound of every top square of every heading into ``top`` (H, A, A), heading first,
-    then x, then y (A = ⌈n_cells / 2^depth⌉): whole 255ths from the level split by phase
-    (``_top_bounds``), or without a pyramid (depth 0) the exact sums of the single shifts.
-    Squares ``top_mask`` (A, A) leaves out get −1."""
-    n_h, n_top = top.shape[0], top.shape[1]
-    exact = grid.depth == 0  # no pyramid: the top squares are single shifts
-    lv = grid.depth - 1
-    for h in range(n_h):
-        out = top[h]
-        if exact:
-            for a in range(n_top):
-                for b in range(n_top):
-                    out[a, b] = _exact_sum(pyramid.fine, grid.ix[h], grid.iy[h], a, b)
-        else:
-            cells, weights = merged.cells[lv, h], merged.weights[lv, h]
-            _top_bounds(pyramid.phased, cells, weights, merged.counts[lv, h], out)
+def _bound_headings(pyramid, grid, sort, shapes, merged, top_mask, top, counts):
+    """At every heading, the points merged per level cell (``_merge_heading``, ``sort`` as
+    there) into ``merged``, the bound of every top square (``_top_square_bounds``) into
+    ``top``, and how many bounds there are per point's worth into ``counts`` (H, bins)."""
+    unit = BOUND_LEVELS if grid.depth > 0 else 1
+    for h in range(top.shape[0]):
+        _merge_heading(pyramid, grid, sort, shapes, merged, h)
+        _top_square_bounds(pyramid, grid, merged, top_mask, top, h)
+        _count_bounds(top[h], unit, counts[h])
+
+
+@njit(cache=True, parallel=True)
+def _bound_headings_parallel(pyramid, grid, sort, shapes, merged, top_mask, top, counts):
+    """``_bound_headings`` with the headings shared among numba's threads."""
+    unit = BOUND_LEVELS if grid.depth > 0 else 1
+    for h in prange(top.shape[0]):
+        _merge_heading(pyramid, grid, sort, shapes, merged, h)
+        _top_square_bounds(pyramid, grid, merged, top_mask, top, h)
+        _count_bounds(top[h], unit, counts[h])
+
+
+@njit(cache=True)
+def _top_square_bounds(pyramid, grid, merged, top_mask, top, h):
+    """The bound of every top square of heading index h into ``top[h]`` (A, A) of ``top`` (H,
+    A, A), heading first, then x, then y (A = ⌈n_cells / 2^depth⌉): whole 255ths from the
+    level split by phase (``_top_bounds``), or without a pyramid (depth 0) the exact sums
+    of the single shifts. Squares ``top_mask`` (A, A) leaves out get −1."""
+    out, n_top = top[h], top.shape[1]
+    if grid.depth == 0:  # no pyramid: the top squares are single shifts
         for a in range(n_top):
             for b in range(n_top):
-                if not top_mask[a, b]:
-                    out[a, b] = -1
+                out[a, b] = _exact_sum(pyramid.fine, grid.ix[h], grid.iy[h], a, b)
+    else:
+        lv = grid.depth - 1
+        cells, weights = merged.cells[lv, h], merged.weights[lv, h]
+        _top_bounds(pyramid.phased, cells, weights, merged.counts[lv, h], out)
+    for a in range(n_top):
+        for b in range(n_top):
+            if not top_mask[a, b]:
+                out[a, b] = -1
 
 
 @njit(cache=True)
@@ -690,82 +734,213 @@ def _push_children(stack, n_stack, sums, level, x, y, n_cells, threshold):
     return n_stack
 
 
-@njit(cache=True)
-def _branch_and_bound(pyramid, grid, pruning, top_mask, known, top, first_batch):
+class _Descent(NamedTuple):
+    """What a branch and bound's batches share (``_descend``): the search's arrays, the top
+    squares' bounds (flat) and their divisor to points' worth, the kept poses (``_Poses``,
+    best first, with room for one more while a leaf is placed)."""
+
+    pyramid: PyramidArrays
+    grid: SearchGrid
+    pruning: Pruning
+    merged: _MergedPoints
+    top: np.ndarray
+    divisor: float
+    kept: _Poses
+
+
+def _branch_and_bound(
+    pyramid: PyramidArrays,
+    grid: SearchGrid,
+    pruning: Pruning,
+    top_mask: np.ndarray,
+    known: float,
+    top: np.ndarray,
+    first_batch: int,
+    threads: bool = False,
+) -> _Poses:
     """The ``pruning.k`` best distinct grid poses (``_Poses``: sums, heading indices, x, y),
     best first, of the fine sums over the ``grid``, by depth-first branch and bound over the
     bound pyramid (``PyramidArrays``).
 
     The search bounds every square of 2^``depth`` shifts that ``top_mask`` allows at every
-    heading in one pass (``_top_square_bounds``), takes them best bound first, and splits a
-    square in four while its bound beats the threshold and it is not ``_shadowed``: the
-    threshold is the k-th best distinct sum kept so far (0 until k are kept), and at least
-    ``keep`` times the best, ``known`` being a sum already found. The best sum is exact;
-    the runner-ups are the best distinct sums the pruning leaves (a better pose that is not
-    distinct from one kept replaces it). ``top`` (H, A, A), A = ⌈n_cells / 2^depth⌉, takes
-    the top squares' bounds: of an integer type wide enough for their sums in 255ths, or
-    float64 for a search without a pyramid (depth 0). The top squares are taken best bound
-    first, ``first_batch`` of them sorted at a time, then 4 times as many (``_batches``).
+    heading in one pass (``_top_square_bounds``), takes them best bound first (of equal
+    bounds the first in ``top`` first), and splits a square in four while its bound beats
+    the threshold and it is not ``_shadowed``: the threshold is the k-th best distinct sum
+    kept so far (0 until k are kept), and at least ``keep`` times the best, ``known`` being
+    a sum already found. The best sum is exact; the runner-ups are the best distinct sums
+    the pruning leaves (a better pose that is not distinct from one kept replaces it).
+    ``top`` (H, A, A), A = ⌈n_cells / 2^depth⌉, takes the top squares' bounds: of an
+    integer type wide enough for their sums in 255ths, or float64 for a search without a
+    pyramid (depth 0). The top squares are taken in batches of whole points' worth of
+    bounds, the best first, holding ``first_batch`` squares or more, then 4 times as many
+    (``_batches``), counted per heading as they are bounded (``_count_bounds``) so that a
+    batch is collected heading by heading (``_collect``).
+
+    With ``threads``, numba's threads share the headings, and from the second batch on find
+    the batch's squares with a quarter that beats the threshold (``_survivors``): the
+    others, whose quarters all fall at or below it, would be split and dropped, which
+    changes nothing, so the answer is the same as on one thread.
     """
+    depth, n_h = grid.depth, grid.ix.shape[0]
+    n_top = -(-grid.n_cells // 2**depth)
+    merged, shapes = _merged_room(pyramid, grid)
+    # How many top squares' bounds there are per heading and point's worth, 0 to all points.
+    counts = np.zeros((n_h, grid.ix.shape[1] + 2), dtype=np.int32)
+    # Sorting pays once the search spans many top squares (a global search).
+    bound_headings = _bound_headings_parallel if threads else _bound_headings
+    bound_headings(pyramid, grid, n_top > 2, shapes, merged, top_mask, top, counts)
+    by_heading = top.reshape(n_h, -1)
+    flat = top.reshape(-1)
+    hxy = np.zeros((3, pruning.k + 1), dtype=np.int64)  # heading indices, x and y
+    kept = _Poses(np.zeros(pruning.k + 1), hxy[0], hxy[1], hxy[2])
+    divisor = float(BOUND_LEVELS) if depth > 0 else 1.0
+    descent = _Descent(pyramid, grid, pruning, merged, flat, divisor, kept)
+    n_kept, threshold = 0, pruning.keep * known  # a sum already found is at most the best
+    collect = _collect_parallel if threads else _collect
+    unit = BOUND_LEVELS if depth > 0 else 1
+    for number, (low, high) in enumerate(_batches(counts.sum(axis=0), first_batch)):
+        if high + 1 <= threshold:  # every bound left is below (high + 1) points' worth
+            break
+        members = collect(by_heading, counts, low, high, unit)
+        if threads and number > 0 and depth > 0:
+            members = members[_survivors(pyramid, grid, merged, flat, divisor, members, threshold)]
+        members = _best_first(flat, members)
+        n_kept, threshold, done = _descend(descent, members, n_kept, threshold)
+        if done:
+            break
+    n_kept = int(np.searchsorted(-kept.sums[:n_kept], -pruning.keep * kept.sums[0], "right"))
+    return _Poses(kept.sums[:n_kept], kept.h[:n_kept], kept.x[:n_kept], kept.y[:n_kept])
+
+
+@njit(cache=True)
+def _descend(descent, members, n_kept, threshold):
+    """Search the top squares ``members`` (flat indices into ``descent.top``, best bound
+    first), placing leaves among the ``n_kept`` kept poses, from the
+    sum ``threshold``; returns how many are kept, the threshold, and whether the search is
+    done (a top square's bound fell to the threshold)."""
+    pyramid, grid, pruning, merged, top, divisor, kept = descent
     depth, step = grid.depth, 2**grid.depth
     n_top = -(-grid.n_cells // step)
-    # Sorting pays once the search spans many top squares (a global search).
-    merged = _level_cells(pyramid, grid, n_top > 2)
-    _top_square_bounds(pyramid, grid, merged, top_mask, top)
-    top = top.reshape(-1)
-    divisor = float(BOUND_LEVELS) if depth > 0 else 1.0
-    # The kept poses, best first, and room for one more while a leaf is placed.
-    hxy = np.zeros((3, pruning.k + 1), dtype=np.int64)  # their heading indices, x and y
-    kept = _Poses(np.zeros(pruning.k + 1), hxy[0], hxy[1], hxy[2])
-    n_kept = np.int64(0)  # not the literal 0, which numba would compile callees for as well
-    threshold = pruning.keep * known  # a sum already found is at most the best
+    n_kept = np.int64(n_kept)  # not the literal 0, which numba would compile callees for too
     # The squares left to search (at most three per level, and one), and the bounds of the
     # four squares making one.
     lxy = np.zeros((3, 4 * depth + 4), dtype=np.int64)  # their levels, x and y
     stack, sums = _Squares(lxy[0], lxy[1], lxy[2], np.zeros(4 * depth + 4)), np.zeros(4)
-    bins = _tally(top, 1024, depth > 0)
-    done = False
-    for edges in _batches(bins.tally, first_batch):
-        for flat in _batch(top, bins, edges[0], edges[1]):
+    for i in range(members.size):
+        flat = members[i]
+        if top[flat] / divisor <= threshold:
+            return n_kept, threshold, True
+        h = flat // (n_top * n_top)
+        stack.level[0], stack.x[0] = depth, (flat // n_top) % n_top * step
+        stack.y[0], stack.bound[0] = flat % n_top * step, top[flat] / divisor
+        n_stack = 1
+        while n_stack > 0:
+            n_stack -= 1
+            level, x, y = stack.level[n_stack], stack.x[n_stack], stack.y[n_stack]
+            bound = stack.bound[n_stack]
+            if bound <= threshold:
+                continue
+            if _shadowed(kept, n_kept, grid, pruning, h, x, y, 2**level - 1, bound):
+                continue
+            if level == 0:  # a leaf, whose bound is its exact sum: place it among the kept
+                n_kept, threshold = _place_leaf(kept, n_kept, grid, pruning, h, x, y, bound)
+                continue
+            _quarter_bounds(pyramid, grid, merged, h, level, x, y, sums)
+            n_stack = _push_children(stack, n_stack, sums, level, x, y, grid.n_cells, threshold)
+    return n_kept, threshold, False
+
+
+@njit(cache=True)
+def _quarter_bounds(pyramid, grid, merged, h, level, x, y, sums):
+    """The bounds of the four squares making the square of 2^level shifts at corner (x, y)
+    and heading index h, into ``sums`` (4,) in the order ``_push_children`` takes them:
+    their exact sums when they are single shifts."""
+    if level == 1:
+        box = merged.fine_boxes[h]
+        _children_exact(pyramid.fine, grid.ix[h], grid.iy[h], box, x, y, sums)
+        return
+    lv = level - 2  # where the quarters' level is in `merged`
+    row = _MergedRow(
+        merged.cells[lv, h],
+        merged.linear[lv, h],
+        merged.weights[lv, h],
+        merged.counts[lv, h],
+        merged.boxes[lv, h],
+    )
+    square = level_square(pyramid, level - 1, x, y)
+    _children_bound(level_grid(pyramid, level - 1), row, square, sums)
+
+
+SURVIVOR_LANES = 64
+"""Shares of ``_survivors``' squares, each taking every 64th: the squares above the threshold
+come first in a batch, so contiguous shares would leave most of the work to one thread."""
+
+
+@njit(cache=True, parallel=True)
+def _survivors(pyramid, grid, merged, top, divisor, members, threshold):
+    """Which of the top squares ``members`` (flat indices into ``top``, bounds in points'
+    worth times ``divisor``) have a quarter on the grid whose bound beats the sum
+    ``threshold``, on numba's threads (``_descend`` for the arguments)."""
+    depth, step = grid.depth, 2**grid.depth
+    n_top, n_cells, half = -(-grid.n_cells // step), grid.n_cells, step // 2
+    alive = np.zeros(members.size, dtype=np.bool_)
+    for lane in prange(SURVIVOR_LANES):
+        sums = np.empty(4)
+        for i in range(lane, members.size, SURVIVOR_LANES):
+            flat = members[i]
             if top[flat] / divisor <= threshold:
-                done = True
-                break
-            h = flat // (n_top * n_top)
-            stack.level[0], stack.x[0] = depth, (flat // n_top) % n_top * step
-            stack.y[0], stack.bound[0] = flat % n_top * step, top[flat] / divisor
-            n_stack = 1
-            while n_stack > 0:
-                n_stack -= 1
-                level, x, y = stack.level[n_stack], stack.x[n_stack], stack.y[n_stack]
-                bound = stack.bound[n_stack]
-                if bound <= threshold:
-                    continue
-                if _shadowed(kept, n_kept, grid, pruning, h, x, y, 2**level - 1, bound):
-                    continue
-                if level == 0:  # a leaf, whose bound is its exact sum: place it among the kept
-                    n_kept, threshold = _place_leaf(kept, n_kept, grid, pruning, h, x, y, bound)
-                    continue
-                # The four squares making this one: their bounds, in the order _push_children
-                # takes them (their exact sums when they are single shifts).
-                if level == 1:
-                    box = merged.fine_boxes[h]
-                    _children_exact(pyramid.fine, grid.ix[h], grid.iy[h], box, x, y, sums)
-                else:
-                    lv = level - 2  # where the children's level is in `merged`
-                    row = _MergedRow(
-                        merged.cells[lv, h],
-                        merged.linear[lv, h],
-                        merged.weights[lv, h],
-                        merged.counts[lv, h],
-                        merged.boxes[lv, h],
-                    )
-                    square = level_square(pyramid, level - 1, x, y)
-                    _children_bound(level_grid(pyramid, level - 1), row, square, sums)
-                n_stack = _push_children(stack, n_stack, sums, level, x, y, grid.n_cells, threshold)
-        if done:
-            break
-    n_kept = np.searchsorted(-kept.sums[:n_kept], -pruning.keep * kept.sums[0], side="right")
-    return _Poses(kept.sums[:n_kept], kept.h[:n_kept], kept.x[:n_kept], kept.y[:n_kept])
+                continue
+            h, x, y = flat // (n_top * n_top), (flat // n_top) % n_top * step, flat % n_top * step
+            if not _quarters_may_beat(pyramid, merged, h, depth, x, y, threshold, sums):
+                continue
+            for c in range(4):
+                cx, cy = x + (c % 2) * half, y + (c // 2) * half
+                if cx < n_cells and cy < n_cells and sums[c] > threshold:
+                    alive[i] = True
+    return alive
+
+
+QUARTER_CHECK = 32
+"""Merged cells ``_quarters_may_beat`` sums between its checks of what is left to add."""
+
+
+@njit(cache=True)
+def _quarters_may_beat(pyramid, merged, h, level, x, y, threshold, sums):
+    """``_quarter_bounds`` of a square of level 2 or more into ``sums``, in points' worth,
+    unless part way through no quarter can beat the sum ``threshold`` any more (were each
+    point left to add to score a whole 255ths): then False, and ``sums`` is partial."""
+    lv = level - 2
+    values, nx, ny = level_grid(pyramid, level - 1)
+    xs, ys, half = level_square(pyramid, level - 1, x, y)
+    box, count = merged.boxes[lv, h], merged.counts[lv, h]
+    inside_x = box[0] + xs >= 0 and box[1] + xs + half < nx
+    if not (inside_x and box[2] + ys >= 0 and box[3] + ys + half < ny):
+        row = _MergedRow(
+            merged.cells[lv, h], merged.linear[lv, h], merged.weights[lv, h], count, box
+        )
+        _children_bound((values, nx, ny), row, (xs, ys, half), sums)
+        return True
+    linear, weights = merged.linear[lv, h], merged.weights[lv, h]
+    left = 0  # points' worth still to add, in 255ths
+    for q in range(count):
+        left += weights[q]
+    left *= BOUND_LEVELS
+    limit = threshold * BOUND_LEVELS
+    base, across = xs * ny + ys, half * ny
+    s0 = s1 = s2 = s3 = 0
+    for start in range(0, count, QUARTER_CHECK):
+        for q in range(start, min(count, start + QUARTER_CHECK)):
+            b, w = linear[q] + base, weights[q]
+            s0 += w * values[b]
+            s1 += w * values[b + across]
+            s2 += w * values[b + half]
+            s3 += w * values[b + across + half]
+            left -= w * BOUND_LEVELS
+        if max(max(s0, s1), max(s2, s3)) + left <= limit:
+            return False
+    sums[0], sums[1] = s0 / BOUND_LEVELS, s1 / BOUND_LEVELS
+    sums[2], sums[3] = s2 / BOUND_LEVELS, s3 / BOUND_LEVELS
+    return True
 
 
 @njit(cache=True)
@@ -841,6 +1016,7 @@ class HypothesisSearch:
         reach_m: float | None = None,
         known: Pose2 | None = None,
         first_batch: int = FIRST_BATCH,
+        threads: bool | None = None,
     ) -> list[GridPose]:
         """The ``hypotheses`` best distinct grid poses, best first, in a square around
         ``centre_xy``.
@@ -851,7 +1027,9 @@ class HypothesisSearch:
         under ``keep_fraction`` of its score are not kept. With
         ``reach_m``, positions farther than that from every map segment are not
         searched (a scan seen from there could not reach the map). ``first_batch`` top
-        squares are sorted and searched first (the answer does not depend on it).
+        squares are sorted and searched first (the answer does not depend on it). With
+        ``threads`` (by default for a search with ``reach_m``: of the whole map) numba's
+        threads share the work, with the same answer.
         """
         p = self.params
         points = np.asarray(points_robot, dtype=float).reshape(-1, 2)
@@ -883,6 +1061,7 @@ class HypothesisSearch:
             self._known_sum(ix, iy, headings, start, n_cells, known),
             np.empty((headings.size, n_top, n_top), dtype=top_type),
             first_batch,
+            threads=reach_m is not None if threads is None else threads,
         )
         xy = start + cell * np.column_stack([found.x, found.y])
         return [

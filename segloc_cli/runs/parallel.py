@@ -37,6 +37,7 @@ import numpy as np
 
 from segloc_cli.estimates import EstimateRow
 from segloc_cli.geometry import Pose2
+from segloc_cli.jit import one_thread
 from segloc_cli.method.extract import ExtractParams
 from segloc_cli.method.localize import ScanMatcher, localize_scans
 from segloc_cli.method.window import Windows
@@ -81,7 +82,8 @@ def usable_cores() -> int:
 def _worker_signals() -> None:
     """A worker leaves stopping to the parent, dies of SIGTERM (as the whole process group
     gets it from a job runner), and dies with the parent even if that is killed outright
-    (Linux; elsewhere the pipe's end stops it). The pool takes a dead worker in its stride."""
+    (Linux; elsewhere the pipe's end stops it). The pool takes a dead worker in its stride.
+    Its parallel kernels run on one thread: the workers share the cores already."""
     # Ctrl-C and a closing terminal reach every process of the group; the parent handles them.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGHUP, signal.SIG_IGN)
@@ -91,6 +93,7 @@ def _worker_signals() -> None:
         libc.prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
     if os.getppid() == 1:  # the parent died before the line above took effect
         os._exit(1)
+    one_thread()
 
 
 def _localize_block(bounds: tuple[int, int]) -> list[EstimateRow]:

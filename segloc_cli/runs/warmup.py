@@ -43,6 +43,7 @@ from segloc_cli.estimates import PoseTable
 from segloc_cli.geometry import Pose2
 from segloc_cli.io.log import Log
 from segloc_cli.method.refine import nearest_segments
+from segloc_cli.method.search import HypothesisSearch
 from segloc_cli.runs import pipeline
 from segloc_cli.sim import (
     SensorModel,
@@ -119,6 +120,12 @@ def warm_up() -> list[str]:
         _drain(run.rows)
     # What a library call without a grid of the map runs (the commands always pass one).
     nearest_segments(log.scans[0].points(), built.segments)
+    # A global search's later batches, which a room this small does not reach: one top
+    # square a batch.
+    search = HypothesisSearch(built.segments)
+    centre, half = search.extent()
+    headings = np.deg2rad(np.arange(0.0, 360.0, 10.0))
+    search.search(log.scans[0].points(), headings, centre, half, reach_m=30.0, first_batch=1)
     return left_out
 
 
