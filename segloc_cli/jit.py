@@ -35,7 +35,7 @@ from numba import prange  # noqa: F401  (the kernels take it from here, beside n
 from numba.core import event
 
 if "NUMBA_THREADING_LAYER" not in os.environ:
-    numba.config.THREADING_LAYER = "workqueue"
+    numba.config.THREADING_LAYER = "workqueue"  # type: ignore[attr-defined]
 
 _said_uncached = False
 
