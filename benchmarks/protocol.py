@@ -141,8 +141,11 @@ from the start (Linux keeps the high-water mark across exec), so the command is 
 this small interpreter, not from the benchmark's own process."""
 
 
-def run_segloc_measured(commands: list[str], *args: object) -> MeasuredRun:
-    """Run ``segloc ARGS --force`` as ``run_segloc`` does, timing it and reading its peak RSS.
+def run_segloc_measured(
+    commands: list[str], *args: object, env: dict[str, str] | None = None
+) -> MeasuredRun:
+    """Run ``segloc ARGS --force`` as ``run_segloc`` does, timing it and reading its peak RSS;
+    in the environment ``env`` if given (else this process's).
 
     The peak comes from the kernel's account of the finished process (``wait4``): the
     largest resident set of the process or of any worker it waited for, counted from a
@@ -157,7 +160,7 @@ def run_segloc_measured(commands: list[str], *args: object) -> MeasuredRun:
     ):
         report = Path(folder) / "measured"
         launcher = [sys.executable, "-c", _MEASURING_LAUNCHER, str(report), *argv]
-        returncode = subprocess.run(launcher, stdout=out, stderr=err, text=True).returncode
+        returncode = subprocess.run(launcher, stdout=out, stderr=err, text=True, env=env).returncode
         out.seek(0)
         err.seek(0)
         stdout, stderr = out.read(), err.read()

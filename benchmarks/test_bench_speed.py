@@ -15,13 +15,18 @@ Sections, one test each, every figure measured in the same run:
 4. Map-build time per 1,000 scans: ``map build`` of each whole corrected log.
 5. Peak resident memory: a column of sections 1 and 2, with the largest shared log's
    default run and the generated map's global run named below their tables.
+6. First run: ``segloc localize`` of the shipped hall's 10 scans with the defaults on an
+   empty numba cache (``NUMBA_CACHE_DIR`` a new folder: what a plain ``pip install`` gives),
+   then again with the kernels that run cached.
 
 ms/scan is the median of the estimates' ``runtime_ms`` (the time segloc spent on each scan);
 wall is the whole command: start-up, reading the map and the log, writing the estimates.
 Kernels are compiled into numba's cache first (``python -m segloc_cli.runs.warmup``), so no run
-pays for compiling. pytest-benchmark's table gives each section's total wall time, its
-preparation (importing logs, building the held-out maps, simulating) left out. Nothing is
-asserted but that every command succeeded. Every command run goes to ``WORK/commands.md``.
+but section 6's first pays for compiling. A global search shares its work among numba's
+threads (one per core); every other section's time is one process on one core.
+pytest-benchmark's table gives each section's total wall time, its preparation (importing
+logs, building the held-out maps, simulating) left out. Nothing is asserted but that every
+command succeeded. Every command run goes to ``WORK/commands.md``.
 """
 
 from __future__ import annotations
@@ -29,6 +34,7 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -508,4 +514,38 @@ def test_speed_map_build(benchmark, splits):
     print(
         "\nspeed 4: map build from every scan of each corrected log at its reference pose\n"
         + tabulate(rows, headers, floatfmt=".1f")
+    )
+
+
+# --- 6. the first run ---------------------------------------------------------------
+
+HALL = REPO / "datasets" / "hall"
+"""The shipped hall, which ``make demo`` localizes."""
+
+
+def _first_runs() -> tuple[float, float]:
+    """The wall time (s) of ``segloc localize`` of the hall on an empty numba cache, then of
+    the same command again, the hall's map built beforehand with the kernels cached."""
+    commands, work = _commands_of("hall"), WORK / "hall"
+    map_path, out = work / "map.json", work / "first-run.csv"
+    work.mkdir(parents=True, exist_ok=True)
+    run_segloc(
+        commands, "map", "build", HALL / "mapping" / "log.mcap",
+        "--survey", HALL / "mapping" / "survey.csv", "--out", map_path,
+    )  # fmt: skip
+    with tempfile.TemporaryDirectory() as cache:
+        commands.append("# the next two with NUMBA_CACHE_DIR set to a new, empty folder")
+        env = {**os.environ, "NUMBA_CACHE_DIR": cache}
+        args = ("localize", HALL / "log.mcap", "--map", map_path, "--out", out)
+        first = run_segloc_measured(commands, *args, env=env)
+        second = run_segloc_measured(commands, *args, env=env)
+    return first.wall_s, second.wall_s
+
+
+def test_speed_first_run(benchmark):
+    first_s, second_s = benchmark.pedantic(_first_runs, rounds=1, iterations=1)
+    rows = [["empty cache (compiles)", first_s], ["kernels cached", second_s]]
+    print(
+        "\nspeed 6: segloc localize of the hall's 10 scans with the defaults, wall s\n"
+        + tabulate(rows, ["run", "wall s"], floatfmt=".1f")
     )
