@@ -186,13 +186,16 @@ def test_top_bounds_read_the_level_at_every_square(nx, ny, step, n_top, seed):
     cells = rng.integers(-3 * step * n_top, max(nx, ny) + 4, (count + 2, 2))
     weights = rng.integers(1, 50, count + 2).astype(np.int32)
     out = np.full((n_top, n_top), -7, dtype=np.int32)
-    _top_bounds(phase_split(level, step), cells, weights, count, out)
+    # Rows and columns from a random first to a random stop: 0 outside, as if left out.
+    box = np.concatenate([np.sort(rng.integers(0, n_top + 1, 2)) for _ in range(2)])
+    _top_bounds(phase_split(level, step), cells, weights, count, out, box)
     expected = np.zeros((n_top, n_top), dtype=np.int64)
     for a in range(n_top):
         for b in range(n_top):
             for (ci, cj), w in zip(cells[:count], weights[:count], strict=True):
                 i, j = ci + a * step, cj + b * step
-                if 0 <= i < nx and 0 <= j < ny:
+                inside = box[0] <= a < box[1] and box[2] <= b < box[3]
+                if 0 <= i < nx and 0 <= j < ny and inside:
                     expected[a, b] += w * int(level[i, j])
     np.testing.assert_array_equal(out, expected)
 

@@ -387,12 +387,14 @@ SHORT_SUM_WEIGHT = 257
 
 
 @njit(cache=True)
-def _top_bounds(phased, cells, weights, count, out):
-    """The bounds of every top square (a, b) of one heading, into ``out`` (A, B) in whole
-    255ths: the sum over the merged points of the level at their cell moved by (a, b) top
-    squares, read from the level split by phase (``phased``, ``phase_split``) so that a
-    point's reads over all squares are rows of consecutive cells, added as vectors (the
-    caller picks ``out``'s integer type wide enough for 255 per point).
+def _top_bounds(phased, cells, weights, count, out, box):
+    """The bounds of the top squares (a, b) of one heading in ``box`` (``_allowed_box``: a
+    in [box[0], box[1]), b in [box[2], box[3])), into ``out`` (A, B) in whole 255ths (0
+    at the others): the sum
+    over the merged points of the level at their cell moved by (a, b) top squares, read
+    from the level split by phase (``phased``, ``phase_split``) so that a point's reads
+    over all squares are rows of consecutive cells, added as vectors (the caller picks
+    ``out``'s integer type wide enough for 255 per point).
 
     The points are summed ``SHORT_SUM_WEIGHT`` points' worth at a time in 16 bits, which
     cannot overflow there and adds twice as many cells per vector, then added to ``out``.
@@ -404,29 +406,30 @@ def _top_bounds(phased, cells, weights, count, out):
     for q in range(count):
         w = weights[q]
         if w > SHORT_SUM_WEIGHT:  # too heavy for 16 bits: straight into ``out``
-            _add_rows(phased, cells[q, 0], cells[q, 1], out.dtype.type(w), out)
+            _add_rows(phased, cells[q, 0], cells[q, 1], out.dtype.type(w), out, box)
             continue
         if held + w > SHORT_SUM_WEIGHT:
-            _flush(short, out)
+            _flush(short, out, box)
             held = 0
         held += w
-        _add_rows(phased, cells[q, 0], cells[q, 1], np.uint16(w), short)
-    _flush(short, out)
+        _add_rows(phased, cells[q, 0], cells[q, 1], np.uint16(w), short, box)
+    _flush(short, out, box)
 
 
 @njit(cache=True)
-def _add_rows(phased, ci, cj, w, out):
+def _add_rows(phased, ci, cj, w, out, box):
     """Add ``w`` times the level (split by phase) at cell (ci, cj) moved by (a, b) top
-    squares to ``out`` (A, B) at (a, b), in ``out``'s type; cells beyond the level add 0."""
-    step, n_a, n_b = phased.shape[0], out.shape[0], out.shape[1]
+    squares to ``out`` (A, B) at (a, b) within ``box`` (``_allowed_box``), in ``out``'s
+    type; cells beyond the level add 0."""
+    step = phased.shape[0]
     rows, columns = phased.shape[2], phased.shape[3]
     lane = phased[ci % step, cj % step]
     qa, qb = ci // step, cj // step
-    b0, b1 = max(0, -qb), min(n_b, columns - qb)
+    b0, b1 = max(box[2], -qb), min(box[3], columns - qb)
     if b0 >= b1:  # (and a negative slice end would count from the row's end)
         return
     kind = out.dtype.type
-    for a in range(max(0, -qa), min(n_a, rows - qa)):
+    for a in range(max(box[0], -qa), min(box[1], rows - qa)):
         # Slices first: indexing them by a plain range lets the loop be vectorized.
         row, total = lane[qa + a, qb + b0 : qb + b1], out[a, b0:b1]
         for b in range(row.shape[0]):
@@ -434,13 +437,23 @@ def _add_rows(phased, ci, cj, w, out):
 
 
 @njit(cache=True)
-def _flush(short, out):
-    """Add the 16-bit sums ``short`` to ``out`` and clear them."""
-    for a in range(out.shape[0]):
-        row, total = short[a], out[a]
+def _flush(short, out, box):
+    """Add the 16-bit sums ``short`` to ``out`` within ``box`` and clear them."""
+    for a in range(box[0], box[1]):
+        row, total = short[a, box[2] : box[3]], out[a, box[2] : box[3]]
         for b in range(row.shape[0]):
             total[b] += row[b]
             row[b] = 0
+
+
+def _allowed_box(top_mask: np.ndarray) -> np.ndarray:
+    """The rows [a0, a1) and columns [b0, b1) holding every top square ``top_mask`` (A, A)
+    allows, as (a0, a1, b0, b1) int64 (all 0 when it allows none): where ``_top_bounds``
+    adds, which leaves out most of the squares of a long narrow map."""
+    rows, columns = np.flatnonzero(top_mask.any(axis=1)), np.flatnonzero(top_mask.any(axis=0))
+    if rows.size == 0:
+        return np.zeros(4, dtype=np.int64)
+    return np.array([rows[0], rows[-1] + 1, columns[0], columns[-1] + 1], dtype=np.int64)
 
 
 @njit(cache=True)
@@ -652,33 +665,34 @@ class _Squares(NamedTuple):
 
 
 @njit(cache=True)
-def _bound_headings(pyramid, grid, sort, shapes, merged, top_mask, top, counts):
+def _bound_headings(pyramid, grid, sort, shapes, merged, top_mask, box, top, counts):
     """At every heading, the points merged per level cell (``_merge_heading``, ``sort`` as
     there) into ``merged``, the bound of every top square (``_top_square_bounds``) into
     ``top``, and how many bounds there are per point's worth into ``counts`` (H, bins)."""
     unit = BOUND_LEVELS if grid.depth > 0 else 1
     for h in range(top.shape[0]):
         _merge_heading(pyramid, grid, sort, shapes, merged, h)
-        _top_square_bounds(pyramid, grid, merged, top_mask, top, h)
+        _top_square_bounds(pyramid, grid, merged, top_mask, box, top, h)
         _count_bounds(top[h], unit, counts[h])
 
 
 @njit(cache=True, parallel=True)
-def _bound_headings_parallel(pyramid, grid, sort, shapes, merged, top_mask, top, counts):
+def _bound_headings_parallel(pyramid, grid, sort, shapes, merged, top_mask, box, top, counts):
     """``_bound_headings`` with the headings shared among numba's threads."""
     unit = BOUND_LEVELS if grid.depth > 0 else 1
     for h in prange(top.shape[0]):
         _merge_heading(pyramid, grid, sort, shapes, merged, h)
-        _top_square_bounds(pyramid, grid, merged, top_mask, top, h)
+        _top_square_bounds(pyramid, grid, merged, top_mask, box, top, h)
         _count_bounds(top[h], unit, counts[h])
 
 
 @njit(cache=True)
-def _top_square_bounds(pyramid, grid, merged, top_mask, top, h):
+def _top_square_bounds(pyramid, grid, merged, top_mask, box, top, h):
     """The bound of every top square of heading index h into ``top[h]`` (A, A) of ``top`` (H,
     A, A), heading first, then x, then y (A = ⌈n_cells / 2^depth⌉): whole 255ths from the
     level split by phase (``_top_bounds``), or without a pyramid (depth 0) the exact sums
-    of the single shifts. Squares ``top_mask`` (A, A) leaves out get −1."""
+    of the single shifts. Squares ``top_mask`` (A, A) leaves out (``box``: ``_allowed_box``
+    of it) get −1."""
     out, n_top = top[h], top.shape[1]
     if grid.depth == 0:  # no pyramid: the top squares are single shifts
         for a in range(n_top):
@@ -687,7 +701,7 @@ def _top_square_bounds(pyramid, grid, merged, top_mask, top, h):
     else:
         lv = grid.depth - 1
         cells, weights = merged.cells[lv, h], merged.weights[lv, h]
-        _top_bounds(pyramid.phased, cells, weights, merged.counts[lv, h], out)
+        _top_bounds(pyramid.phased, cells, weights, merged.counts[lv, h], out, box)
     for a in range(n_top):
         for b in range(n_top):
             if not top_mask[a, b]:
@@ -788,7 +802,8 @@ def _branch_and_bound(
     counts = np.zeros((n_h, grid.ix.shape[1] + 2), dtype=np.int32)
     # Sorting pays once the search spans many top squares (a global search).
     bound_headings = _bound_headings_parallel if threads else _bound_headings
-    bound_headings(pyramid, grid, n_top > 2, shapes, merged, top_mask, top, counts)
+    box = _allowed_box(top_mask)
+    bound_headings(pyramid, grid, n_top > 2, shapes, merged, top_mask, box, top, counts)
     by_heading = top.reshape(n_h, -1)
     flat = top.reshape(-1)
     hxy = np.zeros((3, pruning.k + 1), dtype=np.int64)  # heading indices, x and y
