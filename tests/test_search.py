@@ -122,12 +122,13 @@ def _exhaustive(search: HypothesisSearch, points, headings, centre, half_width_m
 
 
 @pytest.mark.parametrize("seed", range(6))
-@pytest.mark.parametrize("max_depth", [3, 5])
-def test_branch_and_bound_finds_what_brute_force_finds(seed, max_depth):
+@pytest.mark.parametrize(("max_depth", "half_width_m"), [(2, 0.4), (3, 0.4), (5, 0.35)])
+def test_branch_and_bound_finds_what_brute_force_finds(seed, max_depth, half_width_m):
     """On small maps and windows, the best pose is the exhaustive maximum (same sum), and the
-    runner-ups are exact sums, distinct, and no worse than keep_fraction of the best. With
-    3 levels the window spans 3 × 3 top squares (points merged per level cell after
-    sorting), with 5 a single one (only consecutive points merged)."""
+    runner-ups are exact sums, distinct, and no worse than keep_fraction of the best. The
+    window of 17 shifts spans 5 × 5 top squares of level 2 or 3 × 3 of level 3 (points
+    merged per level cell after sorting); of 15 shifts, 2 × 2 (only consecutive points
+    merged)."""
     rng = np.random.default_rng(8100 + seed)
     world = random_world(rng)
     true = Pose2(*random_free_poses(world, 1, rng)[0])
@@ -135,8 +136,8 @@ def test_branch_and_bound_finds_what_brute_force_finds(seed, max_depth):
     search = HypothesisSearch(world.segments, SearchParams(max_depth=max_depth))
     guess = np.array([true.x + rng.uniform(-0.3, 0.3), true.y + rng.uniform(-0.3, 0.3)])
     headings = true.theta + np.deg2rad(np.arange(-3.0, 3.5, 1.0))
-    found = search.search(points, headings, guess, 0.4)
-    rows, start = _exhaustive(search, points, headings, guess, 0.4)
+    found = search.search(points, headings, guess, half_width_m)
+    rows, start = _exhaustive(search, points, headings, guess, half_width_m)
     best = max(row[0] for row in rows)
     assert found[0].score * points.shape[0] == pytest.approx(best, rel=1e-12)
     sums = {(h, x, y): total for total, h, x, y in rows}
@@ -161,7 +162,7 @@ def test_global_search_finds_what_brute_force_finds(seed):
     centre = np.array([true.x + rng.uniform(-0.3, 0.3), true.y + rng.uniform(-0.3, 0.3)])
     headings = true.theta + np.deg2rad(np.arange(-4.0, 4.5, 1.0))
     half = 0.6  # 25 × 25 positions: 4 × 4 squares of 8 at level 3
-    assert search._top_depth(25, headings.size, everywhere=True) == MIN_TOP_LEVEL
+    assert search._top_depth(25, headings.size) == MIN_TOP_LEVEL
     found = search.search(points, headings, centre, half, reach_m=100.0)
     rows, _ = _exhaustive(search, points, headings, centre, half)
     assert found[0].score * points.shape[0] == pytest.approx(max(r[0] for r in rows), rel=1e-12)

@@ -634,10 +634,11 @@ def _climbed(fine, ix, iy, h, x, y, n_cells):
 
 MIN_TOP_LEVEL = 3
 MAX_TOP_SQUARES = 16_000_000
-"""A global search bounds every (heading, square) pair of one level in a first pass, as
-vectors, and starts its branch and bound from there: bounds over squares of several metres
-prune nothing in rooms, so it starts from the finest level from ``MIN_TOP_LEVEL`` (0.4 m
-squares) whose pairs number at most this many (1.6 m squares over 300 m × 300 m at 1°)."""
+"""A search bounds every (heading, square) pair of one level in a first pass, as vectors,
+and starts its branch and bound from there: bounds over squares of several metres prune
+nothing in rooms, so it starts from the finest level from ``MIN_TOP_LEVEL`` (0.4 m squares)
+whose pairs number at most this many (1.6 m squares over 300 m × 300 m at 1°; around a
+guess, 0.4 m squares)."""
 
 FIRST_BATCH = 4096
 """Top squares the search sorts and takes first, best bound first; then 4 times as many at a
@@ -1057,7 +1058,7 @@ class HypothesisSearch:
         half_cells = int(np.ceil(half_width_m / cell))
         start = np.asarray(centre_xy, dtype=float) - half_cells * cell
         n_cells = 2 * half_cells + 1
-        depth = self._top_depth(n_cells, headings.size, reach_m is not None)
+        depth = self._top_depth(n_cells, headings.size)
         # Fine cell of every point at every heading, the shift being ``start``.
         cos_sin = np.column_stack([np.cos(headings), np.sin(headings)])
         ix, iy = _point_cells(points, cos_sin, start, self.fine.origin, cell)
@@ -1086,13 +1087,11 @@ class HypothesisSearch:
             for (px, py), k, total in zip(xy, found.h, found.sums, strict=True)
         ]
 
-    def _top_depth(self, n_cells: int, n_headings: int, everywhere: bool) -> int:
-        """The level the branch and bound starts from: squares as wide as the search around a
-        guess (one per heading), or for a search of the whole map the finest level from
-        ``MIN_TOP_LEVEL`` whose squares number at most ``MAX_TOP_SQUARES`` over all headings."""
+    def _top_depth(self, n_cells: int, n_headings: int) -> int:
+        """The level the branch and bound starts from: the finest level from
+        ``MIN_TOP_LEVEL`` whose squares number at most ``MAX_TOP_SQUARES`` over all headings
+        (at most the level whose one square spans the search)."""
         whole = min(self.pyramid.depth, int(np.ceil(np.log2(n_cells))))
-        if not everywhere:
-            return whole
         depth = min(MIN_TOP_LEVEL, whole)
         while depth < whole and n_headings * (-(-n_cells // 2**depth)) ** 2 > MAX_TOP_SQUARES:
             depth += 1
