@@ -39,11 +39,12 @@ if "NUMBA_THREADING_LAYER" not in os.environ:
 
 _said_uncached = False
 
-FIRST_COMPILE_S = 30
+FIRST_COMPILE_S = 25
 """About how long (s) a first ``segloc localize`` on an empty cache spends compiling, with
-a second process compiling ahead (measured on the shipped hall on two cores: 28 s)."""
-UNCACHED_COMPILE_S = 45
-"""The same where nothing can be cached, so one process compiles everything (46 s)."""
+a second process compiling ahead (measured on the shipped hall on two cores: 20.5–22.6 s
+for the whole run)."""
+UNCACHED_COMPILE_S = 35
+"""The same where nothing can be cached, so one process compiles everything (35 s)."""
 AHEAD_ENV = "SEGLOC_COMPILING_AHEAD"
 """Set in the process that compiles ahead, so that it starts no other."""
 AHEAD_MODULE = "segloc_cli.runs.warmup"
