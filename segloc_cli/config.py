@@ -137,8 +137,10 @@ class SearchParams:
     keep_fraction: float = 0.8
     """Poses scoring under this share of the best are not kept: the search prunes below it."""
     max_depth: int = 7
-    """Levels of the bound pyramid above the fine raster: the branch and bound starts from
-    squares of up to 2^max_depth cells (6.4 m at 5 cm), fewer for a smaller region."""
+    """Levels of the bound pyramid above the fine raster, squares of up to 2^max_depth cells
+    (6.4 m at 5 cm), fewer for a smaller region: the branch and bound starts from squares of
+    8 cells (0.4 m), or of the finest of the coarser levels where there would be more than
+    16 million heading-square pairs."""
     hypotheses: int = 4
     """Distinct grid poses handed on for refinement."""
     distinct_m: float = 0.3
