@@ -240,6 +240,12 @@ def test_batches_list_the_best_bound_first_and_equal_bounds_in_order(whole):
     members = np.arange(top.size)
     assert _best_first(top, members).tolist() == [1, 3, 5, 0, 2, 6, 4]
     assert _best_first(top, members[[0, 2, 4]]).tolist() == [0, 2, 4]
+    # Squares of clutter: many equal bounds, which keep their order.
+    saturated = np.full(50_000, 9, dtype=top.dtype)
+    saturated[::7] = 8
+    order = _best_first(saturated, np.arange(saturated.size))
+    expected = np.concatenate([np.flatnonzero(saturated == 9), np.flatnonzero(saturated == 8)])
+    np.testing.assert_array_equal(order, expected)
 
 
 @pytest.mark.parametrize("seed", range(3))

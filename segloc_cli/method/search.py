@@ -239,7 +239,7 @@ def _z_order(ix, iy, points, pad, top_shift):
         u = np.uint64(ix[points[e]] + pad - lo_x)
         v = np.uint64(iy[points[e]] + pad - lo_y)
         keys[e] = _spread_bits(u) | (_spread_bits(v) << np.uint64(1))
-    return np.argsort(keys)
+    return np.argsort(keys, kind="mergesort")  # stable: ``_best_first``'s sort, compiled once
 
 
 @njit(cache=True)
@@ -525,30 +525,11 @@ def _best_first(top, members):
     if members.size < 2:
         return members
     # Keyed by how far each bound lies below the best: a float64 ≥ 0, whose bits read as a
-    # uint64 keep its order, so the sort is ``_z_order``'s, compiled once.
+    # uint64 keep its order, so the sort is ``_z_order``'s, compiled once; a stable one, as
+    # equal bounds (many, where squares of clutter score every point fully) keep their order.
     values = top[members].astype(np.float64)
     keys = (values.max() - values).view(np.uint64)
-    order = np.argsort(keys)
-    _first_of_equals_first(order, keys, members)
-    return members[order]
-
-
-@njit(cache=True)
-def _first_of_equals_first(order, keys, members):
-    """Reorder each run of ``order`` (an order of ``keys``) with equal keys so that the
-    lowest of their ``members`` comes first (a sort that only compares keys leaves equal
-    ones in an order of its own)."""
-    start = 0
-    for e in range(1, order.size + 1):
-        if e < order.size and keys[order[e]] == keys[order[start]]:
-            continue
-        for a in range(start + 1, e):  # insertion sort: runs of equal sums are short
-            held, b = order[a], a
-            while b > start and members[order[b - 1]] > members[held]:
-                order[b] = order[b - 1]
-                b -= 1
-            order[b] = held
-        start = e
+    return members[np.argsort(keys, kind="mergesort")]
 
 
 @njit(cache=True)
