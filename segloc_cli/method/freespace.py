@@ -19,6 +19,7 @@ import numpy as np
 
 from segloc_cli.geometry import Pose2
 from segloc_cli.jit import njit
+from segloc_cli.method.kernels import point_segment_distance
 from segloc_cli.method.spatial import SegmentGrid
 
 SHORTEN_M = 0.3
@@ -40,12 +41,39 @@ def crossing_ratio(points_robot: np.ndarray, pose: Pose2, index: SegmentGrid) ->
     return crossed / judged if judged else 0.0
 
 
+SLACK = 1e-9
+"""Metres and radians by which ``_crossed``'s quick rejections err towards testing."""
+
+
+@njit(cache=True)
+def _in_sight(segments, allowed, ox, oy):
+    """The ``allowed`` segments (indices (K,)) as seen from (ox, oy): each one's nearest
+    distance (K,) and the arc of directions it spans, from angle ``lo`` (K,) anticlockwise
+    by ``width`` (K,) (2π, every direction, for a segment through or next to the point)."""
+    chosen = np.flatnonzero(allowed)
+    near, lo, width = np.empty(chosen.size), np.empty(chosen.size), np.empty(chosen.size)
+    for n in range(chosen.size):
+        x1, y1 = segments[chosen[n], 0] - ox, segments[chosen[n], 1] - oy
+        x2, y2 = segments[chosen[n], 2] - ox, segments[chosen[n], 3] - oy
+        near[n] = point_segment_distance(0.0, 0.0, x1, y1, x2, y2)
+        a1, a2 = np.arctan2(y1, x1), np.arctan2(y2, x2)
+        turn = (a2 - a1) - 2.0 * np.pi * np.floor((a2 - a1 + np.pi) / (2.0 * np.pi))
+        lo[n], width[n] = (a1, turn) if turn >= 0.0 else (a2, -turn)
+        if near[n] <= SLACK or width[n] >= np.pi - SLACK:
+            lo[n], width[n] = 0.0, 2.0 * np.pi
+    return chosen, near, lo, width
+
+
 @njit(cache=True)
 def _crossed(points, pose, segments, allowed, shorten_m):
     """(beams crossing an ``allowed`` segment, beams long enough to judge) of ``points``
-    (P, 2), robot frame, at ``pose`` (3,)."""
+    (P, 2), robot frame, at ``pose`` (3,).
+
+    A segment farther from the robot than the beam is long, or outside the directions the
+    beam could point along to meet it, is passed over before the exact test of crossing."""
     c, s = np.cos(pose[2]), np.sin(pose[2])
     ox, oy = pose[0], pose[1]
+    chosen, near, lo, width = _in_sight(segments, allowed, ox, oy)
     crossed, judged = 0, 0
     for i in range(points.shape[0]):
         r = np.hypot(points[i, 0], points[i, 1])
@@ -55,9 +83,15 @@ def _crossed(points, pose, segments, allowed, shorten_m):
         keep = (r - shorten_m) / r
         dx = (points[i, 0] * c - points[i, 1] * s) * keep
         dy = (points[i, 0] * s + points[i, 1] * c) * keep
-        for j in range(segments.shape[0]):
-            if not allowed[j]:
+        length, direction = r - shorten_m, np.arctan2(dy, dx)
+        for n in range(chosen.size):
+            if near[n] > length + SLACK:
                 continue
+            off = direction - lo[n]
+            off -= 2.0 * np.pi * np.floor(off / (2.0 * np.pi))  # in [0, 2π)
+            if width[n] + SLACK < off < 2.0 * np.pi - SLACK:
+                continue
+            j = chosen[n]
             ax, ay = segments[j, 0] - ox, segments[j, 1] - oy
             ex, ey = segments[j, 2] - segments[j, 0], segments[j, 3] - segments[j, 1]
             denominator = dx * ey - dy * ex
