@@ -41,7 +41,7 @@ _said_uncached = False
 
 FIRST_COMPILE_S = 25
 """About how long (s) a first ``segloc localize`` on an empty cache spends compiling, with
-a second process compiling ahead (measured on the shipped hall on two cores: 20.5–22.6 s
+a second process compiling ahead (measured on the shipped hall on two cores: 19.7–22.6 s
 for the whole run)."""
 UNCACHED_COMPILE_S = 35
 """The same where nothing can be cached, so one process compiles everything (35 s)."""
