@@ -305,6 +305,25 @@ def test_quarters_checked_part_way_are_dropped_only_when_none_can_beat_the_thres
     assert 0 < dropped < checked
 
 
+@pytest.mark.parametrize("max_depth", [0, 1, 2])
+def test_a_search_on_threads_of_few_levels_finds_what_it_finds_on_one(max_depth):
+    """With no pyramid, or one whose top squares' quarters are single shifts or squares of
+    the first level, threads find the same poses as one thread."""
+    rng = np.random.default_rng(9000 + max_depth)
+    world = random_world(rng)
+    true = Pose2(*random_free_poses(world, 1, rng)[0])
+    points = simulate_scan(world, true, NOISE_FREE, rng, 0.0).points()[::8]
+    search = HypothesisSearch(world.segments, SearchParams(max_depth=max_depth))
+    headings = true.theta + np.deg2rad(np.arange(-3.0, 3.5, 1.0))
+    centre = np.array([true.x, true.y])
+    runs = [
+        search.search(points, headings, centre, 0.3, 30.0, first_batch=1, threads=threads)
+        for threads in (False, True)
+    ]
+    assert runs[0] == runs[1]
+    assert runs[0][0].score > 0.9
+
+
 @pytest.mark.parametrize("seed", range(3))
 def test_global_search_on_threads_finds_what_it_finds_on_one(seed):
     """Threads bound the headings, collect the batches and drop the top squares none of

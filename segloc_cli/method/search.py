@@ -869,8 +869,9 @@ def _quarter_bounds(pyramid, grid, merged, h, level, x, y, sums):
 
 
 SURVIVOR_LANES = 64
-"""Shares of ``_survivors``' squares, each taking every 64th: the squares above the threshold
-come first in a batch, so contiguous shares would leave most of the work to one thread."""
+"""Shares of ``_survivors``' squares, each taking every 64th: a batch lists its squares
+heading by heading, and those above the threshold crowd at a few headings, so contiguous
+shares would leave most of the work to one thread."""
 
 
 @njit(cache=True, parallel=True)
@@ -888,7 +889,9 @@ def _survivors(pyramid, grid, merged, top, divisor, members, threshold):
             if top[flat] / divisor <= threshold:
                 continue
             h, x, y = flat // (n_top * n_top), (flat // n_top) % n_top * step, flat % n_top * step
-            if not _quarters_may_beat(pyramid, merged, h, depth, x, y, threshold, sums):
+            if depth == 1:  # the quarters are single shifts: their exact sums
+                _quarter_bounds(pyramid, grid, merged, h, depth, x, y, sums)
+            elif not _quarters_may_beat(pyramid, merged, h, depth, x, y, threshold, sums):
                 continue
             for c in range(4):
                 cx, cy = x + (c % 2) * half, y + (c // 2) * half
