@@ -39,7 +39,6 @@ from segloc_cli.method.search import (
     _point_cells,
     _Poses,
     _quarter_bounds,
-    _quarters_may_beat,
     _segment_samples,
     _shadowed,
     _top_bounds,
@@ -292,15 +291,16 @@ def test_quarters_checked_part_way_are_dropped_only_when_none_can_beat_the_thres
     for h in range(grid.headings.size):
         for x in range(0, grid.n_cells, step):
             for y in range(0, grid.n_cells, step):
-                _quarter_bounds(pyramid, grid, merged, h, MIN_TOP_LEVEL, x, y, full)
+                level = MIN_TOP_LEVEL
+                assert _quarter_bounds(pyramid, grid, merged, h, level, x, y, full, -np.inf)
                 for share in (0.3, 0.6, 0.9):
                     threshold = share * points.shape[0]
-                    level = MIN_TOP_LEVEL
-                    if _quarters_may_beat(pyramid, merged, h, level, x, y, threshold, part):
+                    if _quarter_bounds(pyramid, grid, merged, h, level, x, y, part, threshold):
                         assert part.tolist() == full.tolist()
                     else:
                         dropped += 1
                         assert full.max() <= threshold
+                        assert part.max() <= threshold
                     checked += 1
     assert 0 < dropped < checked
 

@@ -338,14 +338,22 @@ class _MergedRow(NamedTuple):
     box: np.ndarray
 
 
+QUARTER_CHECK = 32
+"""Merged cells ``_children_bound`` sums between its checks of what is left to add."""
+
+
 @njit(cache=True)
-def _children_bound(level_bounds, row, square, out):
+def _children_bound(level_bounds, row, square, out, threshold):
     """The bounds of one pyramid level (``level_grid``: values, nx, ny) at the four moves
     (xs, ys), (xs + half, ys), (xs, ys + half), (xs + half, ys + half) level cells of the
     merged points ``row`` (``_MergedRow``), ``square`` being (xs, ys, half)
     (``level_square``), into ``out`` (4,) in that order, in points' worth: each bounds
     ``_exact_sum`` for every shift within its square. Cells beyond the level score 0; when
-    the cells' box lies inside the level at all four moves, no cell is checked."""
+    the cells' box lies inside the level at all four moves, no cell is checked.
+
+    Returns whether a bound may beat the sum ``threshold``: where no cell is checked, the
+    sums stop part way once none could (were every point left to add to score a whole
+    255ths), and ``out`` holds partial sums, none above it."""
     values, nx, ny = level_bounds
     cells, linear, weights, count, box = row
     xs, ys, half = square
@@ -353,12 +361,22 @@ def _children_bound(level_bounds, row, square, out):
     inside_x = box[0] + xs >= 0 and box[1] + xs + half < nx
     if inside_x and box[2] + ys >= 0 and box[3] + ys + half < ny:
         base, across = xs * ny + ys, half * ny
+        left = 0  # 255ths still to add at most
         for q in range(count):
-            b, w = linear[q] + base, weights[q]
-            s0 += w * values[b]
-            s1 += w * values[b + across]
-            s2 += w * values[b + half]
-            s3 += w * values[b + across + half]
+            left += weights[q]
+        left *= BOUND_LEVELS
+        for start in range(0, count, QUARTER_CHECK):
+            for q in range(start, min(count, start + QUARTER_CHECK)):
+                b, w = linear[q] + base, weights[q]
+                s0 += w * values[b]
+                s1 += w * values[b + across]
+                s2 += w * values[b + half]
+                s3 += w * values[b + across + half]
+                left -= w * BOUND_LEVELS
+            # As the bounds are compared, in points' worth: a sum no larger stays below.
+            if (max(max(s0, s1), max(s2, s3)) + left) / BOUND_LEVELS <= threshold:
+                _in_points(s0, s1, s2, s3, out)
+                return False
     else:
         for q in range(count):
             i0, j0 = cells[q, 0] + xs, cells[q, 1] + ys
@@ -374,12 +392,15 @@ def _children_bound(level_bounds, row, square, out):
                 s2 += w * values[i0 * ny + j1]
             if in_i1 and in_j1:
                 s3 += w * values[i1 * ny + j1]
-    out[0], out[1], out[2], out[3] = (
-        s0 / BOUND_LEVELS,
-        s1 / BOUND_LEVELS,
-        s2 / BOUND_LEVELS,
-        s3 / BOUND_LEVELS,
-    )
+    _in_points(s0, s1, s2, s3, out)
+    return True
+
+
+@njit(cache=True)
+def _in_points(s0, s1, s2, s3, out):
+    """Four sums in 255ths into ``out`` (4,) in points' worth."""
+    out[0], out[1] = s0 / BOUND_LEVELS, s1 / BOUND_LEVELS
+    out[2], out[3] = s2 / BOUND_LEVELS, s3 / BOUND_LEVELS
 
 
 SHORT_SUM_WEIGHT = 257
@@ -390,11 +411,10 @@ SHORT_SUM_WEIGHT = 257
 def _top_bounds(phased, cells, weights, count, out, box):
     """The bounds of the top squares (a, b) of one heading in ``box`` (``_allowed_box``: a
     in [box[0], box[1]), b in [box[2], box[3])), into ``out`` (A, B) in whole 255ths (0
-    at the others): the sum
-    over the merged points of the level at their cell moved by (a, b) top squares, read
-    from the level split by phase (``phased``, ``phase_split``) so that a point's reads
-    over all squares are rows of consecutive cells, added as vectors (the caller picks
-    ``out``'s integer type wide enough for 255 per point).
+    at the others): the sum over the merged points of the level at their cell moved by
+    (a, b) top squares, read from the level split by phase (``phased``, ``phase_split``) so
+    that a point's reads over all squares are rows of consecutive cells, added as vectors
+    (the caller picks ``out``'s integer type wide enough for 255 per point).
 
     The points are summed ``SHORT_SUM_WEIGHT`` points' worth at a time in 16 bits, which
     cannot overflow there and adds twice as many cells per vector, then added to ``out``.
@@ -647,11 +667,11 @@ class _Squares(NamedTuple):
 
 
 @njit(cache=True)
-def _bound_headings(pyramid, grid, sort, shapes, merged, top_mask, box, top, counts):
+def _bound_headings(pyramid, grid, sort, shapes, merged, top_mask, box, top, unit, counts):
     """At every heading, the points merged per level cell (``_merge_heading``, ``sort`` as
     there) into ``merged``, the bound of every top square (``_top_square_bounds``) into
-    ``top``, and how many bounds there are per point's worth into ``counts`` (H, bins)."""
-    unit = BOUND_LEVELS if grid.depth > 0 else 1
+    ``top``, and how many bounds there are per point's worth (``unit`` each) into
+    ``counts`` (H, bins)."""
     for h in range(top.shape[0]):
         _merge_heading(pyramid, grid, sort, shapes, merged, h)
         _top_square_bounds(pyramid, grid, merged, top_mask, box, top, h)
@@ -659,9 +679,8 @@ def _bound_headings(pyramid, grid, sort, shapes, merged, top_mask, box, top, cou
 
 
 @njit(cache=True, parallel=True)
-def _bound_headings_parallel(pyramid, grid, sort, shapes, merged, top_mask, box, top, counts):
+def _bound_headings_parallel(pyramid, grid, sort, shapes, merged, top_mask, box, top, unit, counts):
     """``_bound_headings`` with the headings shared among numba's threads."""
-    unit = BOUND_LEVELS if grid.depth > 0 else 1
     for h in prange(top.shape[0]):
         _merge_heading(pyramid, grid, sort, shapes, merged, h)
         _top_square_bounds(pyramid, grid, merged, top_mask, box, top, h)
@@ -785,16 +804,16 @@ def _branch_and_bound(
     # Sorting pays once the search spans many top squares (a global search).
     bound_headings = _bound_headings_parallel if threads else _bound_headings
     box = _allowed_box(top_mask)
-    bound_headings(pyramid, grid, n_top > 2, shapes, merged, top_mask, box, top, counts)
+    unit = BOUND_LEVELS if depth > 0 else 1  # a point's worth of bound: 255ths, or exact sums
+    bound_headings(pyramid, grid, n_top > 2, shapes, merged, top_mask, box, top, unit, counts)
     by_heading = top.reshape(n_h, -1)
     flat = top.reshape(-1)
     hxy = np.zeros((3, pruning.k + 1), dtype=np.int64)  # heading indices, x and y
     kept = _Poses(np.zeros(pruning.k + 1), hxy[0], hxy[1], hxy[2])
-    divisor = float(BOUND_LEVELS) if depth > 0 else 1.0
+    divisor = float(unit)
     descent = _Descent(pyramid, grid, pruning, merged, flat, divisor, kept)
     n_kept, threshold = 0, pruning.keep * known  # a sum already found is at most the best
     collect = _collect_parallel if threads else _collect
-    unit = BOUND_LEVELS if depth > 0 else 1
     for number, (low, high) in enumerate(_batches(counts.sum(axis=0), first_batch)):
         if high + 1 <= threshold:  # every bound left is below (high + 1) points' worth
             break
@@ -842,20 +861,21 @@ def _descend(descent, members, n_kept, threshold):
             if level == 0:  # a leaf, whose bound is its exact sum: place it among the kept
                 n_kept, threshold = _place_leaf(kept, n_kept, grid, pruning, h, x, y, bound)
                 continue
-            _quarter_bounds(pyramid, grid, merged, h, level, x, y, sums)
-            n_stack = _push_children(stack, n_stack, sums, level, x, y, grid.n_cells, threshold)
+            if _quarter_bounds(pyramid, grid, merged, h, level, x, y, sums, threshold):
+                n_stack = _push_children(stack, n_stack, sums, level, x, y, grid.n_cells, threshold)
     return n_kept, threshold, False
 
 
 @njit(cache=True)
-def _quarter_bounds(pyramid, grid, merged, h, level, x, y, sums):
+def _quarter_bounds(pyramid, grid, merged, h, level, x, y, sums, threshold):
     """The bounds of the four squares making the square of 2^level shifts at corner (x, y)
     and heading index h, into ``sums`` (4,) in the order ``_push_children`` takes them:
-    their exact sums when they are single shifts."""
+    their exact sums when they are single shifts. Returns whether one may beat the sum
+    ``threshold`` (else ``sums`` may be partial: ``_children_bound``)."""
     if level == 1:
         box = merged.fine_boxes[h]
         _children_exact(pyramid.fine, grid.ix[h], grid.iy[h], box, x, y, sums)
-        return
+        return True
     lv = level - 2  # where the quarters' level is in `merged`
     row = _MergedRow(
         merged.cells[lv, h],
@@ -865,7 +885,7 @@ def _quarter_bounds(pyramid, grid, merged, h, level, x, y, sums):
         merged.boxes[lv, h],
     )
     square = level_square(pyramid, level - 1, x, y)
-    _children_bound(level_grid(pyramid, level - 1), row, square, sums)
+    return _children_bound(level_grid(pyramid, level - 1), row, square, sums, threshold)
 
 
 SURVIVOR_LANES = 64
@@ -889,58 +909,13 @@ def _survivors(pyramid, grid, merged, top, divisor, members, threshold):
             if top[flat] / divisor <= threshold:
                 continue
             h, x, y = flat // (n_top * n_top), (flat // n_top) % n_top * step, flat % n_top * step
-            if depth == 1:  # the quarters are single shifts: their exact sums
-                _quarter_bounds(pyramid, grid, merged, h, depth, x, y, sums)
-            elif not _quarters_may_beat(pyramid, merged, h, depth, x, y, threshold, sums):
+            if not _quarter_bounds(pyramid, grid, merged, h, depth, x, y, sums, threshold):
                 continue
             for c in range(4):
                 cx, cy = x + (c % 2) * half, y + (c // 2) * half
                 if cx < n_cells and cy < n_cells and sums[c] > threshold:
                     alive[i] = True
     return alive
-
-
-QUARTER_CHECK = 32
-"""Merged cells ``_quarters_may_beat`` sums between its checks of what is left to add."""
-
-
-@njit(cache=True)
-def _quarters_may_beat(pyramid, merged, h, level, x, y, threshold, sums):
-    """``_quarter_bounds`` of a square of level 2 or more into ``sums``, in points' worth,
-    unless part way through no quarter can beat the sum ``threshold`` any more (were each
-    point left to add to score a whole 255ths): then False, and ``sums`` is partial."""
-    lv = level - 2
-    values, nx, ny = level_grid(pyramid, level - 1)
-    xs, ys, half = level_square(pyramid, level - 1, x, y)
-    box, count = merged.boxes[lv, h], merged.counts[lv, h]
-    inside_x = box[0] + xs >= 0 and box[1] + xs + half < nx
-    if not (inside_x and box[2] + ys >= 0 and box[3] + ys + half < ny):
-        row = _MergedRow(
-            merged.cells[lv, h], merged.linear[lv, h], merged.weights[lv, h], count, box
-        )
-        _children_bound((values, nx, ny), row, (xs, ys, half), sums)
-        return True
-    linear, weights = merged.linear[lv, h], merged.weights[lv, h]
-    left = 0  # points' worth still to add, in 255ths
-    for q in range(count):
-        left += weights[q]
-    left *= BOUND_LEVELS
-    limit = threshold * BOUND_LEVELS
-    base, across = xs * ny + ys, half * ny
-    s0 = s1 = s2 = s3 = 0
-    for start in range(0, count, QUARTER_CHECK):
-        for q in range(start, min(count, start + QUARTER_CHECK)):
-            b, w = linear[q] + base, weights[q]
-            s0 += w * values[b]
-            s1 += w * values[b + across]
-            s2 += w * values[b + half]
-            s3 += w * values[b + across + half]
-            left -= w * BOUND_LEVELS
-        if max(max(s0, s1), max(s2, s3)) + left <= limit:
-            return False
-    sums[0], sums[1] = s0 / BOUND_LEVELS, s1 / BOUND_LEVELS
-    sums[2], sums[3] = s2 / BOUND_LEVELS, s3 / BOUND_LEVELS
-    return True
 
 
 @njit(cache=True)
