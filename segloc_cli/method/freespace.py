@@ -19,7 +19,7 @@ import numpy as np
 
 from segloc_cli.geometry import Pose2
 from segloc_cli.jit import njit
-from segloc_cli.method.kernels import point_segment_distance
+from segloc_cli.method.kernels import angular_interval, point_segment_distance, wrap
 from segloc_cli.method.spatial import SegmentGrid
 
 SHORTEN_M = 0.3
@@ -48,20 +48,18 @@ SLACK = 1e-9
 @njit(cache=True)
 def _in_sight(segments, allowed, ox, oy):
     """The ``allowed`` segments (indices (K,)) as seen from (ox, oy): each one's nearest
-    distance (K,) and the arc of directions it spans, from angle ``lo`` (K,) anticlockwise
-    by ``width`` (K,) (2π, every direction, for a segment through or next to the point)."""
+    distance (K,) and the arc of directions it spans (``angular_interval``: centre (K,) and
+    half-width (K,); π, every direction, for a segment through or next to the point)."""
     chosen = np.flatnonzero(allowed)
-    near, lo, width = np.empty(chosen.size), np.empty(chosen.size), np.empty(chosen.size)
+    near, mid, half = np.empty(chosen.size), np.empty(chosen.size), np.empty(chosen.size)
     for n in range(chosen.size):
         x1, y1 = segments[chosen[n], 0] - ox, segments[chosen[n], 1] - oy
         x2, y2 = segments[chosen[n], 2] - ox, segments[chosen[n], 3] - oy
         near[n] = point_segment_distance(0.0, 0.0, x1, y1, x2, y2)
-        a1, a2 = np.arctan2(y1, x1), np.arctan2(y2, x2)
-        turn = (a2 - a1) - 2.0 * np.pi * np.floor((a2 - a1 + np.pi) / (2.0 * np.pi))
-        lo[n], width[n] = (a1, turn) if turn >= 0.0 else (a2, -turn)
-        if near[n] <= SLACK or width[n] >= np.pi - SLACK:
-            lo[n], width[n] = 0.0, 2.0 * np.pi
-    return chosen, near, lo, width
+        mid[n], half[n] = angular_interval(x1, y1, x2, y2)
+        if near[n] <= SLACK or half[n] >= 0.5 * np.pi - SLACK:
+            half[n] = np.pi
+    return chosen, near, mid, half
 
 
 @njit(cache=True)
@@ -73,7 +71,7 @@ def _crossed(points, pose, segments, allowed, shorten_m):
     beam could point along to meet it, is passed over before the exact test of crossing."""
     c, s = np.cos(pose[2]), np.sin(pose[2])
     ox, oy = pose[0], pose[1]
-    chosen, near, lo, width = _in_sight(segments, allowed, ox, oy)
+    chosen, near, mid, half = _in_sight(segments, allowed, ox, oy)
     crossed, judged = 0, 0
     for i in range(points.shape[0]):
         r = np.hypot(points[i, 0], points[i, 1])
@@ -87,9 +85,7 @@ def _crossed(points, pose, segments, allowed, shorten_m):
         for n in range(chosen.size):
             if near[n] > length + SLACK:
                 continue
-            off = direction - lo[n]
-            off -= 2.0 * np.pi * np.floor(off / (2.0 * np.pi))  # in [0, 2π)
-            if width[n] + SLACK < off < 2.0 * np.pi - SLACK:
+            if abs(wrap(direction - mid[n])) > half[n] + SLACK:
                 continue
             j = chosen[n]
             ax, ay = segments[j, 0] - ox, segments[j, 1] - oy

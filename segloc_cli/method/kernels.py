@@ -2,7 +2,9 @@
 
 Compiled code can only call compiled functions, so these are the scalar twins
 of helpers in ``geometry.py`` (which work on numpy arrays), written once here
-and called from the kernels of ``overlap.py``, ``refine.py`` and ``score_raster.py``.
+and called from the kernels of ``overlap.py``, ``refine.py``, ``score_raster.py``,
+``spatial.py`` and ``freespace.py`` (``copy_into`` is no geometry: an element copy that spares
+them numba's slice assignment, slow to compile).
 Units are metres and radians; a segment is ``x1 y1 x2 y2`` and every argument
 of one call is in the same frame unless a docstring says otherwise.
 
@@ -59,6 +61,14 @@ def list_if_within(px, py, segments, j, radius_m, listed, listed_d, count):
         listed_d[count] = d
         return count + 1
     return count
+
+
+@njit(cache=True)
+def copy_into(dst: np.ndarray, src: np.ndarray) -> None:
+    """``dst[: src.size] = src`` for 1-d arrays, element by element: numba's slice assignment
+    compiles a shape check whose message formatting costs seconds of compile time."""
+    for i in range(src.size):
+        dst[i] = src[i]
 
 
 @njit(cache=True)

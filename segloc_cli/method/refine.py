@@ -26,7 +26,12 @@ import numpy as np
 from segloc_cli.config import RefineParams
 from segloc_cli.geometry import Pose2
 from segloc_cli.jit import njit
-from segloc_cli.method.kernels import list_if_within, point_segment_distance, wrap_remainder
+from segloc_cli.method.kernels import (
+    copy_into,
+    list_if_within,
+    point_segment_distance,
+    wrap_remainder,
+)
 from segloc_cli.method.spatial import SegmentGrid, filed_within, near_mask, nearest_filed
 
 
@@ -407,14 +412,6 @@ def _normal_equations(world, rotated, segments, lists, listed_where, hints, gate
 
 
 @njit(cache=True)
-def _copy_into(dst, src):
-    """``dst[:] = src`` for 1-d arrays of one size, element by element: the slice assignment
-    compiles a shape check whose message formatting costs more compile time than the copy."""
-    for i in range(src.size):
-        dst[i] = src[i]
-
-
-@njit(cache=True)
 def _gauss_newton(points, segments, allowed, cells, initial, rounds, reach_m):
     """The fitted pose (3,): damped Gauss-Newton ``rounds``, one per gate, of point-to-line
     residuals with Cauchy weights and a prior on ``initial``.
@@ -457,8 +454,8 @@ def _gauss_newton(points, segments, allowed, cells, initial, rounds, reach_m):
             elif narrow:
                 lists = _narrowed(world, segments, lists[0], lists[1], 2.0 * gate)
             if renew or narrow:
-                _copy_into(lists_at, pose)
-                _copy_into(listed_where.reshape(-1), world.reshape(-1))
+                copy_into(lists_at, pose)
+                copy_into(listed_where.reshape(-1), world.reshape(-1))
                 radius = 2.0 * gate
             hessian, gradient, used = _normal_equations(
                 world, rotated, segments, lists, listed_where, hints, gate

@@ -19,7 +19,7 @@ import numpy as np
 
 from segloc_cli.geometry import as_segments, point_segment_distances
 from segloc_cli.jit import njit
-from segloc_cli.method.kernels import list_if_within, point_segment_distance
+from segloc_cli.method.kernels import copy_into, list_if_within, point_segment_distance
 
 DEFAULT_CELL_M = 4.0
 """Cell side: about a room's wall; small enough that a query's square holds little else."""
@@ -260,8 +260,8 @@ def filed_within(cells, segments, allowed, points, radius_m):
         if count + filed > found.size:
             grown = np.empty(max(2 * found.size, count + filed), dtype=np.int64)
             grown_d = np.empty(grown.size)
-            for k in range(count):  # not slices: their shape check's message is slow to compile
-                grown[k], grown_d[k] = found[k], found_d[k]
+            copy_into(grown, found[:count])
+            copy_into(grown_d, found_d[:count])
             found, found_d = grown, grown_d
         for ix in range(ix0, ix1 + 1):
             for k in range(offsets[ix * ny + iy0], offsets[ix * ny + iy1 + 1]):
