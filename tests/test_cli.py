@@ -521,16 +521,27 @@ def test_initial_odom_without_odom(small, tmp_path, capsys):
             writer.add_scan(scan)
     out = tmp_path / "est.csv"
     result = run_cli(capsys, "localize", log, "--map", small.map, "--out", out)
-    line = assert_one_line_error(result, log.name, "/odom", "--initial")
-    assert "FILE" in line or ".csv" in line, f"the error should suggest a guess file: {line!r}"
+    # A recorded log without odometry: a global search needs no guess, a file gives them.
+    line = assert_one_line_error(result, log.name, "/odom", "--global", "--initial FILE.csv")
+    assert "pose_id,time_s,x_m,y_m,theta_deg" in line, f"what a guess file holds: {line!r}"
     assert not out.exists()
     # Tracking needs odometry between scans even when a file seeds the first pose.
     first = write_text(tmp_path / "first.csv", f"{SURVEY_HEADER}\n1,1.0,11.0,1.6,90.0\n")
-    result = run_cli(
-        capsys, "localize", log, "--map", small.map, "--out", out, "--track", "--initial", first
-    )
-    assert_one_line_error(result, log.name, "/odom", "tracking")
-    assert not out.exists()
+    for seed in (first, "11,1.6,90"):
+        result = run_cli(
+            capsys, "localize", log, "--map", small.map, "--out", out, "--track", "--initial", seed
+        )
+        assert_one_line_error(result, log.name, "/odom", "tracking", "--global")
+        assert not out.exists()
+    # One pose cannot guess the other scans without odometry to carry it.
+    result = run_cli(capsys, "localize", log, "--map", small.map, "--out", out,
+                     "--initial", "11,1.6,90")  # fmt: skip
+    assert_one_line_error(result, log.name, "no /odom", "--initial X,Y,THETA_DEG", "--global")
+    # ... but the first scan alone it can.
+    result = run_cli(capsys, "localize", log, "--map", HALL_WORLD, "--out", out,
+                     "--initial", "11,1.6,90", "--scans", "1")  # fmt: skip
+    assert result.code == 0, result.err
+    assert [r["status"] for r in read_csv_rows(out)[1]] == ["ok"]
 
 
 def test_initial_file_covering_some_scans(small, tmp_path, capsys):

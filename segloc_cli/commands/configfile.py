@@ -16,9 +16,8 @@ from typing import Any
 
 import click
 
-from segloc_cli.commands.options import holds_path
+from segloc_cli.commands.options import holds_path, names_file
 from segloc_cli.commands.printing import warn
-from segloc_cli.config import GUESSES_KEYWORD
 from segloc_cli.errors import InputError
 
 COMMAND_LINE_ONLY = frozenset({"force"})
@@ -131,7 +130,7 @@ def config_value(ctx: click.Context, option: click.Option, key: str, raw: Any, p
         choice=isinstance(option.type, click.Choice),
     )
     raw = table_value(key, raw, takes, path)
-    if holds_path(option) and raw != GUESSES_KEYWORD:
+    if names_file(option, raw):
         raw = str(path.parent / raw)  # an absolute raw stays itself
     try:
         return option.type_cast_value(ctx, raw)

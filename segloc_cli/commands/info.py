@@ -8,6 +8,8 @@ from pathlib import Path
 
 import click
 
+from segloc_cli.commands.options import SCAN_SELECTION, scan_selection, with_options
+
 
 def _print_layout_path(ctx: click.Context, _param: click.Parameter, value: bool) -> None:
     """Print the installed Foxglove layout's path and end the command (an eager flag)."""
@@ -30,21 +32,29 @@ def _print_layout_path(ctx: click.Context, _param: click.Parameter, value: bool)
     help="Print the path of the Foxglove layout that shows a run view (import it in Foxglove: "
     "Layouts → Import from file), and exit.",
 )
-def info_command(log_path: Path) -> None:
+@with_options(*SCAN_SELECTION)
+def info_command(log_path: Path, **selection_options) -> None:
     """Summarise a log or a run view.
 
-    A log: channels and message counts, time span, sensor settings, whether the
-    file was finished (a recording cut short still shows every complete scan).
-    A run view (localize --mcap, map build --mcap): the run it shows, its map,
-    scans and their statuses, message counts, and the layout to open it with.
+    A log: channels and message counts, time span and length (--start and
+    --end count seconds from its first scan; given here, the scans they
+    select), sensor settings, whether the file was finished (a recording cut
+    short still shows every complete scan). A run view (localize --mcap, map
+    build --mcap): the run it shows, its map, scans and their statuses,
+    message counts, and the layout to open it with.
     """
     from segloc_cli.commands.logs import log_info
     from segloc_cli.io.runview import read_run_view
 
+    selection = scan_selection(selection_options)
     view = read_run_view(log_path)
     if view is None:
-        click.get_current_context().invoke(log_info, log_path=log_path)
+        log_info(log_path, selection)
         return
+    if not selection.whole:
+        raise click.UsageError(
+            f"{log_path} is a run view, not a log: {selection.options_text()} selects a log's scans"
+        )
     for line in run_view_lines(log_path, view):
         click.echo(line)
 

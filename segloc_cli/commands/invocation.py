@@ -12,9 +12,9 @@ from typing import Any
 import click
 
 from segloc_cli.commands.configfile import RECORDED_INPUTS, command_path, option_key
-from segloc_cli.commands.options import holds_path
+from segloc_cli.commands.options import names_file
 from segloc_cli.commands.printing import warn
-from segloc_cli.config import GUESSES_KEYWORD, Config
+from segloc_cli.config import Config
 
 OUTPUT_KEYS = frozenset(
     {"out", "tum", "mcap", "survey-out", "plots", "config", "force", "junit", "summary-md", "html"}
@@ -84,7 +84,8 @@ def _warn_unrepeated(inputs: list[tuple[str, Path]], hashes: list[str]) -> None:
 
 
 def _as_path(option: click.Parameter, value: Any) -> Any:
-    """The value of a file-naming option as a ``Path`` (``--initial odom`` stays a word)."""
-    if holds_path(option) and isinstance(value, str) and value != GUESSES_KEYWORD:
+    """The value of a file-naming option as a ``Path`` (``--initial odom`` stays a word, and
+    ``--initial X,Y,THETA_DEG`` text)."""
+    if names_file(option, value):
         return Path(value)
     return value

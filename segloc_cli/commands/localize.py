@@ -11,9 +11,11 @@ from segloc_cli.commands.configfile import config_option
 from segloc_cli.commands.invocation import Invocation
 from segloc_cli.commands.localize_lines import expect, report, say_how
 from segloc_cli.commands.options import (
+    SCAN_SELECTION,
     GuessSource,
     force_option,
     path_option,
+    scan_selection,
     setting_option,
     tuning_options,
     with_options,
@@ -46,13 +48,19 @@ LOCALIZE_OPTIONS = (
         "it is the right place. The search hands on --search-hypotheses poses (4), so at "
         "most one more than that is found.",
     ),
+    *SCAN_SELECTION,
     click.option(
         "--initial",
         type=GuessSource(),
         default=GUESSES_KEYWORD,
         show_default=True,
-        help="Initial guesses: 'odom' (the log's /odom nearest in time) or a CSV/TUM file; "
-        "scans without a guess are skipped.",
+        metavar="odom|X,Y,THETA_DEG|FILE",
+        help="Initial guesses: 'odom' (the log's /odom nearest in time); X,Y,THETA_DEG, the "
+        "pose of the first (selected) scan in the map (metres, degrees), the others' guesses "
+        "carried from it by the log's odometry (with --track: where the track starts); or a "
+        "CSV file with the columns pose_id,time_s,x_m,y_m,theta_deg (or a TUM file), each row "
+        "the guess of the scan nearest its time within --tolerance-ms. Scans without a guess "
+        "are skipped.",
     ),
     *(setting_option(s.key) for s in STAGES),
     click.option(
@@ -67,7 +75,8 @@ LOCALIZE_OPTIONS = (
     click.option(
         "--track",
         is_flag=True,
-        help="Track along the log: --initial seeds only the first scan; each next guess is the "
+        help="Track along the log: --initial seeds only the first scan (--initial "
+        "X,Y,THETA_DEG gives its pose); each next guess is the "
         "previous estimate moved by the /odom increment, and the scan's points are fitted from "
         "it with the odometry as a prior (with --no-refine: the two stages from it). Failed "
         "matches are retried wider and flagged (status recovered or lost).",
@@ -145,8 +154,10 @@ def localize(
 
     run = Invocation.current()
     config, mode = _config(run, global_search, track)
-    guess_file = None if initial == GUESSES_KEYWORD else Path(initial)
+    guesses = _guess_source(initial, mode, len(log_paths))
+    selection = scan_selection(run.options)
     written = RowOutputs.beside(out_path, tum_path, hypotheses, mcap_path)
+    guess_file = guesses if isinstance(guesses, Path) else None
     check_outputs(written.by_option(), [*log_paths, map_path, guess_file], run.force)
     segments_world = read_map(map_path)
     if mode == "global":
@@ -155,7 +166,16 @@ def localize(
     stops: list[str] = []  # signals asking the run to stop, noted while it runs
     logs = [load_log(p) for p in log_paths]
     runs = [
-        pipeline.localize_log(log, p, localizer, mode, guess_file, config, lambda: bool(stops))
+        pipeline.localize_log(
+            log,
+            p,
+            localizer,
+            mode,
+            guesses,
+            config,
+            lambda: bool(stops),
+            selection.chosen(log.scan_times_s, p),
+        )
         for log, p in zip(logs, log_paths, strict=True)
     ]
     say_how(runs)
@@ -173,6 +193,32 @@ def _config(run: Invocation, global_search: bool, track: bool):
     config = run_config(run.options, global_search, track)
     config = replace(config, jobs=within_cores(config.jobs, "localizing on {cores} processes"))
     return config, "global" if global_search else "track" if track else "guided"
+
+
+def _guess_source(initial: str, mode: str, n_logs: int):
+    """Where ``--initial`` takes the guesses from: None (the log's /odom), the first scan's
+    pose (a ``Pose2``, world frame) or a file's path. A pose is refused with ``--global``,
+    which takes no initial pose, and for more than one log (``n_logs``), which would all
+    start there."""
+    from segloc_cli.config import seed_pose
+    from segloc_cli.geometry import Pose2
+
+    if initial == GUESSES_KEYWORD:
+        return None
+    pose = seed_pose(initial)
+    if pose is None:
+        return Path(initial)
+    if mode == "global":
+        raise click.UsageError(
+            "--initial X,Y,THETA_DEG cannot be combined with --global: a global search takes "
+            "no initial pose (--initial FILE lists the scans to search)"
+        )
+    if n_logs > 1:
+        raise click.UsageError(
+            f"--initial X,Y,THETA_DEG is the pose of one log's first scan, not of {n_logs} "
+            "logs': localize them one at a time, or give a guess file"
+        )
+    return Pose2.from_deg(*pose)
 
 
 def _view(segments_world, logs, mode: str, config):

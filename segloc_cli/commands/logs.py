@@ -152,21 +152,32 @@ def windows_line(log) -> str:
     return f"windows:  no; {reason}"
 
 
-@click.command("info")
-@click.argument("log_path", metavar="LOG.mcap", type=click.Path(path_type=Path))
-def log_info(log_path):
-    """Summarise a log: channels and message counts, time span, sensor settings, whether
-    the file was finished (a recording cut short still shows every complete scan)."""
+def log_info(log_path: Path, selection) -> None:
+    """Print what ``segloc info`` says of a log: channels and message counts, time span and
+    how long it is (what ``--start`` and ``--end`` count from), the scans ``selection`` (a
+    ``ScanSelection``) picks when it is not the whole log, sensor settings, whether the file
+    was finished (a recording cut short still shows every complete scan)."""
+    from segloc_cli.selection import span_line
     from segloc_cli.timing import time_range
 
     log = load_log(log_path)
     beams = sorted({len(s) for s in log.scans})
+    times = log.scan_times_s
+    chosen = selection.chosen(times, log_path)
     click.echo(f"file:      {log_path}")
     click.echo(f"finished:  {'yes' if log.finished else 'no (truncated or still being written)'}")
     click.echo(
         f"/scan:     {len(log.scans)} scans, {', '.join(map(str, beams)) or '-'} readings, "
-        f"{time_range(log.scan_times_s)}"
+        f"{time_range(times)}"
     )
+    click.echo(f"length:    {span_line(times)}")
+    if not selection.whole:
+        numbers = log.scan_numbers[chosen]
+        click.echo(
+            f"selected:  {chosen.size} scans ({selection.options_text()}), numbers "
+            f"{numbers[0]}–{numbers[-1]}, {time_range(times[chosen] - times.min())} after the "
+            "first"
+        )
     click.echo(f"/odom:     {log.odom_times_s.size} poses, {time_range(log.odom_times_s)}")
     click.echo(windows_line(log))
     click.echo(laser_offset_line(log))

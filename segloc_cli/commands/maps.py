@@ -11,8 +11,10 @@ import click
 from segloc_cli.commands.configfile import config_option
 from segloc_cli.commands.invocation import Invocation
 from segloc_cli.commands.options import (
+    SCAN_SELECTION,
     force_option,
     path_option,
+    scan_selection,
     setting_option,
     tuning_options,
     with_options,
@@ -47,6 +49,7 @@ BUILD_OPTIONS = (
         help="Also write a view to open in Foxglove: the built map over the scans that made "
         "it, each at its surveyed (or polished) pose with its local segments.",
     ),
+    *SCAN_SELECTION,
     setting_option("polish"),
     setting_option("tolerance-ms", pairing="pairing scans with survey rows"),
     config_option,
@@ -79,13 +82,17 @@ def map_build(log_path, survey_path, out_path, mcap_path, force, **_):
     outputs["--out (run file)"] = run_file_path(out_path)
     check_outputs(outputs, [log_path, survey_path], force)
     log = load_log(log_path)
+    selection = scan_selection(run.options)
+    selected = selection.chosen(log.scan_times_s, log_path)
     survey = read_pose_table(survey_path)
-    built = build_map(log, log_path, survey, survey_path, run.config, Progress)
+    built = build_map(log, log_path, survey, survey_path, run.config, Progress, selected)
     problem = bounds_problem(built.segments)
     if problem is not None:
         raise InputError(f"the map built would be refused when read: {problem}", path=out_path)
     source = {"log": str(log_path), "survey": str(survey_path)}
     source |= {"scans_used": built.scans_used, "local_segments": built.local_segments}
+    if not selection.whole:
+        source["scans_selected"] = f"{selected.size} ({selection.options_text()})"
     source |= {"extract": asdict(run.config.extract), "fuse": asdict(run.config.fuse)}
     write_map(out_path, built.segments, source=source)
     run.write_run_file(out_path)
@@ -94,8 +101,8 @@ def map_build(log_path, survey_path, out_path, mcap_path, force, **_):
         _write_build_view(mcap_path, log, built, metadata)
     info(
         f"{out_path}: {built.segments.shape[0]} segments fused from {built.local_segments} "
-        f"local segments of {built.scans_used} scans ({len(log.scans) - built.scans_used} "
-        "scans had no survey row)"
+        f"local segments of {built.scans_used} scans ({selected.size - built.scans_used} "
+        f"{'selected ' if not selection.whole else ''}scans had no survey row)"
     )
 
 

@@ -17,7 +17,17 @@ from typing import Any
 
 import click
 
-from segloc_cli.config import SETTINGS, Setting, SettingError, number_within
+from segloc_cli.commands.optionvalues import parse_planar_pose
+from segloc_cli.config import (
+    GUESSES_KEYWORD,
+    SETTINGS,
+    Setting,
+    SettingError,
+    number_within,
+    seed_pose,
+)
+from segloc_cli.limits import MAX_COORDINATE_M
+from segloc_cli.selection import ScanSelection
 
 
 class _Checked:
@@ -80,16 +90,35 @@ class ModuleChoice(click.Choice):
 
 
 class GuessSource(click.ParamType):
-    """``--initial``: the keyword ``odom`` or a file of poses (a path in a ``--config``)."""
+    """``--initial``: the keyword ``odom``, the first scan's pose ``X_M,Y_M,THETA_DEG`` (three
+    numbers; checked here), or a file of poses (a path in a ``--config``)."""
 
     name = "text"
     holds_path = True
+
+    def convert(self, value, param, ctx):
+        if seed_pose(value) is not None:
+            parse_planar_pose(value, "--initial", MAX_COORDINATE_M, "11,1.6,90")
+        return value
+
+    @staticmethod
+    def names_file(value: str) -> bool:
+        """Whether the value names a file (not ``odom``, nor a pose)."""
+        return value != GUESSES_KEYWORD and seed_pose(value) is None
 
 
 def holds_path(option: click.Parameter) -> bool:
     """Whether the option's value is a file or folder (relative ones are taken relative to a
     ``--config`` file's folder)."""
     return isinstance(option.type, click.Path) or getattr(option.type, "holds_path", False)
+
+
+def names_file(option: click.Parameter, value: Any) -> bool:
+    """Whether ``value``, text given to ``option``, is a path (``--initial odom`` and
+    ``--initial X,Y,THETA_DEG`` are not)."""
+    if not (holds_path(option) and isinstance(value, str)):
+        return False
+    return getattr(option.type, "names_file", lambda _: True)(value)
 
 
 def setting_option(key: str, **help_fields: str) -> Callable:
@@ -177,3 +206,42 @@ def sensor_options(noise_help: str) -> tuple[Callable, Callable]:
     )
     seed = click.option("--seed", type=int, default=0, show_default=True, help="Random seed.")
     return noise, seed
+
+
+SCAN_SELECTION = (
+    click.option(
+        "--start",
+        type=FiniteRange(min=0),
+        metavar="SECONDS",
+        help="Only the scans from this many seconds after the log's first scan on (segloc "
+        "info shows how long the log is). Selected scans keep their numbers (pose_id).",
+    ),
+    click.option(
+        "--end",
+        type=FiniteRange(min=0),
+        metavar="SECONDS",
+        help="Only the scans up to this many seconds after the log's first scan.",
+    ),
+    click.option(
+        "--every",
+        type=click.IntRange(min=1),
+        metavar="N",
+        help="Only every Nth of those scans, from the first of them.",
+    ),
+    click.option(
+        "--scans", type=click.IntRange(min=1), metavar="N", help="At most the first N of those."
+    ),
+)
+"""The options that select some of a log's scans (``selection.ScanSelection``), alike in
+every command that reads a log."""
+
+
+def scan_selection(options: dict[str, Any]) -> ScanSelection:
+    """The ``ScanSelection`` that a command's options (by key) ask for; ``--end`` before
+    ``--start`` is refused as a bad ``--end``."""
+    selection = ScanSelection.from_options(options)
+    if selection.end_s is not None and selection.end_s < selection.start_s:
+        raise click.BadParameter(
+            f"{selection.end_s:g} is before --start {selection.start_s:g}", param_hint="--end"
+        )
+    return selection

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import itertools
 from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -32,6 +32,12 @@ from segloc_cli.timing import pair_by_time, time_range
 
 RUN_MODES = ("guided", "global", "track")
 """How a log is localized: each scan from its own guess, each with none, or along a track."""
+
+GUESSES_WITHOUT_ODOMETRY = (
+    "; pass --global (no initial pose needed), or --initial FILE.csv with a guess per scan "
+    "(pose_id,time_s,x_m,y_m,theta_deg)"
+)
+"""How an error about a log without odometry to take guesses from ends: what works instead."""
 
 
 def odometry_rows(log: Log, log_path: Path, tolerance_s: float, missing: str) -> np.ndarray:
@@ -63,9 +69,17 @@ class Guesses:
     pose_ids: np.ndarray
 
 
-def paired_guesses(log: Log, log_path: Path, initial: Path | None, tolerance_ms: float) -> Guesses:
-    """Initial guesses for the scans of ``log``: from its /odom (``initial`` None) or from a
-    pose table, nearest in time within ``tolerance_ms``.
+def paired_guesses(
+    log: Log,
+    log_path: Path,
+    initial: Path | Pose2 | None,
+    tolerance_ms: float,
+    selected: np.ndarray | None = None,
+) -> Guesses:
+    """Initial guesses for the scans ``selected`` (indices in ``log``; None: every scan): from
+    the log's /odom (``initial`` None) or from a pose table (a path), nearest in time within
+    ``tolerance_ms``; or, ``initial`` a pose, that of the first selected scan, carried to the
+    others by the odometry (``seeded_guesses``).
 
     Pose ids come from the table's rows, or are the scans' own numbers
     (``Log.scan_numbers``) for /odom guesses. A guess shared by two rows of equal time, or
@@ -73,14 +87,17 @@ def paired_guesses(log: Log, log_path: Path, initial: Path | None, tolerance_ms:
     """
     from segloc_cli.io.tables import read_pose_table
 
+    selected = np.arange(len(log.scans)) if selected is None else selected
+    if isinstance(initial, Pose2):
+        return seeded_guesses(log, log_path, initial, tolerance_ms, selected)
     tolerance_s = tolerance_ms / 1e3
     if initial is None:
-        missing = " to take initial guesses from; pass --initial FILE.csv"
+        missing = f" to take initial guesses from{GUESSES_WITHOUT_ODOMETRY}"
         rows = odometry_rows(log, log_path, tolerance_s, missing)
-        ref_poses, ref_ids = log.odom_poses, None
+        ref_times, ref_poses, ref_ids = log.odom_times_s, log.odom_poses, None
     else:
         table = read_pose_table(initial)
-        ref_poses, ref_ids = table.poses, table.pose_id
+        ref_times, ref_poses, ref_ids = table.time_s, table.poses, table.pose_id
         rows = pair_by_time(
             log.scan_times_s,
             table.time_s,
@@ -89,16 +106,70 @@ def paired_guesses(log: Log, log_path: Path, initial: Path | None, tolerance_ms:
             ref_path=initial,
             query_label="scan",
         )
-    index = np.flatnonzero(rows >= 0)
-    poses = [Pose2(*ref_poses[r]) for r in rows[index]]
-    ids = log.scan_numbers[index] if ref_ids is None else ref_ids[rows[index]]
+    paired = rows[selected] >= 0
+    index, rows = selected[paired], rows[selected][paired]
     if index.size == 0:
+        source = "/odom" if initial is None else str(initial)
         raise InputError(
-            f"no scan has an initial guess within {tolerance_ms:g} ms "
-            f"(--initial {initial or 'odom'})",
+            f"{_no_guess(log, selected, tolerance_ms)}, the guesses of {source} "
+            f"{time_range(ref_times)}; or give the first scan's pose: --initial X,Y,THETA_DEG",
             path=log_path,
         )
+    poses = [Pose2(*ref_poses[r]) for r in rows]
+    ids = log.scan_numbers[index] if ref_ids is None else ref_ids[rows]
     return Guesses(index, poses, ids)
+
+
+def _no_guess(log: Log, selected: np.ndarray, tolerance_ms: float) -> str:
+    """The start of the error of a run whose scans ``selected`` have no guess: the tolerance,
+    the scans' times and the log's first scan's."""
+    times = log.scan_times_s
+    some = "selected " if selected.size < times.size else ""
+    return (
+        f"no {some}scan has an initial guess within {tolerance_ms:g} ms (--tolerance-ms): the "
+        f"log's first scan is at {times.min():.3f} s, its {some}scans span "
+        f"{time_range(times[selected])}"
+    )
+
+
+def seeded_guesses(
+    log: Log, log_path: Path, seed: Pose2, tolerance_ms: float, selected: np.ndarray
+) -> Guesses:
+    """The guesses of ``--initial X,Y,THETA_DEG``: the first of the scans ``selected``
+    (indices in ``log``, in log order) at ``seed`` (world frame), and every other one at
+    ``seed`` moved by the odometry from the first scan to it (its /odom nearest in time within
+    ``tolerance_ms``; those without are left out).
+
+    Refused, saying what works instead, when several scans are selected and the log has no
+    odometry, or the first has no /odom message.
+    """
+    from segloc_cli.geometry import transform_points, wrap_angle
+
+    first = selected[:1]
+    if selected.size == 1:
+        return Guesses(first, [seed], log.scan_numbers[first])
+    reason = no_odometry(log)
+    carry = "to carry --initial X,Y,THETA_DEG from the first scan to the others"
+    if reason is not None:
+        # A simulated log's /odom holds a guess per scan: the default takes them.
+        instead = "; --initial odom takes its guesses" if log.odom_times_s.size else ""
+        raise InputError(f"{reason} {carry}{instead}{GUESSES_WITHOUT_ODOMETRY}", path=log_path)
+    rows = odometry_rows(log, log_path, tolerance_ms / 1e3, "")[selected]
+    if rows[0] < 0:
+        raise InputError(
+            f"the first scan ({log.scan_times_s[first[0]]:.3f} s) has no /odom message within "
+            f"{tolerance_ms:g} ms {carry}",
+            path=log_path,
+        )
+    paired = rows >= 0
+    odometry = log.odom_poses[rows[paired]]
+    # The one rigid motion that takes the first scan's odometry pose to the seed.
+    anchor = seed.compose(Pose2(*odometry[0]).inverse())
+    xy = transform_points(odometry[:, :2], anchor)
+    theta = wrap_angle(odometry[:, 2] + anchor.theta)
+    index = selected[paired]
+    poses = [Pose2(float(x), float(y), float(t)) for (x, y), t in zip(xy, theta, strict=True)]
+    return Guesses(index, poses, log.scan_numbers[index])
 
 
 def localizer_for(segments_world: np.ndarray, config: Config, mode: str):
@@ -135,28 +206,35 @@ def localize_log(
     log_path: Path,
     localizer,
     mode: str,
-    initial: Path | None,
+    initial: Path | Pose2 | None,
     config: Config,
     stop: Callable[[], bool] = lambda: False,
+    selected: np.ndarray | None = None,
 ) -> LogRun:
     """Plan the localization of one log; its rows are made as ``LogRun.rows`` is read.
 
-    ``mode`` is one of ``RUN_MODES``. Guided runs localize the scans with a guess from
-    ``initial`` (None: the log's /odom); global runs every scan, or with ``initial`` only
-    the scans it lists; a track starts at the first scan with a guess and follows the
-    odometry. ``stop`` is asked between blocks of scans on worker processes.
+    ``mode`` is one of ``RUN_MODES``. Only the scans ``selected`` (indices in log order;
+    None: every scan) get rows; the others still give the selected ones their odometry and
+    windows. Guided runs localize the scans with a guess from ``initial`` (None: the log's
+    /odom; a path: a pose table; a pose: the first scan's, ``seeded_guesses``); global runs
+    every scan, or with ``initial`` only the scans it lists; a track starts at the first
+    scan with a guess (a pose: the first scan) and follows the odometry. ``stop`` is asked
+    between blocks of scans on worker processes.
     """
     if mode not in RUN_MODES:
         raise ValueError(f"mode {mode!r} is not one of {', '.join(RUN_MODES)}")
+    selected = np.arange(len(log.scans)) if selected is None else selected
     if mode == "global" and initial is None:
-        index = np.arange(len(log.scans))
-        guesses = Guesses(index, [], log.scan_numbers)
+        guesses = Guesses(selected, [], log.scan_numbers[selected])
+    elif mode == "track" and isinstance(initial, Pose2):
+        guesses = Guesses(selected[:1], [initial], log.scan_numbers[selected[:1]])
     else:
-        guesses = paired_guesses(log, log_path, initial, config.tolerance_ms)
+        guesses = paired_guesses(log, log_path, initial, config.tolerance_ms, selected)
     if mode == "track":
-        index, rows = _track(log, log_path, localizer, guesses, config)
-        return LogRun(log_path, rows, log.scan_times_s[index], len(log.scans) - index.size)
-    return localize_guessed(log, log_path, localizer, guesses, config, stop, mode == "guided")
+        index, rows = _track(log, log_path, localizer, guesses, config, selected)
+        return LogRun(log_path, rows, log.scan_times_s[index], selected.size - index.size)
+    run = localize_guessed(log, log_path, localizer, guesses, config, stop, mode == "guided")
+    return replace(run, skipped=selected.size - guesses.index.size)
 
 
 def localize_guessed(
@@ -254,15 +332,20 @@ def window_note(log: Log, localizer, config: Config, windows) -> str:
     )
 
 
-def _track(log: Log, log_path: Path, localizer, guesses: Guesses, config: Config):
-    """(scan indices, rows) of a track from the first guessed scan, carried by odometry."""
+def _track(
+    log: Log, log_path: Path, localizer, guesses: Guesses, config: Config, selected: np.ndarray
+):
+    """(scan indices, rows) of a track along the scans ``selected`` (indices, in log order)
+    from the first guessed scan, carried by the odometry from each to the next."""
     from segloc_cli.method.tracking import track_scans
 
     tolerance_s = config.tolerance_ms / 1e3
-    missing = "; tracking needs odometry between scans"
+    missing = "; tracking needs odometry between scans (--global localizes each without it)"
     odom_rows = odometry_rows(log, log_path, tolerance_s, missing)
     first = guesses.index[0]
-    index = np.flatnonzero((odom_rows >= 0) & (np.arange(len(log.scans)) >= first))
+    chosen = np.zeros(len(log.scans), dtype=bool)
+    chosen[selected] = True
+    index = np.flatnonzero((odom_rows >= 0) & chosen & (np.arange(len(log.scans)) >= first))
     if index.size == 0:
         raise InputError(
             f"no scan from the first guess on has odometry within {config.tolerance_ms:g} ms; "
@@ -355,15 +438,17 @@ def build_map(
     survey_path: Path,
     config: Config,
     progress: ProgressFactory = silent,
+    selected: np.ndarray | None = None,
 ) -> BuiltMap:
-    """Fuse the local maps of the scans that have a survey row, each placed at its pose (after
-    ``config.fuse.polish_rounds`` rounds of ``maps.fusion.polish_poses``, if any; ``BuiltMap.poses``
-    holds the poses used); the extraction (scans), polishing and fusion (rounds) report to
-    ``progress``."""
+    """Fuse the local maps of the scans ``selected`` (indices in log order; None: every scan)
+    that have a survey row, each placed at its pose (after ``config.fuse.polish_rounds``
+    rounds of ``maps.fusion.polish_poses``, if any; ``BuiltMap.poses`` holds the poses used);
+    the extraction (scans), polishing and fusion (rounds) report to ``progress``."""
     from segloc_cli.maps.fusion import build_global_map, polish_poses
     from segloc_cli.method.extract import extract_segments
 
     times = log.scan_times_s
+    selected = np.arange(times.size) if selected is None else selected
     rows = pair_by_time(
         times,
         survey.time_s,
@@ -372,12 +457,13 @@ def build_map(
         ref_path=survey_path,
         query_label="scan",
     )
-    used = np.flatnonzero(rows >= 0)
+    used = selected[rows[selected] >= 0]
     if used.size == 0:
+        some = "selected " if selected.size < times.size else ""
         raise InputError(
-            f"no scan is within {config.tolerance_ms:g} ms of a survey row (scans "
-            f"{time_range(times)}, survey {time_range(survey.time_s)}); check the time base "
-            "or --tolerance-ms",
+            f"no {some}scan is within {config.tolerance_ms:g} ms of a survey row ({some}scans "
+            f"{time_range(times[selected])}, survey {time_range(survey.time_s)}); check the "
+            "time base or --tolerance-ms",
             path=survey_path,
         )
     local_maps = []
