@@ -308,8 +308,11 @@ def render_ranges(
     n = angles_rad.shape[0]
 
     glass = materials == "glass"
-    transparent = np.zeros((n, segments.shape[0]), dtype=bool)
-    transparent[:, glass] = rng.random((n, int(glass.sum()))) >= sensor.glass_return_prob
+    passes = rng.random((n, int(glass.sum()))) >= sensor.glass_return_prob
+    transparent = None  # a plan of walls alone needs no (beams × segments) mask
+    if glass.any():
+        transparent = np.zeros((n, segments.shape[0]), dtype=bool)
+        transparent[:, glass] = passes
     true_m = cast_rays(segments, (pose.x, pose.y), pose.theta + angles_rad, transparent)
 
     ranges_m = np.minimum(true_m, _clutter_ranges(angles_rad, sensor.clutter_clusters, rng))
