@@ -1,11 +1,12 @@
 """Synthetic scans and worlds: the paper's range sensor rendered on a ``World``.
 
-The sensor model follows the Schwartz Electro-Optics Explorer used by Reina &
-Gonzalez (2000): a 360° scan of 128/256/1024/2048 readings per revolution with
-Gaussian range noise of about 1.2 cm. On top of the ideal ray cast it adds the
-things a real log holds: range quantisation, readings lost to dropouts, glass
-that mostly lets the beam through, and short spurious returns from people
-walking past.
+The default sensor model follows the Schwartz Electro-Optics Explorer used by
+Reina & Gonzalez (2000): a 360° scan of 1024 readings per revolution (it offers
+128/256/1024/2048) with Gaussian range noise of about 1.2 cm. Any other fan can be
+chosen (a SICK LMS's 181 or 361 beams over 180°). On top of the ideal ray cast
+the model adds the things a real log holds: range quantisation, readings lost to
+dropouts, glass that mostly lets the beam through, and short spurious returns from
+people walking past.
 
 Frames: beam angles are in the robot frame (x forward, counter-clockwise);
 rays are cast in the world frame at ``pose.theta + angle``. Units are metres
@@ -14,7 +15,9 @@ and radians; ``noise_cm`` and ``*_deg`` names are the only exceptions.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -27,10 +30,14 @@ from segloc_cli.geometry import (
     rotation,
     wrap_angle,
 )
-from segloc_cli.scan import MAX_RANGE_M, Scan
+from segloc_cli.scan import MAX_RANGE_M, MAX_READINGS, Scan, evenly_spaced_angles
 from segloc_cli.world import World
 
 EXPLORER_READINGS = (128, 256, 1024, 2048)
+"""Readings per revolution the Explorer offers."""
+
+FULL_CIRCLE_DEG = 360.0
+"""The widest field of view: a full turn, whose beams start straight ahead (``beam_angles``)."""
 
 # Initial errors of the paper's Table 1 (Reina & Gonzalez 2000), "surveyed minus
 # initial guess", one row per logged pose: x cm, y cm, heading degrees.
@@ -57,15 +64,16 @@ _ENDPOINT_SLACK = 1e-12
 
 @dataclass(frozen=True)
 class SensorModel:
-    """Parameters of the simulated 360° range scanner.
+    """Parameters of the simulated range scanner.
 
-    ``readings`` per revolution (the Explorer offers 128, 256, 1024, 2048);
-    ``noise_cm`` Gaussian range noise σ in centimetres; ``resolution_m`` the
-    range quantum (0 disables rounding); ``range_max_m`` the largest range
-    returned; ``dropout_prob`` the chance a reading is lost; ``glass_return_prob``
-    the chance a beam reaching a glass segment returns from it rather than
-    passing through; ``clutter_clusters`` the Poisson mean number of clusters of
-    spurious short returns per scan.
+    ``readings`` beams per scan (2 to ``MAX_READINGS``) spread over ``fov_deg``
+    degrees (above 0, at most 360; see ``beam_angles``); ``noise_cm`` Gaussian
+    range noise σ in centimetres; ``resolution_m`` the range quantum (0 disables
+    rounding); ``range_max_m`` the largest range returned; ``dropout_prob`` the
+    chance a reading is lost; ``glass_return_prob`` the chance a beam reaching a
+    glass segment returns from it rather than passing through (1: glass is
+    opaque); ``clutter_clusters`` the Poisson mean number of clusters of spurious
+    short returns per scan (0: none). The defaults are the Explorer's.
     """
 
     readings: int = 1024
@@ -75,12 +83,13 @@ class SensorModel:
     dropout_prob: float = 0.005
     glass_return_prob: float = 0.1
     clutter_clusters: float = 1.5
+    fov_deg: float = FULL_CIRCLE_DEG
 
     def __post_init__(self) -> None:
-        if self.readings not in EXPLORER_READINGS:
-            raise ValueError(
-                f"readings must be one of {EXPLORER_READINGS} per revolution, got {self.readings}"
-            )
+        if isinstance(self.readings, bool) or not 2 <= self.readings <= MAX_READINGS:
+            raise ValueError(f"readings must be 2 to {MAX_READINGS}, got {self.readings}")
+        if not 0.0 < self.fov_deg <= FULL_CIRCLE_DEG:
+            raise ValueError(f"fov_deg must be above 0 and at most 360, got {self.fov_deg}")
         if not self.noise_cm >= 0.0:
             raise ValueError(f"noise_cm must be >= 0, got {self.noise_cm}")
         if not self.resolution_m >= 0.0:
@@ -94,6 +103,52 @@ class SensorModel:
         if not self.clutter_clusters >= 0.0:
             raise ValueError(f"clutter_clusters must be >= 0, got {self.clutter_clusters}")
 
+    @property
+    def is_explorer(self) -> bool:
+        """Whether this is a fan the Explorer scans: a full turn of a readings count it offers."""
+        return self.fov_deg == FULL_CIRCLE_DEG and self.readings in EXPLORER_READINGS
+
+    @property
+    def choices(self) -> dict[str, Any]:
+        """This model as ``SENSOR_CHOICES`` name it: clutter on while there is any, glass on
+        while it lets beams through (``sensor_model`` of them makes a model like this one)."""
+        return {
+            "readings": int(self.readings),
+            "fov_deg": float(self.fov_deg),
+            "noise_cm": float(self.noise_cm),
+            "clutter": self.clutter_clusters > 0.0,
+            "glass": self.glass_return_prob < 1.0,
+        }
+
+
+SENSOR_CHOICES: dict[str, type] = {
+    "readings": int,
+    "fov_deg": float,
+    "noise_cm": float,
+    "clutter": bool,
+    "glass": bool,
+}
+"""What a user chooses of the simulated scanner (``simulate``'s options, a world file's
+``sensor``), by name, with the type of its value; ``sensor_model`` makes the model of them.
+``clutter`` False means no spurious returns; ``glass`` False makes glass opaque."""
+
+_SWITCHED_OFF = {"clutter": ("clutter_clusters", 0.0), "glass": ("glass_return_prob", 1.0)}
+"""The field each switch of ``SENSOR_CHOICES`` sets when off, and the value it sets."""
+
+
+def sensor_model(chosen: Mapping[str, Any]) -> SensorModel:
+    """The ``SensorModel`` of ``chosen`` (keys of ``SENSOR_CHOICES``; any left out, and a
+    switch that is on, keep the Explorer's defaults). ``ValueError`` says which value is
+    out of range; a key that is no choice is a ``KeyError``."""
+    unknown = set(chosen) - set(SENSOR_CHOICES)
+    if unknown:
+        raise KeyError(f"no sensor choice {sorted(unknown)}")
+    fields = {k: v for k, v in chosen.items() if k not in _SWITCHED_OFF}
+    for key, (name, off) in _SWITCHED_OFF.items():
+        if chosen.get(key) is False:
+            fields[name] = off
+    return SensorModel(**fields)
+
 
 NOISE_FREE = SensorModel(
     noise_cm=0.0, resolution_m=0.0, dropout_prob=0.0, glass_return_prob=0.0, clutter_clusters=0.0
@@ -101,11 +156,20 @@ NOISE_FREE = SensorModel(
 """Exact ranges: no noise, quantisation, dropouts, glass returns or clutter."""
 
 
-def beam_angles(readings: int) -> np.ndarray:
-    """Beam angles (readings,) in radians, robot frame: ``2π·i/readings``, i = 0..readings−1."""
+def beam_angles(readings: int, fov_deg: float = FULL_CIRCLE_DEG) -> np.ndarray:
+    """Beam angles (readings,) in radians, robot frame, counter-clockwise.
+
+    A full turn (``fov_deg`` 360) starts straight ahead: ``2π·i/readings``, i = 0 ..
+    readings−1, the last beam one step short of the first. A narrower fan is centred
+    straight ahead with its first and last beams on its edges, ``−fov/2`` to ``+fov/2``
+    in steps of ``fov/(readings−1)``, as a SICK LMS or a Hokuyo scans.
+    """
     if readings < 1:
         raise ValueError(f"readings must be >= 1, got {readings}")
-    return TWO_PI * np.arange(readings) / readings
+    if fov_deg == FULL_CIRCLE_DEG:
+        return TWO_PI * np.arange(readings) / readings
+    half_rad = float(np.deg2rad(fov_deg)) / 2.0
+    return evenly_spaced_angles(readings, -half_rad, half_rad)
 
 
 def cast_rays(
@@ -120,14 +184,39 @@ def cast_rays(
     world frame; ``angles_world_rad`` (N,) ray directions in the world frame.
     ``transparent`` is an optional (N, M) bool mask: beam i passes through
     segment j where it is True. Returns ranges (N,) in metres, ``inf`` where a
-    ray hits nothing. Rays parallel to a segment do not hit it.
+    ray hits nothing. Rays parallel to a segment do not hit it. Rays are cast
+    ``_RAY_BLOCK_PAIRS`` ray-segment pairs at a time, so that a building's plan of
+    thousands of segments takes megabytes, not gigabytes.
     """
     segments = as_segments(segments_world)
     angles = np.asarray(angles_world_rad, dtype=float).reshape(-1)
-    ox, oy = np.asarray(origin_xy, dtype=float).reshape(2)
+    origin = np.asarray(origin_xy, dtype=float).reshape(2)
+    mask = None if transparent is None else np.asarray(transparent, dtype=bool)
+    if mask is not None and mask.shape != (angles.shape[0], segments.shape[0]):
+        raise ValueError(
+            f"transparent must have shape {(angles.shape[0], segments.shape[0])}, got {mask.shape}"
+        )
     if segments.shape[0] == 0:
         return np.full(angles.shape, np.inf)
+    block = max(1, _RAY_BLOCK_PAIRS // segments.shape[0])
+    ranges = np.empty(angles.shape)
+    for start in range(0, angles.shape[0], block):
+        rows = slice(start, start + block)
+        ranges[rows] = _cast_block(
+            segments, origin, angles[rows], None if mask is None else mask[rows]
+        )
+    return ranges
 
+
+_RAY_BLOCK_PAIRS = 1 << 20
+"""Ray-segment pairs cast at once: each of ``_cast_block``'s arrays takes 8 MB."""
+
+
+def _cast_block(
+    segments: np.ndarray, origin: np.ndarray, angles: np.ndarray, transparent: np.ndarray | None
+) -> np.ndarray:
+    """``cast_rays`` of the rays ``angles`` (N,) against ``segments`` (M, 4), all at once."""
+    ox, oy = origin
     dx = np.cos(angles)[:, None]  # (N, 1)
     dy = np.sin(angles)[:, None]
     ex = (segments[:, 2] - segments[:, 0])[None, :]  # (1, M)
@@ -143,27 +232,31 @@ def cast_rays(
     u = (wx * dy - wy * dx) / safe
     hit = ~parallel & (t > _MIN_HIT_M) & (u >= -_ENDPOINT_SLACK) & (u <= 1.0 + _ENDPOINT_SLACK)
     if transparent is not None:
-        mask = np.asarray(transparent, dtype=bool)
-        if mask.shape != hit.shape:
-            raise ValueError(f"transparent must have shape {hit.shape}, got {mask.shape}")
-        hit &= ~mask
+        hit &= ~transparent
     return np.where(hit, t, np.inf).min(axis=1)
 
 
-def _clutter_ranges(n_beams: int, mean_clusters: float, rng: np.random.Generator) -> np.ndarray:
-    """Ranges (n_beams,) of spurious returns, ``inf`` where a beam sees no clutter.
+def _clutter_ranges(
+    angles_rad: np.ndarray, mean_clusters: float, rng: np.random.Generator
+) -> np.ndarray:
+    """Ranges (N,) of spurious returns along the evenly spaced beams ``angles_rad`` (N,),
+    ``inf`` where a beam sees no clutter.
 
     Each cluster is an object 0.3–0.6 m across at 0.8–5 m (a person walking by),
-    covering the consecutive beams that its width subtends.
+    covering the consecutive beams that its width subtends; on a full turn it may
+    cover the last beams and the first, on a narrower fan it ends at the fan's edge.
     """
+    n_beams = angles_rad.shape[0]
     clutter = np.full(n_beams, np.inf)
-    step_rad = TWO_PI / n_beams
+    step_rad = abs(float(angles_rad[1] - angles_rad[0])) if n_beams > 1 else TWO_PI
+    full_turn = n_beams * step_rad >= TWO_PI * (1.0 - 1e-9)
     for _ in range(int(rng.poisson(mean_clusters))):
         range_m = rng.uniform(0.8, 5.0)
         width_m = rng.uniform(0.3, 0.6)
         count = max(1, round(width_m / range_m / step_rad))
         first = int(rng.integers(n_beams))
-        beams = (first + np.arange(count)) % n_beams
+        beams = first + np.arange(count)
+        beams = beams % n_beams if full_turn else beams[beams < n_beams]
         clutter[beams] = np.minimum(clutter[beams], range_m)
     return clutter
 
@@ -177,12 +270,12 @@ def simulate_scan(
 ) -> Scan:
     """One scan of ``world`` taken by a scanner at ``pose`` (world frame).
 
-    The scan holds ``sensor.readings`` beams at ``beam_angles`` (robot frame)
-    and ranges in metres, with invalid readings (no return within
-    ``range_max_m``, dropouts) written as 0.0. The result depends only on the
-    arguments and the state of ``rng``.
+    The scan holds ``sensor.readings`` beams over ``sensor.fov_deg`` at
+    ``beam_angles`` (robot frame) and ranges in metres, with invalid readings (no
+    return within ``range_max_m``, dropouts) written as 0.0. The result depends
+    only on the arguments and the state of ``rng``.
     """
-    angles_rad = beam_angles(sensor.readings)
+    angles_rad = beam_angles(sensor.readings, sensor.fov_deg)
     return Scan(
         time_s=float(time_s),
         angles_rad=angles_rad,
@@ -200,10 +293,10 @@ def render_ranges(
 ) -> np.ndarray:
     """Ranges (N,) in metres that ``sensor`` at ``pose`` reads along beams ``angles_rad``.
 
-    Beam angles are in the robot frame and may be any fan (a 360° Explorer
-    revolution, a Hokuyo's 240°); ``sensor.readings`` is not used. Noise,
-    quantisation, dropouts, glass and clutter as in ``simulate_scan``; 0.0
-    marks an invalid reading.
+    Beam angles are in the robot frame, evenly spaced, and may be any fan (a 360°
+    Explorer revolution, a Hokuyo's 240°); ``sensor.readings`` and ``fov_deg`` are
+    not used. Noise, quantisation, dropouts, glass and clutter as in
+    ``simulate_scan``; 0.0 marks an invalid reading.
     """
     segments = as_segments(world.segments, "world segments")
     materials = np.asarray(world.materials).reshape(-1)
@@ -215,11 +308,14 @@ def render_ranges(
     n = angles_rad.shape[0]
 
     glass = materials == "glass"
-    transparent = np.zeros((n, segments.shape[0]), dtype=bool)
-    transparent[:, glass] = rng.random((n, int(glass.sum()))) >= sensor.glass_return_prob
+    passes = rng.random((n, int(glass.sum()))) >= sensor.glass_return_prob
+    transparent = None  # a plan of walls alone needs no (beams × segments) mask
+    if glass.any():
+        transparent = np.zeros((n, segments.shape[0]), dtype=bool)
+        transparent[:, glass] = passes
     true_m = cast_rays(segments, (pose.x, pose.y), pose.theta + angles_rad, transparent)
 
-    ranges_m = np.minimum(true_m, _clutter_ranges(n, sensor.clutter_clusters, rng))
+    ranges_m = np.minimum(true_m, _clutter_ranges(angles_rad, sensor.clutter_clusters, rng))
     ranges_m = ranges_m + rng.normal(0.0, sensor.noise_cm / 100.0, n)
     if sensor.resolution_m > 0.0:
         ranges_m = np.round(ranges_m / sensor.resolution_m) * sensor.resolution_m

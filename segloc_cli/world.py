@@ -3,7 +3,9 @@ emulator render them and world files (``io/maps.py``) hold them."""
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -17,12 +19,15 @@ class World:
     """A simulated environment.
 
     ``segments`` (M, 4) float64, metres, world frame; ``materials`` (M,) str, one
-    of ``MATERIALS`` per segment; ``name`` a label for reports.
+    of ``MATERIALS`` per segment; ``name`` a label for reports; ``sensor`` the
+    scanner its file chooses to simulate it with, by the names of
+    ``sim.SENSOR_CHOICES`` (``sim.sensor_model`` makes the model; {}: the defaults).
     """
 
     segments: np.ndarray
     materials: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=str))
     name: str = "world"
+    sensor: Mapping[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         segments = np.asarray(self.segments, dtype=float).reshape(-1, 4)

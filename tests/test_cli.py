@@ -273,11 +273,6 @@ def test_json_that_is_not_a_map(text, small, tmp_path, capsys):
     assert not out.exists(), "no estimates may be written when the map cannot be read"
 
 
-def test_map_given_as_world_to_simulate(small, tmp_path, capsys):
-    result = run_cli(capsys, "simulate", small.map, "--poses", small.poses, "--out", tmp_path / "o")
-    assert_one_line_error(result, small.map.name)
-
-
 def _survey_with_bad_value(path: Path) -> Path:
     return write_text(
         path,
@@ -437,7 +432,7 @@ BAD_OPTION_CASES = {
     ),
     "readings": (
         lambda s, out: [
-            "simulate", HALL_WORLD, "--poses", s.poses, "--out", out, "--readings", "300"
+            "simulate", HALL_WORLD, "--poses", s.poses, "--out", out, "--readings", "1"
         ],
         "--readings",
     ),
@@ -696,7 +691,19 @@ def test_info_counts_scans(hall):
 
 
 HELP_CASES = {
-    "simulate": ["--poses", "--out", "--readings", "--seed", "--init-errors", "WORLD.json"],
+    "simulate": [
+        "--poses",
+        "--out",
+        "--readings",
+        "--fov-deg",
+        "--noise-cm",
+        "--no-clutter",
+        "--no-glass",
+        "--material",
+        "--seed",
+        "--init-errors",
+        "WORLD_OR_MAP.json",
+    ],
     "map build": ["--survey", "--out", "--tolerance-ms", "LOG.mcap"],
     "localize": ["--map", "--out", "--initial", "--vote", "--bin-deg", "--grid-m", "LOG.mcap"],
     "evaluate": [

@@ -62,6 +62,23 @@ def test_world_round_trip_is_exact(tmp_path):
     )
 
 
+def test_world_sensor_round_trips_and_a_world_without_one_writes_none(tmp_path):
+    sensor = {"readings": 361, "fov_deg": 180.0, "noise_cm": 0.5, "clutter": False}
+    write_world(tmp_path / "lms.json", World(SEGMENTS, name="lms", sensor=sensor))
+    assert read_world(tmp_path / "lms.json").sensor == sensor
+    write_world(tmp_path / "plain.json", World(SEGMENTS, name="plain"))
+    assert "sensor" not in json.loads((tmp_path / "plain.json").read_text())
+    assert read_world(tmp_path / "plain.json").sensor == {}
+
+
+def test_a_map_read_as_a_world_is_made_of_the_material_given(tmp_path):
+    write_map(tmp_path / "plan.json", SEGMENTS)
+    world = read_world(tmp_path / "plan.json", default_material="glass")
+    np.testing.assert_array_equal(world.segments, SEGMENTS)
+    assert world.materials.tolist() == ["glass"] * 4
+    assert world.name == "plan"
+
+
 def test_world_materials_default_to_wall(tmp_path):
     path = tmp_path / "world.json"
     path.write_text(

@@ -23,6 +23,7 @@ from segloc_cli.sim import (
     random_free_poses,
     random_world,
     repeating_corridor,
+    sensor_model,
     simulate_scan,
     symmetric_room,
     uniform_initial_errors,
@@ -119,13 +120,85 @@ def test_transparent_mask_lets_a_beam_through_one_segment():
 # --- the sensor model ------------------------------------------------------------------------
 
 
-def test_sensor_model_rejects_reading_counts_the_explorer_does_not_have():
-    for readings in (128, 256, 1024, 2048):
-        assert SensorModel(readings=readings).readings == readings
-    with pytest.raises(ValueError):
-        SensorModel(readings=360)
+def test_sensor_model_takes_any_fan_and_refuses_impossible_ones():
+    for readings, fov_deg in ((128, 360.0), (2048, 360.0), (361, 180.0), (2, 0.5), (100_000, 1)):
+        assert SensorModel(readings=readings, fov_deg=fov_deg).readings == readings
+    assert SensorModel().is_explorer and not SensorModel(readings=361, fov_deg=180).is_explorer
+    for bad in ({"readings": 1}, {"readings": 100_001}, {"fov_deg": 0.0}, {"fov_deg": 360.5}):
+        with pytest.raises(ValueError):
+            SensorModel(**bad)
     with pytest.raises(ValueError):
         SensorModel(dropout_prob=1.5)
+
+
+def test_sensor_choices_switch_clutter_and_glass_off_and_come_back_from_the_model():
+    model = sensor_model({"readings": 181, "fov_deg": 90, "clutter": False, "glass": False})
+    assert (model.clutter_clusters, model.glass_return_prob) == (0.0, 1.0)
+    assert model.choices == {
+        "readings": 181, "fov_deg": 90.0, "noise_cm": 1.2, "clutter": False, "glass": False
+    }  # fmt: skip
+    assert sensor_model({}) == SensorModel()
+    assert sensor_model(SensorModel().choices) == SensorModel()
+    with pytest.raises(KeyError):
+        sensor_model({"beams": 3})
+
+
+@pytest.mark.parametrize(("readings", "fov_deg"), [(361, 180.0), (5, 40.0), (682, 239.77)])
+def test_a_narrower_fan_is_centred_ahead_with_a_beam_on_each_edge(readings, fov_deg):
+    angles = np.rad2deg(beam_angles(readings, fov_deg))
+    assert angles.shape == (readings,)
+    assert angles[0] == pytest.approx(-fov_deg / 2, abs=1e-12)
+    assert angles[-1] == pytest.approx(fov_deg / 2, abs=1e-12)
+    np.testing.assert_allclose(np.diff(angles), fov_deg / (readings - 1))
+
+
+class OneClusterNearTheEnd:
+    """Random draws of one clutter cluster, 0.5 m wide at 1 m, from the second-last beam."""
+
+    def poisson(self, mean):
+        return 1
+
+    def uniform(self, low, high):
+        return {0.8: 1.0, 0.3: 0.5}[low]
+
+    def integers(self, n):
+        return n - 2
+
+
+def test_clutter_on_a_fan_stops_at_its_edge_and_on_a_full_turn_wraps():
+    """A person seen at the last beams of a fan is not also seen at its first (the fan's
+    other edge, far from them); on a full turn the last beams and the first are neighbours."""
+    from segloc_cli.sim import _clutter_ranges
+
+    for fov_deg, readings in ((180.0, 181), (360.0, 360)):
+        angles = beam_angles(readings, fov_deg)
+        clutter = _clutter_ranges(angles, 1.0, OneClusterNearTheEnd())
+        # 0.5 m at 1 m spans 0.5 rad: 29 beams 1° apart, from the second-last on.
+        seen = np.flatnonzero(np.isfinite(clutter))
+        if fov_deg < 360.0:
+            assert seen.tolist() == [readings - 2, readings - 1]
+        else:
+            assert seen.tolist() == [*range(27), readings - 2, readings - 1]
+        np.testing.assert_array_equal(clutter[seen], 1.0)
+
+
+def test_rays_against_thousands_of_segments_take_megabytes():
+    """A plan of 20,000 segments scanned by 1024 beams: memory stays bounded (every ray
+    against every segment at once would need 160 MB per array), and the ranges are those
+    of the rays cast one by one."""
+    import tracemalloc
+
+    rng = np.random.default_rng(3)
+    centres = rng.uniform(-50, 50, (20_000, 2))
+    segments = np.hstack([centres, centres + rng.uniform(-0.5, 0.5, (20_000, 2))])
+    angles = beam_angles(1024)
+    tracemalloc.start()
+    ranges = cast_rays(segments, (0.3, -0.2), angles)
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    assert peak < 100e6, peak
+    for k in range(0, 1024, 97):
+        assert ranges[k] == cast_rays(segments, (0.3, -0.2), angles[k : k + 1])[0]
 
 
 def test_scan_frame_follows_the_robot_heading():

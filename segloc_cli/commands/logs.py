@@ -4,6 +4,7 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import click
@@ -11,6 +12,7 @@ import click
 from segloc_cli.commands.configfile import config_option
 from segloc_cli.commands.invocation import Invocation
 from segloc_cli.commands.options import (
+    FiniteRange,
     ModuleChoice,
     force_option,
     path_option,
@@ -22,7 +24,7 @@ from segloc_cli.commands.printing import info, load_log
 from segloc_cli.errors import InputError
 from segloc_cli.io.log import SIMULATED_GUESSES_KEY
 from segloc_cli.runs.runfile import run_file_path
-from segloc_cli.scan import AT_ROBOT_ORIGIN
+from segloc_cli.scan import AT_ROBOT_ORIGIN, MAX_READINGS
 from segloc_cli.sim import SensorModel
 
 
@@ -51,6 +53,16 @@ def check_increasing_times(times_s, path: Path, what: str) -> None:
         )
 
 
+def _from_world(key: str, default: str) -> str:
+    """The end of a sensor option's help: where its value comes from when not given."""
+    return f"[default: the world file's sensor.{key}, else {default}]"
+
+
+NOISE_OPTION, SEED_OPTION = sensor_options(
+    "Gaussian range noise σ. " + _from_world("noise_cm", f"{SensorModel.noise_cm:g}"),
+    from_world=True,
+)
+
 SIMULATE_OPTIONS = (
     path_option(
         "--poses",
@@ -61,12 +73,43 @@ SIMULATE_OPTIONS = (
     path_option("--out", "out_dir", required=True, help="Output folder."),
     click.option(
         "--readings",
-        type=ModuleChoice("segloc_cli.sim", "EXPLORER_READINGS"),
-        default=str(SensorModel.readings),
-        show_default=True,
-        help="Readings per 360° revolution (the Explorer's settings).",
+        type=click.IntRange(2, MAX_READINGS),
+        default=None,
+        help="Beams per scan (the Explorer offers 128, 256, 1024 or 2048 per turn). "
+        + _from_world("readings", str(SensorModel.readings)),
     ),
-    *sensor_options("Gaussian range noise σ."),
+    click.option(
+        "--fov-deg",
+        type=FiniteRange(0, 360, min_open=True),
+        default=None,
+        help="Field of view: 360 is a full turn starting straight ahead; a narrower fan is "
+        "centred straight ahead with a beam on each edge (180 with 361 readings: a SICK LMS "
+        "at 0.5°). " + _from_world("fov_deg", f"{SensorModel.fov_deg:g}"),
+    ),
+    NOISE_OPTION,
+    click.option(
+        "--clutter/--no-clutter",
+        default=None,
+        help="Short spurious returns from passers-by, on average "
+        f"{SensorModel.clutter_clusters:g} groups per scan (--no-clutter: none). "
+        + _from_world("clutter", "on"),
+    ),
+    click.option(
+        "--glass/--no-glass",
+        default=None,
+        help="Glass returns only "
+        f"{SensorModel.glass_return_prob:.0%} of the beams reaching it, letting the rest "
+        "through (--no-glass: glass is opaque, a wall to the beams). " + _from_world("glass", "on"),
+    ),
+    SEED_OPTION,
+    click.option(
+        "--material",
+        type=ModuleChoice("segloc_cli.world", "MATERIALS"),
+        default="wall",
+        show_default=True,
+        help="What the segments are made of when the file does not say: every segment of a "
+        "map file (from map build or map import), those of a world file without materials.",
+    ),
     click.option(
         "--init-errors",
         default="paper",
@@ -80,17 +123,32 @@ SIMULATE_OPTIONS = (
 
 
 @click.command()
-@click.argument("world_path", metavar="WORLD.json", type=click.Path(path_type=Path))
+@click.argument("world_path", metavar="WORLD_OR_MAP.json", type=click.Path(path_type=Path))
 @with_options(*SIMULATE_OPTIONS)
-def simulate(world_path, poses_path, out_dir, readings, noise_cm, seed, init_errors, force):
-    """Simulate a 360° laser log of a world at given poses.
+def simulate(
+    world_path,
+    poses_path,
+    out_dir,
+    readings,
+    fov_deg,
+    noise_cm,
+    clutter,
+    glass,
+    seed,
+    material,
+    init_errors,
+    force,
+):
+    """Simulate a laser log of a world (or a map) at given poses.
 
     Writes OUT/log.mcap (/scan as foxglove.LaserScan, /odom as
     foxglove.PoseInFrame carrying the initial guesses), OUT/survey.csv (the
-    true poses, as ground truth) and OUT/log.run.toml (the run file). The
-    sensor is modelled on the paper's Explorer: Gaussian range noise, 1 mm
-    resolution, dropouts, short spurious returns from people, and glass that
-    rarely returns.
+    true poses, as ground truth) and OUT/log.run.toml (the run file, with the
+    sensor as simulated). The sensor is modelled on the paper's Explorer (360°,
+    1024 readings): Gaussian range noise, 1 mm resolution, dropouts, short
+    spurious returns from people, and glass that rarely returns; the options,
+    or the world file's "sensor", choose another. The README describes the
+    world file.
     """
     import numpy as np
 
@@ -99,7 +157,7 @@ def simulate(world_path, poses_path, out_dir, readings, noise_cm, seed, init_err
     from segloc_cli.io.maps import read_world
     from segloc_cli.io.tables import read_pose_table, write_pose_table
     from segloc_cli.runs import pipeline
-    from segloc_cli.sim import parse_init_errors
+    from segloc_cli.sim import parse_init_errors, sensor_model
 
     errors = parsed(parse_init_errors, init_errors, "--init-errors")
     if out_dir.exists() and not out_dir.is_dir():
@@ -109,25 +167,45 @@ def simulate(world_path, poses_path, out_dir, readings, noise_cm, seed, init_err
         outputs = {"--out (log.mcap)": log_path, "--out (survey.csv)": survey_path}
         outputs["--out (run file)"] = run_file_path(log_path)
         check_outputs(outputs, [world_path, poses_path], force)
-    world = read_world(world_path)
+    world = read_world(world_path, default_material=material)
     truth = read_pose_table(poses_path, require_time=False)
     times = truth.time_s
     if np.isnan(times).any():
         times = np.arange(1, len(truth) + 1, dtype=float)
     check_increasing_times(times, poses_path, "log times")
     truth = PoseTable(truth.pose_id, times, truth.poses)
-    sensor = SensorModel(readings=int(readings), noise_cm=noise_cm)
-    settings = {"device": "simulated Explorer", "readings": readings, "noise_cm": repr(noise_cm)}
-    settings |= {"range_max_m": repr(sensor.range_max_m), "seed": str(seed)}
-    settings |= {"world": world.name, SIMULATED_GUESSES_KEY: init_errors}
+    # The options given win over the world file's sensor (their name is the choice's).
+    given = {"readings": readings, "fov_deg": fov_deg, "noise_cm": noise_cm}
+    given |= {"clutter": clutter, "glass": glass}
+    sensor = sensor_model(world.sensor | {k: v for k, v in given.items() if v is not None})
+    settings = sensor_settings(sensor) | {"seed": str(seed), "world": world.name}
+    settings[SIMULATED_GUESSES_KEY] = init_errors
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise InputError(f"cannot create the folder ({exc.strerror})", path=out_dir) from None
     pipeline.simulate_log(log_path, world, truth, errors, sensor, seed, settings)
     write_pose_table(survey_path, truth)
-    Invocation.current().write_run_file(log_path)
+    invocation = Invocation.current()
+    as_simulated = {k.replace("_", "-"): v for k, v in sensor.choices.items()}
+    replace(invocation, options=invocation.options | as_simulated).write_run_file(log_path)
     info(f"wrote {len(truth)} scans to {log_path} and the true poses to {survey_path}")
+
+
+def sensor_settings(sensor: SensorModel) -> dict[str, str]:
+    """The log's sensor settings of a simulated ``sensor``: the device, readings, noise and
+    range, and the field of view when it is no Explorer's, clutter and glass when off."""
+    choices = sensor.choices
+    device = "simulated Explorer" if sensor.is_explorer else "simulated scanner"
+    settings = {"device": device, "readings": str(sensor.readings)}
+    if not sensor.is_explorer:
+        settings["fov_deg"] = repr(choices["fov_deg"])
+    settings |= {"noise_cm": repr(choices["noise_cm"]), "range_max_m": repr(sensor.range_max_m)}
+    if not choices["clutter"]:
+        settings["clutter"] = "off"
+    if not choices["glass"]:
+        settings["glass"] = "opaque"
+    return settings
 
 
 def laser_offset_line(log) -> str:

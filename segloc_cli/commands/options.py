@@ -192,16 +192,17 @@ def path_option(*names: str, required: bool = False, help: str) -> Callable:
     return click.option(*names, required=required, type=click.Path(path_type=Path), help=help)
 
 
-def sensor_options(noise_help: str) -> tuple[Callable, Callable]:
+def sensor_options(noise_help: str, from_world: bool = False) -> tuple[Callable, Callable]:
     """``--noise-cm`` and ``--seed`` of the simulated scanner (``simulate``, ``emulate``),
-    the noise's default that of ``sim.SensorModel``."""
+    the noise's default that of ``sim.SensorModel``; ``from_world``: None by default, for
+    the world file's choice or else the model's default (``noise_help`` says so)."""
     from segloc_cli.sim import SensorModel
 
     noise = click.option(
         "--noise-cm",
         type=FiniteRange(min=0, max=100),
-        default=SensorModel.noise_cm,
-        show_default=True,
+        default=None if from_world else SensorModel.noise_cm,
+        show_default=not from_world,
         help=noise_help,
     )
     seed = click.option("--seed", type=int, default=0, show_default=True, help="Random seed.")

@@ -5,14 +5,19 @@ A map file holds the global segment map used for localization::
     {"format": "segloc-map", "version": 1, "frame": "world", "units": "m",
      "segments": [[x1, y1, x2, y2], ...], "source": {...}}
 
-A world file is what the simulator renders; it adds a name and a material per
-segment::
+A world file is what the simulator renders; it adds a name, a material per
+segment and, optionally, the scanner to simulate (``sim.SENSOR_CHOICES``)::
 
     {"format": "segloc-world", "version": 1, "units": "m", "frame": "world",
-     "name": "...", "segments": [[...], ...], "materials": ["wall" | "glass", ...]}
+     "name": "...", "segments": [[...], ...], "materials": ["wall" | "glass", ...],
+     "sensor": {"readings": 361, "fov_deg": 180, "noise_cm": 1.0,
+                "clutter": false, "glass": true}}
 
-A world file is accepted wherever a map is (``read_map`` returns its segments).
-Segments are (M, 4) float64 arrays ``x1 y1 x2 y2`` in metres, world frame.
+Only ``format``, ``version`` and ``segments`` are required (``WORLD_KEYS`` lists them
+all; any other key is refused). A world file is accepted wherever a map is
+(``read_map`` returns its segments), and ``read_world`` takes a map as a world when
+given the material its segments are made of. Segments are (M, 4) float64 arrays
+``x1 y1 x2 y2`` in metres, world frame.
 
 Readers refuse, with one line naming the file, anything the localizer could not
 hold in reasonable memory and time: files over ``MAX_MAP_BYTES``, more than
@@ -24,6 +29,7 @@ it), more than ``MAX_TOTAL_LENGTH_M`` of segments in all, and segments shorter t
 
 from __future__ import annotations
 
+import difflib
 import json
 import math
 from pathlib import Path
@@ -57,6 +63,9 @@ proportion (about a second per 1,000 km)."""
 MIN_SEGMENT_LENGTH_M = 1e-6
 """Shorter segments (1 µm) count as zero length: their direction is undefined."""
 
+WORLD_KEYS = ("format", "version", "units", "frame", "name", "segments", "materials", "sensor")
+"""Every key a world file may hold."""
+
 
 def write_map(path: str | Path, segments_world: np.ndarray, source: dict | None = None) -> None:
     """Write a map file: ``segments_world`` (M, 4) metres, world frame; ``source``
@@ -85,12 +94,12 @@ def read_map(path: str | Path) -> np.ndarray:
     if len(segments) == 0:
         raise InputError("map has no segments; build one with `segloc map build`", path=path)
     if kind == WORLD_FORMAT:
-        _parse_materials(path, document, len(segments))
+        _parse_world(path, document, segments, "wall")
     return segments
 
 
 def write_world(path: str | Path, world: World) -> None:
-    """Write a world file."""
+    """Write a world file (its ``sensor`` only when it chooses one)."""
     segments = _checked_array(world.segments, "world")
     document = {
         "format": WORLD_FORMAT,
@@ -101,21 +110,83 @@ def write_world(path: str | Path, world: World) -> None:
         "segments": segments.tolist(),
         "materials": [str(m) for m in world.materials],
     }
+    if world.sensor:
+        document["sensor"] = dict(world.sensor)
     _write_json(path, document)
 
 
-def read_world(path: str | Path) -> World:
-    """Read a world file → ``World``. A map file is rejected (it has no materials)."""
+def read_world(path: str | Path, default_material: str | None = None) -> World:
+    """Read a world file → ``World``; its segments without a ``materials`` list are made
+    of ``default_material`` (wall when None). A map file is taken as a world of
+    ``default_material`` named after the file, and is refused when that is None (it has
+    no materials). Every key, material and sensor choice is checked (``InputError``)."""
     document = _read_json(path)
-    _check_header(path, document, (WORLD_FORMAT,))
+    accepted = (WORLD_FORMAT,) if default_material is None else (WORLD_FORMAT, MAP_FORMAT)
+    kind = _check_header(path, document, accepted)
     segments = _parse_segments(path, document)
     if len(segments) == 0:
-        raise InputError("world has no segments; add walls to its `segments` list", path=path)
-    materials = _parse_materials(path, document, len(segments))
+        what = "world" if kind == WORLD_FORMAT else "map"
+        raise InputError(f"{what} has no segments; add walls to its `segments` list", path=path)
+    material = default_material or "wall"
+    if kind == MAP_FORMAT:
+        materials = np.full(len(segments), material)
+        return World(segments=segments, materials=materials, name=Path(path).stem)
+    return _parse_world(path, document, segments, material)
+
+
+def _parse_world(path, document: dict, segments: np.ndarray, default_material: str) -> World:
+    """The world a world file's ``document`` describes around its ``segments``, every
+    key but the header's checked."""
+    unknown = [key for key in document if key not in WORLD_KEYS]
+    if unknown:
+        raise InputError(_unknown_key(unknown[0], WORLD_KEYS, "a world file"), path=path)
+    for key, wanted, meaning in (("units", "m", "metres"), ("frame", "world", "the world frame")):
+        if key in document and document[key] != wanted:
+            raise InputError(
+                f"`{key}` is {shown_value(document[key])}; a world file is in {meaning} "
+                f'("{wanted}")',
+                path=path,
+            )
+    materials = _parse_materials(path, document, len(segments), default_material)
     name = document.get("name", Path(path).stem)
     if not isinstance(name, str):
         raise InputError(f"`name` must be a string, got {shown_value(name)}", path=path)
-    return World(segments=segments, materials=materials, name=name)
+    sensor = _parse_sensor(path, document.get("sensor", {}))
+    return World(segments=segments, materials=materials, name=name, sensor=sensor)
+
+
+def _parse_sensor(path, raw) -> dict:
+    """A world file's ``sensor`` object, checked key by key and value by value."""
+    from segloc_cli.sim import SENSOR_CHOICES, sensor_model
+
+    if not isinstance(raw, dict):
+        listed = ", ".join(SENSOR_CHOICES)
+        raise InputError(f"`sensor` must be an object of {listed}", path=path)
+    for key, value in raw.items():
+        kind = SENSOR_CHOICES.get(key)
+        if kind is None:
+            raise InputError(_unknown_key(key, tuple(SENSOR_CHOICES), "`sensor`"), path=path)
+        if kind is bool and not isinstance(value, bool):
+            raise InputError(f"`sensor.{key}` must be true or false, got {value!r}", path=path)
+        if kind is int and (isinstance(value, bool) or not isinstance(value, int)):
+            raise InputError(
+                f"`sensor.{key}` must be a whole number, got {shown_value(value)}", path=path
+            )
+        if kind is float and not _is_number(value):
+            raise InputError(
+                f"`sensor.{key}` must be a finite number, got {shown_value(value)}", path=path
+            )
+    try:
+        sensor_model(raw)
+    except ValueError as exc:
+        raise InputError(f"sensor.{exc}", path=path) from None
+    return dict(raw)
+
+
+def _unknown_key(key, known: tuple[str, ...], where: str) -> str:
+    close = difflib.get_close_matches(str(key), known, n=1)
+    hint = f"; did you mean {close[0]!r}?" if close else ""
+    return f"unknown key {shown_value(key)} in {where}, which holds {', '.join(known)}{hint}"
 
 
 # --- helpers ---------------------------------------------------------------
@@ -269,10 +340,10 @@ def _one_line(value) -> str:
     return " ".join(str(value).split())
 
 
-def _parse_materials(path, document: dict, n_segments: int) -> np.ndarray:
+def _parse_materials(path, document: dict, n_segments: int, default: str) -> np.ndarray:
     raw = document.get("materials")
     if raw is None:
-        return np.full(n_segments, "wall")
+        return np.full(n_segments, default)
     if not isinstance(raw, list) or len(raw) != n_segments:
         count = len(raw) if isinstance(raw, list) else "not a list"
         raise InputError(
