@@ -314,6 +314,79 @@ def test_simulate_run_file_repeats_the_log(hall, capsys):
     assert logs[0].odom_poses.tobytes() == logs[1].odom_poses.tobytes()
 
 
+def _tables(run_file: Path) -> dict:
+    """A run file's table of its command (``[simulate]``, ``[map.export]``)."""
+    document = tomllib.loads(run_file.read_text(encoding="utf-8"))
+    table = document
+    for name in document["run"]["command"].split()[1:]:
+        table = table[name]
+    return table
+
+
+def _numbers_in_quotes(table: dict) -> dict:
+    """The values of a run file's table written as text though they are numbers or flags."""
+    quoted = {}
+    for key, value in table.items():
+        if isinstance(value, str) and value.lower() in ("true", "false"):
+            quoted[key] = value
+        elif isinstance(value, str):
+            try:
+                float(value)
+            except ValueError:
+                continue
+            quoted[key] = value
+    return quoted
+
+
+def test_run_files_hold_numbers_as_numbers_and_flags_as_booleans(hall, capsys):
+    (hall / "poses.csv").write_bytes((HALL / "poses.csv").read_bytes())
+    first = ["simulate", HALL / "world.json", "--poses", "poses.csv", "--out", "a"]
+    assert run_cli(capsys, *first, "--readings", "256", "--seed", "5").code == 0
+    table = _tables(hall / "a" / "log.run.toml")
+    assert table["readings"] == 256 and table["seed"] == 5 and table["noise-cm"] == 1.2
+    assert "readings = 256\n" in (hall / "a" / "log.run.toml").read_text(encoding="utf-8")
+    localize = ["localize", "a/log.mcap", "--map", "map.json", "--out", "e.csv", "--no-refine"]
+    assert run_cli(capsys, *localize).code == 0
+    assert _tables(hall / "e.run.toml")["no-refine"] is True
+    for run_file in (hall / "a" / "log.run.toml", hall / "e.run.toml"):
+        assert _numbers_in_quotes(_tables(run_file)) == {}, run_file
+    # Given back, the run file sets the same options: its repetition records the same table.
+    again = ["simulate", HALL / "world.json", "--config", "a/log.run.toml", "--out", "b"]
+    assert run_cli(capsys, *again).code == 0
+    assert _tables(hall / "b" / "log.run.toml") == table
+    from segloc_cli.io.mcap_log import read_log
+
+    assert read_log(hall / "b" / "log.mcap").sensor["readings"] == "256"
+
+
+def test_map_export_writes_a_run_file_that_repeats_it(hall, capsys):
+    """``map export`` takes ``--config`` and writes its run file beside its output, named after
+    the whole of OUT so that the map's own run file (here map.run.toml) stays; given back, it
+    writes the same grid."""
+    (hall / "map.run.toml").write_text("# the map's own run file\n", encoding="utf-8")
+    first = ["map", "export", "map.json", "--out", "map.yaml", "--resolution", "0.1"]
+    result = run_cli(capsys, *first)
+    assert result.code == 0, result.err
+    assert (hall / "map.run.toml").read_text(encoding="utf-8") == "# the map's own run file\n"
+    run = tomllib.loads((hall / "map.yaml.run.toml").read_text(encoding="utf-8"))
+    assert run["map"]["export"] == {"resolution": 0.1}
+    assert run["run"]["command"] == "segloc map export"
+    assert [(i["path"], i["sha256"]) for i in run["run"]["inputs"]] == [
+        ("map.json", _sha256(hall / "map.json"))
+    ]
+    again = ["map", "export", "map.json", "--config", "map.yaml.run.toml", "--out", "b.yaml"]
+    result = run_cli(capsys, *again)
+    assert result.code == 0, result.err
+    assert (hall / "b.pgm").read_bytes() == (hall / "map.pgm").read_bytes()
+    assert (hall / "b.yaml").read_text() == (hall / "map.yaml").read_text().replace(
+        "map.pgm", "b.pgm"
+    )
+    # Like every output, the run file is not overwritten unasked.
+    (hall / "map.yaml").unlink()
+    (hall / "map.pgm").unlink()
+    assert_one_line_error(run_cli(capsys, *first), "map.yaml.run.toml", "--force")
+
+
 def test_region_is_a_setting_of_global_runs(hall, capsys):
     """``--region`` from a configuration file or a run file limits a global search as on the
     command line, and goes with ``--global`` there too."""

@@ -59,12 +59,15 @@ class Invocation:
         named = [(k, v) for k, v in self.options.items() if isinstance(v, Path) and v.is_file()]
         return [*self.arguments, *named]
 
-    def write_run_file(self, output: Path, also_read: Sequence[tuple[str, Path]] = ()) -> Path:
-        """Write the run file beside ``output``, its inputs with ``also_read`` (role, path):
-        files the inputs led to, such as a grid's image; return its path."""
+    def write_run_file(
+        self, output: Path, also_read: Sequence[tuple[str, Path]] = (), whole_name: bool = False
+    ) -> Path:
+        """Write the run file beside ``output`` (``runfile.run_file_path``, named after its
+        whole name with ``whole_name``), its inputs with ``also_read`` (role, path): files the
+        inputs led to, such as a grid's image; return its path."""
         from segloc_cli.runs.runfile import run_file_path, write_run_file
 
-        path = run_file_path(output)
+        path = run_file_path(output, whole_name)
         inputs = [*self.inputs(), *also_read]
         hashes = write_run_file(path, self.command, self.options, inputs)
         _warn_unrepeated(inputs, hashes)

@@ -129,6 +129,7 @@ def map_import(plan_path, out_path, layers, units, scale_m, origin_m, force):
         metavar="M",
         help="nav2: the side of a cell in metres (default 0.05).",
     ),
+    config_option,
     force_option,
 )
 def map_export(map_path, out_path, plan_format, resolution_m, force):
@@ -142,6 +143,9 @@ def map_export(map_path, out_path, plan_format, resolution_m, force):
       free (white) inside the map's bounding box, where a segment map cannot
       tell floor from outside; unknown (grey) in a 10-cell margin round it,
       where the map says nothing.
+
+    Beside OUT goes its run file, named after the whole of OUT
+    (map.dxf.run.toml), so that the map's own map.run.toml stays.
 
     \b
     Examples:
@@ -158,9 +162,11 @@ def map_export(map_path, out_path, plan_format, resolution_m, force):
     outputs = {"--out": out_path}
     if kind == "nav2":
         outputs["--out (image)"] = out_path.with_suffix(".pgm")
+    outputs["--out (run file)"] = run_file_path(out_path, whole_name=True)
     check_outputs(outputs, [map_path], force)
     segments = read_map(map_path)
     written = write_plan(out_path, segments, kind, resolution_m)
+    Invocation.current().write_run_file(out_path, whole_name=True)
     info(f"{out_path}: {len(segments)} {written}")
 
 

@@ -30,9 +30,11 @@ MAX_CONFIG_BYTES = 1 << 20
 """Largest configuration file read (1 MiB): settings, not data."""
 
 
-def run_file_path(output: Path) -> Path:
-    """Where the run file of ``output`` goes: beside it, ``est.csv`` → ``est.run.toml``."""
-    return beside(output, ".run.toml")
+def run_file_path(output: Path, whole_name: bool = False) -> Path:
+    """Where the run file of ``output`` goes: beside it, ``est.csv`` → ``est.run.toml``; with
+    ``whole_name``, after the whole name, ``map.dxf`` → ``map.dxf.run.toml``, for an output
+    made from a file of the same stem (``map.json``) whose own run file it must leave be."""
+    return beside(output, f"{output.suffix if whole_name else ''}.run.toml")
 
 
 def beside(output: Path, ending: str) -> Path:
