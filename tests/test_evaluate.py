@@ -9,6 +9,7 @@ import math
 import numpy as np
 import pandas as pd
 import pytest
+from precision import BINARY_NOISE, assert_frame_within_precision
 from test_cli import run_cli
 
 from segloc_cli.errors import InputError
@@ -382,7 +383,10 @@ def test_gate_counts_in_every_format():
     assert back["beyond_gate"].tolist() == [0, 1, 1, 1, 0]
     assert back["scored"].tolist() == [1, 1, 1, 1, 0]
     latex = format_table(table, stats, "latex")
-    assert r"exceed the per-pose limits (|X|, |Y| ≤ 3.5 cm; |$\theta$| ≤ 0.3$^\circ$)" in latex
+    assert (
+        r"exceed the per-pose limits (|X|, |Y| $\leq$ 3.5 cm; |$\theta$| $\leq$ 0.3$^\circ$)"
+        in latex
+    )
     # Without a gate the csv column is empty and the json gate null.
     plain = summary(table)
     assert pd.read_csv(io.StringIO(format_table(table, plain, "csv")))["beyond_gate"].isna().all()
@@ -446,14 +450,24 @@ def test_gate_rejects_negative_limit():
 # --- formats ------------------------------------------------------------------------------
 
 
-def test_csv_round_trips_at_full_precision():
+def test_csv_and_json_round_trip_to_the_precision_of_each_unit():
     table = small_table()
-    back = pd.read_csv(io.StringIO(format_table(table, summary(table), "csv")))
+    # Errors as arithmetic leaves them: 182.2 cm from metres is 182.19999999999993.
+    table["init_x_cm"] = (np.array([1.822, 0.1, 0.2]) - np.array([0.0, 0.2, -0.1])) * 100.0
+    table["err_theta_deg"] = np.rad2deg(np.deg2rad([125.0, 30.0, 1.0 / 3.0]))
+    text = format_table(table, summary(table), "csv")
+    back = pd.read_csv(io.StringIO(text))
     assert back.columns.tolist() == [*table.columns, "scored", "beyond_gate"]
     assert back["pose_id"].tolist() == [1, 2, 3]
     assert back["status"].tolist() == ["ok", "ok", "diverged"]
     numeric = [c for c in table.columns if c not in ("pose_id", "status")]
-    np.testing.assert_array_equal(back[numeric].to_numpy(), table[numeric].to_numpy())
+    assert_frame_within_precision(back[numeric], table[numeric])
+    assert back["init_x_cm"].tolist()[0] == 182.2
+    assert back["err_theta_deg"].tolist()[:2] == [125.0, 30.0]
+    document = format_table(table, summary(table), "json")
+    assert not BINARY_NOISE.search(text) and not BINARY_NOISE.search(document)
+    poses = pd.DataFrame(json.loads(document)["poses"])[numeric].astype(float)
+    assert_frame_within_precision(poses, table[numeric])
 
 
 def test_json_has_poses_and_summary_with_nulls():
@@ -465,13 +479,17 @@ def test_json_has_poses_and_summary_with_nulls():
     stats = summary(table)
     doc = json.loads(format_table(table, stats, "json"))
     assert [p["pose_id"] for p in doc["poses"]] == [1, 2]
-    assert doc["poses"][0]["err_x_cm"] == table.loc[0, "err_x_cm"]
+    assert doc["poses"][0]["err_x_cm"] == pytest.approx(table.loc[0, "err_x_cm"], abs=1e-4)
     assert doc["poses"][1]["err_x_cm"] is None
     assert doc["poses"][1]["status"] == "no_scan"
     assert doc["summary"]["n_poses"] == 2
     assert doc["summary"]["n_failed"] == 1
-    assert doc["summary"]["RMS"]["err_x_cm"] == stats.loc["RMS", "err_x_cm"]
-    assert doc["summary"]["max"]["init_x_cm"] == stats.loc["max", "init_x_cm"]
+    assert doc["summary"]["RMS"]["err_x_cm"] == pytest.approx(
+        stats.loc["RMS", "err_x_cm"], abs=1e-4
+    )
+    assert doc["summary"]["max"]["init_x_cm"] == pytest.approx(
+        stats.loc["max", "init_x_cm"], abs=1e-4
+    )
 
 
 def test_markdown_table_has_paper_header_precision_and_summary_rows():
@@ -504,7 +522,7 @@ def test_latex_is_a_tabular_with_escaped_status():
     estimates = make_estimates([{"time_s": 0.0, "status": "too_few_segments"}])
     table = table1(estimates, survey)
     text = format_table(table, summary(table), "latex")
-    assert text.startswith("\\begin{tabular}{lrrrrrrrrl}")
+    assert text.startswith("% needs \\usepackage{booktabs}\n\\begin{tabular}{lrrrrrrrrl}")
     assert text.rstrip().endswith("\\end{tabular}")
     assert "too\\_few\\_segments" in text
     assert text.count("\\midrule") == 3

@@ -25,6 +25,7 @@ from conftest import HALL
 from google.protobuf import descriptor_pb2, descriptor_pool, json_format, message_factory
 from google.protobuf.unknown_fields import UnknownFieldSet
 from mcap.reader import make_reader
+from precision import assert_within_precision
 from test_cli import run_cli
 
 from segloc_cli.geometry import Pose2, quaternion_to_heading
@@ -178,6 +179,15 @@ def _close(a: Pose2, b: Pose2) -> bool:
     )
 
 
+def _as_written(shown: Pose2, row: Pose2) -> bool:
+    """A pose of the view (as made) is the pose of a CSV row (to 1 µm and 1e-6°)."""
+    return (
+        math.isclose(shown.x, row.x, abs_tol=0.5e-6 * 1.001)
+        and math.isclose(shown.y, row.y, abs_tol=0.5e-6 * 1.001)
+        and abs(math.remainder(shown.theta - row.theta, 2 * math.pi)) < math.radians(0.5e-6) * 1.01
+    )
+
+
 # --------------------------------------------------------------------------- the run view
 
 
@@ -225,13 +235,13 @@ def test_the_hall_run_view_shows_the_map_every_scan_and_each_estimate(tmp_path, 
         robot, laser = transforms.transforms
         assert (robot.parent_frame_id, robot.child_frame_id) == (WORLD_FRAME, ROBOT_FRAME)
         assert (laser.parent_frame_id, laser.child_frame_id) == (ROBOT_FRAME, LASER_FRAME)
-        assert _close(_transform_pose(robot), estimate)
+        assert _as_written(_transform_pose(robot), estimate)
         assert _close(_transform_pose(laser), source_scan.mount)
     for (_, pose), estimate in zip(messages["/estimate"], estimates, strict=True):
-        assert pose.frame_id == WORLD_FRAME and _close(_pose(pose.pose), estimate)
+        assert pose.frame_id == WORLD_FRAME and _as_written(_pose(pose.pose), estimate)
     guesses = [_row_pose(row, "init_") for row in rows]
     for (_, pose), guess in zip(messages["/guess"], guesses, strict=True):
-        assert _close(_pose(pose.pose), guess)
+        assert _as_written(_pose(pose.pose), guess)
 
     # The local segments move with the robot; the status is logged and written above it.
     for (_, update), row in zip(messages["/local_segments"], rows, strict=True):
@@ -314,7 +324,7 @@ def test_map_build_shows_the_built_map_over_the_scans_that_made_it(tmp_path, cap
     messages = validated_messages(view)
     [(_, update)] = messages["/map"]
     points = np.array([(p.x, p.y) for line in update.entities[0].lines for p in line.points])
-    np.testing.assert_array_equal(points.reshape(-1, 4), read_map(out))
+    assert_within_precision(read_map(out), points.reshape(-1, 4), "m")  # the file to 1 µm
     survey = list(csv.DictReader((mapping / "survey.csv").open(encoding="utf-8")))
     assert len(messages["/scan"]) == len(messages["/tf"]) == len(survey)
     for (_, transforms), row in zip(messages["/tf"], survey, strict=True):

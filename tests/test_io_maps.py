@@ -30,13 +30,19 @@ SEGMENTS = np.array(
 )
 
 
-def test_map_round_trip_is_exact(tmp_path):
+MICROMETRE = 1e-6
+
+
+def test_map_round_trip_keeps_micrometres(tmp_path):
     path = tmp_path / "map.json"
     write_map(path, SEGMENTS, {"log": "log.mcap", "scans": 12})
     back = read_map(path)
     assert back.dtype == np.float64
     assert back.shape == (4, 4)
-    np.testing.assert_array_equal(back, SEGMENTS)
+    np.testing.assert_allclose(back, SEGMENTS, rtol=0, atol=MICROMETRE / 2)
+    # Coordinates that are whole micrometres come back exactly.
+    np.testing.assert_array_equal(back[:2], SEGMENTS[:2])
+    assert back[3].tolist() == [0.0, 1234.56789, 0.0, 1.0]
     document = json.loads(path.read_text())
     assert document["format"] == "segloc-map"
     assert document["version"] == 1
@@ -45,12 +51,12 @@ def test_map_round_trip_is_exact(tmp_path):
     assert document["source"] == {"log": "log.mcap", "scans": 12}
 
 
-def test_world_round_trip_is_exact(tmp_path):
+def test_world_round_trip_keeps_micrometres(tmp_path):
     world = World(SEGMENTS, np.array(["wall", "glass", "wall", "glass"]), name="corridor")
     path = tmp_path / "world.json"
     write_world(path, world)
     back = read_world(path)
-    np.testing.assert_array_equal(back.segments, SEGMENTS)
+    np.testing.assert_allclose(back.segments, SEGMENTS, rtol=0, atol=MICROMETRE / 2)
     assert back.materials.tolist() == ["wall", "glass", "wall", "glass"]
     assert back.name == "corridor"
     document = json.loads(path.read_text())
@@ -94,7 +100,24 @@ def test_world_materials_default_to_wall(tmp_path):
 def test_world_is_accepted_as_map(tmp_path):
     path = tmp_path / "world.json"
     write_world(path, World(SEGMENTS, name="w"))
-    np.testing.assert_array_equal(read_map(path), SEGMENTS)
+    np.testing.assert_array_equal(read_map(path), read_world(path).segments)
+
+
+def test_map_is_written_one_segment_a_line_without_binary_noise(tmp_path):
+    # Coordinates as arithmetic leaves them: 0.1 + 0.2 is 0.30000000000000004.
+    segments = np.array([[0.1 + 0.2, 1.0 / 3.0, 2.0 / 3.0, 15.000035195825041]] * 3)
+    segments[:, 1] += np.arange(3)
+    path = tmp_path / "map.json"
+    write_map(path, segments, {"extract": {"split_m": 0.1 + 0.2}})
+    lines = path.read_text(encoding="utf-8").splitlines()
+    rows = [line for line in lines if line.strip().startswith("[") and line.strip() != "["]
+    assert rows == [
+        "  [0.3, 0.333333, 0.666667, 15.000035],",
+        "  [0.3, 1.333333, 0.666667, 15.000035],",
+        "  [0.3, 2.333333, 0.666667, 15.000035]",
+    ]
+    assert '"split_m": 0.3' in path.read_text(encoding="utf-8")
+    np.testing.assert_allclose(read_map(path), segments, rtol=0, atol=MICROMETRE / 2)
 
 
 def test_world_rejects_map_file(tmp_path):

@@ -113,11 +113,11 @@ def same_segments(a: np.ndarray, b: np.ndarray) -> bool:
 
 
 def random_map_file(seed: int, path) -> np.ndarray:
-    """A map of 1 to 199 random segments within ±500 m written to ``path``; its segments."""
+    """A map of 1 to 199 random segments within ±500 m written to ``path``; its segments as
+    the file holds them (to the micrometre)."""
     rng = np.random.default_rng(seed)
-    segments = rng.uniform(-500, 500, (int(rng.integers(1, 200)), 4))
-    write_map(path, segments)
-    return segments
+    write_map(path, rng.uniform(-500, 500, (int(rng.integers(1, 200)), 4)))
+    return read_map(path)
 
 
 def localization_errors(

@@ -12,10 +12,12 @@ import pandas as pd
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from precision import assert_at_precision, assert_within_precision
 
 from segloc_cli.errors import InputError
 from segloc_cli.estimates import ESTIMATE_COLUMNS, Relations
 from segloc_cli.geometry import Pose2, relative_motion
+from segloc_cli.io.numbers import unit_of
 from segloc_cli.io.relations import read_relations
 from segloc_cli.scoring.relations import (
     CSV_COLUMNS,
@@ -417,16 +419,19 @@ def test_md_without_published_and_with_nothing_used():
     assert len(rows) == 3
 
 
-def test_csv_parses_back_at_full_precision():
+def test_csv_parses_back_to_the_precision_of_each_unit():
     summary = hand_summary()
     text = format_relations(summary, "csv", published=PUBLISHED["fr079"], label="run 7")
     records = list(csv.DictReader(io.StringIO(text)))
     assert list(records[0]) == list(CSV_COLUMNS)
     ours, theirs = records
     assert ours["trajectory"] == "run 7" and ours["used"] == "2" and ours["skipped"] == "1"
-    assert float(ours["trans_mean_m"]) == summary["trans_m"]["mean"]
-    assert float(ours["rot_std_deg"]) == summary["rot_deg"]["std"]
-    assert float(ours["rot_sq_std_deg2"]) == summary["rot_sq_deg2"]["std"]
+    assert_within_precision(float(ours["trans_mean_m"]), summary["trans_m"]["mean"], "m")
+    assert_within_precision(float(ours["rot_std_deg"]), summary["rot_deg"]["std"], "deg")
+    assert_within_precision(float(ours["rot_sq_std_deg2"]), summary["rot_sq_deg2"]["std"], "deg2")
+    for column in CSV_COLUMNS[3:]:
+        if ours[column]:
+            assert_at_precision(ours[column], unit_of(column))
     assert theirs["trajectory"] == "GraphMapping (published)"
     assert (float(theirs["trans_mean_m"]), float(theirs["trans_std_m"])) == (0.056, 0.042)
     assert (float(theirs["rot_mean_deg"]), float(theirs["rot_std_deg"])) == (0.6, 0.6)
@@ -436,7 +441,10 @@ def test_csv_parses_back_at_full_precision():
 def test_json_parses_back():
     summary = hand_summary()
     document = json.loads(format_relations(summary, "json", published=PUBLISHED["aces"]))
-    assert document["summary"] == summary
+    assert document["summary"].keys() == summary.keys()
+    for name, unit in (("trans_m", "m"), ("rot_deg", "deg"), ("trans_sq_m2", "m2")):
+        for statistic, value in summary[name].items():
+            assert_within_precision(document["summary"][name][statistic], value, unit)
     assert document["published"] == {
         "GraphMapping": {
             "trans_m": {"mean": 0.044, "std": 0.044},
@@ -452,7 +460,8 @@ def test_latex_parses_back():
     summary = hand_summary()
     text = format_relations(summary, "latex", published=PUBLISHED["mit-csail"], label="a_b & c")
     lines = text.splitlines()
-    assert lines[0] == r"\begin{tabular}{lrrrr}" and lines[-1] == r"\end{tabular}"
+    assert lines[:2] == [r"% needs \usepackage{booktabs}", r"\begin{tabular}{lrrrr}"]
+    assert lines[-1] == r"\end{tabular}"
     body = lines[lines.index(r"\midrule") + 1 : lines.index(r"\bottomrule")]
     cells = [[c.strip() for c in line.removesuffix(r"\\").split(" & ")] for line in body]
     assert cells[0] == [r"a\_b \& c", "2", "1", r"$0.350 \pm 0.071$", r"$2.00 \pm 2.83$"]

@@ -9,6 +9,7 @@ degrees only in the files.
 Whole tables are written atomically (a temporary file renamed into place); the
 estimates of a running ``localize`` are streamed row by row instead
 (``EstimatesWriter``, ``TumWriter``), so a killed run keeps every finished row.
+Numbers are written rounded to the precision of their column's unit (``io/numbers.py``).
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ import os
 import time
 from collections.abc import Mapping
 from pathlib import Path
-from typing import IO, Any, Self, SupportsFloat
+from typing import IO, Any, Self
 
 import numpy as np
 import pandas as pd
@@ -42,6 +43,7 @@ from segloc_cli.estimates import (
 )
 from segloc_cli.geometry import heading_to_quaternion, quaternion_to_heading
 from segloc_cli.io.files import atomic_write, reading, writing_error
+from segloc_cli.io.numbers import number_text, unit_of
 from segloc_cli.limits import MAX_ABS_ID, MAX_COORDINATE_M
 
 STREAM_FSYNC_INTERVAL_S = 1.0
@@ -262,22 +264,18 @@ def _read_tum(path: Path, text: str) -> PoseTable:
     )
 
 
-def _fmt(value: SupportsFloat) -> str:
-    # repr() is the shortest text that parses back to the identical float64.
-    return repr(float(value))
-
-
 def write_pose_table(
     path: str | Path, table: PoseTable, extra_columns: dict[str, np.ndarray] | None = None
 ) -> None:
-    """Write ``table`` as a survey CSV (theta in degrees, floats round-trip exactly), atomically.
+    """Write ``table`` as a survey CSV (theta in degrees), atomically, numbers rounded to
+    their precision (``io/numbers.py``: 1 ns, 1 µm, 1e-6°).
 
     The ``time_s`` column is left out when every time is NaN; a table with only
     some NaN times raises ``ValueError``. ``extra_columns`` (name → (N,) values)
-    are written after the standard columns, in the order given: floats as
-    exact text (NaN as an empty field), other values as ``str``; the reader
-    ignores them. A name that clashes with a standard column or a length other
-    than N raises ``ValueError``. An OS error while writing raises
+    are written after the standard columns, in the order given: floats
+    rounded to the unit their name ends with (NaN as an empty field), other
+    values as ``str``; the reader ignores them. A name that clashes with a
+    standard column or a length other than N raises ``ValueError``. An OS error while writing raises
     ``OutputError`` naming ``path``, and leaves an existing file as it was.
     """
     time_s = np.asarray(table.time_s, dtype=float)
@@ -298,15 +296,17 @@ def write_pose_table(
         writer = csv.writer(stream, lineterminator="\n")
         writer.writerow([*columns, *extra])
         for i, (pid, t, (x, y, theta)) in enumerate(zip(table.pose_id, time_s, poses, strict=True)):
-            row = [str(int(pid))] + ([_fmt(t)] if has_time else [])
-            row += [_fmt(x), _fmt(y), _fmt(math.degrees(theta))]
-            writer.writerow([*row, *(_cell(values[i]) for values in extra.values())])
+            row = [str(int(pid))] + ([number_text(t, "s")] if has_time else [])
+            row += [number_text(x, "m"), number_text(y, "m")]
+            row += [number_text(math.degrees(theta), "deg")]
+            cells = (_cell(values[i], unit_of(name)) for name, values in extra.items())
+            writer.writerow([*row, *cells])
 
 
-def _cell(value: object) -> str:
-    """A CSV field: floats as exact text (NaN empty), integers and text as they are."""
+def _cell(value: object, unit: str | None) -> str:
+    """A CSV field: floats rounded to ``unit`` (NaN empty), integers and text as they are."""
     if isinstance(value, float | np.floating):
-        return "" if math.isnan(value) else _fmt(value)
+        return "" if math.isnan(value) else number_text(value, unit)
     if isinstance(value, np.integer):
         return str(int(value))
     return "" if value is None else str(value)
@@ -336,9 +336,9 @@ def _check_estimate_frame(frame: pd.DataFrame) -> None:
 def estimate_cells(row: Mapping[str, Any]) -> list[str]:
     """One estimates row (column name → value) as the CSV fields of ``ESTIMATE_COLUMNS``.
 
-    Integer columns as integers, ``status`` as text, other columns as the
-    shortest text that reads back to the same float64; a missing value (NaN,
-    None) is an empty field. Keys beyond ``ESTIMATE_COLUMNS`` are ignored.
+    Integer columns as integers, ``status`` as text, other columns rounded to
+    the unit of their name (``io/numbers.py``); a missing value (NaN, None) is
+    an empty field. Keys beyond ``ESTIMATE_COLUMNS`` are ignored.
     Raises ``ValueError`` when a column is absent, or an integer column or
     ``time_s`` has no value.
     """
@@ -358,7 +358,7 @@ def estimate_cells(row: Mapping[str, Any]) -> list[str]:
         elif c in ESTIMATE_TEXT_COLUMNS:
             cells.append(str(value))
         else:
-            cells.append(_fmt(value))
+            cells.append(number_text(value, unit_of(c)))
     return cells
 
 
@@ -529,10 +529,12 @@ TUM_HEADER = "# segloc estimates: t x y z qx qy qz qw"
 
 
 def _tum_lines(numbers: np.ndarray) -> list[str]:
-    """Rows (K, 4) ``time_s, x_m, y_m, theta_deg`` → TUM lines ``t x y 0 qx qy qz qw``."""
+    """Rows (K, 4) ``time_s, x_m, y_m, theta_deg`` → TUM lines ``t x y 0 qx qy qz qw``
+    (seconds, metres, the quaternion's plain numbers, each rounded as ``io/numbers.py`` says)."""
     quats = heading_to_quaternion(np.deg2rad(numbers[:, 3]))
+    units = ("s", "m", "m", "m", None, None, None, None)
     return [
-        " ".join(_fmt(v) for v in (t, x, y, 0.0, *q))
+        " ".join(number_text(v, unit) for v, unit in zip((t, x, y, 0.0, *q), units, strict=True))
         for (t, x, y, _), q in zip(numbers, quats, strict=True)
     ]
 
@@ -587,9 +589,10 @@ class HypothesesWriter(_RowStream):
         """Write the hypotheses of one estimates row (needs ``pose_id`` and ``time_s``)."""
         listed = list(row.get("hypotheses") or [])[: self.limit]
         for rank, hypothesis in enumerate(listed, 1):
-            cells = [str(int(row["pose_id"])), _fmt(row["time_s"]), str(rank)]
-            values = (float(hypothesis[c]) for c in HypothesisRow.__annotations__)
-            cells += [_fmt(v) if math.isfinite(v) else "" for v in values]
+            cells = [str(int(row["pose_id"])), number_text(row["time_s"], "s"), str(rank)]
+            for column in HypothesisRow.__annotations__:
+                value = float(hypothesis[column])
+                cells.append(number_text(value, unit_of(column)) if math.isfinite(value) else "")
             self.write_line(",".join(cells))
 
 

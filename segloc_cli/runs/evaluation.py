@@ -30,6 +30,7 @@ from segloc_cli.config import TIME_TOLERANCE_MS
 from segloc_cli.errors import InputError
 from segloc_cli.estimates import PoseTable, Relations
 from segloc_cli.io.log import Log
+from segloc_cli.io.numbers import json_text
 from segloc_cli.scoring.gates import GateOutcome, Gates, outcomes_json
 from segloc_cli.timing import time_range
 
@@ -231,7 +232,7 @@ def _with_extras(text: str, fmt: str, sections: dict[str, tuple[str, object]]) -
     if fmt == "json":
         document = json.loads(text)
         document["summary"] |= {name: value for name, (_, value) in sections.items()}
-        return json.dumps(document, indent=2, allow_nan=False) + "\n"
+        return json_text(document)
     return text
 
 
@@ -492,7 +493,7 @@ def relation_scores(
     if options.fmt == "json":
         document = json.loads(text)
         document["gate"] = outcomes_json(outcomes) if outcomes else None
-        text = json.dumps(document, indent=2, allow_nan=False) + "\n"
+        text = json_text(document)
     pairing = (
         f"{_source(estimates)}: {errors.used} of {len(relations)} relations have estimates "
         f"at both times (within {options.tolerance_ms:g} ms), {errors.skipped} skipped"

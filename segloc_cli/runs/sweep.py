@@ -646,21 +646,27 @@ def _percentile(values: np.ndarray, q: float) -> float:
 
 
 def format_summary(frame: pd.DataFrame, fmt: str) -> str:
-    """The summary as Markdown (1 decimal; 2 for degrees), CSV or JSON at full precision, or
-    a LaTeX booktabs ``tabular``. An infinite error (too many poses without an estimate) is
-    ∞, inf in CSV and null in JSON."""
+    """The summary as Markdown (1 decimal; 2 for degrees), CSV or JSON (each number rounded to
+    its unit's precision, ``io/numbers.py``), or a LaTeX booktabs ``tabular`` (``io/latex.py``).
+    An infinite error (too many poses without an estimate) is ∞, inf in CSV and null in
+    JSON."""
+    from segloc_cli.io.numbers import rounded_frame
+
     if fmt == "csv":
-        return frame.to_csv(index=False)
+        return rounded_frame(frame).to_csv(index=False)
     if fmt == "json":
-        return frame.to_json(orient="records", indent=2) + "\n"
+        return rounded_frame(frame).to_json(orient="records", indent=2) + "\n"
     shown = frame.astype(object)
     for column, decimals in STAT_DECIMALS.items():
         shown[column] = [_number(v, decimals) for v in frame[column]]
     if fmt == "md":
         return shown.to_markdown(index=False, disable_numparse=True) + "\n"
     if fmt == "latex":
-        styler = shown.style.hide(axis="index").format(escape="latex")
-        return styler.to_latex(hrules=True).replace("°", r"$^\circ$").replace("∞", r"$\infty$")
+        from segloc_cli.io.latex import latex_text, with_needs
+
+        shown = shown.map(lambda v: latex_text(str(v)))
+        shown.columns = [latex_text(str(c)) for c in shown.columns]
+        return with_needs(shown.style.hide(axis="index").to_latex(hrules=True))
     raise ValueError(f"unknown format {fmt!r}; choose one of {', '.join(SUMMARY_FORMATS)}")
 
 

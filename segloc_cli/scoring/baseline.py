@@ -25,6 +25,7 @@ import pandas as pd
 
 from segloc_cli.errors import InputError
 from segloc_cli.estimates import ESTIMATED
+from segloc_cli.io.numbers import rounded_frame
 from segloc_cli.scoring.gates import GATE_SLACK, GateOutcome, with_unit
 
 ERROR_KEYS = ("err_x_cm", "err_y_cm", "err_xy_cm", "err_theta_deg")
@@ -274,9 +275,12 @@ def _baseline_run(data: object, path: object) -> _Run:
 
 
 def _table_run(table: pd.DataFrame) -> _Run:
+    """The poses of this run's table, its errors rounded as evaluate's JSON writes them
+    (``io/numbers.py``), so that a run compared with the baseline it wrote changes by
+    exactly nothing."""
     run = _Run(
         table["pose_id"].to_numpy(dtype=np.int64),
-        table[list(ERROR_KEYS)].to_numpy(dtype=float),
+        rounded_frame(table[list(ERROR_KEYS)]).to_numpy(dtype=float),
         table["status"].isin(ESTIMATED).to_numpy(),
     )
     _refuse_repeated_ids(run.pose_id, None, "this run's table")

@@ -14,7 +14,6 @@ the view over accepted estimates alone.
 
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import asdict
 
@@ -25,6 +24,8 @@ from segloc_cli.config import TIME_TOLERANCE_MS
 from segloc_cli.errors import InputError
 from segloc_cli.estimates import COVARIANCE_COLUMNS, ESTIMATE_COLUMNS, ESTIMATED, PoseTable
 from segloc_cli.geometry import wrap_angle
+from segloc_cli.io.latex import latex_text, with_needs
+from segloc_cli.io.numbers import json_text, rounded_frame
 from segloc_cli.method.confidence import RIGHT_PLACE_DEG, RIGHT_PLACE_M
 from segloc_cli.scoring.drift import travelled_m
 from segloc_cli.scoring.gates import (
@@ -416,15 +417,9 @@ def _format_md(table: pd.DataFrame, stats: pd.DataFrame) -> str:
     return body + "\n\n" + "\n".join(summary_lines(stats)) + "\n"
 
 
-def _latex_text(text: str) -> str:
-    replacements = {"&": r"\&", "%": r"\%", "_": r"\_", "#": r"\#", "$": r"\$", "°": r"$^\circ$"}
-    replacements |= {"θ": r"$\theta$"}
-    return "".join(replacements.get(ch, ch) for ch in text)
-
-
 def _format_latex(table: pd.DataFrame, stats: pd.DataFrame) -> str:
-    """A booktabs ``tabular`` (needs ``\\usepackage{booktabs}``), summary rows under a rule and
-    the counts of ``summary_lines`` in full-width rows under another."""
+    """A booktabs ``tabular`` (``io/latex.py``: its first line says it needs booktabs), summary
+    rows under a rule and the counts of ``summary_lines`` in full-width rows under another."""
     shown = _displayed(table)
     headers = ["Pose", *(tex for _, _, _, tex in shown), "Status"]
     rows = _display_rows(table, stats, _MISSING_LATEX)
@@ -438,12 +433,12 @@ def _format_latex(table: pd.DataFrame, stats: pd.DataFrame) -> str:
     # Styler puts no rule between body rows; set the summary rows (last in the body) apart.
     lines.insert(lines.index(r"\bottomrule") - len(stats), r"\midrule")
     notes = [
-        f"\\multicolumn{{{n_columns}}}{{l}}{{\\footnotesize {_latex_text(line)}}} \\\\"
+        f"\\multicolumn{{{n_columns}}}{{l}}{{\\footnotesize {latex_text(line)}}} \\\\"
         for line in summary_lines(stats)
     ]
     at = lines.index(r"\bottomrule")
     lines[at:at] = [r"\midrule", *notes]
-    return "\n".join(lines) + "\n"
+    return with_needs("\n".join(lines))
 
 
 def _json_value(value: object) -> object:
@@ -469,7 +464,7 @@ def _format_csv(table: pd.DataFrame, stats: pd.DataFrame) -> str:
     frame["beyond_gate"] = pd.array(
         [pd.NA] * len(table) if beyond is None else beyond.astype(int), dtype="Int64"
     )
-    return frame.to_csv(index=False)
+    return rounded_frame(frame).to_csv(index=False)
 
 
 def _format_json(table: pd.DataFrame, stats: pd.DataFrame) -> str:
@@ -507,7 +502,7 @@ def _format_json(table: pd.DataFrame, stats: pd.DataFrame) -> str:
     )
     for stat, record in stats.iterrows():
         summary_out[str(stat)] = {c: _json_value(record[c]) for c in ERROR_COLUMNS}
-    return json.dumps({"poses": poses, "summary": summary_out}, indent=2, allow_nan=False) + "\n"
+    return json_text({"poses": poses, "summary": summary_out})
 
 
 def format_table(table: pd.DataFrame, summary: pd.DataFrame, fmt: str) -> str:
@@ -516,7 +511,8 @@ def format_table(table: pd.DataFrame, summary: pd.DataFrame, fmt: str) -> str:
     - ``md``: a Markdown table like the paper's (0.1 cm, 0.01°), RMS and max rows
       after the poses, then the counts of ``summary_lines``; AE and the initial errors
       are left out when no pose has them (another localizer's estimates).
-    - ``csv``: the per-pose rows, TABLE_COLUMNS at full precision then ``scored``
+    - ``csv``: the per-pose rows, TABLE_COLUMNS (rounded to their units' precision,
+      ``io/numbers.py``, as every number of csv and json) then ``scored``
       (1 when the pose is in the RMS and max) and ``beyond_gate`` (1 when an
       error exceeds a --fail-above limit, 0 when not, empty without limits).
     - ``latex``: a booktabs ``tabular`` of the md content.
@@ -524,7 +520,7 @@ def format_table(table: pd.DataFrame, summary: pd.DataFrame, fmt: str) -> str:
       ``scored`` and ``beyond_gate``; the summary with ``n_surveyed``, ``n_poses``,
       ``n_scored``, ``n_no_estimate``, ``n_failed``, ``only_ok``, ``tolerance_s``,
       ``status_counts``, ``gate`` (null, or the ``limits`` set, ``n_beyond``,
-      ``n_gate_failed`` and each gate's ``outcomes``), ``RMS`` and ``max``; full precision, NaN
+      ``n_gate_failed`` and each gate's ``outcomes``), ``RMS`` and ``max``; NaN
       written as null.
     """
     if fmt == "md":

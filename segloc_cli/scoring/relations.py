@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import csv
 import io
-import json
 import math
 from dataclasses import dataclass, field
 from functools import partial
@@ -37,6 +36,8 @@ from segloc_cli.config import TIME_TOLERANCE_MS
 from segloc_cli.errors import InputError
 from segloc_cli.estimates import ESTIMATE_COLUMNS, ESTIMATED, Relations
 from segloc_cli.geometry import relative_motion, wrap_angle
+from segloc_cli.io.latex import latex_text, with_needs
+from segloc_cli.io.numbers import json_text, number_text, unit_of
 from segloc_cli.scoring.evaluate import FORMATS
 from segloc_cli.timing import pair_by_time
 
@@ -310,24 +311,8 @@ def _format_md(summary: dict, published: dict | None, label: str) -> str:
     return "\n".join(lines) + f"\n\n{note}\n"
 
 
-def _latex_escape(text: str) -> str:
-    replacements = {
-        "\\": r"\textbackslash{}",
-        "&": r"\&",
-        "%": r"\%",
-        "$": r"\$",
-        "#": r"\#",
-        "_": r"\_",
-        "{": r"\{",
-        "}": r"\}",
-        "~": r"\textasciitilde{}",
-        "^": r"\textasciicircum{}",
-    }
-    return "".join(replacements.get(ch, ch) for ch in text)
-
-
 def _format_latex(summary: dict, published: dict | None, label: str) -> str:
-    """A booktabs ``tabular`` (needs ``\\usepackage{booktabs}``)."""
+    """A booktabs ``tabular``, its first line saying it needs booktabs (``io/latex.py``)."""
     lines = [
         r"\begin{tabular}{lrrrr}",
         r"\toprule",
@@ -339,51 +324,35 @@ def _format_latex(summary: dict, published: dict | None, label: str) -> str:
     ):
         trans = _MISSING_LATEX if _MISSING_LATEX in (t_mean, t_std) else f"${t_mean} \\pm {t_std}$"
         rot = _MISSING_LATEX if _MISSING_LATEX in (r_mean, r_std) else f"${r_mean} \\pm {r_std}$"
-        lines.append(f"{_latex_escape(name)} & {used} & {skipped} & {trans} & {rot} \\\\")
+        lines.append(f"{latex_text(name)} & {used} & {skipped} & {trans} & {rot} \\\\")
     lines += [r"\bottomrule", r"\end{tabular}"]
-    return "\n".join(lines) + "\n"
+    return with_needs("\n".join(lines))
 
 
-def _csv_number(value: float | None) -> str:
-    # repr() is the shortest text that parses back to the identical float64.
-    return "" if value is None or not math.isfinite(value) else repr(float(value))
+def _csv_numbers(values: list[float | None]) -> list[str]:
+    """The numeric fields of a row (the columns after ``skipped``), each rounded to the unit
+    of its column; empty where a value is missing or not finite."""
+    return [
+        "" if v is None or not math.isfinite(v) else number_text(v, unit_of(column))
+        for v, column in zip(values, CSV_COLUMNS[3:], strict=True)
+    ]
 
 
 def _format_csv(summary: dict, published: dict | None, label: str) -> str:
     stream = io.StringIO()
     writer = csv.writer(stream, lineterminator="\n")
     writer.writerow(CSV_COLUMNS)
-    writer.writerow(
-        [
-            label,
-            str(summary["used"]),
-            str(summary["skipped"]),
-            *(_csv_number(summary["trans_m"][k]) for k in ("mean", "std", "rms")),
-            *(_csv_number(summary["rot_deg"][k]) for k in ("mean", "std", "rms")),
-            *(_csv_number(summary["trans_sq_m2"][k]) for k in ("mean", "std")),
-            *(_csv_number(summary["rot_sq_deg2"][k]) for k in ("mean", "std")),
-        ]
-    )
+    numbers = [
+        *(summary["trans_m"][k] for k in ("mean", "std", "rms")),
+        *(summary["rot_deg"][k] for k in ("mean", "std", "rms")),
+        *(summary["trans_sq_m2"][k] for k in ("mean", "std")),
+        *(summary["rot_sq_deg2"][k] for k in ("mean", "std")),
+    ]
+    writer.writerow([label, str(summary["used"]), str(summary["skipped"]), *_csv_numbers(numbers)])
     for method, values in (published or {}).items():
-        trans_mean, trans_std = values["trans_m"]
-        rot_mean, rot_std = values["rot_deg"]
-        writer.writerow(
-            [
-                f"{method} (published)",
-                "",
-                "",
-                _csv_number(trans_mean),
-                _csv_number(trans_std),
-                "",
-                _csv_number(rot_mean),
-                _csv_number(rot_std),
-                "",
-                "",
-                "",
-                "",
-                "",
-            ]
-        )
+        (trans_mean, trans_std), (rot_mean, rot_std) = values["trans_m"], values["rot_deg"]
+        numbers = [trans_mean, trans_std, None, rot_mean, rot_std, None, *[None] * 4]
+        writer.writerow([f"{method} (published)", "", "", *_csv_numbers(numbers)])
     return stream.getvalue()
 
 
@@ -416,7 +385,7 @@ def _format_json(summary: dict, published: dict | None, label: str) -> str:
     if published:
         document["published"] = published_json(published)
         document["published_source"] = PUBLISHED_SOURCE
-    return json.dumps(document, indent=2, ensure_ascii=False, allow_nan=False) + "\n"
+    return json_text(document, ensure_ascii=False)
 
 
 def format_relations(
@@ -430,10 +399,12 @@ def format_relations(
 
     - ``md``: a Markdown table (trajectory, relations used, skipped, translational
       and rotational error mean ± std at 1 mm and 0.01°) and a note on the metric.
-    - ``csv``: ``CSV_COLUMNS``, full precision, empty where a value is missing.
+    - ``csv``: ``CSV_COLUMNS``, empty where a value is missing.
     - ``latex``: a booktabs ``tabular`` of the md content.
-    - ``json``: ``{"trajectory", "summary", "published", "published_source"}``, full
-      precision, NaN written as null; the last two only with ``published``.
+    - ``json``: ``{"trajectory", "summary", "published", "published_source"}``, NaN
+      written as null; the last two only with ``published``.
+
+    Numbers of csv and json are rounded to the precision of their unit (``io/numbers.py``).
     """
     if fmt == "md":
         return _format_md(summary, published, label)
