@@ -6,7 +6,7 @@ STAMP := $(VENV)/.installed
 DEMO_OUT := out/demo
 HALL := datasets/hall
 
-.PHONY: setup demo test browser fuzz bench bench-real bench-sweep bench-peers calibrate figures lint hall clean
+.PHONY: setup demo test browser fuzz bench bench-real bench-sweep bench-peers calibrate figures lint hall readme-real clean
 
 # The last step compiles numba's kernels into their cache, so that no first run waits for it
 # (a failure there only costs that wait; tests/test_warmup.py catches it).
@@ -57,6 +57,17 @@ bench: $(STAMP)
 DATASETS ?= ../shared/datasets
 bench-real: $(STAMP)
 	$(BIN)/python benchmarks/real_logs.py --datasets $(DATASETS) --out benchmarks/results-real.md
+
+# Every block of README.md top to bottom, in a folder beside the real logs (linked as
+# ../shared/datasets, the path README's commands read them from), those on the logs included;
+# make test runs the others. tests/test_readme_commands.py says how each block is checked.
+readme-real: $(STAMP)
+	@if [ ! -d "$(DATASETS)" ]; then \
+		echo "readme-real: skipped: no public logs at $(DATASETS) (give DATASETS=FOLDER holding intel/, mit-csail/)"; \
+		exit 0; \
+	fi
+	SEGLOC_README_DATASETS=$(abspath $(DATASETS)) $(BIN)/python -m pytest -q -n 0 \
+		tests/test_readme_commands.py -k top_to_bottom
 
 # segloc sweep on the real logs' held-out scans (3 search windows × 2 seeds), on 1 and 2 workers.
 bench-sweep: $(STAMP)

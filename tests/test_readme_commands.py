@@ -1,0 +1,389 @@
+"""Every fenced block of README.md, run as written, in order, as a reader would.
+
+``BLOCKS`` classifies each block of README.md in the order it appears, and says how it is
+checked: a command block runs with ``sh -e`` in a copy of the repository's layout (its
+``datasets/`` and top-level files) in a temporary folder, with ``segloc`` on PATH from this
+test's environment, each block reading what the blocks before it wrote; it must exit with
+the status README gives (0 unless it says otherwise). A block README prints as a command's
+output must be printed by the block before it, a TOML block must be the file it says it is
+or be accepted by the commands its tables name. Blocks that need a serial scanner carry a
+``# needs a scanner`` comment and run against ``segloc emulate``'s ptys instead; blocks on
+the public logs (``../shared/datasets``) run under ``make readme-real``, which runs the
+README top to bottom beside those logs. A block README gains without an entry here fails
+``test_every_block_is_classified``: every block is either run or skipped with a reason.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import signal
+import subprocess
+import tempfile
+import tomllib
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import SEGLOC, start_emulator, stop_emulator
+from junitparser import JUnitXml
+from test_cli import Result
+from trajectory_samples import write_amcl_bag
+
+from segloc_cli.io.tables import read_pose_table
+
+ROOT = Path(__file__).resolve().parents[1]
+README = ROOT / "README.md"
+DATASETS_VARIABLE = "SEGLOC_README_DATASETS"
+"""Set by ``make readme-real`` to the folder of the public logs (intel/, aces/, ...)."""
+BLOCK_TIMEOUT_S = 600.0
+CONFIG_NAME = "FILE.toml"
+"""Where a configuration block is written to be read back (README calls it FILE.toml)."""
+
+RUN = "run"  # runs as written on the shipped data and what earlier blocks wrote
+REAL = "real"  # reads the public logs in ../shared/datasets: make readme-real
+HARDWARE = "hardware"  # needs a serial scanner: run against emulators' ptys
+SKIP = "skip"  # not run, for the reason given
+OUTPUT = "output"  # what the command block before it prints
+FILE = "file"  # a file the repository ships
+CONFIG = "config"  # a configuration file: each of its tables read by its command's --config
+DIAGRAM = "diagram"  # no command, no file
+
+SHELL_KINDS = (RUN, REAL, HARDWARE)
+HARDWARE_MARK = "# needs a scanner"
+
+
+@dataclass(frozen=True)
+class Block:
+    """A fenced block of a Markdown file: ``line`` of its opening fence (from 1), its info
+    string ``lang`` (``sh``, ``toml``, ``text`` or empty) and its ``text``."""
+
+    line: int
+    lang: str
+    text: str
+
+    @property
+    def title(self) -> str:
+        return next((s for s in self.text.splitlines() if s.strip()), "")
+
+
+@dataclass(frozen=True)
+class Expect:
+    """How one block is checked: its ``kind`` and a fragment it ``holds`` (to tell it apart).
+
+    ``status`` is the exit status README gives the block; ``why`` a skip's reason;
+    ``shipped`` the repository file a FILE block is; ``setup`` prepares the working folder
+    before the block runs; ``check`` looks at what it wrote (working folder, environment);
+    ``shorten`` replaces option values that would make a HARDWARE block run for minutes.
+    """
+
+    kind: str
+    holds: str
+    status: int = 0
+    why: str = ""
+    shipped: str = ""
+    setup: Callable[[Path], None] | None = None
+    check: Callable[[Path, dict[str, str]], None] | None = None
+    shorten: tuple[tuple[str, str], ...] = field(default=())
+
+
+def fenced_blocks(path: Path) -> list[Block]:
+    """Every fenced (```) block of the Markdown file at ``path``, in order."""
+    lines = path.read_text(encoding="utf-8").splitlines()
+    blocks, opened = [], None
+    for number, line in enumerate(lines, start=1):
+        if opened is None:
+            match = re.fullmatch(r"```(\S*)\s*", line)
+            if match:
+                opened = (number, match.group(1))
+        elif re.fullmatch(r"```\s*", line):
+            start, lang = opened
+            blocks.append(Block(start, lang, "\n".join(lines[start : number - 1]) + "\n"))
+            opened = None
+    assert opened is None, f"{path.name}: the block opened on line {opened[0]} never closes"
+    return blocks
+
+
+def run_shell(script: str, cwd: Path, env: dict[str, str]) -> Result:
+    """``sh -e -c script`` in ``cwd``; every process it leaves behind is ended with it."""
+    with tempfile.TemporaryFile() as out, tempfile.TemporaryFile() as err:
+        proc = subprocess.Popen(
+            ["sh", "-e", "-c", script], cwd=cwd, env=env, stdout=out, stderr=err,
+            start_new_session=True,
+        )  # fmt: skip
+        try:
+            code = proc.wait(timeout=BLOCK_TIMEOUT_S)
+        except subprocess.TimeoutExpired:
+            code = -signal.SIGKILL
+        finally:
+            try:
+                os.killpg(proc.pid, signal.SIGKILL)  # a background process the block left
+            except ProcessLookupError:
+                pass
+            proc.wait()
+        out.seek(0)
+        err.seek(0)
+        return Result(
+            code, out.read().decode(errors="replace"), err.read().decode(errors="replace")
+        )
+
+
+# ------------------------------------------------------------------- the CI example's bags
+
+SIGMA_M, SIGMA_RAD = 0.03, np.deg2rad(0.5)
+"""AMCL's claimed 1σ: 3 cm per axis, 0.5° in heading; the simulated errors are drawn from it."""
+WORSE_CM = 4.0
+
+
+def amcl_run(path: Path, seed: int, worse_cm: float = 0.0) -> Path:
+    """A ROS 2 bag of ``/amcl_pose`` at the hall survey's times: the surveyed poses plus
+    errors drawn from the covariance each message carries, pushed ``worse_cm`` further out."""
+    survey = read_pose_table(ROOT / "datasets" / "hall" / "survey.csv")
+    rng = np.random.default_rng(seed)
+    n = len(survey)
+    covariance = np.diag([SIGMA_M**2, SIGMA_M**2, SIGMA_RAD**2])
+    errors = rng.multivariate_normal(np.zeros(3), covariance, size=n)
+    norms = np.hypot(errors[:, 0], errors[:, 1])
+    errors[:, :2] *= ((norms + worse_cm / 100.0) / norms)[:, None]
+    poses = survey.poses + errors
+    return write_amcl_bag(path, survey.time_s, poses, np.repeat(covariance[None], n, axis=0))
+
+
+def amcl_runs(repo: Path) -> None:
+    """main/ and pr/: the main branch's run and a pull request's, 4 cm worse on every pose."""
+    amcl_run(repo / "main", seed=7)
+    amcl_run(repo / "pr", seed=8, worse_cm=WORSE_CM)
+
+
+def ci_reports(repo: Path, env: dict[str, str]) -> None:
+    """The JUnit file has a case per surveyed pose and per gate, the baseline's failed; the
+    step summary is appended to, the earlier steps' text kept."""
+    suite = next(iter(JUnitXml.fromfile(str(repo / "amcl.xml"))))
+    names = [case.name for case in suite]
+    assert names[:10] == [f"pose {i}" for i in range(1, 11)], names
+    failed = [case.name for case in suite if not case.is_passed]
+    assert any(name.startswith("worsening of RMS |XY|") for name in failed), failed
+    summary = Path(env["GITHUB_STEP_SUMMARY"]).read_text(encoding="utf-8")
+    assert summary.startswith("earlier steps\n"), summary[:200]
+    assert "### segloc evaluate: FAIL" in summary
+
+
+# ------------------------------------------------------------------------ the blocks
+
+BLOCKS = [
+    Expect(
+        SKIP,
+        "make demo",
+        why="long: make demo sets up .venv, then maps and localizes "
+        "the hall (about a minute); make test is this suite",
+    ),
+    Expect(RUN, "segloc simulate"),
+    Expect(REAL, "segloc import carmen"),
+    Expect(
+        HARDWARE,
+        "segloc record --device scip2:/dev/ttyACM0",
+        shorten=(("--duration 60", "--duration 1"), ("--scans 500", "--scans 4")),
+    ),
+    Expect(RUN, "segloc emulate"),
+    Expect(RUN, "segloc info sim/log.mcap"),
+    Expect(RUN, "segloc map build sim/log.mcap"),
+    Expect(RUN, "segloc map import"),
+    Expect(RUN, "--initial guesses.csv"),
+    Expect(REAL, "--track --initial first-pose.csv"),
+    Expect(RUN, "--mcap run.mcap"),
+    Expect(RUN, "segloc info --foxglove-layout"),
+    Expect(RUN, "segloc evaluate estimates.csv --survey sim/survey.csv\n"),
+    Expect(REAL, "--relations ../shared/datasets/intel/intel.relations"),
+    Expect(RUN, "--plots figures --map map.json"),
+    Expect(RUN, "segloc evaluate main/", setup=amcl_runs),
+    Expect(RUN, "segloc evaluate pr/", status=1, check=ci_reports),
+    Expect(OUTPUT, "| pose "),
+    Expect(FILE, 'logs = ["datasets/hall/log.mcap"]', shipped="sweep.toml"),
+    Expect(RUN, "segloc sweep sweep.toml --out out/sweep.parquet"),
+    Expect(
+        SKIP,
+        "dask scheduler",
+        why="needs a Dask cluster: `dask scheduler` and `dask "
+        "worker` run until stopped, on its machines; tests/test_sweep.py starts both on "
+        "this one and sweeps on them",
+    ),
+    Expect(CONFIG, "[map.build]"),
+    Expect(RUN, "--config estimates.run.toml"),
+    Expect(DIAGRAM, "segloc_cli/"),
+]
+"""README.md's blocks in order. A block added to README needs its entry here."""
+
+LANGS = {RUN: "sh", REAL: "sh", HARDWARE: "sh", SKIP: "sh", OUTPUT: "text", FILE: "toml",
+         CONFIG: "toml", DIAGRAM: ""}  # fmt: skip
+
+
+def classified(readme: Path = README) -> list[tuple[Block, Expect]]:
+    """README's blocks beside their entries; AssertionError when they no longer match."""
+    blocks = fenced_blocks(readme)
+    listing = "\n".join(f"  line {b.line} ({b.lang or 'no language'}): {b.title}" for b in blocks)
+    hint = f"README.md's blocks are now:\n{listing}\nUpdate BLOCKS in {Path(__file__).name}."
+    assert len(blocks) == len(BLOCKS), (
+        f"README has {len(blocks)} blocks, BLOCKS {len(BLOCKS)}. {hint}"
+    )
+    for block, expect in zip(blocks, BLOCKS, strict=True):
+        where = f"README line {block.line} ({block.title!r})"
+        assert expect.holds in block.text, f"{where} lacks {expect.holds!r}. {hint}"
+        assert block.lang == LANGS[expect.kind], (
+            f"{where}: a {expect.kind} block is ```{LANGS[expect.kind]}"
+        )
+        assert expect.kind == SKIP or "make " not in block.title, (
+            f"{where}: make targets are not run here"
+        )
+        if expect.kind != REAL:
+            assert "../shared/datasets" not in block.text, (
+                f"{where} reads the public logs: kind REAL"
+            )
+        if expect.kind == HARDWARE:
+            assert HARDWARE_MARK in block.text, f"{where}: says nothing of the scanner it needs"
+        if expect.kind == SKIP:
+            assert expect.why, f"{where}: a skipped block needs its reason"
+    return list(zip(blocks, BLOCKS, strict=True))
+
+
+def device_paths(text: str) -> dict[str, str]:
+    """``--device PROTOCOL:PATH`` options of a command block: {path: protocol}."""
+    return {path: protocol for protocol, path in re.findall(r"--device (\w+):(\S+)", text)}
+
+
+def run_on_emulators(block: Block, expect: Expect, cwd: Path, env: dict[str, str]) -> Result:
+    """A HARDWARE block with each device path replaced by the pty of an emulator of its
+    protocol, and the option values of ``expect.shorten`` replaced."""
+    script, running = block.text, []
+    try:
+        for path, protocol in device_paths(block.text).items():
+            port, proc = start_emulator(protocol)
+            running.append(proc)
+            script = script.replace(f"{protocol}:{path}", f"{protocol}:{port}")
+        for long, short in expect.shorten:
+            assert long in script, f"README line {block.line} no longer says {long!r}"
+            script = script.replace(long, short)
+        return run_shell(script, cwd, env)
+    finally:
+        for proc in running:
+            stop_emulator(proc)
+
+
+def significant_lines(text: str) -> list[str]:
+    """A TOML text's lines that are not blank or comments alone."""
+    return [s.rstrip() for s in text.splitlines() if s.strip() and not s.lstrip().startswith("#")]
+
+
+def command_tables(table: dict, prefix: tuple[str, ...] = ()) -> Iterator[tuple[str, ...]]:
+    """The commands a configuration file sets: ``[map.build]`` → ("map", "build")."""
+    for key, value in table.items():
+        if isinstance(value, dict) and all(isinstance(v, dict) for v in value.values()):
+            yield from command_tables(value, (*prefix, key))
+        elif isinstance(value, dict):
+            yield (*prefix, key)
+
+
+def failure(block: Block, what: str, result: Result | None = None) -> str:
+    told = f"\nstdout:\n{result.out[-1500:]}\nstderr:\n{result.err[-1500:]}" if result else ""
+    return f"README line {block.line} ({block.title!r}): {what}{told}"
+
+
+def run_readme(work: Path, datasets: Path | None) -> list[str]:
+    """Run README's blocks in order in a copy of the repository's layout under ``work``
+    (the public logs linked at ``work/shared/datasets`` when ``datasets`` is given; without
+    them REAL blocks are left out); the failures, one message per block."""
+    repo = work / "repo"
+    shutil.copytree(ROOT / "datasets", repo / "datasets")
+    for path in ROOT.iterdir():
+        if path.is_file() and not path.name.startswith("."):
+            shutil.copy2(path, repo / path.name)
+    if datasets is not None:
+        (work / "shared").mkdir()
+        (work / "shared" / "datasets").symlink_to(datasets.resolve())
+    summary = work / "step_summary.md"
+    summary.write_text("earlier steps\n", encoding="utf-8")
+    env = {
+        **os.environ,
+        "PATH": f"{SEGLOC.parent}{os.pathsep}{os.environ.get('PATH', '')}",
+        "GITHUB_STEP_SUMMARY": str(summary),
+    }
+    failures: list[str] = []
+    printed: Result | None = None
+    for block, expect in classified():
+        if expect.kind == SKIP or (expect.kind == REAL and datasets is None):
+            continue
+        if expect.kind in SHELL_KINDS:
+            if expect.setup is not None:
+                expect.setup(repo)
+            if expect.kind == HARDWARE:
+                printed = run_on_emulators(block, expect, repo, env)
+            else:
+                printed = run_shell(block.text, repo, env)
+            if printed.code != expect.status:
+                failures.append(
+                    failure(block, f"exit {printed.code}, not {expect.status}", printed)
+                )
+            elif expect.check is not None:
+                try:
+                    expect.check(repo, env)
+                except AssertionError as exc:
+                    failures.append(failure(block, f"wrote what README does not say: {exc}"))
+        elif expect.kind == OUTPUT:
+            lines = (printed.out + printed.err).splitlines() if printed else []
+            missing = [s for s in block.text.splitlines() if s.strip() and s not in lines]
+            if missing:
+                failures.append(failure(block, f"the block before does not print {missing}"))
+        elif expect.kind == FILE:
+            shipped = (ROOT / expect.shipped).read_text(encoding="utf-8")
+            if significant_lines(shipped) != significant_lines(block.text):
+                failures.append(failure(block, f"differs from {expect.shipped}"))
+        elif expect.kind == CONFIG:
+            (repo / CONFIG_NAME).write_text(block.text, encoding="utf-8")
+            for command in command_tables(tomllib.loads(block.text)):
+                script = f"segloc {' '.join(command)} --config {CONFIG_NAME} --help >/dev/null"
+                result = run_shell(script, repo, env)
+                if result.code != 0:
+                    failures.append(failure(block, f"refused by `{script}`", result))
+    return failures
+
+
+def test_every_block_is_classified():
+    assert list(classified())
+
+
+def test_a_block_added_to_the_readme_fails_until_it_is_classified(tmp_path):
+    readme = tmp_path / "README.md"
+    text = README.read_text(encoding="utf-8")
+    readme.write_text(text + "\n```sh\nsegloc frobnicate\n```\n", encoding="utf-8")
+    with pytest.raises(AssertionError, match="segloc frobnicate"):
+        classified(readme)
+
+
+@pytest.mark.parametrize(
+    "expect", [e for e in BLOCKS if e.kind in (SKIP, REAL)], ids=lambda e: e.holds[:40]
+)
+def test_blocks_make_test_leaves_out(expect):
+    """Listed so that the report names them: skipped ones with their reason, and those on
+    the public logs, which ``make readme-real`` runs."""
+    if expect.kind == SKIP:
+        pytest.skip(expect.why)
+    pytest.skip("reads the public logs in ../shared/datasets: make readme-real runs it")
+
+
+def test_every_block_runs_as_written_on_the_shipped_data(tmp_path):
+    failures = run_readme(tmp_path, datasets=None)
+    assert not failures, "\n\n".join(failures)
+
+
+def test_the_readme_top_to_bottom_beside_the_public_logs(tmp_path):
+    """``make readme-real``: every block but the skipped ones, those on the public logs
+    included, in one folder beside them, as a reader with the logs would run them."""
+    datasets = os.environ.get(DATASETS_VARIABLE)
+    if not datasets:
+        pytest.skip(f"make readme-real runs it (sets {DATASETS_VARIABLE})")
+    if not Path(datasets).is_dir():
+        pytest.skip(f"{datasets} is not a folder: no public logs to run README's blocks on")
+    failures = run_readme(tmp_path, datasets=Path(datasets))
+    assert not failures, "\n\n".join(failures)
