@@ -1,16 +1,17 @@
 """Every fenced block of README.md, run as written, in order, as a reader would.
 
 ``BLOCKS`` classifies each block of README.md in the order it appears, and says how it is
-checked: a command block runs with ``sh -e`` in a copy of the repository's layout (its
-``datasets/`` and top-level files) in a temporary folder, with ``segloc`` on PATH from this
-test's environment, each block reading what the blocks before it wrote; it must exit with
-the status README gives (0 unless it says otherwise). A block README prints as a command's
-output must be printed by the block before it, a TOML block must be the file it says it is
-or be accepted by the commands its tables name. Blocks that need a serial scanner carry a
-``# needs a scanner`` comment and run against ``segloc emulate``'s ptys instead; blocks on
-the public logs (``../shared/datasets``) run under ``make readme-real``, which runs the
-README top to bottom beside those logs. A block README gains without an entry here fails
-``test_every_block_is_classified``: every block is either run or skipped with a reason.
+checked. A command block runs with ``sh -e`` in a temporary copy of the repository's layout
+(its ``datasets/`` and the files README shows, such as ``sweep.toml``), with ``segloc`` on
+PATH from this test's environment, each block reading what the blocks before it wrote; it
+must exit with the status README gives (0 unless it says otherwise). A block README prints
+as a command's output must be printed by the block before it; a TOML block must be the file
+it says it is, or be accepted by the commands its tables name. Blocks that need a serial
+scanner carry a ``# needs a scanner`` comment and run against ``segloc emulate``'s ptys
+instead; blocks on the public logs (``../shared/datasets``) run under ``make readme-real``,
+which runs the README top to bottom beside those logs. A block README gains without an entry
+here fails ``test_every_block_is_classified``: every block is either run or skipped with a
+reason.
 """
 
 from __future__ import annotations
@@ -296,9 +297,8 @@ def run_readme(work: Path, datasets: Path | None) -> list[str]:
     them REAL blocks are left out); the failures, one message per block."""
     repo = work / "repo"
     shutil.copytree(ROOT / "datasets", repo / "datasets")
-    for path in ROOT.iterdir():
-        if path.is_file() and not path.name.startswith("."):
-            shutil.copy2(path, repo / path.name)
+    for name in {e.shipped for e in BLOCKS if e.shipped}:
+        shutil.copy2(ROOT / name, repo / name)
     if datasets is not None:
         (work / "shared").mkdir()
         (work / "shared" / "datasets").symlink_to(datasets.resolve())
