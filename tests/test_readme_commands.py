@@ -34,6 +34,8 @@ from junitparser import JUnitXml
 from test_cli import Result
 from trajectory_samples import write_amcl_bag
 
+from segloc_cli.io.maps import read_world
+from segloc_cli.io.mcap_log import read_log
 from segloc_cli.io.tables import read_pose_table
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -172,6 +174,17 @@ def ci_reports(repo: Path, env: dict[str, str]) -> None:
     assert "### segloc evaluate: FAIL" in summary
 
 
+def office_simulation(repo: Path, env: dict[str, str]) -> None:
+    """The world example's log is scanned by its world's sensor: a SICK-like fan of 361
+    beams over 180°, glass on, no clutter."""
+    assert read_world(repo / "office.json").sensor == {
+        "readings": 361, "fov_deg": 180, "clutter": False,
+    }  # fmt: skip
+    log = read_log(repo / "office-sim" / "log.mcap")
+    assert {len(s) for s in log.scans} == {361}
+    assert log.sensor["device"] == "simulated scanner" and log.sensor["clutter"] == "off"
+
+
 # ------------------------------------------------------------------------ the blocks
 
 BLOCKS = [
@@ -181,7 +194,8 @@ BLOCKS = [
         why="long: make demo sets up .venv, then maps and localizes "
         "the hall (about a minute); make test is this suite",
     ),
-    Expect(RUN, "segloc simulate"),
+    Expect(RUN, "segloc simulate datasets/hall/world.json"),
+    Expect(RUN, "cat > office.json", check=office_simulation),
     Expect(REAL, "segloc import carmen"),
     Expect(
         HARDWARE,
@@ -193,7 +207,7 @@ BLOCKS = [
     Expect(RUN, "segloc map build sim/log.mcap"),
     Expect(RUN, "segloc map import"),
     Expect(RUN, "--initial guesses.csv"),
-    Expect(REAL, "--track --initial first-pose.csv"),
+    Expect(REAL, "--track --initial 0,0,0"),
     Expect(RUN, "--mcap run.mcap"),
     Expect(RUN, "segloc info --foxglove-layout"),
     Expect(RUN, "segloc evaluate estimates.csv --survey sim/survey.csv\n"),

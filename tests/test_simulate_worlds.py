@@ -1,12 +1,11 @@
 """``segloc simulate`` on the user's own building: a map (built, or imported from a plan) taken
 as a world of one material, the world file's keys and its ``sensor``, the sensor chosen by
-options (beams, field of view, noise, clutter, glass), the run file that repeats it, bad input
-in one line, and README's world example run as written."""
+options (beams, field of view, noise, clutter, glass), the run file that repeats it, and bad
+input in one line. README's world example runs in test_readme_commands.py."""
 
 from __future__ import annotations
 
 import json
-import re
 import tomllib
 from pathlib import Path
 
@@ -16,7 +15,7 @@ from test_cli import assert_one_line_error, run_cli
 from test_plans import draw_office
 
 from segloc_cli.errors import InputError
-from segloc_cli.io.maps import read_map, read_world, write_map
+from segloc_cli.io.maps import read_map, write_map
 from segloc_cli.io.mcap_log import read_log
 from segloc_cli.sim import cast_rays
 
@@ -279,37 +278,3 @@ def test_a_world_given_as_a_map_is_checked_as_a_world(tmp_path):
     world = write_world(tmp_path / "w.json", ROOM, sensor={"beams": 3})
     with pytest.raises(InputError, match=r"w\.json: unknown key 'beams' in `sensor`"):
         read_map(world)
-
-
-# --- README's example ----------------------------------------------------------------------
-
-
-def readme_block(name: str) -> str:
-    """README's fenced block after the ``<!-- name -->`` marker."""
-    text = (ROOT / "README.md").read_text(encoding="utf-8")
-    match = re.search(rf"<!-- {name} -->\n```[a-z]*\n(.*?)```", text, re.S)
-    assert match, f"README lacks the block marked {name}"
-    return match.group(1)
-
-
-def test_the_readme_world_example_runs_as_written(tmp_path, capsys, monkeypatch):
-    """The example's world and poses, saved as it says, simulate with its command lines: a
-    SICK-like fan of 361 beams over 180° from the world's sensor, glass on, no clutter."""
-    monkeypatch.chdir(tmp_path)
-    script = readme_block("world example")
-    world_json = re.search(r"cat > (\S+) <<'EOF'\n(.*?)\nEOF\n", script, re.S)
-    poses_csv = re.search(r"cat > (\S+) <<'EOF'\n(pose_id.*?)\nEOF\n", script, re.S)
-    assert world_json and poses_csv, script
-    Path(world_json.group(1)).write_text(world_json.group(2) + "\n", encoding="utf-8")
-    Path(poses_csv.group(1)).write_text(poses_csv.group(2) + "\n", encoding="utf-8")
-    commands = [line.split()[1:] for line in script.splitlines() if line.startswith("segloc ")]
-    assert commands, script
-    for command in commands:
-        result = run_cli(capsys, *command)
-        assert result.code == 0, (command, result.err)
-    world = read_world(world_json.group(1))
-    assert world.sensor == {"readings": 361, "fov_deg": 180, "clutter": False}
-    out = Path(commands[0][commands[0].index("--out") + 1])
-    log = read_log(out / "log.mcap")
-    assert {len(s) for s in log.scans} == {361}
-    assert log.sensor["device"] == "simulated scanner" and log.sensor["clutter"] == "off"
