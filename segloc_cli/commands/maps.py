@@ -48,6 +48,7 @@ BUILD_OPTIONS = (
         "it, each at its surveyed (or polished) pose with its local segments.",
     ),
     setting_option("polish"),
+    setting_option("min-observations"),
     setting_option("tolerance-ms", pairing="pairing scans with survey rows"),
     config_option,
     force_option,
@@ -63,7 +64,8 @@ def map_build(log_path, survey_path, out_path, mcap_path, force, **_):
 
     Each scan with a survey row becomes a local map, is placed at its pose and
     fused with the others: nearly collinear segments that overlap or nearly
-    touch become one. Beside OUT goes its run file (OUT.run.toml).
+    touch become one. With --min-observations, segments seen from too few
+    poses are dropped. Beside OUT goes its run file (OUT.run.toml).
     """
     from segloc_cli.io.files import check_outputs
     from segloc_cli.io.maps import bounds_problem, write_map
@@ -86,6 +88,7 @@ def map_build(log_path, survey_path, out_path, mcap_path, force, **_):
         raise InputError(f"the map built would be refused when read: {problem}", path=out_path)
     source = {"log": str(log_path), "survey": str(survey_path)}
     source |= {"scans_used": built.scans_used, "local_segments": built.local_segments}
+    source |= {"dropped_segments": int(built.dropped.shape[0])}
     source |= {"extract": asdict(run.config.extract), "fuse": asdict(run.config.fuse)}
     write_map(out_path, built.segments, source=source)
     run.write_run_file(out_path)
@@ -95,7 +98,21 @@ def map_build(log_path, survey_path, out_path, mcap_path, force, **_):
     info(
         f"{out_path}: {built.segments.shape[0]} segments fused from {built.local_segments} "
         f"local segments of {built.scans_used} scans ({len(log.scans) - built.scans_used} "
-        "scans had no survey row)"
+        f"scans had no survey row){_dropped_note(built.dropped, run.config.fuse.min_observations)}"
+    )
+
+
+def _dropped_note(dropped, min_observations: int) -> str:
+    """What ``map build`` left out of the map, as the end of its summary line: the fused
+    segments (D, 4) seen from fewer than ``min_observations`` surveyed poses."""
+    from segloc_cli.geometry import segment_lengths
+
+    if min_observations <= 1:
+        return ""
+    count = dropped.shape[0]
+    return (
+        f"; {count} segment{'' if count == 1 else 's'} ({segment_lengths(dropped).sum():.1f} m) "
+        f"seen from fewer than {min_observations} surveyed poses dropped"
     )
 
 

@@ -332,12 +332,14 @@ def check_global_extent(
 @dataclass(frozen=True)
 class BuiltMap:
     """A segment map (M, 4), world frame, and what it was made of: the log's scans with a
-    survey row (their indices), each one's surveyed pose and its local map (robot frame)."""
+    survey row (their indices), each one's surveyed pose and its local map (robot frame);
+    ``dropped`` (D, 4) holds the fused segments seen from too few poses to be kept."""
 
     segments: np.ndarray
     scan_index: np.ndarray
     poses: list[Pose2]
     local_maps: list[np.ndarray]
+    dropped: np.ndarray
 
     @property
     def scans_used(self) -> int:
@@ -358,9 +360,10 @@ def build_map(
 ) -> BuiltMap:
     """Fuse the local maps of the scans that have a survey row, each placed at its pose (after
     ``config.fuse.polish_rounds`` rounds of ``maps.fusion.polish_poses``, if any; ``BuiltMap.poses``
-    holds the poses used); the extraction (scans), polishing and fusion (rounds) report to
-    ``progress``."""
-    from segloc_cli.maps.fusion import build_global_map, polish_poses
+    holds the poses used), and keep the segments seen from at least
+    ``config.fuse.min_observations`` survey rows; the extraction (scans), polishing and fusion
+    (rounds) report to ``progress``."""
+    from segloc_cli.maps.fusion import observed_map, polish_poses
     from segloc_cli.method.extract import extract_segments
 
     times = log.scan_times_s
@@ -391,10 +394,17 @@ def build_map(
         with progress("polishing poses", config.fuse.polish_rounds, "round") as shown:
             poses = polish_poses(local_maps, points, poses, config.fuse, shown)
     with progress("fusing segments", None, "round") as shown:
-        segments = build_global_map(local_maps, poses, config.fuse, shown)
+        segments, seen = observed_map(local_maps, poses, config.fuse, shown, rows[used])
     if segments.shape[0] == 0:
         raise InputError("no segments could be extracted from the surveyed scans", path=log_path)
-    return BuiltMap(segments, used, poses, local_maps)
+    kept = seen >= config.fuse.min_observations
+    if not kept.any():
+        raise InputError(
+            f"no segment was seen from {config.fuse.min_observations} surveyed poses; lower "
+            "--min-observations",
+            path=log_path,
+        )
+    return BuiltMap(segments[kept], used, poses, local_maps, segments[~kept])
 
 
 def read_plan(
