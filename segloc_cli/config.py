@@ -55,6 +55,9 @@ METHODS = ("two-stage", "icp", "correlative")
 ICP_VARIANTS = ("gicp", "plane")
 """ICP flavours of ``--method icp``: generalized ICP or point-to-plane ICP."""
 
+SEEN_THROUGH_CHOICES = ("drop", "keep")
+"""What ``map build`` does with a segment the scans see through (``FuseParams.seen_through``)."""
+
 GUESSES_KEYWORD = "odom"
 """``--initial`` value that takes the guesses from the log itself rather than a file."""
 
@@ -102,6 +105,9 @@ class FuseParams:
     min_observations: int = 1
     """A fused segment is kept only if seen from at least this many surveyed poses (scans
     paired with one survey row count once); 1 keeps every segment."""
+    seen_through: str = "keep"
+    """What becomes of a fused segment that is free space over most of its length, seen
+    through there from more surveyed poses than saw it: "drop" or "keep" (``maps.carving``)."""
 
 
 @dataclass(frozen=True)
@@ -684,7 +690,7 @@ TOLERANCE = Setting(
 """Pairing by time, in every command that pairs; its help names what is paired."""
 
 EXTRACT = _tuning("extract-", "extract")
-FUSE = _tuning("fuse-", "fuse", "polish_rounds", "min_observations")
+FUSE = _tuning("fuse-", "fuse", "polish_rounds", "min_observations", "seen_through")
 POLISH = Setting(
     "polish",
     ("fuse", "polish_rounds"),
@@ -704,6 +710,15 @@ MIN_OBSERVATIONS = Setting(
     "row count once): a passer-by is seen from one pose, a wall from several. The default, 1, "
     "keeps every segment: on real logs 2 also drops walls seen from one spot or left unfused "
     "by pose errors, and tracking suffered.",
+)
+SEEN_THROUGH = Setting(
+    "seen-through",
+    ("fuse", "seen_through"),
+    choices=SEEN_THROUGH_CHOICES,
+    help="drop: leave out each segment that, over most of its length, more surveyed poses "
+    "see through than see (their beams run on to ranges ending over 0.3 m behind it), as a "
+    "person walking by is. The default keeps every segment: on the shared real logs, drop "
+    "also took out clutter that stood through much of the run, and tracking suffered.",
 )
 LOCALIZE_TUNING = (
     *(
@@ -737,6 +752,7 @@ SETTINGS: dict[str, Setting] = {
         *EXTRACT,
         POLISH,
         MIN_OBSERVATIONS,
+        SEEN_THROUGH,
         *FUSE,
         *LOCALIZE_TUNING,
     )
@@ -793,7 +809,7 @@ def settings_table() -> str:
         ("Matcher, window and pairing (`localize`; `tolerance-ms` also `map build`, "
          "`evaluate`)", (*MATCHER, WINDOW, TOLERANCE)),
         ("Extraction (`localize`, `map build`)", EXTRACT),
-        ("Fusion (`map build`)", (POLISH, MIN_OBSERVATIONS, *FUSE)),
+        ("Fusion (`map build`)", (POLISH, MIN_OBSERVATIONS, SEEN_THROUGH, *FUSE)),
         ("Checks, search, refinement, verdict and tracking (`localize`)",
          (REGION, *LOCALIZE_TUNING)),
     ]  # fmt: skip

@@ -654,18 +654,17 @@ def test_map_build_refuses_to_drop_every_segment():
         build_map(log, Path("log.mcap"), survey, Path("survey.csv"), config)
 
 
-def test_map_build_says_what_it_dropped(tmp_path, capsys):
-    """``--min-observations`` drops what too few poses saw; the summary line and the map
-    file's source say how many segments; without it every segment is kept."""
+def _map_builder(tmp_path, capsys, log, survey, range_max_m: float):
+    """``log`` and ``survey`` written into ``tmp_path``, and a function that runs ``segloc map
+    build`` of them with extra options and returns (its stderr, the map file read back)."""
     import json
 
     from segloc_cli.cli import main
     from segloc_cli.io.mcap_log import LogWriter
     from segloc_cli.io.tables import write_pose_table
 
-    log, survey = _room_with_people()
     log_path, survey_path = tmp_path / "log.mcap", tmp_path / "survey.csv"
-    with LogWriter(log_path, {"range_max_m": "30"}) as writer:
+    with LogWriter(log_path, {"range_max_m": f"{range_max_m:g}"}) as writer:
         for scan in log.scans:
             writer.add_scan(scan)
     write_pose_table(survey_path, survey)
@@ -676,6 +675,13 @@ def test_map_build_says_what_it_dropped(tmp_path, capsys):
               "--force", *options])  # fmt: skip
         return capsys.readouterr().err, json.loads(out.read_text())
 
+    return build
+
+
+def test_map_build_says_what_it_dropped(tmp_path, capsys):
+    """``--min-observations`` drops what too few poses saw; the summary line and the map
+    file's source say how many segments; without it every segment is kept."""
+    build = _map_builder(tmp_path, capsys, *_room_with_people(), range_max_m=30.0)
     err, built = build("--min-observations", "3")
     assert "2 segments (1.0 m) seen from fewer than 3 surveyed poses dropped" in err, err
     assert len(built["segments"]) == 4
@@ -688,6 +694,149 @@ def test_map_build_says_what_it_dropped(tmp_path, capsys):
         build("--min-observations", "0")
     assert exc.value.code == 2
     assert "--min-observations" in capsys.readouterr().err
+
+
+HALLWAY = np.array([[0, 0, 14, 0], [14, 0, 14, 4], [14, 4, 0, 4], [0, 4, 0, 0]], dtype=float)
+"""A 14 m × 4 m hallway's walls, world frame."""
+PASSER_BY = np.array([8.0, 0.4, 8.0, 1.0])
+"""A person by the south wall, in the first scan only."""
+HALLWAY_POSES = np.array([[12.5, 2.0, 0.0], [5.0, 3.0, 0.0], [4.0, 3.5, 0.0]])
+"""Where the scans are taken: the first near the east end, the later ones 7–9 m west of it,
+beyond the scanner's 8 m reach of the east wall but within reach of the wall behind the
+person."""
+
+
+def _hallway_with_a_passer_by(later_rows: list[int]):
+    """Noise-free scans of ``HALLWAY`` by a scanner reaching 8 m, and their survey: (log,
+    survey). The first scan, from ``HALLWAY_POSES[0]``, sees ``PASSER_BY``; one later scan
+    per entry of ``later_rows`` is taken after they left, from ``HALLWAY_POSES[row]``, and
+    pairs with that survey row (a row listed twice holds two scans)."""
+    from dataclasses import replace
+
+    from segloc_cli.estimates import PoseTable
+    from segloc_cli.io.log import Log
+    from segloc_cli.sim import NOISE_FREE, simulate_scan
+    from segloc_cli.world import World
+
+    sensor = replace(NOISE_FREE, range_max_m=8.0)
+    rows = sorted(set(later_rows))
+    times = [0.0, *(float(row) + 0.02 * later_rows[:k].count(row) for k, row in
+                    enumerate(later_rows))]  # fmt: skip
+    rng = np.random.default_rng(0)
+    worlds = [World(np.vstack([HALLWAY, PASSER_BY])), *[World(HALLWAY)] * len(later_rows)]
+    scans = [simulate_scan(world, Pose2(*HALLWAY_POSES[row]), sensor, rng, t)
+             for world, row, t in zip(worlds, [0, *later_rows], times, strict=True)]  # fmt: skip
+    log = Log(scans, np.array(times), np.zeros(0), np.zeros((0, 3)), {})
+    survey_rows = [0, *rows]
+    survey = PoseTable(
+        np.arange(1, len(survey_rows) + 1),
+        np.array([float(r) for r in survey_rows]),
+        HALLWAY_POSES[survey_rows],
+    )
+    return log, survey
+
+
+@pytest.mark.parametrize(
+    ("later_rows", "passer_by_dropped"),
+    [([1, 2], True), ([1], False), ([1, 1], False)],
+    ids=["seen-through-by-two-poses", "by-one-pose", "by-two-scans-from-one-pose"],
+)
+def test_map_build_drops_what_more_poses_see_through_than_saw(later_rows, passer_by_dropped):
+    """The passer-by, seen from the first pose, goes when two later poses see the wall behind
+    where they stood, and stays when one pose does (one view against one), however many
+    scans it took there. The walls stay, seen through by none: the south wall seen from
+    every pose, and the east wall seen from the first pose only (the later ones are out of
+    reach of it)."""
+    from dataclasses import replace
+    from pathlib import Path
+
+    from segloc_cli.config import Config
+    from segloc_cli.runs.pipeline import build_map
+
+    log, survey = _hallway_with_a_passer_by(later_rows)
+    config = replace(Config(), fuse=FuseParams(seen_through="drop"))
+    built = build_map(log, Path("log.mcap"), survey, Path("survey.csv"), config)
+    world = np.vstack([HALLWAY, PASSER_BY])
+    if passer_by_dropped:
+        assert sorted(_on(built.segments, world).tolist()) == [0, 1, 2, 3]
+        assert _on(built.dropped, world).tolist() == [4]
+        assert built.dropped_seen_through.tolist() == [True]
+    else:
+        assert sorted(_on(built.segments, world).tolist()) == [0, 1, 2, 3, 4]
+        assert built.dropped.shape == (0, 4)
+    kept = build_map(log, Path("log.mcap"), survey, Path("survey.csv"), Config())
+    assert sorted(_on(kept.segments, world).tolist()) == [0, 1, 2, 3, 4]
+
+
+def test_a_segment_goes_when_free_space_over_most_of_its_interior():
+    """The free metres are weighed against the interior, the segment less 6 cm at either end,
+    where a fused end that overshoots a corner would be seen past."""
+    from segloc_cli.maps.carving import free_length, mostly_free
+
+    walls = np.array([[0.0, 0.0, 1.0, 0.0], [0.0, 1.0, 0.3, 1.0], [0.0, 2.0, 0.1, 2.0]])
+    free_m = np.array([0.45, 0.10, 0.0])  # interiors 0.88, 0.18 and none
+    assert mostly_free(walls, free_m, 0.06).tolist() == [True, True, False]
+    assert mostly_free(walls, np.array([0.44, 0.09, 0.0]), 0.06).tolist() == [False] * 3
+    with pytest.raises(ValueError, match="1 viewpoints for 2 scans"):
+        free_length(walls, np.ones(3), [np.zeros((0, 2))] * 2, [Pose2(0, 0, 0)] * 2,
+                    np.array([0]), 0.06, 0.3)  # fmt: skip
+
+
+def test_map_build_refuses_to_drop_every_segment_as_seen_through():
+    """A scan that saw only the passer-by, and two later ones whose beams run on through
+    where they stood, to points 1 m and 2 m behind by turns (too ragged for a segment of
+    their own): nothing would be left."""
+    from dataclasses import replace
+    from pathlib import Path
+
+    from segloc_cli.config import Config
+    from segloc_cli.errors import InputError
+    from segloc_cli.estimates import PoseTable
+    from segloc_cli.io.log import Log
+    from segloc_cli.runs.pipeline import build_map
+    from segloc_cli.scan import Scan
+    from segloc_cli.sim import NOISE_FREE, simulate_scan
+    from segloc_cli.world import World
+
+    poses = HALLWAY_POSES
+    first = simulate_scan(World(PASSER_BY[None]), Pose2(*poses[0]), NOISE_FREE,
+                          np.random.default_rng(0), 0.0)  # fmt: skip
+    later = []
+    for k in (1, 2):
+        through = np.column_stack([np.full(9, 8.0), np.linspace(0.45, 0.95, 9)]) - poses[k, :2]
+        reach = (np.tile([1.0, 2.0], 5)[:9] + 8.0 - poses[k, 0]) / through[:, 0]
+        angles, ranges = np.arctan2(through[:, 1], through[:, 0]), reach * np.hypot(*through.T)
+        later.append(Scan(float(k), angles, ranges, 30.0))
+    log = Log([first, *later], np.array([0.0, 1.0, 2.0]), np.zeros(0), np.zeros((0, 3)), {})
+    survey = PoseTable(np.arange(1, 4), np.array([0.0, 1.0, 2.0]), poses)
+    config = replace(Config(), fuse=FuseParams(seen_through="drop"))
+    with pytest.raises(InputError, match="every segment is seen through"):
+        build_map(log, Path("log.mcap"), survey, Path("survey.csv"), config)
+
+
+def test_map_build_says_what_it_dropped_as_seen_through(tmp_path, capsys):
+    """The summary line says how many segments went, how long, and why, for each reason;
+    the map file's source counts them; a choice --seen-through does not take is refused."""
+    build = _map_builder(tmp_path, capsys, *_hallway_with_a_passer_by([1, 2]), range_max_m=8.0)
+    err, built = build("--seen-through", "drop")
+    note = "; 1 segment (0.6 m) seen through from more surveyed poses than saw them dropped"
+    assert err.rstrip().endswith(note), err
+    assert len(built["segments"]) == 4
+    assert built["source"]["dropped_segments"] == built["source"]["dropped_seen_through"] == 1
+    assert built["source"]["fuse"]["seen_through"] == "drop"
+    # The passer-by and the east wall were seen from one pose: both go for that first.
+    err, built = build("--seen-through", "drop", "--min-observations", "2")
+    assert err.rstrip().endswith(
+        "; 2 segments (4.6 m) seen from fewer than 2 surveyed poses dropped; 0 segments "
+        "(0.0 m) seen through from more surveyed poses than saw them dropped"
+    ), err
+    assert built["source"]["dropped_seen_through"] == 0
+    err, built = build()
+    assert "dropped" not in err and len(built["segments"]) == 5, err
+    with pytest.raises(SystemExit) as exc:
+        build("--seen-through", "maybe")
+    assert exc.value.code == 2
+    assert "--seen-through" in capsys.readouterr().err
 
 
 def _surveyed_room(seed: int, n: int = 24, error_m: float = 0.04, error_deg: float = 0.8):

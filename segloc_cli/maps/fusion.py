@@ -377,8 +377,14 @@ def observed_map(
     segments, into = fuse_traced(np.concatenate(world), params, progress)
     seen_from = np.repeat(labels, [w.shape[0] for w in world])
     fused = into >= 0
-    pairs = np.unique(np.column_stack([into[fused], seen_from[fused]]), axis=0)
-    return segments, np.bincount(pairs[:, 0], minlength=segments.shape[0])
+    return segments, distinct_viewpoints(into[fused], seen_from[fused], segments.shape[0])
+
+
+def distinct_viewpoints(segment: np.ndarray, viewpoint: np.ndarray, n: int) -> np.ndarray:
+    """How many distinct viewpoints each of ``n`` segments has (n,), from sightings: pairs
+    of a segment index (K,) and a viewpoint label (K,), repeats allowed."""
+    pairs = np.unique(np.column_stack([segment, viewpoint]).reshape(-1, 2), axis=0)
+    return np.bincount(pairs[:, 0], minlength=n)
 
 
 def polish_poses(

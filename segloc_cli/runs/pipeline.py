@@ -333,13 +333,15 @@ def check_global_extent(
 class BuiltMap:
     """A segment map (M, 4), world frame, and what it was made of: the log's scans with a
     survey row (their indices), each one's surveyed pose and its local map (robot frame);
-    ``dropped`` (D, 4) holds the fused segments seen from too few poses to be kept."""
+    ``dropped`` (D, 4) holds the fused segments left out: seen through from more poses than
+    saw them where ``dropped_seen_through`` (D,) is True, else seen from too few poses."""
 
     segments: np.ndarray
     scan_index: np.ndarray
     poses: list[Pose2]
     local_maps: list[np.ndarray]
     dropped: np.ndarray
+    dropped_seen_through: np.ndarray
 
     @property
     def scans_used(self) -> int:
@@ -361,10 +363,14 @@ def build_map(
     """Fuse the local maps of the scans that have a survey row, each placed at its pose (after
     ``config.fuse.polish_rounds`` rounds of ``maps.fusion.polish_poses``, if any; ``BuiltMap.poses``
     holds the poses used), and keep the segments seen from at least
-    ``config.fuse.min_observations`` survey rows; the extraction (scans), polishing and fusion
-    (rounds) report to ``progress``."""
+    ``config.fuse.min_observations`` survey rows and, unless ``config.fuse.seen_through`` is
+    "keep", not seen through from more survey rows than saw them (``maps.carving``); the
+    extraction (scans), polishing, fusion (rounds) and carving (one pass) report to
+    ``progress``."""
+    from segloc_cli.maps.carving import free_length, mostly_free
     from segloc_cli.maps.fusion import observed_map, polish_poses
     from segloc_cli.method.extract import extract_segments
+    from segloc_cli.method.freespace import SHORTEN_M
 
     times = log.scan_times_s
     rows = pair_by_time(
@@ -389,8 +395,9 @@ def build_map(
             local_maps.append(extract_segments(log.scans[i], config.extract))
             shown.advance()
     poses = [Pose2(*survey.poses[rows[i]]) for i in used]
+    carve = config.fuse.seen_through == "drop"
+    points = [log.scans[i].points() for i in used] if config.fuse.polish_rounds or carve else []
     if config.fuse.polish_rounds:
-        points = [log.scans[i].points() for i in used]
         with progress("polishing poses", config.fuse.polish_rounds, "round") as shown:
             poses = polish_poses(local_maps, points, poses, config.fuse, shown)
     with progress("fusing segments", None, "round") as shown:
@@ -404,7 +411,23 @@ def build_map(
             "--min-observations",
             path=log_path,
         )
-    return BuiltMap(segments[kept], used, poses, local_maps, segments[~kept])
+    through = np.zeros_like(kept)
+    if carve:
+        with progress("carving free space", None, "pass") as shown:
+            margin_m = config.fuse.offset_m
+            free_m = free_length(segments, seen, points, poses, rows[used], margin_m, SHORTEN_M)
+            through = kept & mostly_free(segments, free_m, margin_m)
+            shown.advance()
+    if not (kept & ~through).any():
+        raise InputError(
+            "every segment is seen through from more surveyed poses than saw it; check the "
+            "survey's poses, or keep them with --seen-through keep",
+            path=log_path,
+        )
+    return BuiltMap(
+        segments[kept & ~through], used, poses, local_maps, segments[~kept | through],
+        through[~kept | through],
+    )  # fmt: skip
 
 
 def read_plan(
