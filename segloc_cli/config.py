@@ -55,6 +55,9 @@ METHODS = ("two-stage", "icp", "correlative")
 ICP_VARIANTS = ("gicp", "plane")
 """ICP flavours of ``--method icp``: generalized ICP or point-to-plane ICP."""
 
+SEEN_THROUGH_CHOICES = ("drop", "keep")
+"""What ``map build`` does with a segment the scans see through (``FuseParams.seen_through``)."""
+
 GUESSES_KEYWORD = "odom"
 """``--initial`` value that takes the guesses from the log itself rather than a file."""
 
@@ -93,8 +96,8 @@ class ExtractParams:
 
 @dataclass(frozen=True)
 class FuseParams:
-    """When two world-frame segments are one wall (metres, degrees), and how the scans' poses
-    are polished before their segments are fused."""
+    """When two world-frame segments are one wall (metres, degrees), how the scans' poses
+    are polished before their segments are fused, and which fused segments the map keeps."""
 
     angle_deg: float = 3.0
     """Largest difference of undirected orientation."""
@@ -109,6 +112,12 @@ class FuseParams:
     """A polished pose farther than this from the surveyed one is not taken (a bad fit)."""
     polish_min_inlier_ratio: float = 0.6
     """A polished pose with a smaller share of the scan's points on the map is not taken."""
+    min_observations: int = 1
+    """A fused segment is kept only if seen from at least this many surveyed poses (scans
+    paired with one survey row count once); 1 keeps every segment."""
+    seen_through: str = "keep"
+    """What becomes of a fused segment that is free space over most of its length, seen
+    through there from more surveyed poses than saw it: "drop" or "keep" (``maps.carving``)."""
 
 
 @dataclass(frozen=True)
@@ -691,7 +700,7 @@ TOLERANCE = Setting(
 """Pairing by time, in every command that pairs; its help names what is paired."""
 
 EXTRACT = _tuning("extract-", "extract")
-FUSE = _tuning("fuse-", "fuse", "polish_rounds")
+FUSE = _tuning("fuse-", "fuse", "polish_rounds", "min_observations", "seen_through")
 POLISH = Setting(
     "polish",
     ("fuse", "polish_rounds"),
@@ -700,6 +709,26 @@ POLISH = Setting(
     help="Polish the surveyed poses this many rounds before fusing: each scan is fitted to "
     "the map the other half of the scans make, which sharpens walls blurred by pose errors "
     "(0: use the poses as given).",
+)
+MIN_OBSERVATIONS = Setting(
+    "min-observations",
+    ("fuse", "min_observations"),
+    1,
+    1000,
+    metavar="N",
+    help="Keep only segments seen from at least N surveyed poses (scans paired with one survey "
+    "row count once): a passer-by is seen from one pose, a wall from several. The default, 1, "
+    "keeps every segment: on real logs 2 also drops walls seen from one spot or left unfused "
+    "by pose errors, and tracking suffered.",
+)
+SEEN_THROUGH = Setting(
+    "seen-through",
+    ("fuse", "seen_through"),
+    choices=SEEN_THROUGH_CHOICES,
+    help="drop: leave out each segment that, over most of its length, more surveyed poses "
+    "see through than see (their beams run on to ranges ending over 0.3 m behind it), as a "
+    "person walking by is. The default keeps every segment: on the shared real logs, drop "
+    "also took out clutter that stood through much of the run, and tracking suffered.",
 )
 LOCALIZE_TUNING = (
     *(
@@ -732,6 +761,8 @@ SETTINGS: dict[str, Setting] = {
         TOLERANCE,
         *EXTRACT,
         POLISH,
+        MIN_OBSERVATIONS,
+        SEEN_THROUGH,
         *FUSE,
         *LOCALIZE_TUNING,
     )
@@ -788,7 +819,7 @@ def settings_table() -> str:
         ("Matcher, window and pairing (`localize`; `tolerance-ms` also `map build`, "
          "`evaluate`)", (*MATCHER, WINDOW, TOLERANCE)),
         ("Extraction (`localize`, `map build`)", EXTRACT),
-        ("Fusion (`map build`)", (POLISH, *FUSE)),
+        ("Fusion (`map build`)", (POLISH, MIN_OBSERVATIONS, SEEN_THROUGH, *FUSE)),
         ("Checks, search, refinement, verdict and tracking (`localize`)",
          (REGION, *LOCALIZE_TUNING)),
     ]  # fmt: skip

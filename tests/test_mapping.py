@@ -14,7 +14,9 @@ from segloc_cli.maps.fusion import (
     build_global_map,
     fit_segments,
     fuse_segments,
+    fuse_traced,
     mergeable_pairs,
+    observed_map,
     overlapping_duplicates,
     polish_poses,
 )
@@ -256,6 +258,63 @@ def test_build_global_map_checks_its_inputs():
     with pytest.raises(ValueError, match="1 local maps but 2 poses"):
         build_global_map([np.zeros((0, 4))], [Pose2(0, 0, 0), Pose2(1, 0, 0)])
     assert build_global_map([], []).shape == (0, 4)
+
+
+def test_fusion_traces_each_segment_to_the_one_it_went_into():
+    # The four walls 5 cm apart are regrown into two lines (y = 0.025 from the first two,
+    # y = 0.125 from the last two); the lone wall at y = 3 stays as it is; the point of
+    # zero length goes nowhere.
+    walls = np.array([[0.0, y, 4.0, y] for y in (0.0, 0.05, 0.10, 0.15, 3.0)])
+    walls = np.vstack([walls[:2], [[1.0, 1.0, 1.0, 1.0]], walls[2:]])
+    fused, into = fuse_traced(walls)
+    assert fused.shape == (3, 4)
+    assert into[2] == -1
+    assert into[0] == into[1] and into[3] == into[4]
+    assert len({into[0], into[3], into[5]}) == 3
+    assert_same_segment(fused[into[0]], [0.0, 0.025, 4.0, 0.025], atol=1e-12)
+    assert_same_segment(fused[into[3]], [0.0, 0.125, 4.0, 0.125], atol=1e-12)
+    assert_same_segment(fused[into[5]], [0.0, 3.0, 4.0, 3.0])
+    np.testing.assert_array_equal(fused, fuse_segments(walls))
+
+
+def _seen_from(pose: Pose2, segments_world) -> np.ndarray:
+    """World segments (K, 4) as a scanner at ``pose`` sees them: in its frame."""
+    from segloc_cli.geometry import transform_segments
+
+    inverse = Pose2(0.0, 0.0, -pose.theta).compose(Pose2(-pose.x, -pose.y, 0.0))
+    return transform_segments(np.asarray(segments_world, dtype=float), inverse)
+
+
+def test_observed_map_counts_the_poses_each_segment_was_seen_from():
+    # The wall y = 3 is seen from all four scans, in pieces that overlap; a bench from
+    # the first and third; a passer-by from the second only. The first two scans were
+    # taken from one pose (one survey row): together they are one viewpoint.
+    wall, bench, person = [0.0, 3.0, 6.0, 3.0], [1.0, 1.0, 1.0, 2.0], [4.0, 1.5, 4.4, 1.2]
+    poses = [Pose2(2.0, 0.0, 0.3), Pose2(2.0, 0.0, 0.3), Pose2(4.0, 0.5, 1.2), Pose2(5.0, 0.0, 2.0)]
+    seen = [
+        [[0.0, 3.0, 4.0, 3.0], bench],
+        [[1.0, 3.0, 5.0, 3.0], person],
+        [[2.0, 3.0, 6.0, 3.0], bench],
+        [wall],
+    ]
+    local_maps = [_seen_from(pose, s) for pose, s in zip(poses, seen, strict=True)]
+
+    def count_of(segments, counts, target):
+        near = [np.allclose(s, target, atol=1e-9) or np.allclose(s[[2, 3, 0, 1]], target, atol=1e-9)
+                for s in segments]  # fmt: skip
+        assert sum(near) == 1, f"{target} is not in the map once: {segments}"
+        return int(counts[near.index(True)])
+
+    segments, counts = observed_map(local_maps, poses)
+    assert segments.shape == (3, 4)
+    assert [count_of(segments, counts, t) for t in (wall, bench, person)] == [4, 2, 1]
+    np.testing.assert_array_equal(segments, build_global_map(local_maps, poses))
+    by_pose = observed_map(local_maps, poses, viewpoints=np.array([7, 7, 8, 9]))[1]
+    assert [count_of(segments, by_pose, t) for t in (wall, bench, person)] == [3, 2, 1]
+    with pytest.raises(ValueError, match="3 viewpoints for 4 local maps"):
+        observed_map(local_maps, poses, viewpoints=np.array([0, 1, 2]))
+    empty = observed_map([], [])
+    assert empty[0].shape == (0, 4) and empty[1].shape == (0,)
 
 
 def _brute_force_pairs(segs: np.ndarray, params: FuseParams) -> set[tuple[int, int]]:
@@ -518,6 +577,266 @@ def test_a_map_built_from_an_off_centre_scanner_lies_on_the_walls():
     assert np.percentile(mounted, 99) < 0.01, np.percentile(mounted, [50, 99])
     unmounted = built_off_the_walls([replace(s, mount=Pose2(0.0, 0.0, 0.0)) for s in scans])
     assert np.median(unmounted) > 0.1
+
+
+ROOM = np.array([[0, 0, 6, 0], [6, 0, 6, 4], [6, 4, 0, 4], [0, 4, 0, 0]], dtype=float)
+"""A 6 m × 4 m room's walls, world frame."""
+WALKER = np.array([2.5, 2.6, 3.0, 2.6])
+"""A person walking by, seen by one scan only."""
+STANDER = np.array([4.3, 2.9, 4.7, 3.2])
+"""A person standing while the robot takes three scans from two poses."""
+
+
+def _room_with_people():
+    """Noise-free scans of ``ROOM`` with people in it, and their survey: (log, survey).
+
+    Three surveyed poses; the second holds two scans 20 ms apart (both pair with its row).
+    ``WALKER`` is in the first scan only, ``STANDER`` in the last three: the walls are seen
+    from three poses, the stander from two, the walker from one.
+    """
+    from segloc_cli.estimates import PoseTable
+    from segloc_cli.io.log import Log
+    from segloc_cli.sim import NOISE_FREE, simulate_scan
+    from segloc_cli.world import World
+
+    poses = np.array([[1.5, 1.5, 0.0], [3.0, 1.2, 0.5], [4.5, 1.5, -0.3]])
+    shots = [(0.0, 0, WALKER), (1.0, 1, STANDER), (1.02, 1, STANDER), (2.0, 2, STANDER)]
+    rng = np.random.default_rng(0)
+    scans = [simulate_scan(World(np.vstack([ROOM, person])), Pose2(*poses[k]), NOISE_FREE, rng, t)
+             for t, k, person in shots]  # fmt: skip
+    log = Log(scans, np.array([t for t, _, _ in shots]), np.zeros(0), np.zeros((0, 3)), {})
+    return log, PoseTable(np.arange(1, 4), np.array([0.0, 1.0, 2.0]), poses)
+
+
+def _on(segments: np.ndarray, world: np.ndarray) -> np.ndarray:
+    """Index (M,) of the world segment each segment lies on (within 3 cm at both ends)."""
+    from segloc_cli.geometry import point_segment_distances
+
+    ends = np.vstack([segments[:, :2], segments[:, 2:]])
+    d = point_segment_distances(ends, world).reshape(2, len(segments), len(world)).max(axis=0)
+    assert np.all(d.min(axis=1) < 0.03), d
+    return d.argmin(axis=1)
+
+
+@pytest.mark.parametrize(
+    ("min_observations", "kept", "dropped"),
+    [(1, [0, 1, 2, 3, 4, 5], []), (2, [0, 1, 2, 3, 5], [4]), (3, [0, 1, 2, 3], [4, 5])],
+)
+def test_map_build_keeps_the_walls_and_drops_what_few_poses_saw(min_observations, kept, dropped):
+    """Walls seen from three poses stay; a passer-by seen from one pose goes at 2, a person
+    standing through three scans from two poses at 3 (two scans from one pose are one
+    view)."""
+    from dataclasses import replace
+    from pathlib import Path
+
+    from segloc_cli.config import Config
+    from segloc_cli.runs.pipeline import build_map
+
+    log, survey = _room_with_people()
+    config = replace(Config(), fuse=FuseParams(min_observations=min_observations))
+    built = build_map(log, Path("log.mcap"), survey, Path("survey.csv"), config)
+    world = np.vstack([ROOM, WALKER, STANDER])
+    assert sorted(_on(built.segments, world).tolist()) == kept
+    assert sorted(_on(built.dropped, world).tolist()) == dropped
+
+
+def test_map_build_refuses_to_drop_every_segment():
+    from dataclasses import replace
+    from pathlib import Path
+
+    from segloc_cli.config import Config
+    from segloc_cli.errors import InputError
+    from segloc_cli.runs.pipeline import build_map
+
+    log, survey = _room_with_people()
+    config = replace(Config(), fuse=FuseParams(min_observations=4))
+    with pytest.raises(InputError, match="no segment was seen from 4 surveyed poses"):
+        build_map(log, Path("log.mcap"), survey, Path("survey.csv"), config)
+
+
+def _map_builder(tmp_path, capsys, log, survey, range_max_m: float):
+    """``log`` and ``survey`` written into ``tmp_path``, and a function that runs ``segloc map
+    build`` of them with extra options and returns (its stderr, the map file read back)."""
+    import json
+
+    from segloc_cli.cli import main
+    from segloc_cli.io.mcap_log import LogWriter
+    from segloc_cli.io.tables import write_pose_table
+
+    log_path, survey_path = tmp_path / "log.mcap", tmp_path / "survey.csv"
+    with LogWriter(log_path, {"range_max_m": f"{range_max_m:g}"}) as writer:
+        for scan in log.scans:
+            writer.add_scan(scan)
+    write_pose_table(survey_path, survey)
+
+    def build(*options) -> tuple[str, dict]:
+        out = tmp_path / "map.json"
+        main(["map", "build", str(log_path), "--survey", str(survey_path), "--out", str(out),
+              "--force", *options])  # fmt: skip
+        return capsys.readouterr().err, json.loads(out.read_text())
+
+    return build
+
+
+def test_map_build_says_what_it_dropped(tmp_path, capsys):
+    """``--min-observations`` drops what too few poses saw; the summary line and the map
+    file's source say how many segments; without it every segment is kept."""
+    build = _map_builder(tmp_path, capsys, *_room_with_people(), range_max_m=30.0)
+    err, built = build("--min-observations", "3")
+    assert "2 segments (1.0 m) seen from fewer than 3 surveyed poses dropped" in err, err
+    assert len(built["segments"]) == 4
+    assert built["source"]["dropped_segments"] == 2
+    assert built["source"]["fuse"]["min_observations"] == 3
+    err, built = build()
+    assert "dropped" not in err and len(built["segments"]) == 6, err
+    assert built["source"]["dropped_segments"] == 0
+    with pytest.raises(SystemExit) as exc:
+        build("--min-observations", "0")
+    assert exc.value.code == 2
+    assert "--min-observations" in capsys.readouterr().err
+
+
+HALLWAY = np.array([[0, 0, 14, 0], [14, 0, 14, 4], [14, 4, 0, 4], [0, 4, 0, 0]], dtype=float)
+"""A 14 m × 4 m hallway's walls, world frame."""
+PASSER_BY = np.array([8.0, 0.4, 8.0, 1.0])
+"""A person by the south wall, in the first scan only."""
+HALLWAY_POSES = np.array([[12.5, 2.0, 0.0], [5.0, 3.0, 0.0], [4.0, 3.5, 0.0]])
+"""Where the scans are taken: the first near the east end, the later ones 7–9 m west of it,
+beyond the scanner's 8 m reach of the east wall but within reach of the wall behind the
+person."""
+
+
+def _hallway_with_a_passer_by(later_rows: list[int]):
+    """Noise-free scans of ``HALLWAY`` by a scanner reaching 8 m, and their survey: (log,
+    survey). The first scan, from ``HALLWAY_POSES[0]``, sees ``PASSER_BY``; one later scan
+    per entry of ``later_rows`` is taken after they left, from ``HALLWAY_POSES[row]``, and
+    pairs with that survey row (a row listed twice holds two scans)."""
+    from dataclasses import replace
+
+    from segloc_cli.estimates import PoseTable
+    from segloc_cli.io.log import Log
+    from segloc_cli.sim import NOISE_FREE, simulate_scan
+    from segloc_cli.world import World
+
+    sensor = replace(NOISE_FREE, range_max_m=8.0)
+    rows = sorted(set(later_rows))
+    times = [0.0, *(float(row) + 0.02 * later_rows[:k].count(row) for k, row in
+                    enumerate(later_rows))]  # fmt: skip
+    rng = np.random.default_rng(0)
+    worlds = [World(np.vstack([HALLWAY, PASSER_BY])), *[World(HALLWAY)] * len(later_rows)]
+    scans = [simulate_scan(world, Pose2(*HALLWAY_POSES[row]), sensor, rng, t)
+             for world, row, t in zip(worlds, [0, *later_rows], times, strict=True)]  # fmt: skip
+    log = Log(scans, np.array(times), np.zeros(0), np.zeros((0, 3)), {})
+    survey_rows = [0, *rows]
+    survey = PoseTable(
+        np.arange(1, len(survey_rows) + 1),
+        np.array([float(r) for r in survey_rows]),
+        HALLWAY_POSES[survey_rows],
+    )
+    return log, survey
+
+
+@pytest.mark.parametrize(
+    ("later_rows", "passer_by_dropped"),
+    [([1, 2], True), ([1], False), ([1, 1], False)],
+    ids=["seen-through-by-two-poses", "by-one-pose", "by-two-scans-from-one-pose"],
+)
+def test_map_build_drops_what_more_poses_see_through_than_saw(later_rows, passer_by_dropped):
+    """The passer-by, seen from the first pose, goes when two later poses see the wall behind
+    where they stood, and stays when one pose does (one view against one), however many
+    scans it took there. The walls stay, seen through by none: the south wall seen from
+    every pose, and the east wall seen from the first pose only (the later ones are out of
+    reach of it)."""
+    from dataclasses import replace
+    from pathlib import Path
+
+    from segloc_cli.config import Config
+    from segloc_cli.runs.pipeline import build_map
+
+    log, survey = _hallway_with_a_passer_by(later_rows)
+    config = replace(Config(), fuse=FuseParams(seen_through="drop"))
+    built = build_map(log, Path("log.mcap"), survey, Path("survey.csv"), config)
+    world = np.vstack([HALLWAY, PASSER_BY])
+    if passer_by_dropped:
+        assert sorted(_on(built.segments, world).tolist()) == [0, 1, 2, 3]
+        assert _on(built.dropped, world).tolist() == [4]
+        assert built.dropped_seen_through.tolist() == [True]
+    else:
+        assert sorted(_on(built.segments, world).tolist()) == [0, 1, 2, 3, 4]
+        assert built.dropped.shape == (0, 4)
+    kept = build_map(log, Path("log.mcap"), survey, Path("survey.csv"), Config())
+    assert sorted(_on(kept.segments, world).tolist()) == [0, 1, 2, 3, 4]
+
+
+def test_a_segment_goes_when_free_space_over_most_of_its_interior():
+    """The free metres are weighed against the interior, the segment less 6 cm at either end,
+    where a fused end that overshoots a corner would be seen past."""
+    from segloc_cli.maps.carving import free_length, mostly_free
+
+    walls = np.array([[0.0, 0.0, 1.0, 0.0], [0.0, 1.0, 0.3, 1.0], [0.0, 2.0, 0.1, 2.0]])
+    free_m = np.array([0.45, 0.10, 0.0])  # interiors 0.88, 0.18 and none
+    assert mostly_free(walls, free_m, 0.06).tolist() == [True, True, False]
+    assert mostly_free(walls, np.array([0.44, 0.09, 0.0]), 0.06).tolist() == [False] * 3
+    with pytest.raises(ValueError, match="1 viewpoints for 2 scans"):
+        free_length(walls, np.ones(3), [np.zeros((0, 2))] * 2, [Pose2(0, 0, 0)] * 2,
+                    np.array([0]), 0.06, 0.3)  # fmt: skip
+
+
+def test_map_build_refuses_to_drop_every_segment_as_seen_through():
+    """A scan that saw only the passer-by, and two later ones whose beams run on through
+    where they stood, to points 1 m and 2 m behind by turns (too ragged for a segment of
+    their own): nothing would be left."""
+    from dataclasses import replace
+    from pathlib import Path
+
+    from segloc_cli.config import Config
+    from segloc_cli.errors import InputError
+    from segloc_cli.estimates import PoseTable
+    from segloc_cli.io.log import Log
+    from segloc_cli.runs.pipeline import build_map
+    from segloc_cli.scan import Scan
+    from segloc_cli.sim import NOISE_FREE, simulate_scan
+    from segloc_cli.world import World
+
+    poses = HALLWAY_POSES
+    first = simulate_scan(World(PASSER_BY[None]), Pose2(*poses[0]), NOISE_FREE,
+                          np.random.default_rng(0), 0.0)  # fmt: skip
+    later = []
+    for k in (1, 2):
+        through = np.column_stack([np.full(9, 8.0), np.linspace(0.45, 0.95, 9)]) - poses[k, :2]
+        reach = (np.tile([1.0, 2.0], 5)[:9] + 8.0 - poses[k, 0]) / through[:, 0]
+        angles, ranges = np.arctan2(through[:, 1], through[:, 0]), reach * np.hypot(*through.T)
+        later.append(Scan(float(k), angles, ranges, 30.0))
+    log = Log([first, *later], np.array([0.0, 1.0, 2.0]), np.zeros(0), np.zeros((0, 3)), {})
+    survey = PoseTable(np.arange(1, 4), np.array([0.0, 1.0, 2.0]), poses)
+    config = replace(Config(), fuse=FuseParams(seen_through="drop"))
+    with pytest.raises(InputError, match="every segment is seen through"):
+        build_map(log, Path("log.mcap"), survey, Path("survey.csv"), config)
+
+
+def test_map_build_says_what_it_dropped_as_seen_through(tmp_path, capsys):
+    """The summary line says how many segments went, how long, and why, for each reason;
+    the map file's source counts them; a choice --seen-through does not take is refused."""
+    build = _map_builder(tmp_path, capsys, *_hallway_with_a_passer_by([1, 2]), range_max_m=8.0)
+    err, built = build("--seen-through", "drop")
+    note = "; 1 segment (0.6 m) seen through from more surveyed poses than saw them dropped"
+    assert err.rstrip().endswith(note), err
+    assert len(built["segments"]) == 4
+    assert built["source"]["dropped_segments"] == built["source"]["dropped_seen_through"] == 1
+    assert built["source"]["fuse"]["seen_through"] == "drop"
+    # The passer-by and the east wall were seen from one pose: both go for that first.
+    err, built = build("--seen-through", "drop", "--min-observations", "2")
+    assert err.rstrip().endswith(
+        "; 2 segments (4.6 m) seen from fewer than 2 surveyed poses dropped; 0 segments "
+        "(0.0 m) seen through from more surveyed poses than saw them dropped"
+    ), err
+    assert built["source"]["dropped_seen_through"] == 0
+    err, built = build()
+    assert "dropped" not in err and len(built["segments"]) == 5, err
+    with pytest.raises(SystemExit) as exc:
+        build("--seen-through", "maybe")
+    assert exc.value.code == 2
+    assert "--seen-through" in capsys.readouterr().err
 
 
 def _surveyed_room(seed: int, n: int = 24, error_m: float = 0.04, error_deg: float = 0.8):

@@ -51,6 +51,8 @@ BUILD_OPTIONS = (
     ),
     *SCAN_SELECTION,
     setting_option("polish"),
+    setting_option("min-observations"),
+    setting_option("seen-through"),
     setting_option("tolerance-ms", pairing="pairing scans with survey rows"),
     config_option,
     force_option,
@@ -66,7 +68,10 @@ def map_build(log_path, survey_path, out_path, mcap_path, force, **_):
 
     Each scan with a survey row becomes a local map, is placed at its pose and
     fused with the others: nearly collinear segments that overlap or nearly
-    touch become one. Beside OUT goes its run file (OUT.run.toml).
+    touch become one. With --min-observations, segments seen from too few
+    poses are dropped; with --seen-through drop, those that more poses see
+    through than see (people walking by). Beside OUT goes its run file
+    (OUT.run.toml).
     """
     from segloc_cli.io.files import check_outputs
     from segloc_cli.io.maps import bounds_problem, write_map
@@ -93,6 +98,8 @@ def map_build(log_path, survey_path, out_path, mcap_path, force, **_):
     source |= {"scans_used": built.scans_used, "local_segments": built.local_segments}
     if not selection.whole:
         source["scans_selected"] = f"{selected.size} ({selection.options_text()})"
+    source |= {"dropped_segments": int(built.dropped.shape[0])}
+    source |= {"dropped_seen_through": int(built.dropped_seen_through.sum())}
     source |= {"extract": asdict(run.config.extract), "fuse": asdict(run.config.fuse)}
     write_map(out_path, built.segments, source=source)
     run.write_run_file(out_path)
@@ -103,7 +110,31 @@ def map_build(log_path, survey_path, out_path, mcap_path, force, **_):
         f"{out_path}: {built.segments.shape[0]} segments fused from {built.local_segments} "
         f"local segments of {built.scans_used} scans ({selected.size - built.scans_used} "
         f"{'selected ' if not selection.whole else ''}scans had no survey row)"
+        f"{_dropped_note(built, run.config.fuse)}"
     )
+
+
+def _dropped_note(built, fuse) -> str:
+    """What ``map build`` left out of ``built`` (a ``BuiltMap``), as the end of its summary
+    line: how many fused segments, how long, and why, under the settings ``fuse``."""
+    from segloc_cli.geometry import segment_lengths
+
+    def note(segments, why: str) -> str:
+        count = segments.shape[0]
+        return (
+            f"; {count} segment{'' if count == 1 else 's'} "
+            f"({segment_lengths(segments).sum():.1f} m) {why} dropped"
+        )
+
+    through = built.dropped_seen_through
+    notes = ""
+    if fuse.min_observations > 1:
+        notes += note(
+            built.dropped[~through], f"seen from fewer than {fuse.min_observations} surveyed poses"
+        )
+    if fuse.seen_through == "drop":
+        notes += note(built.dropped[through], "seen through from more surveyed poses than saw them")
+    return notes
 
 
 def _write_build_view(mcap_path: Path, log, built, metadata: dict[str, str]) -> None:

@@ -218,29 +218,32 @@ def overlapping_duplicates(
     return i[overlapping], j[overlapping]
 
 
-def _regrow(segments: np.ndarray, params: FuseParams) -> list[np.ndarray]:
-    """Segments (K, 4) of a group that no one line fits → one fitted segment per line they hold.
+def _regrow(segments: np.ndarray, params: FuseParams) -> tuple[np.ndarray, np.ndarray]:
+    """Segments (K, 4) of a group that no one line fits → one fitted segment per line they
+    hold (L, 4), and the line each segment joined (K,).
 
     Starts from the longest segment and adds every segment that lies on the
     current line and is within ``gap_m`` of its extent, refitting after each
     step; what never joins seeds the next line.
     """
-    lines = []
-    remaining = segments[np.argsort(-segment_lengths(segments), kind="stable")]
-    while remaining.shape[0]:
+    lines: list[np.ndarray] = []
+    line_of = np.empty(segments.shape[0], dtype=np.int64)
+    remaining = np.argsort(-segment_lengths(segments), kind="stable")
+    while remaining.size:
         members = remaining[:1]
         remaining = remaining[1:]
-        line = members[0]
-        while remaining.shape[0]:
-            on, gap = _lies_on(line, remaining, params)
+        line = segments[members[0]]
+        while remaining.size:
+            on, gap = _lies_on(line, segments[remaining], params)
             join = on & (gap <= params.gap_m)
             if not join.any():
                 break
             members = np.concatenate([members, remaining[join]])
             remaining = remaining[~join]
-            line = fit_segments(members)
+            line = fit_segments(segments[members])
+        line_of[members] = len(lines)
         lines.append(line)
-    return lines
+    return np.array(lines), line_of
 
 
 def _gaps(start, direction, length, p, q) -> np.ndarray:
@@ -267,8 +270,11 @@ def _components(n: int, i: np.ndarray, j: np.ndarray) -> np.ndarray:
         labels = updated
 
 
-def _fuse_groups(segments: np.ndarray, labels: np.ndarray, params: FuseParams) -> np.ndarray:
-    """Segments (M, 4) with group labels (M,) → one or more segments per group, in group order.
+def _fuse_groups(
+    segments: np.ndarray, labels: np.ndarray, params: FuseParams
+) -> tuple[np.ndarray, np.ndarray]:
+    """Segments (M, 4) with group labels (M,) → one or more segments per group, in group order,
+    and the one each segment went into (M,).
 
     A lone segment is kept as it is; a group whose members all lie on their
     length-weighted fit becomes that fit; any other group is regrown.
@@ -281,13 +287,21 @@ def _fuse_groups(segments: np.ndarray, labels: np.ndarray, params: FuseParams) -
     consistent = np.bincount(group, ~on, n_groups) == 0
     lines[size == 1] = segments[first[size == 1]]
     out, out_group = [lines[consistent]], [np.flatnonzero(consistent)]
-    order = np.argsort(group, kind="stable")
-    members = np.split(segments[order], np.cumsum(size)[:-1])
+    # Where each segment goes among the pieces of ``out``, before they are put in group order.
+    slot = np.cumsum(consistent) - 1
+    went = slot[group]
+    n_out = int(consistent.sum())
+    members = np.split(np.argsort(group, kind="stable"), np.cumsum(size)[:-1])
     for g in np.flatnonzero(~consistent):
-        regrown = _regrow(members[g], params)
-        out.append(np.array(regrown))
+        regrown, line_of = _regrow(segments[members[g]], params)
+        out.append(regrown)
         out_group.append(np.full(len(regrown), g))
-    return np.concatenate(out)[np.argsort(np.concatenate(out_group), kind="stable")]
+        went[members[g]] = n_out + line_of
+        n_out += len(regrown)
+    order = np.argsort(np.concatenate(out_group), kind="stable")
+    rank = np.empty_like(order)
+    rank[order] = np.arange(order.size)
+    return np.concatenate(out)[order], rank[went]
 
 
 def fuse_segments(
@@ -300,19 +314,31 @@ def fuse_segments(
     loses at least one member (the longest one absorbs its partners), so the
     loop ends. Each round is a step of ``progress``.
     """
+    return fuse_traced(segments_world, params, progress)[0]
+
+
+def fuse_traced(
+    segments_world: np.ndarray, params: FuseParams | None = None, progress: Progress = SILENT
+) -> tuple[np.ndarray, np.ndarray]:
+    """``fuse_segments`` of segments (K, 4), and the index of the fused segment each of them
+    went into (K,), −1 for those of zero length (left out)."""
     params = params or FuseParams()
     segments = np.asarray(segments_world, dtype=float).reshape(-1, 4)
-    segments = segments[segment_lengths(segments) > 0]
+    into = np.full(segments.shape[0], -1, dtype=np.int64)
+    kept = np.flatnonzero(segment_lengths(segments) > 0)
+    into[kept] = np.arange(kept.size)
+    segments = segments[kept]
     while segments.shape[0] > 1:
         i, j = mergeable_pairs(segments, params)
         if i.size == 0:
             break
-        fused = _fuse_groups(segments, _components(segments.shape[0], i, j), params)
+        fused, went = _fuse_groups(segments, _components(segments.shape[0], i, j), params)
         if fused.shape[0] == segments.shape[0]:
             break  # cannot happen (see above); guards against an endless loop
         segments = fused
+        into[kept] = went[into[kept]]
         progress.advance()
-    return segments
+    return segments, into
 
 
 def build_global_map(
@@ -323,12 +349,42 @@ def build_global_map(
 ) -> np.ndarray:
     """Global map (M, 4), world frame, from local maps (robot frame) observed at ``poses``;
     ``progress`` counts the rounds of fusion."""
+    return observed_map(local_maps, poses, params, progress)[0]
+
+
+def observed_map(
+    local_maps: list[np.ndarray],
+    poses: list[Pose2],
+    params: FuseParams | None = None,
+    progress: Progress = SILENT,
+    viewpoints: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """``build_global_map``, and from how many viewpoints each of its segments was seen (M,).
+
+    A segment's count is the number of distinct ``viewpoints`` labels (S,), one per local
+    map, among the local maps that have a segment fused into it; by default every local
+    map is a viewpoint of its own. Scans taken from one surveyed pose share a label, so a
+    robot standing still does not see a passer-by standing with it many times over.
+    """
     if len(local_maps) != len(poses):
         raise ValueError(f"{len(local_maps)} local maps but {len(poses)} poses")
+    labels = np.arange(len(poses)) if viewpoints is None else np.asarray(viewpoints)
+    if labels.shape != (len(poses),):
+        raise ValueError(f"{labels.size} viewpoints for {len(poses)} local maps")
     if not local_maps:
-        return np.zeros((0, 4))
+        return np.zeros((0, 4)), np.zeros(0, dtype=np.int64)
     world = [transform_segments(lm, pose) for lm, pose in zip(local_maps, poses, strict=True)]
-    return fuse_segments(np.concatenate(world), params, progress)
+    segments, into = fuse_traced(np.concatenate(world), params, progress)
+    seen_from = np.repeat(labels, [w.shape[0] for w in world])
+    fused = into >= 0
+    return segments, distinct_viewpoints(into[fused], seen_from[fused], segments.shape[0])
+
+
+def distinct_viewpoints(segment: np.ndarray, viewpoint: np.ndarray, n: int) -> np.ndarray:
+    """How many distinct viewpoints each of ``n`` segments has (n,), from sightings: pairs
+    of a segment index (K,) and a viewpoint label (K,), repeats allowed."""
+    pairs = np.unique(np.column_stack([segment, viewpoint]).reshape(-1, 2), axis=0)
+    return np.bincount(pairs[:, 0], minlength=n)
 
 
 def polish_poses(

@@ -415,12 +415,16 @@ def check_global_extent(
 @dataclass(frozen=True)
 class BuiltMap:
     """A segment map (M, 4), world frame, and what it was made of: the log's scans with a
-    survey row (their indices), each one's surveyed pose and its local map (robot frame)."""
+    survey row (their indices), each one's surveyed pose and its local map (robot frame);
+    ``dropped`` (D, 4) holds the fused segments left out: seen through from more poses than
+    saw them where ``dropped_seen_through`` (D,) is True, else seen from too few poses."""
 
     segments: np.ndarray
     scan_index: np.ndarray
     poses: list[Pose2]
     local_maps: list[np.ndarray]
+    dropped: np.ndarray
+    dropped_seen_through: np.ndarray
 
     @property
     def scans_used(self) -> int:
@@ -442,10 +446,15 @@ def build_map(
 ) -> BuiltMap:
     """Fuse the local maps of the scans ``selected`` (indices in log order; None: every scan)
     that have a survey row, each placed at its pose (after ``config.fuse.polish_rounds``
-    rounds of ``maps.fusion.polish_poses``, if any; ``BuiltMap.poses`` holds the poses used);
-    the extraction (scans), polishing and fusion (rounds) report to ``progress``."""
-    from segloc_cli.maps.fusion import build_global_map, polish_poses
+    rounds of ``maps.fusion.polish_poses``, if any; ``BuiltMap.poses`` holds the poses used),
+    and keep the segments seen from at least ``config.fuse.min_observations`` survey rows
+    and, unless ``config.fuse.seen_through`` is "keep", not seen through from more survey
+    rows than saw them (``maps.carving``); the extraction (scans), polishing, fusion (rounds)
+    and carving (one pass) report to ``progress``."""
+    from segloc_cli.maps.carving import free_length, mostly_free
+    from segloc_cli.maps.fusion import observed_map, polish_poses
     from segloc_cli.method.extract import extract_segments
+    from segloc_cli.method.freespace import SHORTEN_M
 
     times = log.scan_times_s
     selected = np.arange(times.size) if selected is None else selected
@@ -472,15 +481,39 @@ def build_map(
             local_maps.append(extract_segments(log.scans[i], config.extract))
             shown.advance()
     poses = [Pose2(*survey.poses[rows[i]]) for i in used]
+    carve = config.fuse.seen_through == "drop"
+    points = [log.scans[i].points() for i in used] if config.fuse.polish_rounds or carve else []
     if config.fuse.polish_rounds:
-        points = [log.scans[i].points() for i in used]
         with progress("polishing poses", config.fuse.polish_rounds, "round") as shown:
             poses = polish_poses(local_maps, points, poses, config.fuse, shown)
     with progress("fusing segments", None, "round") as shown:
-        segments = build_global_map(local_maps, poses, config.fuse, shown)
+        segments, seen = observed_map(local_maps, poses, config.fuse, shown, rows[used])
     if segments.shape[0] == 0:
         raise InputError("no segments could be extracted from the surveyed scans", path=log_path)
-    return BuiltMap(segments, used, poses, local_maps)
+    kept = seen >= config.fuse.min_observations
+    if not kept.any():
+        raise InputError(
+            f"no segment was seen from {config.fuse.min_observations} surveyed poses; lower "
+            "--min-observations",
+            path=log_path,
+        )
+    through = np.zeros_like(kept)
+    if carve:
+        with progress("carving free space", None, "pass") as shown:
+            margin_m = config.fuse.offset_m
+            free_m = free_length(segments, seen, points, poses, rows[used], margin_m, SHORTEN_M)
+            through = kept & mostly_free(segments, free_m, margin_m)
+            shown.advance()
+    if not (kept & ~through).any():
+        raise InputError(
+            "every segment is seen through from more surveyed poses than saw it; check the "
+            "survey's poses, or keep them with --seen-through keep",
+            path=log_path,
+        )
+    return BuiltMap(
+        segments[kept & ~through], used, poses, local_maps, segments[~kept | through],
+        through[~kept | through],
+    )  # fmt: skip
 
 
 def read_plan(
