@@ -254,3 +254,38 @@ def test_an_off_centre_scanner_s_scans_localize_the_robot(refined):
             extract_segments(scan), guess, scan.points() if refined else None
         ).pose
         assert np.hypot(unmounted.x - robot.x, unmounted.y - robot.y) > 0.2
+
+
+@pytest.mark.parametrize("guided", [True, False], ids=["guided", "global"])
+@pytest.mark.parametrize("poor", ["two readings", "one ray", "nineteen readings", "sparse"])
+def test_a_scan_too_poor_to_pin_a_pose_gets_no_confidence(poor, guided):
+    """The pose found for such a scan stays in its row, untrusted: no probability of being
+    the right place beside it (the model gave 0.92 for nineteen readings), nor beside its
+    other hypotheses."""
+    world, truth, scan = _room_and_scan()
+    valid = np.flatnonzero(scan.valid)
+    scans = {
+        "two readings": _readings(scan, valid[[100, 400]]),
+        "one ray": Scan(0.0, np.zeros(len(scan)), scan.ranges_m, scan.range_max_m),
+        "nineteen readings": _readings(scan, valid[:19]),
+        "sparse": _readings(scan, valid[::100]),
+    }
+    localizer = Localizer.on_map(world.segments, global_search=True)
+    guesses = [_near(truth)] if guided else None
+    (row,) = localize_scans([scans[poor]], guesses, [0], localizer)
+    assert row["status"] == STATUS_TOO_FEW_SEGMENTS
+    assert np.isfinite(row["x_m"]), "the pose found is kept for the user to see"
+    assert np.isnan(row["confidence"])
+    assert row["hypotheses"] and all(np.isnan(h["confidence"]) for h in row["hypotheses"])
+
+
+def test_one_wall_seen_alone_gets_no_confidence_nor_does_a_tracked_poor_scan():
+    wall = np.column_stack([np.linspace(-3.0, 3.0, 200), np.full(200, 2.0)])
+    local = np.array([[-3.0, 2.0, -1.0, 2.0], [-1.0, 2.0, 1.0, 2.0], [1.0, 2.0, 3.0, 2.0]])
+    est = Localizer.on_map(MAP).localize(local, Pose2(0.0, 0.0, 0.0), wall)
+    assert est.status == STATUS_TOO_FEW_SEGMENTS and np.isnan(est.confidence)
+    world, truth, scan = _room_and_scan()
+    sparse = _readings(scan, np.flatnonzero(scan.valid)[::100])
+    rows = list(track_scans([scan, sparse], [truth, truth], _near(truth), [0, 1],
+                            Localizer.on_map(world.segments)))  # fmt: skip
+    assert rows[1]["status"] == STATUS_TOO_FEW_SEGMENTS and np.isnan(rows[1]["confidence"])

@@ -293,8 +293,7 @@ class Localizer:
             segments_robot, initial, points_robot, enough, robust, searching, own_points
         )
         if degenerate or not enough:
-            # Whatever was found stays in the row for the user to see, but is not trusted.
-            est = replace(est, status=STATUS_TOO_FEW_SEGMENTS)
+            est = untrusted(est)
         return est
 
     def _localize(
@@ -367,7 +366,7 @@ class Localizer:
             heading = float(peaks[0]) if peaks.size else heading
         est = self._judged(seeds, points_robot, heading, 0.0, n_local, None, own_points)
         if degenerate or not enough:
-            est = replace(est, status=STATUS_TOO_FEW_SEGMENTS)
+            est = untrusted(est)
         return est
 
     def _checked_by_points(self, est: Estimate, points_robot: np.ndarray) -> Estimate:
@@ -496,6 +495,19 @@ class Localizer:
             if distinct([k.pose for k in kept], fit.pose, apart.distinct_m, apart.distinct_deg):
                 kept.append(fit)
         return kept
+
+
+def untrusted(est: Estimate) -> Estimate:
+    """``est`` of a scan that cannot pin a pose (``STATUS_TOO_FEW_SEGMENTS``): whatever was
+    found stays for the user to see, untrusted, so with no confidence, its own or its
+    hypotheses' (a probability of being the right place beside it would say otherwise)."""
+    nan = float("nan")
+    return replace(
+        est,
+        status=STATUS_TOO_FEW_SEGMENTS,
+        confidence=nan,
+        hypotheses=tuple(replace(h, confidence=nan) for h in est.hypotheses),
+    )
 
 
 def estimate_row(

@@ -32,6 +32,7 @@ from segloc_cli.method.localize import (
     Localizer,
     estimate_row,
     scan_is_degenerate,
+    untrusted,
     usable_points,
 )
 from segloc_cli.method.refine import inlier_ratio, refine_pose
@@ -97,7 +98,8 @@ def track_scans(
         # The first guess may be rough: only its overlap is checked, not the jump.
         scale = 1.0 if previous is not None else np.inf
         if scan_is_degenerate(points, local, p):
-            status = STATUS_TOO_FEW_SEGMENTS  # the guess carries on, as for a lost scan
+            est = untrusted(est)
+            status = est.status  # the guess carries on, as for a lost scan
         elif status in (STATUS_OK, STATUS_NO_OVERLAP) and not _accepted(est, guess, track, scale):
             factor = track.widen ** min(lost_in_a_row + 1, track.max_widenings)
             wide = widened(factor)
