@@ -13,6 +13,7 @@ import signal
 import sys
 
 from segloc_cli.errors import EXIT_INTERRUPTED
+from segloc_cli.wording import said
 
 
 def main() -> None:
@@ -24,7 +25,7 @@ def main() -> None:
     try:
         from segloc_cli.cli import main as run
     except KeyboardInterrupt:
-        sys.stderr.write("segloc: interrupted\n")
+        sys.stderr.write(said("interrupted") + "\n")
         sys.exit(EXIT_INTERRUPTED)
     run()
 

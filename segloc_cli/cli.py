@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import sys
 import time
+import warnings
 
 import click
 
@@ -27,6 +28,7 @@ from segloc_cli.errors import (
     EXIT_INTERRUPTED,
     SeglocError,
 )
+from segloc_cli.wording import said
 
 """An unexpected error (a bug): one line, and the traceback in a file it names (sysexits'
 EX_SOFTWARE)."""
@@ -112,45 +114,54 @@ def main(argv: list[str] | None = None) -> None:
     error (its traceback kept in a file the line names), 130 interrupted.
     """
     try:
-        cli.main(args=argv, prog_name="segloc", standalone_mode=False)
+        with warnings.catch_warnings():
+            warnings.showwarning = _show_warning
+            cli.main(args=argv, prog_name="segloc", standalone_mode=False)
     except BrokenPipeError:
         # The reader of our output went away (e.g. `| head`): nothing left to say.
         sys.stderr.close()
         sys.exit(EXIT_BAD_INPUT)
     except (click.exceptions.Abort, KeyboardInterrupt, Exception) as exc:
         line, code = _error_line(exc)
-        click.echo(line, err=True)
+        click.echo(said(line), err=True)
         sys.exit(code)
 
 
+def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    """A Python warning raised inside a command (a library's, or numpy's), in one line of
+    segloc's own: its kind and text, without the source line Python would show."""
+    text = _one_line(str(message))
+    click.echo(said(f"warning: {category.__name__}: {text}"), err=True)
+
+
 def _error_line(exc: BaseException) -> tuple[str, int]:
-    """The one line an error prints, and the exit status it gives."""
+    """The one line an error prints (after ``segloc:``), and the exit status it gives."""
     # Click turns Ctrl-C (and SIGTERM or SIGHUP, which the entry point makes alike) into Abort.
     if isinstance(exc, (click.exceptions.Abort, KeyboardInterrupt)):
-        return "segloc: interrupted", EXIT_INTERRUPTED
+        return "interrupted", EXIT_INTERRUPTED
     if isinstance(exc, click.ClickException):
         no_args = getattr(click.exceptions, "NoArgsIsHelpError", None)  # click >= 8.2
         if no_args is not None and isinstance(exc, no_args):
             message = f"missing command; run '{exc.ctx.command_path} --help' to list them"
         else:
             message = exc.format_message()
-        return f"segloc: error: {_one_line(message)}", EXIT_BAD_INPUT if exc.exit_code else 0
+        return f"error: {_one_line(message)}", EXIT_BAD_INPUT if exc.exit_code else 0
     if isinstance(exc, SeglocError):
-        return f"segloc: error: {_one_line(exc)}", EXIT_BAD_INPUT
+        return f"error: {_one_line(exc)}", EXIT_BAD_INPUT
     if isinstance(exc, OSError):
         where = f"{exc.filename}: " if exc.filename else ""
-        return f"segloc: error: {where}{_one_line(exc.strerror or exc)}", EXIT_BAD_INPUT
+        return f"error: {where}{_one_line(exc.strerror or exc)}", EXIT_BAD_INPUT
     if isinstance(exc, (RecursionError, OverflowError, MemoryError)):
         return (
-            f"segloc: error: the input is too large or too deeply nested to read "
+            f"error: the input is too large or too deeply nested to read "
             f"({type(exc).__name__}); check the files given",
             EXIT_BAD_INPUT,
         )
     if _interrupted(exc):
-        return "segloc: interrupted", EXIT_INTERRUPTED
+        return "interrupted", EXIT_INTERRUPTED
     where = _report_internal_error(exc)
     return (
-        f"segloc: internal error: {type(exc).__name__}: {_one_line(exc)} "
+        f"internal error: {type(exc).__name__}: {_one_line(exc)} "
         f"(a bug in segloc; the traceback is in {where}, please report it)",
         EXIT_INTERNAL_ERROR,
     )

@@ -34,6 +34,8 @@ from numba import njit as _numba_njit
 from numba import prange  # noqa: F401  (the kernels take it from here, beside njit)
 from numba.core import event
 
+from segloc_cli.wording import said
+
 if "NUMBA_THREADING_LAYER" not in os.environ:
     numba.config.THREADING_LAYER = "workqueue"  # type: ignore[attr-defined]
 
@@ -79,12 +81,15 @@ def _say_uncached() -> None:
     if _said_uncached:
         return
     _said_uncached = True
-    print(
-        "segloc: numba can write no cache for the compiled kernels here (not beside the "
+    _say(
+        "numba can write no cache for the compiled kernels here (not beside the "
         "segloc_cli package nor in the user's cache folder), so each run compiles the ones "
-        "it uses; set NUMBA_CACHE_DIR to a writable folder to keep them",
-        file=sys.stderr,
+        "it uses; set NUMBA_CACHE_DIR to a writable folder to keep them"
     )
+
+
+def _say(message: str) -> None:
+    print(said(message), file=sys.stderr)
 
 
 class _FirstCompile(event.Listener):
@@ -112,7 +117,7 @@ class _FirstCompile(event.Listener):
                 f"once, about {FIRST_COMPILE_S} s; later runs load them from numba's cache "
                 f"(`python -m {AHEAD_MODULE}` compiles them ahead)"
             )
-        print(f"segloc: compiling segloc's kernels {said}", file=sys.stderr)
+        _say(f"compiling segloc's kernels {said}")
 
     def on_end(self, ev: event.Event) -> None:
         pass

@@ -9,16 +9,22 @@ Work that ends sooner shows nothing. The rate and the time left leave the first 
 it may include compiling the kernels or reading a map, which the steps after it do not.
 The library functions take a ``Progress`` (or a ``ProgressFactory`` for several stretches)
 and default to showing nothing, so they print only when a command asks.
+
+Every line and the bar start with ``segloc:`` (``wording.said``), as all of segloc's lines on
+standard error do. Work whose steps end in outcomes worth watching counts them beside the
+rate (``tally``: a track's lost and recovered scans).
 """
 
 from __future__ import annotations
 
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping, Sequence
 from typing import IO
 
 from tqdm import tqdm
+
+from segloc_cli.wording import counted, plural, said
 
 SHOW_AFTER_S = 2.0
 """Work that ends sooner than this (s) shows no progress."""
@@ -44,6 +50,8 @@ class Progress:
     ):
         self.what, self.total, self.unit = what, total, unit
         self.done = 0
+        self.tallies: dict[str, int] = {}
+        """Steps by outcome, of the outcomes ``tally`` named, in its order."""
         self._stream = sys.stderr if stream is None else stream
         self._terminal = _is_terminal(self._stream) if terminal is None else terminal
         self._started = time.monotonic()
@@ -56,7 +64,7 @@ class Progress:
         if self._terminal:
             self._bar = tqdm(
                 total=total,
-                desc=what,
+                desc=said(what),
                 unit=unit,
                 file=self._stream,
                 delay=SHOW_AFTER_S,
@@ -71,9 +79,20 @@ class Progress:
     def __exit__(self, *_exc: object) -> None:
         self.close()
 
-    def advance(self, steps: int = 1) -> None:
-        """``steps`` more steps are done."""
+    def tally(self, outcomes: Sequence[str]) -> Progress:
+        """Count the steps that end in each of ``outcomes`` (``advance``'s ``outcome``) and
+        show the counts, zeros too, beside the rate; returns this progress."""
+        self.tallies = dict.fromkeys(outcomes, 0)
+        self._show_tallies()
+        return self
+
+    def advance(self, steps: int = 1, outcome: str | None = None) -> None:
+        """``steps`` more steps are done, ending in ``outcome`` (counted if ``tally`` named
+        it)."""
         self.done += steps
+        if outcome in self.tallies:
+            self.tallies[outcome] += steps
+            self._show_tallies()
         now = time.monotonic()
         first = self._first is None
         if first:
@@ -86,6 +105,10 @@ class Progress:
         if now >= self._next_line:
             self._write_line(now)
             self._next_line = now + PLAIN_EVERY_S
+
+    def _show_tallies(self) -> None:
+        if self._bar is not None and self.tallies:
+            self._bar.set_postfix_str(tallies_text(self.tallies), refresh=False)
 
     def _count_from_here(self, now: float) -> None:
         """Have the bar's rate count from the end of the first step: tqdm's average rate is
@@ -109,7 +132,9 @@ class Progress:
     def _write_line(self, now: float) -> None:
         first_done, first_at = self._first or (0, self._started)
         rate = (self.done - first_done) / (now - first_at) if now > first_at else 0.0
-        line = plain_line(self.what, self.done, self.total, self.unit, now - self._started, rate)
+        line = plain_line(
+            self.what, self.done, self.total, self.unit, now - self._started, rate, self.tallies
+        )
         self._stream.write(line + "\n")
         self._stream.flush()
         self._lines += 1
@@ -123,10 +148,12 @@ def plain_line(
     unit: str,
     elapsed_s: float,
     rate: float | None = None,
+    tallies: Mapping[str, int] | None = None,
 ) -> str:
     """``segloc: localizing: 30/100 scans (30%), 2.4 scans/s, 00:28 left``: the line
     written where no bar can be drawn (an unknown total gives the time so far instead);
-    ``rate`` in steps per second, by default ``done`` over ``elapsed_s`` (0: not known)."""
+    ``rate`` in steps per second, by default ``done`` over ``elapsed_s`` (0: not known);
+    ``tallies``, steps by outcome, follow ("; 2 lost, 1 recovered")."""
     if rate is None:
         rate = done / elapsed_s if elapsed_s > 0 else 0.0
     speed = (
@@ -134,9 +161,20 @@ def plain_line(
     )
     if total:
         left = tqdm.format_interval((total - done) / rate) if rate > 0 else "?"
-        return f"segloc: {what}: {done}/{total} {unit}s ({done / total:.0%}), {speed}, {left} left"
-    units = unit if done == 1 else f"{unit}s"
-    return f"segloc: {what}: {done} {units}, {speed}, {tqdm.format_interval(elapsed_s)} so far"
+        line = (
+            f"{what}: {done}/{total} {plural(total, unit)} ({done / total:.0%}), {speed}, "
+            f"{left} left"
+        )
+    else:
+        line = f"{what}: {counted(done, unit)}, {speed}, {tqdm.format_interval(elapsed_s)} so far"
+    if tallies:
+        line += f"; {tallies_text(tallies)}"
+    return said(line)
+
+
+def tallies_text(tallies: Mapping[str, int]) -> str:
+    """Steps by outcome in words: "2 lost, 1 recovered"."""
+    return ", ".join(f"{n} {outcome}" for outcome, n in tallies.items())
 
 
 class _Silent(Progress):
@@ -144,9 +182,13 @@ class _Silent(Progress):
 
     def __init__(self) -> None:
         self.what, self.total, self.unit, self.done = "", None, "", 0
+        self.tallies = {}
 
-    def advance(self, steps: int = 1) -> None:
+    def advance(self, steps: int = 1, outcome: str | None = None) -> None:
         pass
+
+    def tally(self, outcomes: Sequence[str]) -> Progress:
+        return self
 
     def close(self) -> None:
         pass

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from segloc_cli.errors import InputError
+from segloc_cli.timing import readable_span
 
 SELECTION_KEYS = ("start", "end", "every", "scans")
 """The options that select scans, by the key a configuration file gives them."""
@@ -75,11 +76,15 @@ class ScanSelection:
 
 
 def span_line(times_s: np.ndarray) -> str:
-    """How long a log's scans span, and what ``--start`` and ``--end`` count from."""
+    """How long a log's scans span, and what ``--start`` and ``--end`` count from; then, where
+    the seconds do not say it readily, the span in minutes or hours and the dates of Unix
+    times (``timing.readable_span``)."""
     times_s = np.asarray(times_s, dtype=float)
     if times_s.size == 0:
         return "no scans"
-    return (
+    line = (
         f"{np.ptp(times_s):.3f} s from the first scan at {times_s.min():.3f} s "
         "(--start and --end count seconds from it)"
     )
+    readable = readable_span(times_s)
+    return line if readable is None else f"{line}; {readable}"

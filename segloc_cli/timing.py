@@ -4,9 +4,12 @@ refused, naming the rows, rather than decided silently."""
 
 from __future__ import annotations
 
+from datetime import UTC, datetime
+
 import numpy as np
 
 from segloc_cli.errors import InputError
+from segloc_cli.wording import with_article
 
 
 def nearest_by_time(query_times_s, ref_times_s, tolerance_s: float) -> np.ndarray:
@@ -119,7 +122,8 @@ def pair_by_time(
         raise _located_error(
             ref_path,
             _numbered(ref_label, rows),
-            f"{verb} time {t_ref:.3f} s, so a {query_label} at {query[q]:.3f} s matches more "
+            f"{verb} time {t_ref:.3f} s, so {with_article(query_label)} at {query[q]:.3f} s "
+            "matches more "
             f"than one {ref_label}; give every {ref_label} a distinct time{hint}",
         )
 
@@ -146,3 +150,37 @@ def time_range(times_s) -> str:
     if times_s.size == 0:
         return "none"
     return f"{times_s.min():.3f}–{times_s.max():.3f} s"
+
+
+UNIX_TIMES_FROM_S = 1e8
+"""Times from this on (1973-03-03 UTC) are taken for Unix times and also shown as dates;
+smaller ones count from some start (a simulated log, a corrected log's relative times)."""
+
+
+def duration_text(seconds: float) -> str:
+    """A length of time for people: ``9.0 s``, ``29 min 43 s``, ``2 h 05 min``."""
+    if seconds < 60.0:
+        return f"{seconds:.1f} s"
+    whole = round(seconds)
+    if whole < 3600:
+        return f"{whole // 60} min {whole % 60:02d} s"
+    return f"{whole // 3600} h {whole % 3600 // 60:02d} min"
+
+
+def readable_span(times_s) -> str | None:
+    """How long some times span, first to last, where their seconds alone do not say it
+    readily: in minutes or hours from a minute on (``29 min 43 s``), with the dates of Unix
+    times in UTC (``2005-12-19 10:12:40 to 10:42:23 UTC``); None for a short span of times
+    counted from some start, or for no times."""
+    times_s = np.asarray(times_s, dtype=float)
+    times_s = times_s[np.isfinite(times_s)]
+    if times_s.size == 0:
+        return None
+    first, last = float(times_s.min()), float(times_s.max())
+    parts = [duration_text(last - first)] if last - first >= 60.0 else []
+    if first >= UNIX_TIMES_FROM_S:
+        start, end = (datetime.fromtimestamp(t, UTC) for t in (first, last))
+        same_day = end.date() == start.date()
+        shown_end = end.strftime("%H:%M:%S" if same_day else "%Y-%m-%d %H:%M:%S")
+        parts.append(f"{start:%Y-%m-%d %H:%M:%S} to {shown_end} UTC")
+    return ", ".join(parts) or None

@@ -690,6 +690,32 @@ def test_info_counts_scans(hall):
     assert re.search(r"\b1024 readings\b", scan_lines[0]), scan_lines[0]
 
 
+def test_info_shows_how_long_a_log_lasts(hall, tmp_path, capsys):
+    result = run_cli(capsys, "info", hall.log)
+    assert result.code == 0, result.err
+    # Nine seconds from 1 s on: the seconds say it all.
+    assert (
+        "length:    9.000 s from the first scan at 1.000 s (--start and --end count seconds "
+        "from it)"
+    ) in result.out.splitlines(), result.out
+    # A log on Unix times (a recording, an imported bag): its length and its dates, in UTC.
+    scans = read_log(hall.log).scans
+    start = 1_134_962_360.5  # 2005-12-19 03:19:20.5 UTC
+    recorded = tmp_path / "recorded.mcap"
+    with LogWriter(recorded, {"range_max_m": "30"}) as writer:
+        for k, seconds in enumerate((0.0, 15.0, 1783.0)):
+            scan = scans[k]
+            writer.add_scan(Scan(start + seconds, scan.angles_rad, scan.ranges_m, 30.0))
+    result = run_cli(capsys, "info", recorded)
+    assert result.code == 0, result.err
+    lines = result.out.splitlines()
+    assert (
+        "length:    1783.000 s from the first scan at 1134962360.500 s (--start and --end count "
+        "seconds from it); 29 min 43 s, 2005-12-19 03:19:20 to 03:49:03 UTC"
+    ) in lines, result.out
+    assert any(line.startswith("/scan:     3 scans, ") for line in lines), result.out
+
+
 HELP_CASES = {
     "simulate": [
         "--poses",
@@ -765,8 +791,8 @@ def test_interrupted_localize_keeps_the_scans_already_done(small, tmp_path, caps
     result = run_cli(capsys, "localize", small.log, "--map", HALL_WORLD, "--out", out)
     assert result.code == 130
     assert result.err.strip().splitlines() == [
-        f"{small.log}: each scan alone (the log's /odom holds simulated initial guesses, "
-        "not odometry)",
+        f"segloc: {small.log}: each scan alone (the log's /odom holds simulated initial "
+        "guesses, not odometry)",
         f"segloc: interrupted (Ctrl-C) after 2 of 3 scans; their estimates are in {out}",
     ]
     header, rows = read_csv_rows(out)
@@ -806,6 +832,31 @@ def test_evaluate_relations_scores_relative_motion(tmp_path, capsys):
     assert (summary["used"], summary["skipped"]) == (2, 1)
     assert summary["trans_m"]["mean"] == pytest.approx(0.05, abs=1e-12)
     assert summary["rot_deg"]["mean"] == pytest.approx(0.0, abs=1e-12)
+
+
+def test_published_rows_say_where_they_are_not_like_for_like(tmp_path, capsys):
+    """Beside a dataset whose maps segloc builds from its SLAM-corrected log, the table says
+    under it that segloc's row is not like for like with the published ones; beside one it
+    has no such log of, nothing is claimed."""
+    est = _estimates_csv(tmp_path / "est.csv", [(0, 0, 0, 90), (1, 1, 0, 90), (2, 2, 0, 90)])
+    rel = write_text(tmp_path / "ref.relations", "0 1 0 -1 0 0 0 0\n1 2 0 -1.1 0 0 0 0\n")
+    for dataset in ("intel", "fr079", "mit-killian-court"):
+        shown = run_cli(capsys, "evaluate", est, "--relations", rel, "--published", dataset)
+        assert shown.code == 0, shown.err
+        rows, note = shown.out.split("\n\n", 1)
+        assert "GraphMapping (published)" in rows.splitlines()[-1]
+        caveat = [line for line in note.splitlines() if line.startswith("Not like for like")]
+        as_json = run_cli(capsys, "evaluate", est, "--relations", rel, "--published", dataset,
+                          "--format", "json")  # fmt: skip
+        document = json.loads(as_json.out)
+        if dataset == "mit-killian-court":
+            assert not caveat and "published_note" not in document, shown.out
+            continue
+        (line,) = caveat
+        assert f"built from {dataset}'s SLAM-corrected log ({dataset}-corrected.log.gz)" in line
+        assert document["published_note"] == line
+    plain = run_cli(capsys, "evaluate", est, "--relations", rel)
+    assert "like for like" not in plain.out
 
 
 def test_evaluate_needs_exactly_one_reference(small, capsys):

@@ -511,7 +511,7 @@ def test_markdown_marks_missing_values():
     table = table1(estimates, survey)
     text = format_table(table, summary(table), "md")
     assert md_rows(text)[2][5] == "—"
-    assert "1 surveyed poses: no_scan 1." in text
+    assert "1 surveyed pose: no_scan 1." in text
     assert (
         "cover the 0 poses with an estimate, whatever their status; 1 surveyed pose has no" in text
     )
@@ -526,7 +526,7 @@ def test_latex_is_a_tabular_with_escaped_status():
     assert text.rstrip().endswith("\\end{tabular}")
     assert "too\\_few\\_segments" in text
     assert text.count("\\midrule") == 3
-    assert "\\multicolumn{10}{l}{\\footnotesize 1 surveyed poses: too\\_few\\_segments 1.}" in text
+    assert "\\multicolumn{10}{l}{\\footnotesize 1 surveyed pose: too\\_few\\_segments 1.}" in text
 
 
 def test_unknown_format_names_the_choices():

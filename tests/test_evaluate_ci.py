@@ -306,7 +306,7 @@ def test_without_the_variable_no_step_summary_is_written(run_files, tmp_path, ca
     assert code == 0
     assert summary.read_text(encoding="utf-8").startswith("### segloc evaluate: no gates\n")
     assert [p.name for p in tmp_path.iterdir()] == ["summary.md"]
-    assert f"wrote {summary}" in err.splitlines()
+    assert f"segloc: wrote {summary}" in err.splitlines()
 
 
 # --------------------------------------------------------------------------- baseline

@@ -10,6 +10,7 @@ from hypothesis import strategies as st
 from segloc_cli.geometry import Pose2, wrap_angle
 from segloc_cli.maps.fusion import (
     FuseParams,
+    _nearby_pair_stretches,
     _nearby_pairs,
     build_global_map,
     fit_segments,
@@ -385,6 +386,47 @@ def test_grid_candidates_hold_each_pair_once_across_orientation_bins_and_the_wra
         assert all(a < b for a, b in pairs)
         i, j = mergeable_pairs(segs, params)
         assert set(zip(i.tolist(), j.tolist(), strict=True)) == _brute_force_pairs(segs, params)
+
+
+def test_pairs_found_a_stretch_of_columns_at_a_time_are_those_of_one_stretch():
+    """However the grid's columns are cut into stretches, the candidate pairs are the same, in
+    the same order, and each segment is counted done once, by its last column's stretch."""
+    rng = np.random.default_rng(23)
+    angle = rng.uniform(0.0, np.pi, 400)
+    start = rng.uniform(0, 30, (400, 2))
+    length = rng.uniform(0.1, 6.0, 400)
+    segs = np.column_stack([start, start + length[:, None] * np.c_[np.cos(angle), np.sin(angle)]])
+    segs = np.vstack([segs, segs + rng.normal(0, 0.02, segs.shape)])
+    margin, angle_rad = 0.15, np.deg2rad(FuseParams().angle_deg)
+    ((whole_i, whole_j, done),) = _nearby_pair_stretches(segs, margin, angle_rad, 10**9)
+    assert done == len(segs) and whole_i.size > 500
+    for entries in (1, 37, 500):
+        stretches = list(_nearby_pair_stretches(segs, margin, angle_rad, entries))
+        assert len(stretches) > 10
+        np.testing.assert_array_equal(np.concatenate([i for i, _, _ in stretches]), whole_i)
+        np.testing.assert_array_equal(np.concatenate([j for _, j, _ in stretches]), whole_j)
+        assert sum(d for _, _, d in stretches) == len(segs)
+
+
+def test_fusion_counts_each_segment_of_its_first_round_once():
+    from segloc_cli.progress import Progress
+
+    class Counted(Progress):
+        def __init__(self, what, total, unit):
+            super().__init__(what, total, unit, terminal=False)
+            made.append(self)
+
+    made: list[Counted] = []
+    pieces = np.array([[0.1 * k, 0.0, 0.1 * k + 0.5, 0.0] for k in range(40)])
+    fused = fuse_segments(pieces, progress=Counted)
+    assert fused.shape == (1, 4)
+    (shown,) = made
+    assert (shown.what, shown.total, shown.unit, shown.done) == (
+        "fusing segments",
+        40,
+        "segment",
+        40,
+    )
 
 
 def test_pieces_either_side_of_the_orientation_wrap_merge():

@@ -358,15 +358,15 @@ def test_importing_curves_warns_once_and_names_every_layer_read(tmp_path, capsys
     assert result.err.splitlines() == [
         f"segloc: warning: {path}: 2 curves (ARC 1, CIRCLE 1) taken as {door + column} "
         "straight chords, each within 1 cm of its curve",
-        f"segloc: warning: {path}: nothing read from layer(s) NOTES: no LINE, LWPOLYLINE, "
+        f"segloc: warning: {path}: nothing read from layer NOTES: no LINE, LWPOLYLINE, "
         "POLYLINE, ARC, CIRCLE, ELLIPSE or SPLINE there",
-        f"{out}: {1 + door + column} segments from layer(s) COLUMN, DOORS, WALLS "
+        f"segloc: {out}: {1 + door + column} segments from layers COLUMN, DOORS, WALLS "
         "(1 drawing unit = 0.001 m)",
     ]
     assert read_map(out).shape == (1 + door + column, 4)
     result = run_cli(capsys, "map", "import", path, "--layer", "WALLS", "--out", out, "--force")
     assert result.code == 0
-    assert result.err == f"{out}: 1 segments from layer(s) WALLS (1 drawing unit = 0.001 m)\n"
+    assert result.err == f"segloc: {out}: 1 segment from layer WALLS (1 drawing unit = 0.001 m)\n"
 
 
 def test_a_curve_that_cannot_be_taken_as_chords_is_one_line(tmp_path, capsys):

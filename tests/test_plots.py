@@ -282,8 +282,8 @@ def test_evaluate_plots_writes_every_figure(hall, tmp_path):
     assert result.code == 0, result.err
     assert len(re.findall(r"^\|\s*\d+\s*\|", result.out, re.M)) == 10, result.out
     assert {p.name for p in plots.iterdir()} == figure_files(EVALUATION_FIGURES)
-    wrote = [ln for ln in result.err.splitlines() if ln.startswith("wrote ")]
-    assert sorted(Path(ln.removeprefix("wrote ")).name for ln in wrote) == sorted(
+    wrote = [ln for ln in result.err.splitlines() if ln.startswith("segloc: wrote ")]
+    assert sorted(Path(ln.removeprefix("segloc: wrote ")).name for ln in wrote) == sorted(
         figure_files(EVALUATION_FIGURES)
     )
     for name in EVALUATION_FIGURES:
@@ -300,7 +300,7 @@ def test_evaluate_plots_without_map_and_log_draws_the_errors_only(hall, tmp_path
     )
     assert result.code == 0, result.err
     assert {p.name for p in plots.iterdir()} == figure_files(TABLE_FIGURES)
-    skipped = [ln for ln in result.err.splitlines() if ln.startswith("skipped")]
+    skipped = [ln for ln in result.err.splitlines() if ln.startswith("segloc: skipped")]
     assert len(skipped) == 1, result.err
     for fragment in (*MAP_FIGURES, "--map", "--log"):
         assert fragment in skipped[0]

@@ -1,9 +1,14 @@
 """Progress of long work: nothing for short work, plain lines with rate and time left where
-standard error is not a terminal, a bar where it is; and the commands that report it."""
+standard error is not a terminal, a bar where it is, both starting with ``segloc:``; the
+outcomes a track counts as it goes; and the commands that report it."""
 
 from __future__ import annotations
 
+import csv
 import io
+import re
+import time
+from collections import Counter
 
 import pytest
 from conftest import HALL
@@ -46,6 +51,15 @@ def test_a_plain_line_gives_count_share_rate_and_time_left():
     assert plain_line("reading", 0, 10, "scan", 0.0) == (
         "segloc: reading: 0/10 scans (0%), ?, ? left"
     )
+    assert plain_line("writing", 1, 1, "scan", 2.0) == (
+        "segloc: writing: 1/1 scan (100%), 2.0 s/scan, 00:00 left"
+    )
+
+
+def test_a_plain_line_ends_with_the_outcomes_it_counts():
+    assert plain_line("tracking", 30, 120, "scan", 15.0, None, {"lost": 2, "recovered": 0}) == (
+        "segloc: tracking: 30/120 scans (25%), 2.0 scans/s, 00:45 left; 2 lost, 0 recovered"
+    )
 
 
 def test_plain_lines_come_every_few_seconds_and_once_at_the_end(clock):
@@ -78,8 +92,23 @@ def test_a_terminal_gets_a_bar_with_rate_and_time_left(monkeypatch):
         shown.advance(3)
     drawn = stream.getvalue()
     bar = drawn.split("\r")[1]
-    assert bar.startswith("tracking:") and "/10 [00:00<" in bar and bar.endswith("scan/s]")
+    assert bar.startswith("segloc: tracking:") and "/10 [00:00<" in bar and bar.endswith("scan/s]")
     assert drawn.split("\r")[2].strip() == "", "the bar is cleared when the work ends"
+
+
+def test_the_bar_counts_the_outcomes_it_is_told_to(monkeypatch):
+    monkeypatch.setattr(progress_module, "SHOW_AFTER_S", 0.0)
+    stream = io.StringIO()
+    with Progress("tracking", 10, "scan", stream=stream, terminal=True) as shown:
+        shown.tally(("lost", "recovered"))
+        for outcome in ("ok", "lost", "lost", "recovered"):
+            shown.advance(outcome=outcome)
+        time.sleep(0.15)  # tqdm redraws at most every 0.1 s
+        shown.advance(outcome="ok")
+        assert shown.tallies == {"lost": 2, "recovered": 1}
+    last = [part for part in stream.getvalue().split("\r") if part.strip()][-1]
+    assert last.startswith("segloc: tracking:") and "5/10" in last, last
+    assert last.endswith("2 lost, 1 recovered]"), last
 
 
 def test_the_silent_progress_prints_nothing(capsys):
@@ -102,7 +131,11 @@ def _progress_lines(err: str, what: str) -> list[str]:
     return [line for line in err.splitlines() if line.startswith(f"segloc: {what}: ")]
 
 
-def test_long_commands_report_progress_in_plain_lines(capsys, tmp_path, every_step_shown):
+def test_long_commands_report_progress_in_plain_lines(capsys, tmp_path, every_step_shown,
+                                                       monkeypatch):  # fmt: skip
+    from segloc_cli.maps import fusion
+
+    monkeypatch.setattr(fusion, "PAIRING_ENTRIES", 512)  # fusion in stretches on a small log
     mapping = HALL / "mapping"
     built = run_cli(
         capsys, "map", "build", mapping / "log.mcap", "--survey", mapping / "survey.csv",
@@ -112,7 +145,15 @@ def test_long_commands_report_progress_in_plain_lines(capsys, tmp_path, every_st
     extracting = _progress_lines(built.err, "extracting segments")
     assert extracting[-1].startswith("segloc: extracting segments: 125/125 scans (100%), ")
     assert len(extracting) == 125  # a line per scan here, the last one not repeated
-    assert _progress_lines(built.err, "fusing segments")[-1].endswith(" so far")
+    # Fusion tells its total, the local segments fused, and the time left, as it goes.
+    local = int(re.search(r"fused from (\d+) local segments", built.err).group(1))
+    fused = _progress_lines(built.err, "fusing segments")
+    shown = [re.match(r"segloc: fusing segments: (\d+)/(\d+) segments \(", line) for line in fused]
+    assert all(shown), fused
+    assert {int(m.group(2)) for m in shown} == {local}
+    done = [int(m.group(1)) for m in shown]
+    assert len(done) > 3 and done == sorted(done) and done[-1] == local, done
+    assert all(line.endswith(" left") for line in fused), fused
 
     estimates = tmp_path / "est.csv"
     ran = run_cli(capsys, "localize", HALL / "log.mcap", "--map", tmp_path / "map.json",
@@ -167,3 +208,20 @@ def test_the_rate_and_time_left_leave_the_first_step_out(monkeypatch):
         "segloc: localizing: 2/10 scans (20%), 2.0 scans/s, 00:04 left",
         "segloc: localizing: 3/10 scans (30%), 2.0 scans/s, 00:03 left",
     ]
+
+
+def test_the_tracking_progress_counts_lost_and_recovered_scans(capsys, tmp_path,
+                                                               every_step_shown):  # fmt: skip
+    estimates = tmp_path / "track.csv"
+    ran = run_cli(capsys, "localize", HALL / "log.mcap", "--map", HALL / "map.json", "--track",
+                  "--out", estimates)  # fmt: skip
+    assert ran.code == 0, ran.err
+    with open(estimates, newline="", encoding="utf-8") as stream:
+        statuses = [row["status"] for row in csv.DictReader(stream)]
+    lines = _progress_lines(ran.err, "tracking")
+    assert len(lines) == len(statuses), lines
+    for k, line in enumerate(lines, 1):
+        so_far = Counter(statuses[:k])
+        assert line.startswith(f"segloc: tracking: {k}/{len(statuses)} scans ("), line
+        assert line.endswith(f"; {so_far['lost']} lost, {so_far['recovered']} recovered"), line
+    assert {"lost", "recovered"} <= set(statuses), "the hall's track should show both"

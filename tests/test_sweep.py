@@ -83,7 +83,9 @@ def test_a_local_cluster_gives_the_rows_of_an_in_process_run(hall_sweep):
     assert len(table) == TASKS * SCANS == 80
     pd.testing.assert_frame_equal(_without_times(table), _without_times(in_process))
     assert (table["runtime_ms"] > 0).all()
-    assert "running 8 on a local cluster of 2 workers" in done.stderr
+    assert "segloc: sweep: 8 tasks; running 8 on a local cluster of 2 workers" in done.stderr
+    said = [line for line in done.stderr.splitlines() if line.strip()]
+    assert said and all(line.startswith("segloc: ") for line in said), done.stderr
     assert out.with_name("results.run.toml").is_file()
     assert not out.with_name("results.parquet.parts").exists()
 
@@ -200,7 +202,7 @@ def test_results_of_another_spec_are_not_mixed_in(hall_sweep, tmp_path):
     finally:
         _spec(spec.parent)
     assert done.returncode == 2
-    assert "holds 8 task(s) this spec does not plan" in done.stderr
+    assert "holds 8 tasks this spec does not plan" in done.stderr
     assert "--force" in done.stderr
 
 
@@ -271,7 +273,7 @@ def test_a_failing_task_is_kept_with_its_error_and_the_sweep_goes_on(tmp_path):
     assert len(failed) == 4 and set(failed["log"]) == {"broken.mcap"}
     assert failed["error"].str.contains("broken.mcap").all()
     assert (table.loc[table["log"] == "hall/log.mcap", "status"] == "ok").sum() == 4 * SCANS
-    assert "4 task(s) failed" in done.stderr
+    assert "4 tasks failed" in done.stderr
     # Mended, only the failed tasks run again.
     shutil.copy(HALL / "log.mcap", tmp_path / "broken.mcap")
     again = _sweep(spec, "--out", out, "--jobs", "2", "--convergence", curves)

@@ -350,7 +350,7 @@ def test_what_is_left_out_is_counted_by_reason(tmp_path):
     assert frame["time_s"].tolist() == TIMES_S[kept].tolist()
     assert_same_poses(frame, POSES[kept])  # the first of the repeated stamp, not (50, 50)
     assert frame.attrs["warnings"] == [
-        "1 pose(s) tilted more than 5° from level (at most 10.0°); their heading is their x "
+        "1 pose tilted more than 5° from level (at most 10.0°); its heading is its x "
         "axis seen from above"
     ]
 

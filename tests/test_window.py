@@ -231,12 +231,14 @@ def test_localize_uses_windows_where_the_log_has_odometry_and_says_so(tmp_path, 
     )
     note, row = runs["window"]
     window_note = "each scan with its neighbours within 1 m of odometry travel (window of 9 scans"
-    assert note == f"{log}: {window_note}, median)"
+    assert note == f"segloc: {log}: {window_note}, median)"
     assert row["window_scans"] == 9 and row["status"] == "ok"
     assert abs(row["x_m"] - 5.0) < 0.02
     note, row = runs["alone"]
-    assert note == f"{log}: each scan alone (--window-m 0)"
+    assert note == f"segloc: {log}: each scan alone (--window-m 0)"
     assert row["window_scans"] == 1 and row["status"] != "ok"
     note, row = runs["paper"]
-    assert note == f"{log}: each scan alone (--no-refine: the paper's method, one scan a local map)"
+    assert note == (
+        f"segloc: {log}: each scan alone (--no-refine: the paper's method, one scan a local map)"
+    )
     assert row["window_scans"] == 1

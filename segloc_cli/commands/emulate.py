@@ -18,6 +18,7 @@ from segloc_cli.commands.options import (
 from segloc_cli.commands.optionvalues import parse_planar_pose, parsed
 from segloc_cli.commands.printing import info
 from segloc_cli.geometry import Pose2
+from segloc_cli.wording import with_article
 
 
 def _protocol_choice() -> click.Choice:
@@ -119,7 +120,7 @@ def emulate(protocol, world_path, pose, path_csv, faults, fault_rate, fault_afte
     def announce(device_path: str) -> None:
         click.echo(device_path)
         sys.stdout.flush()
-        info(f"emulating a {protocol} scanner on {device_path}; Ctrl-C to stop")
+        info(f"emulating {with_article(protocol)} scanner on {device_path}; Ctrl-C to stop")
 
     ended = serve(
         protocol,

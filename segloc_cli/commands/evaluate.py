@@ -76,7 +76,7 @@ def evaluate(estimates_path, force, **given):
     if options.plots_dir is not None:
         _draw(options, figures)
     if not scores.passed:
-        click.echo(f"segloc: gate: {scores.violations_line}", err=True)
+        info(f"gate: {scores.violations_line}")
         sys.exit(EXIT_GATE_FAILED)
 
 

@@ -20,6 +20,7 @@ from segloc_cli.commands.printing import info, warn
 from segloc_cli.geometry import Pose2
 from segloc_cli.runs.runfile import run_file_path
 from segloc_cli.scan import MAX_RANGE_M
+from segloc_cli.wording import counted
 
 
 @click.group("import")
@@ -48,7 +49,10 @@ def _write_imported(log, out_path: Path) -> None:
             log.scan_numbers,
         )  # fmt: skip
     Invocation.current().write_run_file(out_path)
-    info(f"{out_path}: {len(log.scans)} scans, {len(log.odom_times_s)} odometry poses")
+    info(
+        f"{out_path}: {counted(len(log.scans), 'scan')}, "
+        f"{counted(len(log.odom_times_s), 'odometry pose')}"
+    )
 
 
 CARMEN_OPTIONS = (
@@ -112,7 +116,7 @@ def import_carmen(log_path, out_path, survey_out, laser, range_max_m, force):
             write_pose_table_tum(survey_out, reference)  # TUM has no column for original times
         else:
             write_pose_table(survey_out, reference, {"original_time_s": log.original_times_s})
-        info(f"{survey_out}: {n} reference poses")
+        info(f"{survey_out}: {counted(n, 'reference pose')}")
 
 
 ROSBAG_OPTIONS = (

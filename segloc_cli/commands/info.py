@@ -9,6 +9,7 @@ from pathlib import Path
 import click
 
 from segloc_cli.commands.options import SCAN_SELECTION, scan_selection, with_options
+from segloc_cli.wording import counted
 
 
 def _print_layout_path(ctx: click.Context, _param: click.Parameter, value: bool) -> None:
@@ -38,7 +39,8 @@ def info_command(log_path: Path, **selection_options) -> None:
 
     A log: channels and message counts, time span and length (--start and
     --end count seconds from its first scan; given here, the scans they
-    select), sensor settings, whether the file was finished (a recording cut
+    select; beyond a minute, in minutes or hours too, with the dates, UTC, of
+    Unix times), sensor settings, whether the file was finished (a recording cut
     short still shows every complete scan). A run view (localize --mcap, map
     build --mcap): the run it shows, its map, scans and their statuses,
     message counts, and the layout to open it with.
@@ -63,21 +65,24 @@ def run_view_lines(path: Path, view) -> list[str]:
     """The lines ``segloc info`` prints for a run view (a ``RunViewContents``); what the
     writer drew (map segments, statuses) only where the file records it."""
     from segloc_cli.io.runview import layout_path
-    from segloc_cli.timing import time_range
+    from segloc_cli.timing import readable_span, time_range
 
     counts = view.message_counts
     scans, placed = counts.get("/scan", 0), counts.get("/tf", 0)
+    span_s = view.span_s if scans else []
+    readable = readable_span(span_s)
     lines = [
         f"file:      {path}",
         f"kind:      run view of segloc {view.run.get('command', '?')}, to open in Foxglove "
         "(not a log)",
-        f"/scan:     {scans} scans, {time_range(view.span_s if scans else [])}",
-        f"/tf:       {placed} scans placed in world, {scans - placed} without a pose",
+        f"/scan:     {counted(scans, 'scan')}, {time_range(span_s)}"
+        + ("" if readable is None else f" ({readable})"),
+        f"/tf:       {counted(placed, 'scan')} placed in world, {scans - placed} without a pose",
     ]
     if not view.finished:
         lines.insert(2, "finished:  no (its run was killed; it shows the scans written before)")
     if "map_segments" in view.drawn:
-        lines.append(f"/map:      {view.drawn['map_segments']} segments")
+        lines.append(f"/map:      {counted(int(view.drawn['map_segments']), 'segment')}")
     statuses = [
         f"{n} {key.removeprefix('status.')}"
         for key, n in view.drawn.items()

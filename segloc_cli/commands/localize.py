@@ -191,7 +191,9 @@ def _config(run: Invocation, global_search: bool, track: bool):
     from segloc_cli.config import run_config
 
     config = run_config(run.options, global_search, track)
-    config = replace(config, jobs=within_cores(config.jobs, "localizing on {cores} processes"))
+    config = replace(
+        config, jobs=within_cores(config.jobs, "localizing on", "process", "processes")
+    )
     return config, "global" if global_search else "track" if track else "guided"
 
 

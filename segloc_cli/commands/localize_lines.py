@@ -6,10 +6,9 @@ from __future__ import annotations
 
 import sys
 
-import click
-
 from segloc_cli.commands.printing import info, warn
 from segloc_cli.errors import EXIT_INTERRUPTED
+from segloc_cli.wording import counted
 
 
 def say_how(runs) -> None:
@@ -27,7 +26,10 @@ def expect(first_ms: float, n_scans: int) -> None:
     """Say how long a global run will take, from its first scan."""
     each = first_ms / 1e3
     total_min = each * n_scans / 60.0
-    info(f"global search: about {each:.1f} s per scan, {n_scans} scans (about {total_min:.1f} min)")
+    info(
+        f"global search: about {each:.1f} s per scan, {counted(n_scans, 'scan')} "
+        f"(about {total_min:.1f} min)"
+    )
 
 
 def report(summary, written) -> None:
@@ -36,18 +38,21 @@ def report(summary, written) -> None:
     out_path, done = written.out, summary.done
     if summary.stopped_by is not None:
         kept = f"their estimates are in {out_path}" if done else f"{out_path} holds the header only"
-        click.echo(
-            f"segloc: interrupted ({summary.stopped_by}) after {done} of {summary.planned} "
-            f"scans; {kept}",
-            err=True,
+        info(
+            f"interrupted ({summary.stopped_by}) after {done} of "
+            f"{counted(summary.planned, 'scan')}; {kept}"
         )
         sys.exit(EXIT_INTERRUPTED)
     counts = ", ".join(f"{n} {status}" for status, n in summary.counts)
     skipped = summary.skipped
     info(
-        f"{out_path}: {done} scans localized ({counts}) in {summary.elapsed_s:.2f} s, "
-        f"median {summary.median_ms:.1f} ms per scan"
-        + (f"; {skipped} scans skipped (no initial guess or odometry)" if skipped else "")
+        f"{out_path}: {counted(done, 'scan')} localized ({counts}) in "
+        f"{summary.elapsed_s:.2f} s, median {summary.median_ms:.1f} ms per scan"
+        + (
+            f"; {counted(skipped, 'scan')} skipped (no initial guess or odometry)"
+            if skipped
+            else ""
+        )
     )
     if written.hypotheses is not None:
         path, limit = written.hypotheses

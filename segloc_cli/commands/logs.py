@@ -26,6 +26,7 @@ from segloc_cli.io.log import SIMULATED_GUESSES_KEY
 from segloc_cli.runs.runfile import run_file_path
 from segloc_cli.scan import AT_ROBOT_ORIGIN, MAX_READINGS
 from segloc_cli.sim import SensorModel
+from segloc_cli.wording import counted
 
 
 def check_increasing_times(times_s, path: Path, what: str) -> None:
@@ -189,7 +190,7 @@ def simulate(
     invocation = Invocation.current()
     as_simulated = {k.replace("_", "-"): v for k, v in sensor.choices.items()}
     replace(invocation, options=invocation.options | as_simulated).write_run_file(log_path)
-    info(f"wrote {len(truth)} scans to {log_path} and the true poses to {survey_path}")
+    info(f"wrote {counted(len(truth), 'scan')} to {log_path} and the true poses to {survey_path}")
 
 
 def sensor_settings(sensor: SensorModel) -> dict[str, str]:
@@ -232,35 +233,37 @@ def windows_line(log) -> str:
 
 def log_info(log_path: Path, selection) -> None:
     """Print what ``segloc info`` says of a log: channels and message counts, time span and
-    how long it is (what ``--start`` and ``--end`` count from), the scans ``selection`` (a
+    how long it is (what ``--start`` and ``--end`` count from; in minutes or hours, and the
+    dates of Unix times, where the seconds alone do not say it readily), the scans ``selection`` (a
     ``ScanSelection``) picks when it is not the whole log, sensor settings, whether the file
     was finished (a recording cut short still shows every complete scan)."""
     from segloc_cli.selection import span_line
     from segloc_cli.timing import time_range
 
     log = load_log(log_path)
-    beams = sorted({len(s) for s in log.scans})
+    beams = ", ".join(map(str, sorted({len(s) for s in log.scans}))) or "-"
     times = log.scan_times_s
     chosen = selection.chosen(times, log_path)
     click.echo(f"file:      {log_path}")
     click.echo(f"finished:  {'yes' if log.finished else 'no (truncated or still being written)'}")
     click.echo(
-        f"/scan:     {len(log.scans)} scans, {', '.join(map(str, beams)) or '-'} readings, "
-        f"{time_range(times)}"
+        f"/scan:     {counted(len(log.scans), 'scan')}, {beams} readings, {time_range(times)}"
     )
     click.echo(f"length:    {span_line(times)}")
     if not selection.whole:
         numbers = log.scan_numbers[chosen]
         click.echo(
-            f"selected:  {chosen.size} scans ({selection.options_text()}), numbers "
+            f"selected:  {counted(chosen.size, 'scan')} ({selection.options_text()}), numbers "
             f"{numbers[0]}–{numbers[-1]}, {time_range(times[chosen] - times.min())} after the "
             "first"
         )
-    click.echo(f"/odom:     {log.odom_times_s.size} poses, {time_range(log.odom_times_s)}")
+    click.echo(
+        f"/odom:     {counted(log.odom_times_s.size, 'pose')}, {time_range(log.odom_times_s)}"
+    )
     click.echo(windows_line(log))
     click.echo(laser_offset_line(log))
     for topic, count in sorted(log.message_counts.items()):
         if topic not in ("/scan", "/odom"):
-            click.echo(f"{topic}: {count} messages (not read by segloc)")
+            click.echo(f"{topic}: {counted(count, 'message')} (not read by segloc)")
     for key, value in sorted(log.sensor.items()):
         click.echo(f"sensor.{key}: {value}")

@@ -24,6 +24,7 @@ from segloc_cli.commands.printing import info, load_log
 from segloc_cli.config import EXTRACT, FUSE
 from segloc_cli.errors import InputError
 from segloc_cli.runs.runfile import run_file_path
+from segloc_cli.wording import counted
 
 
 @click.group("map")
@@ -106,10 +107,12 @@ def map_build(log_path, survey_path, out_path, mcap_path, force, **_):
     if mcap_path is not None:
         metadata = {"command": "map build", "log": str(log_path), "survey": str(survey_path)}
         _write_build_view(mcap_path, log, built, metadata)
+    unsurveyed = selected.size - built.scans_used
+    which = "scan" if selection.whole else "selected scan"
     info(
-        f"{out_path}: {built.segments.shape[0]} segments fused from {built.local_segments} "
-        f"local segments of {built.scans_used} scans ({selected.size - built.scans_used} "
-        f"{'selected ' if not selection.whole else ''}scans had no survey row)"
+        f"{out_path}: {counted(built.segments.shape[0], 'segment')} fused from "
+        f"{counted(built.local_segments, 'local segment')} of "
+        f"{counted(built.scans_used, 'scan')} ({counted(unsurveyed, which)} had no survey row)"
         f"{_dropped_note(built, run.config.fuse)}"
     )
 
@@ -120,11 +123,8 @@ def _dropped_note(built, fuse) -> str:
     from segloc_cli.geometry import segment_lengths
 
     def note(segments, why: str) -> str:
-        count = segments.shape[0]
-        return (
-            f"; {count} segment{'' if count == 1 else 's'} "
-            f"({segment_lengths(segments).sum():.1f} m) {why} dropped"
-        )
+        count = counted(segments.shape[0], "segment")
+        return f"; {count} ({segment_lengths(segments).sum():.1f} m) {why} dropped"
 
     through = built.dropped_seen_through
     notes = ""
@@ -148,7 +148,7 @@ def _write_build_view(mcap_path: Path, log, built, metadata: dict[str, str]) -> 
         Progress("writing the view", built.scans_used, "scan") as shown,
     ):
         for i, pose, local in parts:
-            text = f"scan {i + 1}: {local.shape[0]} local segments at the surveyed pose"
+            text = f"scan {i + 1}: {counted(local.shape[0], 'local segment')} at the surveyed pose"
             view.add(log.scans[i], local, pose, status="surveyed", text=text)
             shown.advance()
-    info(f"{mcap_path}: the map over its {built.scans_used} scans, to open in Foxglove")
+    info(f"{mcap_path}: the map over its {counted(built.scans_used, 'scan')}, to open in Foxglove")

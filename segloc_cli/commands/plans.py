@@ -14,6 +14,7 @@ from segloc_cli.commands.optionvalues import parse_point
 from segloc_cli.commands.printing import info, warn
 from segloc_cli.errors import InputError
 from segloc_cli.runs.runfile import run_file_path
+from segloc_cli.wording import counted
 
 PLAN_FORMATS = {".dxf": "dxf", ".svg": "svg", ".yaml": "nav2", ".yml": "nav2"}
 """Plans ``map import`` reads and ``map export`` writes, by file extension."""
@@ -102,7 +103,7 @@ def map_import(plan_path, out_path, layers, units, scale_m, origin_m, force):
     Invocation.current().write_run_file(out_path, [("image", p) for p in plan.also_read])
     for warning in plan.warnings:
         warn(f"{plan_path}: {warning}")
-    info(f"{out_path}: {len(plan.segments)} segments {plan.summary}")
+    info(f"{out_path}: {counted(len(plan.segments), 'segment')} {plan.summary}")
 
 
 @click.command("export")
@@ -167,7 +168,7 @@ def map_export(map_path, out_path, plan_format, resolution_m, force):
     segments = read_map(map_path)
     written = write_plan(out_path, segments, kind, resolution_m)
     Invocation.current().write_run_file(out_path, whole_name=True)
-    info(f"{out_path}: {len(segments)} {written}")
+    info(f"{out_path}: {counted(len(segments), 'segment')} {written}")
 
 
 def _plan_format(path: Path, what: str) -> str:

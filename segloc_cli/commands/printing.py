@@ -1,6 +1,7 @@
 """What the commands print on standard error besides their errors: progress and summary
 lines, warnings, and the work that says something as it goes (a log read, with its reader's
-warnings; ``--jobs`` capped at the cores there are)."""
+warnings; ``--jobs`` capped at the cores there are). Each line starts with ``segloc:``
+(``wording.said``)."""
 
 from __future__ import annotations
 
@@ -8,28 +9,32 @@ from pathlib import Path
 
 import click
 
+from segloc_cli.wording import counted, said
+
 
 def warn(message: str) -> None:
     """Print a warning line on standard error."""
-    click.echo(f"segloc: warning: {message}", err=True)
+    info(f"warning: {message}")
 
 
 def info(message: str) -> None:
     """Print a progress or summary line on standard error."""
-    click.echo(message, err=True)
+    click.echo(said(message), err=True)
 
 
-def within_cores(jobs: int, running: str) -> int:
+def within_cores(jobs: int, running: str, noun: str, nouns: str | None = None) -> int:
     """``--jobs`` no more than the cores segloc may use here (more processes would only share
-    them), with a warning that ends in ``running`` (its ``{cores}`` filled in) when it asked
-    for more."""
+    them), with a warning when it asked for more that ends in ``running`` and the cores
+    counted as ``noun`` ("localizing on" 2 "process")."""
     from segloc_cli.runs.parallel import usable_cores
 
     cores = usable_cores()
     if jobs <= cores:
         return jobs
-    running = running.format(cores=cores)
-    warn(f"--jobs {jobs} is more than the {cores} core(s) segloc may use here; {running}")
+    warn(
+        f"--jobs {jobs} is more than the {counted(cores, 'core')} segloc may use here; "
+        f"{running} {counted(cores, noun, nouns)}"
+    )
     return cores
 
 

@@ -19,6 +19,7 @@ from segloc_cli.commands.optionvalues import parsed
 from segloc_cli.commands.printing import info
 from segloc_cli.errors import EXIT_INTERRUPTED
 from segloc_cli.runs.runfile import run_file_path
+from segloc_cli.wording import counted, said
 
 RECORD_OPTIONS = (
     click.option(
@@ -115,8 +116,8 @@ def record_command(
         click.echo("", err=True)
     Invocation.current().write_run_file(out_path)
     info(
-        f"{out_path}: {progress.scans} scans in {progress.elapsed_s:.1f} s, "
-        f"{progress.skipped} frames skipped (stopped by {progress.ended_by})"
+        f"{out_path}: {counted(progress.scans, 'scan')} in {progress.elapsed_s:.1f} s, "
+        f"{counted(progress.skipped, 'frame')} skipped (stopped by {progress.ended_by})"
     )
     if progress.ended_by.startswith("SIG"):  # interrupted: the file is whole, the run cut short
         sys.exit(EXIT_INTERRUPTED)
@@ -139,11 +140,11 @@ class _RecordDisplay:
 
     def scanned(self, progress) -> None:
         line = (
-            f"recorded {progress.scans} scans, {progress.rate_hz:.1f} scans/s, "
-            f"{progress.skipped} frames skipped"
+            f"recorded {counted(progress.scans, 'scan')}, {progress.rate_hz:.1f} scans/s, "
+            f"{counted(progress.skipped, 'frame')} skipped"
         )
         if self.interactive:
-            click.echo(f"\r{line}", nl=False, err=True)
+            click.echo(f"\r{said(line)}", nl=False, err=True)
         elif progress.elapsed_s - self.shown_s >= 1.0:
             self.shown_s = progress.elapsed_s
             info(line)

@@ -13,6 +13,7 @@ from segloc_cli.commands.invocation import Invocation
 from segloc_cli.commands.options import force_option, format_option, path_option
 from segloc_cli.commands.printing import info, warn, within_cores
 from segloc_cli.method.confidence import RIGHT_PLACE_DEG, RIGHT_PLACE_M
+from segloc_cli.wording import counted
 
 
 @click.command()
@@ -150,7 +151,7 @@ def _local_workers(jobs: int, n_tasks: int) -> int:
     if source == ParameterSource.DEFAULT:
         jobs = min(jobs, usable_cores())
     else:
-        jobs = within_cores(jobs, "a local cluster of at most {cores} workers")
+        jobs = within_cores(jobs, "a local cluster of at most", "worker")
     return max(1, min(jobs, n_tasks))
 
 
@@ -162,7 +163,7 @@ def _run(plan, out_path: Path, scheduler: str | None, jobs: int, force: bool):
 
     store = ResultStore(out_path, fresh=force)
     todo = store.todo(plan.tasks)
-    planned = f"segloc sweep: {len(plan.tasks)} tasks"
+    planned = f"sweep: {counted(len(plan.tasks), 'task')}"
     if len(todo) < len(plan.tasks):
         planned += f", {len(plan.tasks) - len(todo)} done before"
     stops: list[str] = []

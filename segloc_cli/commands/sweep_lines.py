@@ -10,6 +10,7 @@ import click
 
 from segloc_cli.commands.printing import info, warn
 from segloc_cli.errors import EXIT_INTERRUPTED, EXIT_TASKS_FAILED
+from segloc_cli.wording import counted
 
 
 def report(plan, table, out_path: Path, fmt: str, stops: list[str], convergence) -> None:
@@ -23,13 +24,12 @@ def report(plan, table, out_path: Path, fmt: str, stops: list[str], convergence)
         click.echo(format_summary(stats, fmt), nl=False)
     held = table["task"].nunique() if len(table) else 0
     if stops and held < len(plan.tasks):  # a stop that came after the last task changes nothing
-        click.echo(
-            f"segloc: interrupted ({stops[0]}) with {held} of {len(plan.tasks)} tasks in "
-            f"{out_path}; run the same command again to finish",
-            err=True,
+        info(
+            f"interrupted ({stops[0]}) with {held} of {counted(len(plan.tasks), 'task')} in "
+            f"{out_path}; run the same command again to finish"
         )
         sys.exit(EXIT_INTERRUPTED)
-    info(f"{out_path}: {len(table)} rows from {held} tasks")
+    info(f"{out_path}: {counted(len(table), 'row')} from {counted(held, 'task')}")
     failures = table[table["status"] == STATUS_TASK_FAILED] if len(table) else table
     if convergence is not None and not len(failures):
         written, notes = write_convergence(table, plan.tasks, plan.grid_keys, convergence)
@@ -38,7 +38,8 @@ def report(plan, table, out_path: Path, fmt: str, stops: list[str], convergence)
     if len(failures):
         first = failures.iloc[0]
         warn(
-            f"{len(failures)} task(s) failed, kept as rows with status {STATUS_TASK_FAILED!r}; "
+            f"{counted(len(failures), 'task')} failed, kept as rows with status "
+            f"{STATUS_TASK_FAILED!r}; "
             f"the first ({first['log']}, combination {first['combination']}, seed "
             f"{first['seed']}): {first['error']}"
         )

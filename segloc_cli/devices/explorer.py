@@ -44,6 +44,7 @@ from segloc_cli.devices.base import (
     printable,
 )
 from segloc_cli.geometry import TWO_PI
+from segloc_cli.wording import with_article
 
 SYNC = b"\xa5\x5a"
 HEADER_SIZE = 7
@@ -225,7 +226,9 @@ def decode_frame(data: bytes) -> Frame:
         raise FrameError(f"no sync bytes at the start (got {data[:2].hex(' ')})")
     kind, length, sequence = _HEADER.unpack_from(data, 2)
     if not plausible_length(kind, length):
-        raise FrameError(f"frame type 0x{kind:02X} with a {length}-byte payload does not exist")
+        raise FrameError(
+            f"frame type 0x{kind:02X} with {with_article(f'{length}-byte')} payload does not exist"
+        )
     if len(data) != HEADER_SIZE + length + CRC_SIZE:
         raise FrameError(f"{len(data)} bytes for a frame of {HEADER_SIZE + length + CRC_SIZE}")
     expected = crc16_ccitt_false(data[2:-CRC_SIZE])
@@ -251,7 +254,9 @@ def decode_message(frame: Frame) -> Message:
     """The message a checked frame carries; ``FrameError`` for contents that make no sense."""
     payload = frame.payload
     if not plausible_length(frame.kind, len(payload)):
-        raise FrameError(f"frame type 0x{frame.kind:02X} with a {len(payload)}-byte payload")
+        raise FrameError(
+            f"frame type 0x{frame.kind:02X} with {with_article(f'{len(payload)}-byte')} payload"
+        )
     kind = Kind(frame.kind)
     if kind == Kind.CONFIGURE:
         return Configure(*_CONFIGURE.unpack(payload))
@@ -431,7 +436,9 @@ class ScanDecoder:
         if frame.kind != Kind.SCAN:
             return None
         if not plausible_length(frame.kind, len(frame.payload)):
-            raise FrameError(f"scan frame with a {len(frame.payload)}-byte payload")
+            raise FrameError(
+                f"scan frame with {with_article(f'{len(frame.payload)}-byte')} payload"
+            )
         scan = _decode_scan(frame.payload)
         n = scan.ranges_mm.size
         if self.readings is not None and n != self.readings:

@@ -24,6 +24,7 @@ from segloc_cli.devices.base import DeviceError, DeviceInfo, Driver, ScanFrame
 from segloc_cli.io.mcap_log import LogWriter
 from segloc_cli.scan import Scan
 from segloc_cli.stopping import stop_requests
+from segloc_cli.wording import counted, plural
 
 DURABLE_EVERY_S = 0.5
 """Longest a received scan waits in memory before its chunk is written and flushed: a
@@ -118,19 +119,21 @@ def _stream(
             # silent: say so, since the cure differs (baud rate, protocol, cable).
             spoiled = driver.skipped - skipped_at_last_scan
             why = (
-                f"{spoiled} frames came but were damaged or inconsistent and were skipped"
+                f"{counted(spoiled, 'frame')} came but {plural(spoiled, 'was', 'were')} damaged "
+                f"or inconsistent and {plural(spoiled, 'was', 'were')} skipped"
                 if spoiled
                 else "device stalled"
             )
             raise DeviceError(
                 f"{driver.port}: no scan for {settings.stall_s:g} s ({why}); "
-                f"the log keeps the {progress.scans} scans received"
+                f"the log keeps the {counted(progress.scans, 'scan')} received"
             )
         writer.make_durable_if_due()
         try:
             frame = driver.read_scan()
         except DeviceError as exc:
-            raise DeviceError(f"{exc}; the log keeps the {progress.scans} scans received") from exc
+            kept = counted(progress.scans, "scan")
+            raise DeviceError(f"{exc}; the log keeps the {kept} received") from exc
         if frame is None:
             continue
         if anchor is None:

@@ -32,6 +32,7 @@ from segloc_cli.io.trajectories import (
     planar_of_quaternions,
     trajectory_frame,
 )
+from segloc_cli.wording import counted, plural
 
 MAX_LISTED_TOPICS = 12
 """Topics named in a message at most; more are counted."""
@@ -91,13 +92,13 @@ def read_bag_trajectory(
     if gathered.undecodable:
         dropped["messages that could not be decoded"] += gathered.undecodable
         warnings.append(
-            f"{gathered.undecodable} message(s) on {chosen} could not be decoded "
+            f"{counted(gathered.undecodable, 'message')} on {chosen} could not be decoded "
             f"(first: {gathered.first_error})"
         )
     if gathered.untimed:
         warnings.append(
-            f"{gathered.untimed} message(s) on {chosen} carry no timestamp; their log times "
-            "are used"
+            f"{counted(gathered.untimed, 'message')} on {chosen} "
+            f"{plural(gathered.untimed, 'carries', 'carry')} no timestamp; their log times are used"
         )
     if is_tf:
         read, chain_text = _chain_poses(path, chosen, gathered.links, frames, dropped)

@@ -100,6 +100,7 @@ from segloc_cli.io.log import MAX_LASER_OFFSET_M, Log
 from segloc_cli.io.times import MAX_TIME_S, importer_times
 from segloc_cli.progress import Progress, ProgressFactory, silent
 from segloc_cli.scan import MAX_READINGS, Scan, evenly_spaced_angles, fan_defect
+from segloc_cli.wording import counted, plural
 
 LASER_RECORDS = {"front": ("FLASER", "ROBOTLASER1"), "rear": ("RLASER",)}
 OFFSET_PARAMS = {"front": "robot_frontlaser_offset", "rear": "robot_rearlaser_offset"}
@@ -403,12 +404,12 @@ PARSERS = {"FLASER": _parse_flaser, "RLASER": _parse_flaser, "ROBOTLASER1": _par
 def _line_list(lines: list[int]) -> str:
     shown = ", ".join(str(n) for n in lines[:LINES_SHOWN])
     more = f" and {len(lines) - LINES_SHOWN} more" if len(lines) > LINES_SHOWN else ""
-    return f"line{'s' if len(lines) > 1 else ''} {shown}{more}"
+    return f"{plural(len(lines), 'line')} {shown}{more}"
 
 
 def _skip_warnings(path: Path, skipped: dict[tuple[str, str], list[int]]) -> list[str]:
     return [
-        f"{path}: skipped {len(lines)} {kind} record{'s' if len(lines) > 1 else ''} "
+        f"{path}: skipped {len(lines)} {kind} {plural(len(lines), 'record')} "
         f"with {REASONS[reason]} ({_line_list(lines)})"
         for (kind, reason), lines in skipped.items()
     ]
@@ -639,7 +640,7 @@ def _check_records(path: Path, parsed: _Parsed, laser: str, warnings: list[str])
     warnings[:0] = _skip_warnings(path, parsed.skipped)
     if with_nul:
         n = len(with_nul)
-        note = f"{path}: skipped {n} line{'s' if n > 1 else ''} holding NUL bytes"
+        note = f"{path}: skipped {counted(n, 'line')} holding NUL bytes"
         warnings.insert(len(parsed.skipped), f"{note} ({_line_list(with_nul)})")
     if not parsed.records:
         raise InputError(_no_records_message(path, laser, parsed.counts, warnings), path=path)

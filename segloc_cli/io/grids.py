@@ -56,6 +56,7 @@ from segloc_cli.io.files import atomic_path, reading, write_text_atomic
 from segloc_cli.io.plans import FloorPlan, checked_plan_segments
 from segloc_cli.limits import MAX_COORDINATE_M
 from segloc_cli.maps.wall_tracing import SPLIT_CELLS, line_cells, trace_walls
+from segloc_cli.wording import with_article
 
 OCCUPANCY_MODES = ("trinary", "scale", "raw")
 """Values of the YAML's ``mode`` key; ``trinary`` when it is absent."""
@@ -358,7 +359,7 @@ def _grey_levels(picture) -> tuple[np.ndarray, int, np.ndarray | None]:
     if mode in ("I;16", "I;16B", "I;16L", "I"):
         levels = np.asarray(picture)
         if levels.size and (levels.min() < 0 or levels.max() > 65535):
-            raise ValueError(f"grey values outside 0..65535 in a {mode} image")
+            raise ValueError(f"grey values outside 0..65535 in {with_article(mode)} image")
         return levels.astype(np.uint16), 65535, None
     if mode == "LA":
         grey, alpha = (np.asarray(band, dtype=np.uint8) for band in picture.split())

@@ -28,6 +28,7 @@ import numpy as np
 from segloc_cli import __version__
 from segloc_cli.io.files import reading, sha256, write_text_atomic
 from segloc_cli.scoring.gates import GateOutcome
+from segloc_cli.wording import counted
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -287,7 +288,7 @@ def _input_of(role: str, path: Path) -> _Input:
 def size_text(n_bytes: int) -> str:
     """A size for people: ``512 bytes``, ``1.2 kB (1,234 bytes)``, in powers of 1000."""
     if n_bytes < 1000:
-        return f"{n_bytes} byte" + ("" if n_bytes == 1 else "s")
+        return counted(n_bytes, "byte")
     scaled = float(n_bytes)
     for unit in ("kB", "MB", "GB", "TB"):
         scaled /= 1000.0

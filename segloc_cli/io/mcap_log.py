@@ -81,6 +81,7 @@ from segloc_cli.io.runview import RUN_METADATA_NAME
 from segloc_cli.limits import MAX_COORDINATE_M
 from segloc_cli.progress import SILENT, Progress
 from segloc_cli.scan import MAX_READINGS, Scan, evenly_spaced_angles, fan_defect
+from segloc_cli.wording import counted
 
 SCAN_TOPIC = "/scan"
 ODOM_TOPIC = "/odom"
@@ -832,7 +833,7 @@ def read_log(path: str | Path) -> Log:
     path = Path(path)
     if path.is_dir() and (path / "metadata.yaml").is_file():
         raise InputError(
-            f"a ROS 2 bag folder, not a segloc log; convert it with `segloc import rosbag {path}`",
+            f"a ROS 2 bag folder, not a segloc log; {_import_hint(path)}",
             path=path,
         )
     with reading(path, "an MCAP log file"):
@@ -874,13 +875,23 @@ ROS1_BAG_MAGIC = b"#ROSBAG V"
 """How a ROS 1 bag begins (``#ROSBAG V2.0`` and a newline)."""
 
 
+def _import_hint(bag_path: Path) -> str:
+    """The command that converts the ROS bag at ``bag_path`` into a segloc log, in a hint:
+    the log beside it, named after it (``run.bag`` → ``run.mcap``; a ROS 2 ``run.mcap`` →
+    ``run-segloc.mcap``)."""
+    out = bag_path.with_name(f"{bag_path.stem}.mcap")
+    if bag_path.suffix.lower() == ".mcap":
+        out = bag_path.with_name(f"{bag_path.stem}-segloc.mcap")
+    return f"convert it with `segloc import rosbag {bag_path} --out {out}`"
+
+
 def _check_magic(path: Path, stream) -> None:
     """Refuse a file that does not start as MCAP, naming the import for a ROS 1 bag; leaves
     ``stream`` at its start."""
     start = stream.read(max(len(MCAP_MAGIC), len(ROS1_BAG_MAGIC)))
     if start.startswith(ROS1_BAG_MAGIC):
         raise InputError(
-            f"a ROS 1 bag, not a segloc log; convert it with `segloc import rosbag {path}`",
+            f"a ROS 1 bag, not a segloc log; {_import_hint(path)}",
             path=path,
         )
     if not start.startswith(MCAP_MAGIC):
@@ -974,14 +985,14 @@ def _check_channels(path: Path, found: _Found) -> None:
     channels = found.channels.values()
     # A ROS 2 bag stored as MCAP is an MCAP file too, but of ROS messages.
     ros = any(c.message_encoding in ROS_ENCODINGS for c in channels)
-    to_import = f"; it is a ROS bag: convert it with `segloc import rosbag {path}`" if ros else ""
+    to_import = f"; it is a ROS bag: {_import_hint(path)}" if ros else ""
     scan_channels = [c for c in channels if c.topic == SCAN_TOPIC]
     if not scan_channels:
         found_topics = ", ".join(sorted({_clip(c.topic) for c in channels})) or "none"
         cut = (
             ""
             if found.broken is None
-            else f"; the file {found.broken} after {found.n_messages} messages"
+            else f"; the file {found.broken} after {counted(found.n_messages, 'message')}"
         )
         raise InputError(
             f"no {SCAN_TOPIC} channel; record or import a log with laser scans on "
@@ -1011,11 +1022,13 @@ def _read_warnings(name: str, found: _Found, n_scans: int) -> list[str]:
     warnings = []
     if found.broken is not None:
         warnings.append(
-            f"{name}: file {found.broken} after {found.n_messages} messages; kept {n_scans} scans"
+            f"{name}: file {found.broken} after {counted(found.n_messages, 'message')}; kept "
+            f"{counted(n_scans, 'scan')}"
         )
     elif not found.finished:
         warnings.append(
-            f"{name}: file has no footer (recording was not finished); kept {n_scans} scans"
+            f"{name}: file has no footer (recording was not finished); kept "
+            f"{counted(n_scans, 'scan')}"
         )
     warnings += found.scan_faults.lines(name, "skipped", SCAN_TOPIC, _SCAN_FAULTS)
     warnings += found.odom_faults.lines(name, "skipped", ODOM_TOPIC, _ODOM_FAULTS)

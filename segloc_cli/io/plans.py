@@ -36,6 +36,7 @@ from segloc_cli.geometry import segment_lengths
 from segloc_cli.io.files import atomic_path, reading
 from segloc_cli.io.maps import MIN_SEGMENT_LENGTH_M
 from segloc_cli.limits import MAX_COORDINATE_M
+from segloc_cli.wording import counted, plural
 
 UNITS_M = {"m": 1.0, "cm": 0.01, "mm": 0.001, "in": 0.0254, "ft": 0.3048}
 """Units a caller can give for a drawing that does not say its own, in metres."""
@@ -75,7 +76,7 @@ class FloorPlan:
     ``segments`` (M, 4) metres, world frame; ``source`` the record of what was read, for
     the map file's ``source`` (JSON-serialisable, its ``format`` first); ``chords`` how
     many of the segments are straight chords standing for curves; ``summary`` a phrase
-    saying where the segments came from ("from layer(s) WALLS (1 drawing unit = 0.001 m)");
+    saying where the segments came from ("from layer WALLS (1 drawing unit = 0.001 m)");
     ``also_read`` the other files it was read from (a grid's image), for the run file;
     ``warnings`` lines for the user on what was approximated or not found.
     """
@@ -140,15 +141,23 @@ def read_dxf(path: str | Path, layers: Sequence[str] = (), units: str | None = N
     pieces_m = np.array(read.pieces, dtype=float).reshape(-1, 4) * scale
     segments = checked_plan_segments(path, pieces_m, f" (×{scale:g}); check --units")
     if len(segments) == 0:
-        where = f"on layer(s) {', '.join(layers)}" if layers else "in its model space"
+        where = (
+            f"on {plural(len(layers), 'layer')} {', '.join(layers)}"
+            if layers
+            else "in its model space"
+        )
         raise InputError(f"no {DXF_ENTITIES} {where}; its layers are {', '.join(known)}", path=path)
     read_layers = sorted(read.layers)
     source = {"format": "dxf", "plan": str(path), "layers": read_layers, "metres_per_unit": scale}
-    summary = f"from layer(s) {', '.join(read_layers)} (1 drawing unit = {scale:g} m)"
+    summary = (
+        f"from {plural(len(read_layers), 'layer')} {', '.join(read_layers)} "
+        f"(1 drawing unit = {scale:g} m)"
+    )
     empty = [name for name in layers if name not in read.layers]
     warnings = [read.chords_warning()] if read.chords else []
     if empty:
-        warnings.append(f"nothing read from layer(s) {', '.join(empty)}: no {DXF_ENTITIES} there")
+        layers_read = f"{plural(len(empty), 'layer')} {', '.join(empty)}"
+        warnings.append(f"nothing read from {layers_read}: no {DXF_ENTITIES} there")
     return FloorPlan(segments, source, read.chords, summary, warnings=tuple(warnings))
 
 
@@ -300,8 +309,8 @@ class _DxfReading:
         total = sum(self.curves.values())
         kinds = ", ".join(f"{kind} {n}" for kind, n in sorted(self.curves.items()))
         return (
-            f"{total} curve{'s' if total > 1 else ''} ({kinds}) taken as {self.chords} straight "
-            f"chords, each within {CHORD_SAGITTA_M * 100:g} cm of its curve"
+            f"{counted(total, 'curve')} ({kinds}) taken as {counted(self.chords, 'straight chord')}, "
+            f"each within {CHORD_SAGITTA_M * 100:g} cm of its curve"
         )
 
     def _chords(self, curve) -> list[tuple[float, float, float, float]]:

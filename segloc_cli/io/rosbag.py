@@ -91,6 +91,7 @@ from segloc_cli.io.tf import (
 from segloc_cli.io.times import NS_PER_S, importer_times
 from segloc_cli.progress import Progress, ProgressFactory, silent
 from segloc_cli.scan import MAX_RANGE_M, MAX_READINGS, Scan, fan_defect
+from segloc_cli.wording import counted, plural
 
 SCAN_TYPE = "sensor_msgs/msg/LaserScan"
 ODOM_TYPE = "nav_msgs/msg/Odometry"
@@ -353,7 +354,7 @@ def _salvaged(
     where = "" if salvage.stopped is None else f", up to where {salvage.stopped}"
     note = (
         f"{path.name}: the bag's index is missing or damaged (a recording cut short?); read "
-        f"its {len(salvage.messages)} messages on "
+        f"its {counted(len(salvage.messages), 'message')} on "
         f"{', '.join(sorted(topics | {topic for topic, _, _ in salvage.messages}))} record by "
         f"record{where}"
     )
@@ -385,7 +386,8 @@ def read_rosbag(
     path = Path(path)
     decoded, warnings = _bag_messages(path, scan_topic, odom_topic, set(TF_TOPICS), progress)
     warnings += [
-        f"{path.name}: skipped {len(errors)} message(s) on {topic} that could not be decoded "
+        f"{path.name}: skipped {counted(len(errors), 'message')} on {topic} that could not be "
+        "decoded "
         f"(first: {errors[0]})"
         for topic, errors in decoded.failures.items()
     ]
@@ -622,7 +624,9 @@ def _scans_to_import(
         why = f"; {skipped} could not be decoded" if skipped else ""
         raise InputError(f"topic {scan_topic} holds no laser scans{why}", path=path)
     raw_scans, dropped = _usable(raw_scans)
-    notes = [f"skipped {len(first)} scan(s) on {scan_topic} {why}" for why, first in dropped]
+    notes = [
+        f"skipped {counted(len(first), 'scan')} on {scan_topic} {why}" for why, first in dropped
+    ]
     warnings += [f"{path.name}: {note}" for note in notes]
     if not raw_scans:
         raise InputError(
@@ -650,8 +654,8 @@ def _odometry(
     inside, odom_poses = _interpolate_odometry(raw_odom, scan_ns)
     if not np.all(inside):
         warnings.append(
-            f"{path.name}: {np.count_nonzero(~inside)} of {len(scan_ns)} scans lie outside "
-            f"the time span of {odom_topic} and have no odometry"
+            f"{path.name}: {np.count_nonzero(~inside)} of {counted(len(scan_ns), 'scan')} lie "
+            f"outside the time span of {odom_topic} and have no odometry"
         )
     return times_s[inside], odom_poses
 
@@ -766,18 +770,21 @@ def _scan_notes(
     notes = []
     if bad_limits:
         notes.append(
-            f"{len(bad_limits)} scan(s) give range limits that cannot be applied (first: "
+            f"{counted(len(bad_limits), 'scan')} {plural(len(bad_limits), 'gives', 'give')} range "
+            "limits that cannot be applied (first: "
             f"{bad_limits[0]} m); their readings count up to {MAX_RANGE_M:g} m"
         )
     if n_count_mismatch:
         notes.append(
-            f"{n_count_mismatch} scan(s) hold a number of ranges other than angle_min to "
+            f"{counted(n_count_mismatch, 'scan')} {plural(n_count_mismatch, 'holds', 'hold')} a "
+            "number of ranges other than angle_min to "
             "angle_max at angle_increment spans; their angles follow angle_min + i·angle_increment"
         )
     if n_intensity_mismatch:
         notes.append(
-            f"{n_intensity_mismatch} scan(s) hold a number of intensities other than the "
-            "number of ranges; their intensities were dropped"
+            f"{counted(n_intensity_mismatch, 'scan')} "
+            f"{plural(n_intensity_mismatch, 'holds', 'hold')} a number of intensities other "
+            "than the number of ranges; their intensities were dropped"
         )
     return notes
 

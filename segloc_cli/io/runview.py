@@ -53,6 +53,7 @@ import numpy as np
 from segloc_cli.geometry import Pose2, heading_to_quaternion
 from segloc_cli.io.files import OutputError, writing_error
 from segloc_cli.scan import Scan
+from segloc_cli.wording import counted
 
 if TYPE_CHECKING:
     from foxglove.mcap import MCAPWriter
@@ -305,11 +306,12 @@ def row_text(log_path: Path, row: Mapping[str, Any]) -> str:
         if math.isfinite(row["runner_up_x_m"])
         else "no distinct pose fits as well"
     )
+    confidence = row["confidence"]
+    trust = f"confidence {confidence:.2f}" if math.isfinite(confidence) else "no confidence"
     return (
         f"{log_path.name} pose {row['pose_id']} at {row['time_s']:.3f} s: "
         f"{row['inlier_ratio']:.0%} of the points on the map, overlap {row['overlap_m']:.2f} m, "
-        f"{row['n_local_segments']} local segments; {runner_up}; "
-        f"confidence {row['confidence']:.2f}"
+        f"{counted(row['n_local_segments'], 'local segment')}; {runner_up}; {trust}"
     )
 
 

@@ -53,6 +53,7 @@ from segloc_cli.estimates import (
 from segloc_cli.geometry import quaternion_to_heading
 from segloc_cli.io.files import reading
 from segloc_cli.limits import MAX_COORDINATE_M
+from segloc_cli.wording import counted, plural
 
 EST_FORMATS = ("segloc", "tum", "ros1", "ros2", "mcap")
 FORMAT_OPTION = "--est-format"
@@ -280,15 +281,18 @@ def trajectory_frame(
         raise InputError(f"{what} holds no usable pose ({left_out or 'none at all'})", path=path)
     tilted = p.tilt_deg[order] > MAX_TILT_DEG
     if tilted.any():
+        n_tilted = int(np.count_nonzero(tilted))
         warnings.append(
-            f"{np.count_nonzero(tilted)} pose(s) tilted more than {MAX_TILT_DEG:g}° from level "
-            f"(at most {p.tilt_deg[order].max():.1f}°); their heading is their x axis seen "
-            "from above"
+            f"{counted(n_tilted, 'pose')} tilted more than {MAX_TILT_DEG:g}° from level (at most "
+            f"{p.tilt_deg[order].max():.1f}°); {plural(n_tilted, 'its', 'their')} heading is "
+            f"{plural(n_tilted, 'its', 'their')} x axis seen from above"
         )
     frame = _estimates(read.time_s[order], p, order, read.covariance[order])
     in_frame = f" in frame {main}" if main else ""
     frame.attrs.update(
-        source=f"{described}, {len(order)} poses{in_frame}", dropped=shown, warnings=warnings
+        source=f"{described}, {counted(len(order), 'pose')}{in_frame}",
+        dropped=shown,
+        warnings=warnings,
     )
     return frame
 

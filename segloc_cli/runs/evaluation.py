@@ -17,6 +17,7 @@ raises ``InputError`` naming the file.
 
 from __future__ import annotations
 
+import functools
 import json
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
@@ -33,6 +34,7 @@ from segloc_cli.io.log import Log
 from segloc_cli.io.numbers import json_text
 from segloc_cli.scoring.gates import GateOutcome, Gates, outcomes_json
 from segloc_cli.timing import time_range
+from segloc_cli.wording import counted
 
 if TYPE_CHECKING:
     from segloc_cli.scoring.baseline import Comparison
@@ -359,7 +361,7 @@ def _pairing_line(
     """How the estimates met the truth in one line: paired, unpaired and dropped counts."""
     dropped = estimates.attrs.get("dropped") or {}
     line = (
-        f"{_source(estimates)}: {n_paired} of {n_truth} surveyed poses paired within "
+        f"{_source(estimates)}: {n_paired} of {counted(n_truth, 'surveyed pose')} paired within "
         f"{options.tolerance_ms:g} ms, {n_truth - n_paired} unpaired"
     )
     if dropped:
@@ -463,6 +465,7 @@ def relation_scores(
     from segloc_cli.scoring.relations import (
         PUBLISHED,
         format_relations,
+        published_note,
         relation_errors,
         trajectory_from_estimates,
     )
@@ -485,17 +488,22 @@ def relation_scores(
             path=options.relations_path,
         )
     reference = None if options.published is None else PUBLISHED.get(options.published)
+    caveat = None if options.published is None else published_note(options.published)
     outcomes = relation_outcomes(100.0 * errors.trans_m, errors.rot_deg, options.gates)
     gate_lines = "".join(f"Gate: {o.text}.\n" for o in outcomes)
     summary = errors.summary()
-    markdown = format_relations(summary, "md", reference) + gate_lines
-    text = markdown if options.fmt == "md" else format_relations(summary, options.fmt, reference)
+    shown = functools.partial(
+        format_relations, summary, published=reference, published_caveat=caveat
+    )
+    markdown = shown("md") + gate_lines
+    text = markdown if options.fmt == "md" else shown(options.fmt)
     if options.fmt == "json":
         document = json.loads(text)
         document["gate"] = outcomes_json(outcomes) if outcomes else None
         text = json_text(document)
     pairing = (
-        f"{_source(estimates)}: {errors.used} of {len(relations)} relations have estimates "
+        f"{_source(estimates)}: {errors.used} of {counted(len(relations), 'relation')} "
+        "have estimates "
         f"at both times (within {options.tolerance_ms:g} ms), {errors.skipped} skipped"
     )
     scores = Scores(

@@ -42,6 +42,7 @@ from segloc_cli.method.extract import ExtractParams
 from segloc_cli.method.localize import ScanMatcher, localize_scans
 from segloc_cli.method.window import Windows
 from segloc_cli.scan import Scan
+from segloc_cli.wording import said
 
 BLOCK_SCANS = 4
 """Scans per task: small enough to keep both cores busy to the end of a short log."""
@@ -266,7 +267,7 @@ def _why(exc: BaseException) -> str:
 
 def _say(message: str) -> None:
     """A warning on stderr, in the command line's words."""
-    print(f"segloc: warning: {message}", file=sys.stderr)
+    print(said(f"warning: {message}"), file=sys.stderr)
 
 
 def _result(future: Future, stop: Callable[[], bool]) -> list[EstimateRow] | None:

@@ -29,6 +29,7 @@ from segloc_cli.geometry import Pose2
 from segloc_cli.io.log import Log
 from segloc_cli.progress import ProgressFactory, silent
 from segloc_cli.timing import pair_by_time, time_range
+from segloc_cli.wording import counted, with_article
 
 RUN_MODES = ("guided", "global", "track")
 """How a log is localized: each scan from its own guess, each with none, or along a track."""
@@ -449,8 +450,8 @@ def build_map(
     rounds of ``maps.fusion.polish_poses``, if any; ``BuiltMap.poses`` holds the poses used),
     and keep the segments seen from at least ``config.fuse.min_observations`` survey rows
     and, unless ``config.fuse.seen_through`` is "keep", not seen through from more survey
-    rows than saw them (``maps.carving``); the extraction (scans), polishing, fusion (rounds)
-    and carving (one pass) report to ``progress``."""
+    rows than saw them (``maps.carving``); the extraction (scans), polishing (rounds), fusion
+    (segments compared) and carving (one pass) report to ``progress``."""
     from segloc_cli.maps.carving import free_length, mostly_free
     from segloc_cli.maps.fusion import observed_map, polish_poses
     from segloc_cli.method.extract import extract_segments
@@ -486,8 +487,7 @@ def build_map(
     if config.fuse.polish_rounds:
         with progress("polishing poses", config.fuse.polish_rounds, "round") as shown:
             poses = polish_poses(local_maps, points, poses, config.fuse, shown)
-    with progress("fusing segments", None, "round") as shown:
-        segments, seen = observed_map(local_maps, poses, config.fuse, shown, rows[used])
+    segments, seen = observed_map(local_maps, poses, config.fuse, progress, rows[used])
     if segments.shape[0] == 0:
         raise InputError("no segments could be extracted from the surveyed scans", path=log_path)
     kept = seen >= config.fuse.min_observations
@@ -545,7 +545,7 @@ def write_plan(
 ) -> str:
     """Write a segment map (M, 4; world frame) as a plan of ``kind`` "nav2" (a grid of cells of
     ``resolution_m``, its default when None, with its image beside), "svg" or "dxf"; returns
-    what was written, in words ("segments as lines, in metres")."""
+    what was written, in words after the count of segments ("as lines, in metres")."""
     if kind == "nav2":
         from segloc_cli.io.grids import DEFAULT_RESOLUTION_M, write_nav2
 
@@ -553,18 +553,18 @@ def write_plan(
         grid = write_nav2(out_path, segments_world, res)
         columns, rows = grid.shape
         return (
-            f"segments drawn in {grid.occupied_cells} occupied cells of a {columns} × {rows} "
-            f"grid of {res:g} m ({grid.image})"
+            f"drawn in {counted(grid.occupied_cells, 'occupied cell')} of "
+            f"{with_article(str(columns))} × {rows} grid of {res:g} m ({grid.image})"
         )
     if kind == "svg":
         from segloc_cli.io.svg import write_svg
 
         write_svg(out_path, segments_world)
-        return "segments as lines, 1 unit = 1 mm"
+        return "as lines, 1 unit = 1 mm"
     from segloc_cli.io.plans import write_dxf
 
     write_dxf(out_path, segments_world)
-    return "segments as lines, in metres"
+    return "as lines, in metres"
 
 
 def simulate_log(

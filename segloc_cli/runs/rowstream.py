@@ -11,7 +11,6 @@ is given, and the command says the rest.
 
 from __future__ import annotations
 
-import functools
 import time
 from collections import Counter
 from collections.abc import Callable, Iterator, Mapping, Sequence
@@ -23,13 +22,16 @@ from typing import Any, Protocol
 import numpy as np
 
 from segloc_cli.config import ExtractParams
-from segloc_cli.estimates import EstimateRow
+from segloc_cli.estimates import STATUS_LOST, STATUS_RECOVERED, EstimateRow
 from segloc_cli.io.log import Log
 from segloc_cli.progress import Progress, ProgressFactory, silent
 from segloc_cli.runs.pipeline import LogRun
 
 PROGRESS_LABELS = {"guided": "localizing", "global": "global search", "track": "tracking"}
 """What the progress display says a run of each mode (``pipeline.RUN_MODES``) is doing."""
+PROGRESS_TALLIES = {"track": (STATUS_LOST, STATUS_RECOVERED)}
+"""The statuses whose scans the progress display of a mode counts as it goes: a track's lost
+scans, and those it found again."""
 
 
 class RowWriter(Protocol):
@@ -140,7 +142,11 @@ def write_rows(
             writer = RunViewWriter(outputs.view, view.segments_world, view.metadata)
             rows = _shown(stack.enter_context(writer), runs, view)
         t0 = time.perf_counter()
-        shown = functools.partial(progress, PROGRESS_LABELS[mode], planned, "scan")
+        tallied = PROGRESS_TALLIES.get(mode, ())
+
+        def shown() -> Progress:
+            return progress(PROGRESS_LABELS[mode], planned, "scan").tally(tallied)
+
         first_row = expect if mode == "global" else None
         statuses, runtimes_ms = _written(rows, outputs, stops, shown, first_row, planned)
         elapsed_s = time.perf_counter() - t0
@@ -170,7 +176,7 @@ def _written(
         shown = stack.enter_context(progress())
         try:
             for row in rows:
-                shown.advance()
+                shown.advance(outcome=row["status"])
                 for writer in writers:
                     writer.write_row(row)
                 statuses.append(row["status"])

@@ -32,6 +32,7 @@ import pandas as pd
 
 from segloc_cli.errors import InputError
 from segloc_cli.estimates import STATUS_NO_GUESS, STATUS_NO_SCAN, STATUS_TASK_FAILED, PoseTable
+from segloc_cli.wording import counted
 
 TASK_COLUMNS = ("task", "log", "combination", "seed")
 """The task a row belongs to: its key, the log as the spec names it, the combination's index
@@ -273,7 +274,7 @@ class ResultStore:
         foreign = done - {t.key for t in tasks}  # failures of other tasks hold nothing
         if foreign:
             raise InputError(
-                f"holds {len(foreign)} task(s) this spec does not plan (another spec's "
+                f"holds {counted(len(foreign), 'task')} this spec does not plan (another spec's "
                 "results?); use another --out, or --force to replace it",
                 path=self.out,
             )
@@ -391,7 +392,7 @@ def where(client: Any, scheduler: str | None) -> str:
     if scheduler:
         return f"the cluster at {scheduler}"
     n = len(client.scheduler_info().get("workers", {}))
-    return f"a local cluster of {n} worker{'s' if n > 1 else ''}"
+    return f"a local cluster of {counted(n, 'worker')}"
 
 
 def _greet(address: str) -> None:
@@ -479,7 +480,7 @@ def _workers_with_room(workers: int, warn: Callable[[str], None]) -> int:
     if fit < workers:
         warn(
             f"the system's limit on processes (ulimit -u) leaves room for {room} more processes "
-            f"and threads: a local cluster of {fit} worker(s), not {workers}"
+            f"and threads: a local cluster of {counted(fit, 'worker')}, not {workers}"
         )
     return min(workers, fit)
 

@@ -15,6 +15,7 @@ from typing import Any
 
 from segloc_cli.config import Setting, SettingError
 from segloc_cli.errors import InputError
+from segloc_cli.wording import with_article
 
 
 @dataclass(frozen=True)
@@ -35,7 +36,9 @@ def table_value(key: str, raw: Any, takes: Takes, path: Path) -> Any:
     if takes.flag and not isinstance(raw, bool):
         raise InputError(f"key {key!r} is a flag: give true or false, not {raw!r}", path=path)
     if not isinstance(raw, (bool, int, float, str)):
-        raise InputError(f"key {key!r} takes one value, not a {type(raw).__name__}", path=path)
+        raise InputError(
+            f"key {key!r} takes one value, not {with_article(type(raw).__name__)}", path=path
+        )
     if not takes.flag and isinstance(raw, bool):
         raise InputError(f"key {key!r} takes a value, not {str(raw).lower()}", path=path)
     _check_kind(key, raw, takes, path)

@@ -27,6 +27,7 @@ from segloc_cli.errors import InputError
 from segloc_cli.estimates import ESTIMATED
 from segloc_cli.io.numbers import rounded_frame
 from segloc_cli.scoring.gates import GATE_SLACK, GateOutcome, with_unit
+from segloc_cli.wording import counted
 
 ERROR_KEYS = ("err_x_cm", "err_y_cm", "err_xy_cm", "err_theta_deg")
 """The final errors a baseline's poses carry (cm, cm, cm, degrees)."""
@@ -351,7 +352,7 @@ def compare(
     n = int(np.count_nonzero(keep))
     if n < 2:
         raise InputError(
-            f"the baseline and this run share {n} pose{'' if n == 1 else 's'} with errors to "
+            f"the baseline and this run share {counted(n, 'pose')} with errors to "
             f"compare ({shared.size} in both, {shared.size - n} left out); at least 2 are "
             "needed: are they of the same survey?"
         )

@@ -22,6 +22,7 @@ import pandas as pd
 
 from segloc_cli.estimates import ESTIMATED
 from segloc_cli.method.confidence import RIGHT_PLACE_DEG, RIGHT_PLACE_M
+from segloc_cli.wording import counted
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -210,25 +211,21 @@ def _notes(rows: pd.DataFrame, position_m: np.ndarray, heading_deg: np.ndarray) 
     if (~guessed).any():
         notes.append(
             "no guess (a global search, a pose without a scan or guess, a failed task): "
-            f"{int((~guessed).sum())} of {_rows(len(rows))}, in no bin"
+            f"{int((~guessed).sum())} of {counted(len(rows), 'row')}, in no bin"
         )
     unknown = guessed & ~measured
     if unknown.any():
         notes.append(
             "a guess, but neither an estimate nor a survey pose to measure it against: "
-            f"{_rows(int(unknown.sum()))}, in no bin"
+            f"{counted(int(unknown.sum()), 'row')}, in no bin"
         )
     far = measured & (position_m > POSITION_BINS_M[-1])
     if far.any():
         notes.append(
-            f"a guess beyond {POSITION_BINS_M[-1]:g} m of the truth: {_rows(int(far.sum()))}, "
-            "in no position bin"
+            f"a guess beyond {POSITION_BINS_M[-1]:g} m of the truth: "
+            f"{counted(int(far.sum()), 'row')}, in no position bin"
         )
     return notes
-
-
-def _rows(n: int) -> str:
-    return f"{n} row" if n == 1 else f"{n} rows"
 
 
 def _edge_text(value: float) -> str:

@@ -36,6 +36,7 @@ from segloc_cli.scoring.gates import (
     survey_outcomes,
 )
 from segloc_cli.timing import pair_by_time
+from segloc_cli.wording import counted, plural
 
 ERROR_COLUMNS = (
     "ae_deg",
@@ -372,13 +373,14 @@ def summary_lines(stats: pd.DataFrame) -> list[str]:
     """
     attrs = stats.attrs
     counts = ", ".join(f"{status} {n}" for status, n in attrs["status_counts"].items())
-    lines = [f"{attrs['n_surveyed']} surveyed poses: {counts}."]
+    lines = [f"{counted(attrs['n_surveyed'], 'surveyed pose')}: {counts}."]
+    scored = counted(attrs["n_scored"], "pose")
     if attrs["only_ok"]:
-        cover = f"the {attrs['n_scored']} poses with status ok"
+        cover = f"the {scored} with status ok"
     else:
-        cover = f"the {attrs['n_scored']} poses with an estimate, whatever their status"
+        cover = f"the {scored} with an estimate, whatever their status"
     without = attrs["n_no_estimate"]
-    none = f"; {without} surveyed {'pose has' if without == 1 else 'poses have'} no estimate"
+    none = f"; {counted(without, 'surveyed pose')} {plural(without, 'has', 'have')} no estimate"
     lines.append(
         f"RMS and max (of absolute values) cover {cover}{none if without else ''}. "
         "Errors are surveyed minus computed; XY is the position error's magnitude √(X² + Y²)."
@@ -393,7 +395,10 @@ def summary_lines(stats: pd.DataFrame) -> list[str]:
     if attrs["n_beyond"] is not None:
         with_estimate = attrs["n_surveyed"] - without
         limits = attrs["gates"].limits_text()
-        line = f"{attrs['n_beyond']} of {with_estimate} poses exceed the per-pose limits ({limits})"
+        line = (
+            f"{attrs['n_beyond']} of {counted(with_estimate, 'pose')} "
+            f"exceed the per-pose limits ({limits})"
+        )
         more = attrs["n_gate_failed"] - attrs["n_beyond"]
         if more:
             line += (

@@ -68,6 +68,25 @@ Dataset keys are the folder names of the shared datasets (``mit-csail`` is the
 MIT CSAIL building); ``mit-killian-court`` is the separate MIT Killian Court log.
 """
 
+MAPS_FROM_CORRECTED_LOGS = ("aces", "fr079", "intel", "mit-csail")
+"""Datasets of ``PUBLISHED`` that come with a SLAM-corrected log (``<name>-corrected.log.gz``,
+the run's scans at the poses of a SLAM solution of it), from which segloc's maps of them are
+built: segloc localizes in a map that already holds a solution of the very run the published
+graph mapping had to solve, so its row and the published ones are not like for like."""
+
+
+def published_note(dataset: str) -> str | None:
+    """The line under a table of relation errors with ``dataset``'s published rows that says
+    how far they compare with segloc's (None where there is nothing to say)."""
+    if dataset not in MAPS_FROM_CORRECTED_LOGS:
+        return None
+    return (
+        f"Not like for like: segloc localized in a map built from {dataset}'s SLAM-corrected "
+        f"log ({dataset}-corrected.log.gz), which holds a solution of the very run that the "
+        "published graph mapping had to solve with no map given."
+    )
+
+
 PUBLISHED_SQUARED: dict[str, dict[str, dict[str, tuple[float, float]]]] = {
     "aces": {"GraphMapping": {"trans_sq_m2": (0.004, 0.009), "rot_sq_deg2": (0.3, 0.8)}},
     "intel": {"GraphMapping": {"trans_sq_m2": (0.002, 0.004), "rot_sq_deg2": (24.0, 166.1)}},
@@ -291,7 +310,7 @@ def _display_rows(
     return rows
 
 
-def _format_md(summary: dict, published: dict | None, label: str) -> str:
+def _format_md(summary: dict, published: dict | None, label: str, caveat: str | None) -> str:
     header = ["trajectory", "relations used", "skipped", "trans. error (m)", "rot. error (°)"]
     lines = [
         "| " + " | ".join(header) + " |",
@@ -308,6 +327,8 @@ def _format_md(summary: dict, published: dict | None, label: str) -> str:
     )
     if published:
         note += f" Published rows: {PUBLISHED_SOURCE}."
+    if published and caveat:
+        note += f"\n\n{caveat}"
     return "\n".join(lines) + f"\n\n{note}\n"
 
 
@@ -380,38 +401,47 @@ def published_json(published: dict) -> dict:
     }
 
 
-def _format_json(summary: dict, published: dict | None, label: str) -> str:
+def _format_json(summary: dict, published: dict | None, label: str, caveat: str | None) -> str:
     document: dict[str, object] = {"trajectory": label, "summary": _json_ready(summary)}
     if published:
         document["published"] = published_json(published)
         document["published_source"] = PUBLISHED_SOURCE
+        if caveat:
+            document["published_note"] = caveat
     return json_text(document, ensure_ascii=False)
 
 
 def format_relations(
-    summary: dict, fmt: str, published: dict | None = None, label: str = "segloc"
+    summary: dict,
+    fmt: str,
+    published: dict | None = None,
+    label: str = "segloc",
+    published_caveat: str | None = None,
 ) -> str:
     """Render a ``RelationErrors.summary()`` as text in format ``fmt``.
 
     ``published``, when given, is one dataset's entry of ``PUBLISHED``
     (method → {"trans_m": (mean, std), "rot_deg": (mean, std)}) and adds a row
-    per method; ``label`` names the estimate's row.
+    per method, with ``published_caveat`` (``published_note``) under the table where
+    given; ``label`` names the estimate's row.
 
     - ``md``: a Markdown table (trajectory, relations used, skipped, translational
-      and rotational error mean ± std at 1 mm and 0.01°) and a note on the metric.
+      and rotational error mean ± std at 1 mm and 0.01°), a note on the metric and
+      the published rows' source, and the caveat on its own line.
     - ``csv``: ``CSV_COLUMNS``, empty where a value is missing.
     - ``latex``: a booktabs ``tabular`` of the md content.
-    - ``json``: ``{"trajectory", "summary", "published", "published_source"}``, NaN
-      written as null; the last two only with ``published``.
+    - ``json``: ``{"trajectory", "summary", "published", "published_source",
+      "published_note"}``, NaN written as null; the last three only with ``published``,
+      the caveat only where given.
 
     Numbers of csv and json are rounded to the precision of their unit (``io/numbers.py``).
     """
     if fmt == "md":
-        return _format_md(summary, published, label)
+        return _format_md(summary, published, label, published_caveat)
     if fmt == "csv":
         return _format_csv(summary, published, label)
     if fmt == "latex":
         return _format_latex(summary, published, label)
     if fmt == "json":
-        return _format_json(summary, published, label)
+        return _format_json(summary, published, label, published_caveat)
     raise ValueError(f"unknown relations format {fmt!r}; choose one of {', '.join(FORMATS)}")
