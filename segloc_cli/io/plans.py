@@ -309,8 +309,9 @@ class _DxfReading:
         total = sum(self.curves.values())
         kinds = ", ".join(f"{kind} {n}" for kind, n in sorted(self.curves.items()))
         return (
-            f"{counted(total, 'curve')} ({kinds}) taken as {counted(self.chords, 'straight chord')}, "
-            f"each within {CHORD_SAGITTA_M * 100:g} cm of its curve"
+            f"{counted(total, 'curve')} ({kinds}) taken as "
+            f"{counted(self.chords, 'straight chord')}, each within {CHORD_SAGITTA_M * 100:g} cm "
+            "of its curve"
         )
 
     def _chords(self, curve) -> list[tuple[float, float, float, float]]:
