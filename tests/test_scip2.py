@@ -666,8 +666,10 @@ def test_pty_identify_configure_and_scan_the_hall(emulator):
     assert np.count_nonzero(expected) > 100
     for frame in frames:
         assert np.allclose(frame.angles_rad, URG_ANGLES, atol=1e-12)
-        # 1.2 cm noise, clutter, glass and dropouts: most beams, not all, within 5 cm.
-        assert _agreement(frame.ranges_m, expected) > 0.9
+        # 1.2 cm noise, glass, dropouts and clutter: most beams, not all, within 5 cm. A
+        # clutter object 0.3-0.6 m wide at 0.8-5 m covers about 30 of these 0.35° beams,
+        # and 1.5 of them come per scan on average: some 7 % of the fan.
+        assert _agreement(frame.ranges_m, expected) > 0.85
     assert np.diff([f.device_time_s for f in frames]) == pytest.approx([0.1, 0.1])
     assert driver.skipped == 0
 
