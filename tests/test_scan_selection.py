@@ -275,6 +275,15 @@ def test_an_initial_pose_out_of_bounds_is_one_line(walk, tmp_path, capsys):
     assert_one_line_error(result, "--initial", "X_M,Y_M,THETA_DEG")
 
 
+@pytest.mark.parametrize("pose", ["0,0", "1,2,3,4"])
+def test_an_initial_pose_of_other_than_three_numbers_is_one_line(walk, tmp_path, capsys, pose):
+    result = run_cli(
+        capsys, "localize", walk.log, "--map", HALL_WORLD, "--out", tmp_path / "e.csv",
+        "--track", "--initial", pose,
+    )  # fmt: skip
+    assert_one_line_error(result, f"'{pose}' is", "X_M,Y_M,THETA_DEG")
+
+
 def test_no_guess_near_any_scan_names_the_first_scan_and_the_tolerance(walk, tmp_path, capsys):
     late = tmp_path / "late.csv"
     late.write_text(f"{SURVEY_HEADER}\n1,{T0_S + 500:.3f},11.0,1.6,90\n", encoding="utf-8")
