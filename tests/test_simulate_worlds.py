@@ -256,6 +256,13 @@ def test_a_bad_world_file_is_one_line(keys, fragment, tmp_path, capsys):
     assert not (tmp_path / "o" / "log.mcap").exists()
 
 
+def test_materials_not_one_per_segment_count_in_words(tmp_path, capsys):
+    world = write_world(tmp_path / "bad-world.json", ROOM[:1], materials=["wall", "glass"])
+    poses = write_poses(tmp_path / "poses.csv", ROOM_POSES)
+    result = run_cli(capsys, "simulate", world, "--poses", poses, "--out", tmp_path / "o")
+    assert_one_line_error(result, "bad-world.json", "1 segment, materials 2")
+
+
 @pytest.mark.parametrize(
     ("option", "fragment"),
     [

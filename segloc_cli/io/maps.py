@@ -41,6 +41,7 @@ from segloc_cli.errors import InputError
 from segloc_cli.io.files import reading, write_text_atomic
 from segloc_cli.io.numbers import json_text, rounded_tree
 from segloc_cli.limits import MAX_COORDINATE_M
+from segloc_cli.wording import counted
 from segloc_cli.world import MATERIALS, World
 
 MAP_FORMAT = "segloc-map"
@@ -357,8 +358,8 @@ def _parse_materials(path, document: dict, n_segments: int, default: str) -> np.
     if not isinstance(raw, list) or len(raw) != n_segments:
         count = len(raw) if isinstance(raw, list) else "not a list"
         raise InputError(
-            f"`materials` must list one material per segment: {n_segments} segments, "
-            f"materials {count}",
+            f"`materials` must list one material per segment: "
+            f"{counted(n_segments, 'segment')}, materials {count}",
             path=path,
         )
     for index, material in enumerate(raw):
