@@ -81,7 +81,7 @@ from segloc_cli.io.runview import RUN_METADATA_NAME
 from segloc_cli.limits import MAX_COORDINATE_M
 from segloc_cli.progress import SILENT, Progress
 from segloc_cli.scan import MAX_READINGS, Scan, evenly_spaced_angles, fan_defect
-from segloc_cli.wording import counted
+from segloc_cli.wording import counted, plural
 
 SCAN_TOPIC = "/scan"
 ODOM_TOPIC = "/odom"
@@ -549,20 +549,16 @@ class _Faults:
             if numbers:
                 first = "first: " if len(numbers) > 1 else ""
                 lines.append(
-                    f"{name}: {verb} {_plural(len(numbers), topic + ' message')} [{text}]: "
+                    f"{name}: {verb} {counted(len(numbers), topic + ' message')} [{text}]: "
                     f"{_message_list(numbers)} ({first}{self.first[kind]})"
                 )
         return lines
 
 
-def _plural(n: int, noun: str) -> str:
-    return f"{n} {noun}" + ("" if n == 1 else "s")
-
-
 def _message_list(numbers: list[int]) -> str:
     shown = ", ".join(str(n) for n in numbers[:_LISTED_NUMBERS])
     more = len(numbers) - _LISTED_NUMBERS
-    word = "message" if len(numbers) == 1 else "messages"
+    word = plural(len(numbers), "message")
     return f"{word} {shown}" + (f" and {more} more" if more > 0 else "")
 
 
@@ -1068,7 +1064,7 @@ def _time_order_warnings(name: str, records: list[_ScanRecord]) -> list[str]:
         return []
     first = records[int(behind[0])]
     return [
-        f"{name}: {_plural(int(behind.size), 'scan')} repeat an earlier scan's time or go back "
+        f"{name}: {counted(int(behind.size), 'scan')} repeat an earlier scan's time or go back "
         f"in time (first: {SCAN_TOPIC} message {first.number} at "
         f"{first.time_ns / 1_000_000_000:.9f} s); pairing scans by time may refuse them"
     ]

@@ -85,7 +85,7 @@ def _time_span(times_s: np.ndarray) -> str:
     finite = times_s[np.isfinite(times_s)]
     if finite.size == 0:
         return "no valid times"
-    return f"{finite.min():.3f} to {finite.max():.3f} s ({times_s.size} rows)"
+    return f"{finite.min():.3f} to {finite.max():.3f} s ({counted(times_s.size, 'row')})"
 
 
 def _wrapped_deg(diff_rad: np.ndarray) -> np.ndarray:
