@@ -17,7 +17,7 @@ from typing import Any
 
 import click
 
-from segloc_cli.commands.optionvalues import parse_planar_pose
+from segloc_cli.commands.optionvalues import numbers_only, parse_planar_pose
 from segloc_cli.config import (
     GUESSES_KEYWORD,
     SETTINGS,
@@ -97,33 +97,15 @@ class GuessSource(click.ParamType):
     holds_path = True
 
     def convert(self, value, param, ctx):
-        if seed_pose(value) is not None:
+        # Numbers of another count than three are a pose mistyped, unless a file has that name.
+        if seed_pose(value) is not None or (numbers_only(value) and not Path(value).exists()):
             parse_planar_pose(value, "--initial", MAX_COORDINATE_M, "11,1.6,90")
-        elif _numbers_only(value) and not Path(value).exists():
-            count = value.count(",") + 1
-            self.fail(
-                f"{value!r} is {count} numbers, and no file: a pose is X_M,Y_M,THETA_DEG "
-                "(three numbers, e.g. 11,1.6,90)",
-                param,
-                ctx,
-            )
         return value
 
     @staticmethod
     def names_file(value: str) -> bool:
         """Whether the value names a file (not ``odom``, nor a pose)."""
         return value != GUESSES_KEYWORD and seed_pose(value) is None
-
-
-def _numbers_only(text: str) -> bool:
-    """Whether ``text`` is comma-separated numbers (more than one): a pose mistyped, not a
-    file's name."""
-    parts = text.split(",")
-    try:
-        [float(part) for part in parts]
-    except ValueError:
-        return False
-    return len(parts) > 1
 
 
 def holds_path(option: click.Parameter) -> bool:

@@ -13,14 +13,34 @@ import click
 T = TypeVar("T")
 
 
+def _split_numbers(text: str) -> tuple[float, ...] | None:
+    """The comma-separated numbers of ``text``; None where it holds other text."""
+    try:
+        return tuple(float(v) for v in text.split(","))
+    except ValueError:
+        return None
+
+
 def _numbers(text: str, count: int) -> tuple[float, ...]:
     """The ``count`` comma-separated numbers of ``text``; NaN each where it holds other text,
     or another count."""
-    try:
-        numbers = tuple(float(v) for v in text.split(","))
-    except ValueError:
-        numbers = ()
-    return numbers if len(numbers) == count else (math.nan,) * count
+    numbers = _split_numbers(text)
+    return numbers if numbers is not None and len(numbers) == count else (math.nan,) * count
+
+
+def numbers_only(text: str) -> bool:
+    """Whether ``text`` is comma-separated numbers, more than one (of any count)."""
+    numbers = _split_numbers(text)
+    return numbers is not None and len(numbers) > 1
+
+
+def _quoted(value: str, count: int) -> str:
+    """``value`` quoted for an error, with how many numbers it holds where that is not
+    ``count``: "'0,0' is 2 numbers"."""
+    numbers = _split_numbers(value)
+    if numbers is None or len(numbers) == count:
+        return repr(value)
+    return f"{value!r} is {len(numbers)} numbers"
 
 
 def parse_planar_pose(value: str, option: str, limit_m: float, example: str) -> tuple[float, ...]:
@@ -29,7 +49,8 @@ def parse_planar_pose(value: str, option: str, limit_m: float, example: str) -> 
     x, y, theta_deg = _numbers(value, 3)
     if not (max(abs(x), abs(y)) <= limit_m and math.isfinite(theta_deg)):
         raise click.BadParameter(
-            f"{value!r}; use X_M,Y_M,THETA_DEG, finite and within ±{limit_m:g} m (e.g. {example})",
+            f"{_quoted(value, 3)}; use X_M,Y_M,THETA_DEG, finite and within ±{limit_m:g} m "
+            f"(e.g. {example})",
             param_hint=option,
         )
     return x, y, theta_deg
@@ -41,7 +62,7 @@ def parse_point(value: str, option: str, example: str) -> tuple[float, float]:
     x, y = _numbers(value, 2)
     if not (math.isfinite(x) and math.isfinite(y)):
         raise click.BadParameter(
-            f"{value!r}; use X,Y in metres (e.g. {example})", param_hint=option
+            f"{_quoted(value, 2)}; use X,Y in metres (e.g. {example})", param_hint=option
         )
     return x, y
 
