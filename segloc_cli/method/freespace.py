@@ -25,7 +25,7 @@ import numpy as np
 
 from segloc_cli.geometry import Pose2, segment_lengths
 from segloc_cli.jit import njit
-from segloc_cli.method.kernels import angular_interval, copy_into, point_segment_distance, wrap
+from segloc_cli.method.kernels import angular_interval, grown, point_segment_distance, wrap
 from segloc_cli.method.spatial import SegmentGrid, near_mask
 
 SHORTEN_M = 0.3
@@ -193,7 +193,7 @@ def _seen_through(cells, segments, points, starts, poses, margin_m, behind_m, fi
             room += first[chosen[n] + 1] - first[chosen[n]]
         if count + room > scans.size:
             size = max(2 * scans.size, count + room)
-            scans, crossed = _grown(scans, count, size), _grown(crossed, count, size)
+            scans, crossed = grown(scans, count, size), grown(crossed, count, size)
         for i in range(starts[k], starts[k + 1]):
             r = np.hypot(points[i, 0], points[i, 1])
             if not r > behind_m:
@@ -260,11 +260,3 @@ def _by_sector(mid, half):
             members[filled[sector]] = n
             filled[sector] += 1
     return offsets, members
-
-
-@njit(cache=True)
-def _grown(values, count, size):
-    """The first ``count`` of ``values`` copied into a new array of ``size`` (the rest unset)."""
-    out = np.empty(size, dtype=values.dtype)
-    copy_into(out, values[:count])
-    return out

@@ -3,8 +3,8 @@
 Compiled code can only call compiled functions, so these are the scalar twins
 of helpers in ``geometry.py`` (which work on numpy arrays), written once here
 and called from the kernels of ``overlap.py``, ``refine.py``, ``score_raster.py``,
-``spatial.py`` and ``freespace.py`` (``copy_into`` is no geometry: an element copy that spares
-them numba's slice assignment, slow to compile).
+``spatial.py`` and ``freespace.py`` (``copy_into`` and ``grown`` are no geometry: an element
+copy that spares them numba's slice assignment, slow to compile, and a list's array grown).
 Units are metres and radians; a segment is ``x1 y1 x2 y2`` and every argument
 of one call is in the same frame unless a docstring says otherwise.
 
@@ -69,6 +69,15 @@ def copy_into(dst: np.ndarray, src: np.ndarray) -> None:
     compiles a shape check whose message formatting costs seconds of compile time."""
     for i in range(src.size):
         dst[i] = src[i]
+
+
+@njit(cache=True)
+def grown(values: np.ndarray, count: int, size: int) -> np.ndarray:
+    """The first ``count`` of ``values`` (1-d) copied into a new array of ``size`` (the rest
+    unset): room made for a list that outgrew its array."""
+    out = np.empty(size, dtype=values.dtype)
+    copy_into(out, values[:count])
+    return out
 
 
 @njit(cache=True)

@@ -19,7 +19,7 @@ import numpy as np
 
 from segloc_cli.geometry import as_segments, point_segment_distances
 from segloc_cli.jit import njit
-from segloc_cli.method.kernels import copy_into, list_if_within, point_segment_distance
+from segloc_cli.method.kernels import grown, list_if_within, point_segment_distance
 
 DEFAULT_CELL_M = 4.0
 """Cell side: about a room's wall; small enough that a query's square holds little else."""
@@ -258,11 +258,8 @@ def filed_within(cells, segments, allowed, points, radius_m):
         for ix in range(ix0, ix1 + 1):
             filed += offsets[ix * ny + iy1 + 1] - offsets[ix * ny + iy0]
         if count + filed > found.size:
-            grown = np.empty(max(2 * found.size, count + filed), dtype=np.int64)
-            grown_d = np.empty(grown.size)
-            copy_into(grown, found[:count])
-            copy_into(grown_d, found_d[:count])
-            found, found_d = grown, grown_d
+            size = max(2 * found.size, count + filed)
+            found, found_d = grown(found, count, size), grown(found_d, count, size)
         for ix in range(ix0, ix1 + 1):
             for k in range(offsets[ix * ny + iy0], offsets[ix * ny + iy1 + 1]):
                 j = members[k]
