@@ -228,9 +228,16 @@ sight, so that each beam is tested against those of its own sector only."""
 
 
 @njit(cache=True)
+def _sector_count(direction):
+    """The sector of a direction (radians) counted from −π without wrapping round: below 0
+    or from ``SECTORS`` on for a direction outside [−π, π)."""
+    return np.int64(np.floor((direction + np.pi) * SECTORS / (2.0 * np.pi)))
+
+
+@njit(cache=True)
 def _sector(direction):
     """The sector (0 … ``SECTORS`` − 1) of a direction (radians, any turn)."""
-    return np.int64(np.floor((direction + np.pi) * SECTORS / (2.0 * np.pi))) % SECTORS
+    return _sector_count(direction) % SECTORS
 
 
 @njit(cache=True)
@@ -244,9 +251,8 @@ def _by_sector(mid, half):
         if half[n] >= np.pi:
             lo[n], span[n] = 0, SECTORS
         else:
-            lo[n] = np.int64(np.floor((mid[n] - half[n] - SLACK + np.pi) * SECTORS / (2.0 * np.pi)))
-            hi = np.int64(np.floor((mid[n] + half[n] + SLACK + np.pi) * SECTORS / (2.0 * np.pi)))
-            span[n] = min(hi - lo[n] + 1, SECTORS)
+            lo[n] = _sector_count(mid[n] - half[n] - SLACK)
+            span[n] = min(_sector_count(mid[n] + half[n] + SLACK) - lo[n] + 1, SECTORS)
     offsets = np.zeros(SECTORS + 1, dtype=np.int64)
     for n in range(mid.size):
         for q in range(span[n]):
