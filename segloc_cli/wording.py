@@ -11,7 +11,9 @@ too, though it is rewritten in place and erased when the work ends.
 
 from __future__ import annotations
 
+import difflib
 import re
+from collections.abc import Sequence
 
 PREFIX = "segloc: "
 """What every line on standard error starts with."""
@@ -64,3 +66,10 @@ def _number_starts_with_vowel(digits: str) -> bool:
 def with_article(word: str) -> str:
     """``word`` after its article (``article``): "an explorer", "a scip2"."""
     return f"{article(word)} {word}"
+
+
+def did_you_mean(word: str, known: Sequence[str], otherwise: str = "") -> str:
+    """ "did you mean 'x'?", x being the one of ``known`` closest to a mistyped ``word``, or
+    ``otherwise`` where none is close."""
+    close = difflib.get_close_matches(word, list(known), n=1)
+    return f"did you mean {close[0]!r}?" if close else otherwise

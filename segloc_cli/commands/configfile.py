@@ -9,7 +9,6 @@ records, for the run to say when it does not repeat that one.
 
 from __future__ import annotations
 
-import difflib
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -19,6 +18,7 @@ import click
 from segloc_cli.commands.options import holds_path, names_file
 from segloc_cli.commands.printing import warn
 from segloc_cli.errors import InputError
+from segloc_cli.wording import did_you_mean
 
 COMMAND_LINE_ONLY = frozenset({"force"})
 """Options a configuration file may not set: ``--force`` must be seen where it is given, or
@@ -107,8 +107,7 @@ def _apply_config(ctx: click.Context, value: Path | None) -> None:
 
 def _unknown_key(key: str, command: tuple[str, ...], options: dict) -> str:
     name = ".".join(command)
-    close = difflib.get_close_matches(key, list(options), n=1)
-    hint = f"did you mean {close[0]!r}?" if close else f"see segloc {' '.join(command)} --help"
+    hint = did_you_mean(key, list(options), f"see segloc {' '.join(command)} --help")
     return f"unknown key {key!r} in [{name}]; keys are long option names; {hint}"
 
 

@@ -30,7 +30,6 @@ it), more than ``MAX_TOTAL_LENGTH_M`` of segments in all, and segments shorter t
 
 from __future__ import annotations
 
-import difflib
 import json
 import math
 from pathlib import Path
@@ -41,7 +40,7 @@ from segloc_cli.errors import InputError
 from segloc_cli.io.files import reading, write_text_atomic
 from segloc_cli.io.numbers import json_text, rounded_tree
 from segloc_cli.limits import MAX_COORDINATE_M
-from segloc_cli.wording import counted
+from segloc_cli.wording import counted, did_you_mean
 from segloc_cli.world import MATERIALS, World
 
 MAP_FORMAT = "segloc-map"
@@ -187,8 +186,8 @@ def _parse_sensor(path, raw) -> dict:
 
 
 def _unknown_key(key, known: tuple[str, ...], where: str) -> str:
-    close = difflib.get_close_matches(str(key), known, n=1)
-    hint = f"; did you mean {close[0]!r}?" if close else ""
+    hint = did_you_mean(str(key), known)
+    hint = f"; {hint}" if hint else ""
     return f"unknown key {shown_value(key)} in {where}, which holds {', '.join(known)}{hint}"
 
 

@@ -11,7 +11,6 @@ table, and each value is checked as that option checks its own (``tablevalues``,
 
 from __future__ import annotations
 
-import difflib
 import itertools
 import math
 import zlib
@@ -25,6 +24,7 @@ from segloc_cli.config import GUESSES_KEYWORD, LOCALIZE_SETTINGS, Setting
 from segloc_cli.errors import InputError
 from segloc_cli.runs.sweep import Task, task_key
 from segloc_cli.runs.tablevalues import Takes, setting_value, table_value
+from segloc_cli.wording import did_you_mean
 
 SPEC_KEYS = {
     "map": "the segment map (MAP.json) of every log that names none",
@@ -139,8 +139,7 @@ def _check_distinct(tasks: list[Task], path: Path) -> None:
 
 def _unknown(key: str, swept: dict) -> str:
     known = [*SPEC_KEYS, *swept]
-    close = difflib.get_close_matches(key, known, n=1)
-    hint = f"did you mean {close[0]!r}?" if close else "see segloc sweep --help"
+    hint = did_you_mean(key, known, "see segloc sweep --help")
     return (
         f"unknown key {key!r}; a spec takes {', '.join(SPEC_KEYS)} and localize's settings; {hint}"
     )
