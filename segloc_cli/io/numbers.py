@@ -18,6 +18,7 @@ keeps in whole nanoseconds comes back from its text exactly.
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 import re
@@ -54,6 +55,7 @@ _SYMBOLS = {"°": "deg", "%": "pct"}
 """Units written as symbols in the column names of printed tables (``median °``)."""
 
 
+@functools.lru_cache(maxsize=1024)  # asked of every cell of every row written, of few names
 def unit_of(name: str) -> str | None:
     """The unit ``name`` ends with (a key of ``DECIMALS``), or None: ``err_x_cm`` → cm,
     ``rot_deg_per_m`` → deg_per_m, ``median °`` → deg, ``confidence`` → None."""
