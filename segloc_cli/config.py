@@ -62,16 +62,6 @@ GUESSES_KEYWORD = "odom"
 """``--initial`` value that takes the guesses from the log itself rather than a file."""
 
 
-def seed_pose(text: str) -> tuple[float, ...] | None:
-    """``--initial X_M,Y_M,THETA_DEG``, the first scan's pose, as (x m, y m, heading degrees;
-    world frame); None when ``text`` is not three comma-separated numbers (``odom``, a file)."""
-    parts = text.split(",")
-    try:
-        return tuple(float(part) for part in parts) if len(parts) == 3 else None
-    except ValueError:
-        return None
-
-
 @dataclass(frozen=True)
 class ExtractParams:
     """Extraction settings (metres, degrees at the edge)."""

@@ -202,7 +202,7 @@ def _guess_source(initial: str, mode: str, n_logs: int):
     pose (a ``Pose2``, world frame) or a file's path. A pose is refused with ``--global``,
     which takes no initial pose, and for more than one log (``n_logs``), which would all
     start there."""
-    from segloc_cli.config import seed_pose
+    from segloc_cli.commands.optionvalues import seed_pose
     from segloc_cli.geometry import Pose2
 
     if initial == GUESSES_KEYWORD:

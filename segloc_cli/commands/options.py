@@ -17,14 +17,13 @@ from typing import Any
 
 import click
 
-from segloc_cli.commands.optionvalues import numbers_only, parse_planar_pose
+from segloc_cli.commands.optionvalues import numbers_only, parse_planar_pose, seed_pose
 from segloc_cli.config import (
     GUESSES_KEYWORD,
     SETTINGS,
     Setting,
     SettingError,
     number_within,
-    seed_pose,
 )
 from segloc_cli.limits import MAX_COORDINATE_M
 from segloc_cli.selection import ScanSelection

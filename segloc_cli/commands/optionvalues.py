@@ -28,6 +28,13 @@ def _numbers(text: str, count: int) -> tuple[float, ...]:
     return numbers if numbers is not None and len(numbers) == count else (math.nan,) * count
 
 
+def seed_pose(text: str) -> tuple[float, ...] | None:
+    """``--initial X_M,Y_M,THETA_DEG``, the first scan's pose, as (x m, y m, heading degrees;
+    world frame); None when ``text`` is not three comma-separated numbers (``odom``, a file)."""
+    numbers = _split_numbers(text)
+    return numbers if numbers is not None and len(numbers) == 3 else None
+
+
 def numbers_only(text: str) -> bool:
     """Whether ``text`` is comma-separated numbers, more than one (of any count)."""
     numbers = _split_numbers(text)
