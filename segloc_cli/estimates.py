@@ -35,6 +35,9 @@ STATUS_NO_SCAN = "no scan"
 """A survey pose within the log's time span that no scan lies near enough in time to."""
 STATUS_NO_GUESS = "no guess"
 """A survey pose whose scan has no initial guess (from the guesses file or /odom)."""
+STATUS_NO_ESTIMATE = "no_estimate"
+"""Scoring: a surveyed pose that no estimate lies near enough in time to (the localizer said
+nothing there). It fails every per-pose gate and counts against ``--min-paired-pct``."""
 
 
 class EstimateColumns(TypedDict):

@@ -182,7 +182,10 @@ def test_matching_tolerance_and_survey_ids():
     survey = make_survey([(101, 10.0, 0.0, 0.0, 0.0), (102, 20.0, 0.0, 0.0, 0.0)])
     estimates = make_estimates([{"time_s": 10.03}, {"time_s": 20.08}])
     table = table1(estimates, survey)
-    assert table["pose_id"].tolist() == [101]
+    # 20.08 s lies beyond the 50 ms tolerance: pose 102 stays, with no estimate.
+    assert table["pose_id"].tolist() == [101, 102]
+    assert table["status"].tolist() == ["ok", "no_estimate"]
+    assert np.isfinite(table.loc[0, "err_xy_cm"]) and np.isnan(table.loc[1, "err_xy_cm"])
 
 
 def test_matching_takes_nearest_and_earlier_on_a_tie():
@@ -206,8 +209,10 @@ def test_rows_follow_survey_order_and_unmatched_are_counted():
     )
     estimates = make_estimates([{"time_s": 1.0}, {"time_s": 3.0}])
     table = table1(estimates, survey)
-    assert table["pose_id"].tolist() == [30, 10]
+    assert table["pose_id"].tolist() == [30, 10, 20]
+    assert table["status"].tolist() == ["ok", "ok", "no_estimate"]
     stats = summary(table)
+    assert stats.attrs["n_poses"] == 2
     assert stats.attrs["n_surveyed"] == 3
     assert stats.attrs["n_no_estimate"] == 1
     assert stats.attrs["status_counts"] == {"ok": 2, "no_estimate": 1}
@@ -358,30 +363,35 @@ def test_gate_counts_in_every_format():
     table = mixed_table()
     gates = Gates(axis_cm=3.5, deg=0.3)
     stats = summary(table, gates=gates)
-    assert (stats.attrs["n_beyond"], stats.attrs["n_gate_failed"]) == (3, 4)
-    # Beyond: -4 cm (ok), 12 cm (ambiguous), -100 cm (lost); failing also too_few_segments.
-    assert len(pose_failures(table, gates)) == 4
+    assert (stats.attrs["n_beyond"], stats.attrs["n_gate_failed"]) == (3, 5)
+    # Beyond: -4 cm (ok), 12 cm (ambiguous), -100 cm (lost); failing also too_few_segments
+    # and pose 6, which has no estimate.
+    assert pose_failures(table, gates)[6] == ["no estimate within 50 ms"]
+    assert len(pose_failures(table, gates)) == 5
     md = format_table(table, stats, "md").splitlines()
     assert md[-4] == (
         "3 of 4 poses exceed the per-pose limits (|X|, |Y| ≤ 3.5 cm; |θ| ≤ 0.3°); the gate "
-        "fails 4, counting 1 without an accepted estimate (status other than ok)."
+        "fails 5, counting 2 without an accepted estimate (status other than ok)."
     )
+    # The max gates fail for the two poses without an estimate even where the others keep
+    # to them.
+    assert md[-2] == "Gate: max |θ| 3.00° > 0.3° (2 of 6 poses without an estimate): FAIL."
     assert md[-1] == (
-        "Gate: poses accepted and within |X|, |Y| ≤ 3.5 cm; |θ| ≤ 0.3° (1 of 5) 20.0 % < 100 %: "
-        "FAIL."
+        "Gate: share of poses accepted and within |X|, |Y| ≤ 3.5 cm; |θ| ≤ 0.3° 16.7 % < 100 % "
+        "(1 of 6 poses): FAIL."
     )
     document = json.loads(format_table(table, stats, "json"))
     gate_json = document["summary"]["gate"]
     assert gate_json["limits"] == {"axis_cm": 3.5, "deg": 0.3, "percentile": 95.0}
-    assert (gate_json["n_beyond"], gate_json["n_gate_failed"]) == (3, 4)
+    assert (gate_json["n_beyond"], gate_json["n_gate_failed"]) == (3, 5)
     assert [o["passed"] for o in gate_json["outcomes"]] == [False, False, False]
-    assert [p["beyond_gate"] for p in document["poses"]] == [False, True, True, True, False]
-    assert [p["scored"] for p in document["poses"]] == [True, True, True, True, False]
+    assert [p["beyond_gate"] for p in document["poses"]] == [False, True, True, True, False, False]
+    assert [p["scored"] for p in document["poses"]] == [True, True, True, True, False, False]
     assert document["summary"]["status_counts"]["no_estimate"] == 1
     assert (document["summary"]["n_surveyed"], document["summary"]["n_no_estimate"]) == (6, 2)
     back = pd.read_csv(io.StringIO(format_table(table, stats, "csv")))
-    assert back["beyond_gate"].tolist() == [0, 1, 1, 1, 0]
-    assert back["scored"].tolist() == [1, 1, 1, 1, 0]
+    assert back["beyond_gate"].tolist() == [0, 1, 1, 1, 0, 0]
+    assert back["scored"].tolist() == [1, 1, 1, 1, 0, 0]
     latex = format_table(table, stats, "latex")
     assert (
         r"exceed the per-pose limits (|X|, |Y| $\leq$ 3.5 cm; |$\theta$| $\leq$ 0.3$^\circ$)"

@@ -215,7 +215,13 @@ def test_a_bag_with_a_nan_pose_says_what_it_dropped(run_files, scored_by_format,
         "dropped 1 (1 not finite (or an all-zero quaternion))"
     )
     full = scored_by_format["ros2"][0]["poses"]
-    assert_same_poses(json.loads(out)["poses"], [p for p in full if p["pose_id"] != NAN_POSE + 1])
+    poses = json.loads(out)["poses"]
+    # The pose whose message was dropped stays in the table, with no estimate.
+    (dropped,) = [p for p in poses if p["pose_id"] == NAN_POSE + 1]
+    assert dropped["status"] == "no_estimate" and dropped["err_xy_cm"] is None
+    assert_same_poses(
+        [p for p in poses if p is not dropped], [p for p in full if p["pose_id"] != NAN_POSE + 1]
+    )
 
 
 # --------------------------------------------------------------------------- JUnit
@@ -256,11 +262,17 @@ def test_junit_fails_exactly_the_poses_beyond_the_limit(run_files, tmp_path, cap
         int(c.name.split()[1]) for c in poses if any(isinstance(r, Failure) for r in c.result)
     }
     assert failed == expected
-    # One gate on the largest |XY| and one on the share of poses within it.
-    assert len(gates) == 2
+    # One gate on the share of poses with an estimate (all have one), one on the largest
+    # |XY| and one on the share of poses within it; named by what they ask, not what they
+    # found.
+    assert [c.name for c in gates] == [
+        "gate: share of surveyed poses with an estimate ≥ 100 %",
+        f"gate: max position error |XY| ≤ {float(f'{limit:.6f}'):g} cm",
+        f"gate: share of poses accepted and within |XY| ≤ {float(f'{limit:.6f}'):g} cm ≥ 100 %",
+    ]
     gates_failed = [c for c in gates if any(isinstance(r, Failure) for r in c.result)]
     assert len(gates_failed) == (2 if expected else 0)
-    assert suite.tests == N + 2
+    assert suite.tests == N + 3
     assert suite.failures == len(expected) + len(gates_failed)
 
 
@@ -282,16 +294,32 @@ def test_the_summary_holds_the_table_and_is_appended_to_the_step_summary(
     assert not np.any(np.abs(ERR_XY_CM - limit_cm) < 0.1)  # no pose near the limit
     assert (verdict == "FAIL") == bool(np.any(ERR_XY_CM > limit_cm))
     text = summary.read_text(encoding="utf-8")
-    assert text.splitlines()[0] == f"### segloc evaluate: {verdict}"
-    # The md table printed is in the summary, row for row.
-    table_rows = [ln for ln in out.splitlines() if ln.startswith("|")]
-    assert len(table_rows) > N
-    summary_rows = [ln for ln in text.splitlines() if ln.startswith("|")]
-    assert summary_rows[: len(table_rows)] == table_rows
-    if verdict == "FAIL":
-        beyond = [i + 1 for i in np.flatnonzero(ERR_XY_CM > limit_cm)]
-        (failed,) = [ln for ln in text.splitlines() if ln.startswith("Failed: ")]
-        assert [int(p) for p in re.findall(r"pose (\d+):", failed)] == beyond
+    lines = [ln for ln in text.splitlines() if ln]
+    assert lines[0] == f"### segloc evaluate: {verdict}"
+    beyond = [i + 1 for i in np.flatnonzero(ERR_XY_CM > limit_cm)]
+    if verdict == "PASS":
+        assert lines[1] == f"**PASS: 3 gates held over {N} poses.**"
+    else:
+        assert lines[1].startswith("**FAIL: 2 of 3 gates failed (max position error |XY| ≤ ")
+        assert lines[1].endswith(
+            f"{len(beyond)} of {N} poses failed: " + ", ".join(str(p) for p in beyond) + ".**"
+        )
+    # The answer comes first: the gates, then the failing poses, then every pose, folded.
+    at = {title: text.index(title) for title in ("| result | gate |", "<details>")}
+    assert at["| result | gate |"] < at["<details>"]
+    folded = text[at["<details>"] :]
+    failing = text[: at["<details>"]]
+    listed = [int(p) for p in re.findall(r"^\| (\d+) ", failing, flags=re.MULTILINE)]
+    assert listed == beyond
+    # Table 1 printed (its header and rule, the poses, RMS and max) is in the summary row for
+    # row, each pose marked when it failed.
+    table_rows = [ln for ln in out.splitlines() if ln.startswith("|")][: N + 4]
+    summary_rows = [ln for ln in folded.splitlines() if ln.startswith("|")]
+    assert len(summary_rows) == len(table_rows)
+    for printed, summarised in zip(table_rows, summary_rows, strict=True):
+        assert summarised.startswith(printed[:-1])
+    marked = [int(row.split()[1]) for row in summary_rows[2:] if row.rstrip(" |").endswith("✘")]
+    assert marked == beyond
     appended = step_summary.read_text(encoding="utf-8")
     assert appended.startswith(earlier)
     assert appended[len(earlier) :].rstrip("\n") == text.rstrip("\n")
@@ -590,31 +618,6 @@ def test_a_relations_page_holds_the_relation_table(run_files, relations_file, tm
 # --------------------------------------------------------------------------- HTML page
 
 
-def test_a_browser_shows_the_report_with_its_table_gates_and_figures(run_files, tmp_path, capsys):
-    from test_html_report import assert_images_drawn, browse
-
-    from segloc_cli.scoring.plots import TABLE_FIGURES
-
-    page_path = tmp_path / "report.html"
-    limit = ERR_XY_CM.max() + 1.0
-    args = ("--fail-above-xy-cm", f"{limit:.3f}", "--html", page_path)
-    code, _, err = evaluate(capsys, run_files["segloc"], run_files["survey"], *args)
-    assert code == 0, err
-    seen = browse(page_path)
-    assert seen.complaints == []
-    # Without --map and --log the run draws the figures of the table alone, each shown.
-    assert len(seen.images) == len(TABLE_FIGURES)
-    assert all(image["natural"] > 0 for image in seen.images)
-    assert_images_drawn(seen)
-    text = seen.text
-    for header in ("pose", "X (cm)", "Y (cm)", "XY (cm)", "θ (°)", "status"):
-        assert header in text
-    assert (
-        f"max position error |XY| {ERR_XY_CM.max():.1f} cm ≤ {float(f'{limit:.3f}'):g} cm" in text
-    )
-    assert "PASS" in text
-
-
 # --------------------------------------------------------------------------- bad input
 
 
@@ -666,21 +669,36 @@ def test_each_bad_option_is_one_line_and_exit_2(run_files, tmp_path, capsys, cas
     assert_one_line_error(result, *phrases)
 
 
-def test_an_existing_junit_file_needs_force_and_nothing_is_written(run_files, tmp_path, capsys):
-    report = tmp_path / "report.xml"
-    report.write_text("old report\n", encoding="utf-8")
+def test_an_existing_table_needs_force_and_nothing_is_written(run_files, tmp_path, capsys):
+    table = tmp_path / "table.md"
+    table.write_text("old table\n", encoding="utf-8")
     args = [
-        "--junit", report,
+        "--junit", tmp_path / "report.xml",
         "--summary-md", tmp_path / "summary.md",
         "--html", tmp_path / "page.html",
-        "--out", tmp_path / "table.md",
+        "--out", table,
         "--plots", tmp_path / "plots",
     ]  # fmt: skip
     result = evaluate(capsys, run_files["segloc"], run_files["survey"], *args)
-    assert_one_line_error(result, "report.xml", "--junit", "--force")
+    assert_one_line_error(result, "table.md", "--out", "--force")
     assert result.out == ""
-    assert report.read_text(encoding="utf-8") == "old report\n"
-    assert [p.name for p in tmp_path.iterdir()] == ["report.xml"]
+    assert table.read_text(encoding="utf-8") == "old table\n"
+    assert [p.name for p in tmp_path.iterdir()] == ["table.md"]
+
+
+def test_reports_are_replaced_on_a_rerun_without_force(run_files, tmp_path, capsys):
+    reports = {
+        "--junit": tmp_path / "report.xml",
+        "--summary-md": tmp_path / "summary.md",
+        "--html": tmp_path / "page.html",
+    }
+    for path in reports.values():
+        path.write_text("from an earlier run\n", encoding="utf-8")
+    args = [item for option, path in reports.items() for item in (option, path)]
+    code, _, err = evaluate(capsys, run_files["segloc"], run_files["survey"], *args)
+    assert code == 0, err
+    for path in reports.values():
+        assert "from an earlier run" not in path.read_text(encoding="utf-8")
 
 
 def test_junit_and_html_naming_one_file_are_refused(run_files, tmp_path, capsys):

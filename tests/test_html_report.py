@@ -7,6 +7,7 @@ import base64
 import hashlib
 import io
 import os
+import re
 import shutil
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -80,6 +81,8 @@ def page_of(
     gates: tuple[GateOutcome, ...] = GATES,
     figures: dict[str, Callable[[], Figure]] | None = None,
     settings: dict[str, object] | None = None,
+    verdict_line: str = "",
+    appendix: tuple[ReportSection, ...] = (),
 ) -> str:
     estimates = tmp_path / "run.csv"
     estimates.write_text("time_s,x_m\n0.0,1.0\n", encoding="utf-8")
@@ -90,6 +93,8 @@ def page_of(
         figures={"line_plot": line_plot, "bar_chart": bar_chart} if figures is None else figures,
         settings={"method": "segments", "tolerance_ms": 50.0} if settings is None else settings,
         inputs={"estimates": estimates},
+        verdict_line=verdict_line,
+        appendix=appendix,
         dpi=80,
     )
 
@@ -145,7 +150,7 @@ def test_the_page_shows_cells_with_their_alignment_and_escapes_a_script_in_a_cel
     tmp_path: Path,
 ) -> None:
     text = f"| name | value |\n|:---|---:|\n| {HOSTILE} | 1 |\n"
-    page = page_of(tmp_path, sections=(ReportSection("Scores", text),))
+    page = page_of(tmp_path, sections=(ReportSection("Scores", text),), gates=())
     found = elements(page)
     cells = [attrs.get("class") for tag, attrs in found.tags if tag in ("th", "td")]
     assert cells[:4] == ["align-left", "align-right", "align-left", "align-right"]
@@ -236,6 +241,23 @@ def test_the_gates_show_the_measure_against_the_limit(tmp_path: Path) -> None:
     page = page_of(tmp_path, figures={})
     assert "<td>3.2 cm ≤ 5 cm</td>" in page
     assert "<td>80.0 % &lt; 95 %</td>" in page
+
+
+def test_the_answer_comes_first_and_the_long_table_last_folded_with_its_failures_marked(
+    tmp_path: Path,
+) -> None:
+    folded = ReportSection("Every pose", table1_text(), folded=True, marked_rows=frozenset({1}))
+    page = page_of(
+        tmp_path, verdict_line="FAIL: 1 of 2 gates failed.", appendix=(folded,), figures={}
+    )
+    order = [page.index(text) for text in ('class="verdict fail"', "<h2>Gates</h2>", "<details>")]
+    assert order == sorted(order)
+    assert page.index("<h2>Table 1</h2>") < page.index("<details>")
+    details = page[page.index("<details>") : page.index("</details>")]
+    assert "<summary>Every pose</summary>" in details
+    rows = re.findall(r"<tr( class=\"failing\")?>", details.split("<tbody>")[1])
+    # Pose 2 (the second body row) is marked; pose 1 and the RMS row are not.
+    assert rows == ["", ' class="failing"', ""]
 
 
 def test_settings_are_shown_as_names_and_values(tmp_path: Path) -> None:
@@ -331,7 +353,9 @@ class Browsed:
     """What headless Chromium saw of a page: console errors and warnings and page errors
     (``complaints``), every URL it requested, each image's natural, declared and shown
     width with its box on the page, the computed alignment of the first table's first
-    row, the page's text and a full-page screenshot (PNG bytes)."""
+    row, the page's text with its folded parts opened and a full-page screenshot (PNG
+    bytes) taken so; as first shown: the box of the first element each selector asked
+    for finds (``located``, None where none) and a screenshot of the first screen."""
 
     complaints: list[str]
     requested: list[str]
@@ -340,10 +364,15 @@ class Browsed:
     aligns: list[str]
     text: str
     shot: bytes
+    located: dict[str, dict | None]
+    first_screen: bytes
 
 
-def browse(path: Path) -> Browsed:
-    """Open ``path`` in Debian's headless Chromium (skipped without it, but under CI)."""
+def browse(
+    path: Path, viewport: tuple[int, int] = (1000, 700), locate: tuple[str, ...] = ()
+) -> Browsed:
+    """Open ``path`` in Debian's headless Chromium (skipped without it, but under CI) in a
+    window of ``viewport`` pixels, finding the elements of the ``locate`` selectors."""
     executable = _chromium()
     from playwright.sync_api import sync_playwright
 
@@ -355,7 +384,7 @@ def browse(path: Path) -> Browsed:
             args=["--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage"],
         )
         try:
-            page = browser.new_page(viewport={"width": 1000, "height": 700})
+            page = browser.new_page(viewport={"width": viewport[0], "height": viewport[1]})
             page.on(
                 "console",
                 lambda m: (
@@ -373,15 +402,23 @@ def browse(path: Path) -> Browsed:
                 " shown: e.clientWidth}))",
             )
             boxes = [element.bounding_box() for element in page.query_selector_all("img")]
+            # The first table after the gates: the first section's.
             aligns = page.eval_on_selector_all(
-                "section:first-of-type tbody tr:first-child td",
-                "els => els.map(e => getComputedStyle(e).textAlign)",
+                "table:not(.gates)",
+                "tables => tables.length ? Array.from(tables[0].querySelectorAll("
+                "'tbody tr:first-child td'), e => getComputedStyle(e).textAlign) : []",
             )
+            located = {}
+            for selector in locate:
+                element = page.query_selector(selector)
+                located[selector] = None if element is None else element.bounding_box()
+            first_screen = page.screenshot()
+            page.eval_on_selector_all("details", "els => els.forEach(e => { e.open = true; })")
             text = page.inner_text("body")
             shot = page.screenshot(full_page=True)
         finally:
             browser.close()
-    return Browsed(complaints, requested, images, boxes, aligns, text, shot)
+    return Browsed(complaints, requested, images, boxes, aligns, text, shot, located, first_screen)
 
 
 def assert_images_drawn(seen: Browsed) -> None:

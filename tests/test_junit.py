@@ -1,5 +1,6 @@
-"""The JUnit file of evaluate, read back as CI reads it (junitparser) and held against the
-shape pytest's own ``--junitxml`` gives."""
+"""The JUnit writer of evaluate, read back as CI reads it (junitparser) and held against the
+shape pytest's own ``--junitxml`` gives. Which cases a run writes, and which fail, is
+tested through the command in test_evaluate_ci.py."""
 
 from __future__ import annotations
 
@@ -9,47 +10,24 @@ import subprocess
 import sys
 import xml.etree.ElementTree as ET
 
-import pandas as pd
 import pytest
 from junitparser import Failure, JUnitXml, TestCase, TestSuite
 
 from segloc_cli.io.files import OutputError
-from segloc_cli.io.junit import junit_xml, write_junit
-from segloc_cli.scoring.evaluate import TABLE_COLUMNS
-from segloc_cli.scoring.gates import GateOutcome
+from segloc_cli.io.junit import JUnitCase, junit_xml, pose_line, write_junit
 
-
-def make_table(rows: list[tuple[int, float, float, float, str]]) -> pd.DataFrame:
-    """Table 1 rows from (pose_id, err_x_cm, err_y_cm, err_theta_deg, status)."""
-    ids, xs, ys, thetas, statuses = zip(*rows, strict=True)
-    table = pd.DataFrame(
-        {
-            "pose_id": ids,
-            "err_x_cm": xs,
-            "err_y_cm": ys,
-            "err_theta_deg": thetas,
-            "status": statuses,
-        }
-    )
-    table["err_xy_cm"] = [math.hypot(x, y) for x, y in zip(xs, ys, strict=True)]
-    # The columns these scores do not read (initial errors, times) hold zeros.
-    for column in set(TABLE_COLUMNS) - set(table.columns):
-        table[column] = 0.0
-    return table[list(TABLE_COLUMNS)]
-
-
-TABLE = make_table(
-    [
-        (1, -1.23, 0.41, 0.456, "ok"),
-        (2, 6.0, -8.0, -1.5, "ok"),
-        (5, math.nan, math.nan, math.nan, "lost"),
-        (9, 0.02, -0.04, 0.001, "recovered"),
-    ]
-)
-FAILURES = {2: ["|err_x| 6.0 cm > 5.0 cm", "|err_y| 8.0 cm > 5.0 cm"], 5: ["status lost"], 9: []}
-OUTCOMES = [
-    GateOutcome("RMS position error", 5.1, 5.0, "cm", passed=False),
-    GateOutcome("share of poses within limits", 75.0, 50.0, "%", passed=True, at_least=True),
+CASES = [
+    JUnitCase("poses", "pose 1", pose_line(-1.23, 0.41, math.hypot(-1.23, 0.41), 0.456, "ok")),
+    JUnitCase(
+        "poses",
+        "pose 2",
+        pose_line(6.0, -8.0, 10.0, -1.5, "ok"),
+        "|err_x| 6.0 cm > 5.0 cm; |err_y| 8.0 cm > 5.0 cm",
+    ),
+    JUnitCase("poses", "pose 5", pose_line(*[math.nan] * 4, "lost"), "status lost"),
+    JUnitCase("poses", "pose 9", pose_line(0.02, -0.04, 0.045, 0.001, "recovered")),
+    JUnitCase("gates", "gate: RMS position error ≤ 5 cm", "RMS 5.1 cm > 5 cm: FAIL", "RMS FAIL"),
+    JUnitCase("gates", "gate: share ≥ 50 %", "share 75.0 % ≥ 50 %: pass"),
 ]
 PROPERTIES = {"map": "hall.json", "estimates sha256": "ab12", "--fail-above-cm": "5"}
 
@@ -65,45 +43,36 @@ def failure_of(case: TestCase) -> Failure | None:
     return results[0] if results else None
 
 
-def test_one_case_per_pose_and_gate_failed_exactly_where_told():
-    suite, cases = cases_of(junit_xml(TABLE, FAILURES, OUTCOMES, properties=PROPERTIES))
+def test_one_case_each_failed_exactly_where_told():
+    suite, cases = cases_of(junit_xml(CASES, properties=PROPERTIES))
     assert suite.name == "segloc evaluate"
-    assert list(cases) == [
-        "pose 1",
-        "pose 2",
-        "pose 5",
-        "pose 9",
-        "RMS position error",
-        "share of poses within limits",
-    ]
+    assert list(cases) == [case.name for case in CASES]
     assert (suite.tests, suite.failures, suite.errors, suite.skipped) == (6, 3, 0, 0)
     failed = {name for name, case in cases.items() if failure_of(case) is not None}
-    assert failed == {"pose 2", "pose 5", "RMS position error"}
+    assert failed == {"pose 2", "pose 5", "gate: RMS position error ≤ 5 cm"}
     assert {cases[f"pose {i}"].classname for i in (1, 2, 5, 9)} == {"segloc evaluate.poses"}
-    assert cases["RMS position error"].classname == "segloc evaluate.gates"
+    assert cases["gate: share ≥ 50 %"].classname == "segloc evaluate.gates"
 
     pose_2 = failure_of(cases["pose 2"])
     assert pose_2 is not None
     assert pose_2.message == "|err_x| 6.0 cm > 5.0 cm; |err_y| 8.0 cm > 5.0 cm"
     assert pose_2.type == "gate"
-    gate = failure_of(cases["RMS position error"])
-    assert gate is not None and gate.message == OUTCOMES[0].text
+    assert failure_of(cases["gate: RMS position error ≤ 5 cm"]).message == "RMS FAIL"
 
 
 def test_each_case_says_its_figures_in_one_line():
-    _, cases = cases_of(junit_xml(TABLE, FAILURES, OUTCOMES))
+    _, cases = cases_of(junit_xml(CASES))
     assert cases["pose 1"].system_out == "X -1.2 cm, Y 0.4 cm, |XY| 1.3 cm, θ 0.46°, status ok"
     assert cases["pose 2"].system_out == "X 6.0 cm, Y -8.0 cm, |XY| 10.0 cm, θ -1.50°, status ok"
     assert cases["pose 5"].system_out == "X none cm, Y none cm, |XY| none cm, θ none°, status lost"
     # A sign the shown precision cannot support is dropped.
     assert cases["pose 9"].system_out.startswith("X 0.0 cm, Y 0.0 cm, |XY| 0.0 cm, θ 0.00°")
-    assert cases["share of poses within limits"].system_out == OUTCOMES[1].text
-    assert cases["share of poses within limits"].system_out.endswith("pass")
+    assert cases["gate: share ≥ 50 %"].system_out == "share 75.0 % ≥ 50 %: pass"
 
 
 def test_properties_and_suite_name_and_timestamp():
     text = junit_xml(
-        TABLE, {}, [], suite="hall", properties=PROPERTIES, timestamp="2024-05-01T10:00:00"
+        CASES[:1], suite="hall", properties=PROPERTIES, timestamp="2024-05-01T10:00:00"
     )
     suite, cases = cases_of(text)
     assert {p.name: p.value for p in suite.properties()} == PROPERTIES
@@ -112,28 +81,24 @@ def test_properties_and_suite_name_and_timestamp():
     assert suite.failures == 0
 
 
-def test_reasons_for_a_pose_not_in_the_table_are_refused():
-    with pytest.raises(ValueError, match=r"\[7\]"):
-        junit_xml(TABLE, {7: ["status lost"]}, [])
+def test_two_cases_of_one_name_are_refused():
+    with pytest.raises(ValueError, match="pose 1"):
+        junit_xml([CASES[0], CASES[0]])
 
 
 HOSTILE = "a \"quoted\" 'b' <tag> & &amp; ü θ 漢字 🙂\ttab"
 
 
 def test_hostile_strings_round_trip_and_control_characters_stay_readable(tmp_path):
-    table = make_table([(3, 1.0, 2.0, 0.5, HOSTILE), (4, 1.0, 2.0, 0.5, "bell\x07 nul\x00")])
-    outcome = GateOutcome(HOSTILE, 1.0, 2.0, "cm", passed=False)
-    path = tmp_path / "junit.xml"
-    write_junit(
-        path,
-        junit_xml(
-            table,
-            {3: [HOSTILE, "line\nbreak"], 4: ["esc\x1b"]},
-            [outcome],
-            suite=HOSTILE,
-            properties={HOSTILE: HOSTILE + "\x01"},
+    cases = [
+        JUnitCase(
+            "poses", "pose 3", pose_line(1.0, 2.0, 2.2, 0.5, HOSTILE), HOSTILE + "; line\nbreak"
         ),
-    )
+        JUnitCase("poses", "pose 4", pose_line(1.0, 2.0, 2.2, 0.5, "bell\x07 nul\x00"), "esc\x1b"),
+        JUnitCase("gates", HOSTILE, HOSTILE, HOSTILE + "\x02"),
+    ]
+    path = tmp_path / "junit.xml"
+    write_junit(path, junit_xml(cases, suite=HOSTILE, properties={HOSTILE: HOSTILE + "\x01"}))
     (suite,) = JUnitXml.fromfile(str(path))
     cases = {case.name: case for case in suite}
     assert suite.name == HOSTILE
@@ -143,11 +108,11 @@ def test_hostile_strings_round_trip_and_control_characters_stay_readable(tmp_pat
     assert failure_of(cases["pose 3"]).message == HOSTILE + "; line\nbreak"
     assert cases["pose 4"].system_out.endswith("status bell\\x07 nul\\x00")
     assert failure_of(cases["pose 4"]).message == "esc\\x1b"
-    assert failure_of(cases[HOSTILE]).message == outcome.text
+    assert failure_of(cases[HOSTILE]).message == HOSTILE + "\\x02"
 
 
 def test_written_file_is_the_text_and_a_missing_folder_is_one_error(tmp_path):
-    text = junit_xml(TABLE, FAILURES, OUTCOMES)
+    text = junit_xml(CASES)
     write_junit(tmp_path / "j.xml", text)
     assert (tmp_path / "j.xml").read_text(encoding="utf-8") == text
     assert list(tmp_path.iterdir()) == [tmp_path / "j.xml"]
@@ -189,7 +154,7 @@ def test_shape_is_the_one_pytest_writes(tmp_path):
         check=False,
     )
     theirs = shape(ET.parse(report).getroot())
-    ours = shape(ET.fromstring(junit_xml(TABLE, FAILURES, OUTCOMES, properties=PROPERTIES)))
+    ours = shape(ET.fromstring(junit_xml(CASES, properties=PROPERTIES)))
     assert ours[1] <= theirs[1], ours[1] - theirs[1]
     for element, names in ours[0].items():
         # pytest gives a failure no type; the JUnit schema does, and junitparser reads it.
@@ -199,5 +164,5 @@ def test_shape_is_the_one_pytest_writes(tmp_path):
 
 
 def test_nothing_to_report_is_still_a_valid_file():
-    suite, cases = cases_of(junit_xml(TABLE.iloc[:0], {}, []))
+    suite, cases = cases_of(junit_xml([]))
     assert (suite.tests, suite.failures, cases) == (0, 0, {})

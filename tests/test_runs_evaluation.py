@@ -4,10 +4,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import pandas as pd
 import pytest
 
-from segloc_cli.runs.evaluation import GATE_SHOWN, EvaluateOptions, Scores
+from segloc_cli.runs.evaluation import GATE_SHOWN, EvaluateOptions, Item, Scores
 from segloc_cli.scoring.gates import GateOutcome, Gates
 
 EST = Path("est.csv")
@@ -56,17 +55,42 @@ def test_the_files_read_and_written_are_listed():
 def test_gate_options_become_gates():
     given = {"survey_path": Path("s"), "fail_above_xy_cm": 5.0, "fail_rms_above_deg": 1.0}
     options = EvaluateOptions.from_options(EST, given | {"fail_above_cm": None})
-    assert options.gates == Gates(xy_cm=5.0, rms_deg=1.0)
+    # Any gate brings the share of poses with an estimate along, at 100 % unless told.
+    assert options.gates == Gates(xy_cm=5.0, rms_deg=1.0, min_paired_pct=100.0)
+    told = EvaluateOptions.from_options(EST, given | {"min_paired_pct": 90.0})
+    assert told.gates.min_paired_pct == 90.0
+    assert EvaluateOptions.from_options(EST, {"survey_path": Path("s")}).gates == Gates()
+    # So does a limit against a baseline, with the poses compared bounded too.
+    worse = EvaluateOptions.from_options(EST, {"baseline_path": Path("b"), "fail_if_worse_cm": 1})
+    assert (worse.gates.min_paired_pct, worse.fail_if_fewer_pct) == (100.0, 0.0)
+
+
+def lost_poses(n: int) -> tuple[Item, ...]:
+    return tuple(Item(f"pose {i}", "", ("status lost",)) for i in range(n))
 
 
 def test_the_violations_line_names_the_first_few():
     violations = [f"pose {i}: status lost" for i in range(GATE_SHOWN + 2)]
-    failures = {i: ["status lost"] for i in range(GATE_SHOWN + 2)}
-    share = GateOutcome("poses accepted and within", 0.0, 100.0, "%", False, True, True)
-    line = Scores("", "", [share], failures, pd.DataFrame()).violations_line
+    share = GateOutcome("share of poses accepted", 0.0, 100.0, "%", False, True, True)
+    line = Scores("", "", [share], {}, items=lost_poses(GATE_SHOWN + 2)).violations_line
     assert line.startswith("pose 0: status lost; pose 1") and line.endswith("; and 2 more")
-    assert Scores("", "", [share], {0: ["status lost"]}).violations_line == violations[0]
+    assert Scores("", "", [share], {}, items=lost_poses(1)).violations_line == violations[0]
     # With --min-within-pct the share held: the poses beyond are no violation.
-    held = GateOutcome("poses accepted and within", 90.0, 80.0, "%", True, True, True)
-    assert Scores("", "", [held], failures).passed
-    assert Scores("", "", [held], failures).violations == []
+    held = GateOutcome("share of poses accepted", 90.0, 80.0, "%", True, True, True)
+    assert Scores("", "", [held], {}, items=lost_poses(3)).passed
+    assert Scores("", "", [held], {}, items=lost_poses(3)).violations == []
+
+
+def test_a_pose_without_an_estimate_fails_with_the_gate_that_counts_it():
+    missing = Item("pose 7", "no estimate within 50 ms", ("no estimate within 50 ms",), True)
+    beyond = Item("pose 8", "X 12.0 cm ...", ("|XY| 12.0 cm > 10.0 cm",))
+    paired = GateOutcome("share with an estimate", 50.0, 100.0, "%", False, True, coverage=True)
+    tolerated = GateOutcome("share accepted", 90.0, 80.0, "%", True, True, per_pose=True)
+    scores = Scores("", "", [paired, tolerated], {}, items=(missing, beyond), n_truth=2)
+    # The pose without an estimate fails with the coverage gate; the one beyond the limit is
+    # tolerated by --min-within-pct.
+    assert [scores.fails(item) for item in scores.items] == [True, False]
+    assert scores.verdict_line == (
+        "FAIL: 1 of 2 gates failed (share with an estimate ≥ 100 %); 1 of 2 poses failed, "
+        "1 without an estimate: 7."
+    )

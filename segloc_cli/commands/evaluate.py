@@ -17,6 +17,8 @@ from segloc_cli.errors import EXIT_GATE_FAILED
 EPILOG = """\b
 Exit status: 0 every gate passed (or none was set); 1 a gate failed or the run got worse
 than --baseline beyond its limits; 2 bad input or options that do not go together.
+Whenever a gate is given, every surveyed pose needs an estimate (--min-paired-pct 100):
+a pose without one fails every per-pose gate.
 
 \b
 Another localizer in CI, e.g. AMCL in a ROS 2 bag:
@@ -65,16 +67,20 @@ def evaluate(estimates_path, force, **given):
     if problem is not None:
         raise click.UsageError(problem)
     # Outputs are checked before any input is read, so a refusal costs no work.
-    check_outputs(options.outputs, options.inputs, force)
+    check_outputs(options.outputs, options.inputs, force, replaced=options.REPORTS)
     if options.plots_dir is not None:
         evaluation.check_plots(options, force)
     estimates = evaluation.read_scored_estimates(options)
     scores, figures = _score(estimates, options)
     info(scores.pairing)
+    for warning in scores.warnings:
+        warn(warning)
     _emit(scores.text, options.out_path)
     _write_reports(options, scores, figures)
     if options.plots_dir is not None:
         _draw(options, figures)
+    if scores.all_outcomes:
+        info(scores.verdict_line)
     if not scores.passed:
         info(f"gate: {scores.violations_line}")
         sys.exit(EXIT_GATE_FAILED)

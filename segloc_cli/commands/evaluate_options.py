@@ -85,6 +85,13 @@ TABLE_OPTIONS = (
 
 GATE_OPTIONS = (
     _limit(
+        "--min-paired-pct",
+        "Fail when under this share (%) of the surveyed poses (relations) has an estimate "
+        "within the tolerance. Default 100 whenever another gate is given: a localizer that "
+        "stops answering fails, and every pose without an estimate fails the per-pose gates.",
+        maximum=100,
+    ),
+    _limit(
         "--fail-above-cm",
         "Per pose: fail when |X| or |Y| exceeds this (each axis), or the pose is not ok.",
     ),
@@ -142,24 +149,33 @@ BASELINE_OPTIONS = (
         "--fail-if-worse-deg",
         "With --baseline: fail when a heading figure got worse by more than this beyond doubt.",
     ),
+    _limit(
+        "--fail-if-fewer-pct",
+        "With --baseline: fail when the poses compared fall short of those the baseline "
+        "scored by more than this share (%). Default 0 with --fail-if-worse-cm or -deg.",
+        maximum=100,
+    ),
 )
 
 CI_OPTIONS = (
     path_option(
         "--junit",
         "junit_path",
-        help="Write a JUnit XML file: a test case per surveyed pose and one per gate.",
+        help="Write a JUnit XML file: a test case per surveyed pose (with --relations, per "
+        "relation missing an end) and one per gate, named alike in every run. Reports are "
+        "replaced on a rerun, without --force.",
     ),
     path_option(
         "--summary-md",
         "summary_md_path",
-        help="Write the Markdown summary here (with GITHUB_STEP_SUMMARY set, it is also "
-        "appended there).",
+        help="Write the Markdown summary here, verdict first, under 1 MiB (with "
+        "GITHUB_STEP_SUMMARY set, it is also appended there). Replaced on a rerun.",
     ),
     path_option(
         "--html",
         "html_path",
-        help="Write one self-contained HTML page: tables, gates, comparison, figures, settings.",
+        help="Write one self-contained HTML page: verdict and gates first, then the comparison, "
+        "failing poses, figures, the whole table folded, settings. Replaced on a rerun.",
     ),
 )
 

@@ -87,10 +87,13 @@ def check_outputs(
     outputs: Mapping[str, str | Path | None],
     inputs: Iterable[str | Path | None],
     force: bool,
+    replaced: Iterable[str] = (),
 ) -> None:
     """``check_output`` for every output (option name → path, None when not asked for), and
     refuse an output that is one of the ``inputs`` or another output, which writing would
-    destroy: ``--force`` overwrites results, never the data they are made from.
+    destroy: ``--force`` overwrites results, never the data they are made from. The outputs
+    of the options in ``replaced`` (reports a rerun refreshes) are replaced without
+    ``force``.
     """
     named = {option: Path(path) for option, path in outputs.items() if path is not None}
     # An input first: "pass --force" would be the wrong advice for one.
@@ -100,8 +103,9 @@ def check_outputs(
         if option is not None:
             raise OutputError(f"is an input of this command; choose another {option}", path=source)
     seen: dict[str, str] = {}
+    replaced = set(replaced)
     for option, path in named.items():
-        check_output(path, force, option)
+        check_output(path, force or option in replaced, option)
         key = _identity(path)
         if key in seen:
             raise OutputError(f"{seen[key]} and {option} name the same file", path=path)

@@ -1,8 +1,10 @@
 """``segloc evaluate --html``: the scores of a run as one self-contained HTML page.
 
-The page holds a heading with an overall PASS/FAIL badge, each section's Markdown pipe table
-as an HTML table with the sentences under it, the gates, every figure as an inline PNG, the
-settings and each input file with its size and SHA-256. It names no external resource (no
+The page opens with the answer: a heading with an overall PASS/FAIL badge, the verdict in
+one line and the gates, all on the first screen; then each section's Markdown pipe table as
+an HTML table with the sentences under it, every figure as an inline PNG, the appendix
+(long tables folded, their failing rows marked), the settings and each input file with its
+size and SHA-256. It names no external resource (no
 script, font, stylesheet or image from elsewhere), so the file alone is the whole report;
 its style is inline and prints well. Every text that goes into the page is escaped by the
 template (jinja2 with autoescape).
@@ -27,11 +29,13 @@ import numpy as np
 
 from segloc_cli import __version__
 from segloc_cli.io.files import reading, sha256, write_text_atomic
-from segloc_cli.scoring.gates import GateOutcome
 from segloc_cli.wording import counted
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
+
+    # Only the outcome's fields are read here: io/ does not import the layers above it.
+    from segloc_cli.scoring.gates import GateOutcome
 
 ALIGNMENTS = ("left", "center", "right")
 """Cell alignments a pipe table's separator row can ask for (None: the browser's default)."""
@@ -41,11 +45,14 @@ ALIGNMENTS = ("left", "center", "right")
 class ReportSection:
     """A titled block of the page: ``markdown_table`` is a GitHub-Markdown pipe table with
     sentences under it, as ``segloc evaluate`` prints it (None: no table); ``lines`` are more
-    sentences, a paragraph each."""
+    sentences, a paragraph each. ``folded``: shown closed, opened by a click;
+    ``marked_rows``: the body rows (from 0) of its first table to mark as failing."""
 
     title: str
     markdown_table: str | None = None
     lines: Sequence[str] = ()
+    folded: bool = False
+    marked_rows: frozenset[int] = frozenset()
 
 
 @dataclass(frozen=True)
@@ -128,7 +135,7 @@ def _split_row(line: str, pipes: tuple[int, ...] | None) -> list[str]:
     """The stripped cells of one row. A row padded like the separator (``pipes``: where its
     pipes are) is cut at those pipes alone, so a ``|`` inside a cell stays in it."""
     if pipes and len(line) == pipes[-1] + 1 and all(line[i] == "|" for i in pipes):
-        return [line[a + 1 : b].strip() for a, b in itertools.pairwise(pipes)]
+        return [line[a + 1 : b].strip().replace("\\|", "|") for a, b in itertools.pairwise(pipes)]
     inner = line[1:-1] if line.endswith("|") and not line.endswith("\\|") else line[1:]
     return [cell.strip().replace("\\|", "|") for cell in _UNESCAPED_PIPE.split(inner)]
 
@@ -175,9 +182,12 @@ def html_report(
     figures: Mapping[str, Callable[[], Figure]],
     settings: Mapping[str, object],
     inputs: Mapping[str, Path],
+    verdict_line: str = "",
+    appendix: Sequence[ReportSection] = (),
     dpi: int = 100,
 ) -> str:
-    """The whole page as text.
+    """The whole page as text: the title and badge, ``verdict_line``, the ``gates``, the
+    ``sections``, the figures, the ``appendix``, the settings and the inputs.
 
     ``figures`` maps a name to a function that draws the figure (as
     ``scoring/plots.evaluation_figures`` gives them); each is drawn in turn, kept as a PNG of
@@ -196,7 +206,9 @@ def html_report(
     return _template().render(
         title=title,
         verdict=verdict,
+        verdict_line=verdict_line,
         sections=[_section_blocks(section) for section in sections],
+        appendix=[_section_blocks(section) for section in appendix],
         gates=[_gate_row(gate) for gate in gates],
         figures=drawn,
         settings=[(str(name), _setting_text(value)) for name, value in settings.items()],
@@ -218,17 +230,19 @@ def _section_blocks(section: ReportSection) -> dict[str, object]:
     if section.markdown_table is not None:
         blocks += markdown_blocks(section.markdown_table)
     blocks += [line for line in section.lines if line.strip()]
-    return {"title": section.title, "blocks": blocks}
+    first_table = next((i for i, block in enumerate(blocks) if isinstance(block, PipeTable)), -1)
+    return {
+        "title": section.title,
+        "blocks": blocks,
+        "folded": section.folded,
+        "marked": {first_table: section.marked_rows},
+    }
 
 
 def _gate_row(gate: GateOutcome) -> dict[str, object]:
-    """A gate as the page's row: its name, and the measure against the bound in the words of
-    ``GateOutcome.text`` (``3.2 cm ≤ 5 cm``)."""
-    text = gate.text
-    outcome = text.rsplit(":", 1)[0]
-    if outcome.startswith(gate.name + " "):
-        outcome = outcome[len(gate.name) + 1 :]
-    return {"name": gate.name, "outcome": outcome, "passed": gate.passed, "text": text}
+    """A gate as the page's row: what it asks (``RMS position error ≤ 5 cm``), and the
+    measure against the bound with its counts (``3.2 cm ≤ 5 cm``)."""
+    return {"name": gate.title, "outcome": gate.result, "passed": gate.passed, "text": gate.text}
 
 
 def _draw(name: str, draw: Callable[[], Figure], dpi: int) -> _Figure:
@@ -332,6 +346,11 @@ tbody tr:nth-child(even) { background: #fbfcfd; }
 .align-right { text-align: right; }
 table.settings th { text-align: left; font-weight: 600; background: #f6f8fa; }
 td.pass { color: #116329; } td.fail { color: #a40e26; font-weight: 600; }
+p.verdict { font-size: 1.1em; font-weight: 600; margin: .2em 0 .8em; }
+p.verdict.fail { color: #a40e26; } p.verdict.pass { color: #116329; }
+tbody tr.failing, tbody tr.failing:nth-child(even) { background: #ffebe9; }
+details > summary { cursor: pointer; font-size: 1.2em; font-weight: 600; margin-top: 1.8em;
+  border-bottom: 1px solid #d0d7de; padding-bottom: .2em; }
 code { font: .9em ui-monospace, "SFMono-Regular", Menlo, Consolas, monospace; }
 figure { margin: 1em 0; break-inside: avoid; }
 figure img { max-width: 100%; height: auto; border: 1px solid #eaeef2; }
@@ -357,7 +376,7 @@ _PAGE = (
     + """</style>
 </head>
 <body>
-{% macro pipe_table(table) %}
+{% macro pipe_table(table, marked=()) %}
 <table>
 <thead><tr>
 {% for header in table.headers %}
@@ -366,12 +385,19 @@ _PAGE = (
 </tr></thead>
 <tbody>
 {% for row in table.rows %}
-<tr>{% for cell in row %}
+<tr{% if loop.index0 in marked %} class="failing"{% endif %}>{% for cell in row %}
 <td{{ align(table.alignments[loop.index0]) }}>{{ cell }}</td>
 {%- endfor %}</tr>
 {% endfor %}
 </tbody>
 </table>
+{% endmacro %}
+{% macro blocks(section) %}
+{% for block in section.blocks %}
+{% if block is pipe_table %}{{ pipe_table(block, section.marked.get(loop.index0, ())) }}
+{% else %}<p>{{ block }}</p>
+{% endif %}
+{% endfor %}
 {% endmacro %}
 {% macro align(alignment) %}
 {% if alignment %} class="align-{{ alignment }}"{% endif %}
@@ -382,22 +408,14 @@ _PAGE = (
 {% elif verdict == "fail" %}<span class="badge fail">FAIL</span>
 {% else %}<span class="badge none">no gates</span>{% endif %}
 </h1>
+{% if verdict_line %}<p class="verdict {{ verdict }}">{{ verdict_line }}</p>{% endif %}
 </header>
 <main>
-{% for section in sections %}
-<section>
-<h2>{{ section.title }}</h2>
-{% for block in section.blocks %}
-{% if block is pipe_table %}{{ pipe_table(block) }}{% else %}<p>{{ block }}</p>
-{% endif %}
-{% endfor %}
-</section>
-{% endfor %}
 {% if gates %}
 <section>
 <h2>Gates</h2>
 <table class="gates">
-<thead><tr><th>result</th><th>gate</th><th>measured against limit</th></tr></thead>
+<thead><tr><th>result</th><th>gate</th><th>measured</th></tr></thead>
 <tbody>
 {% for gate in gates %}
 <tr title="{{ gate.text }}"><td class="{{ 'pass' if gate.passed else 'fail' }}">
@@ -408,6 +426,12 @@ _PAGE = (
 </table>
 </section>
 {% endif %}
+{% for section in sections %}
+<section>
+<h2>{{ section.title }}</h2>
+{{ blocks(section) }}
+</section>
+{% endfor %}
 {% if figures %}
 <section>
 <h2>Figures</h2>
@@ -420,6 +444,19 @@ _PAGE = (
 {% endfor %}
 </section>
 {% endif %}
+{% for section in appendix %}
+<section>
+{% if section.folded %}
+<details>
+<summary>{{ section.title }}</summary>
+{{ blocks(section) }}
+</details>
+{% else %}
+<h2>{{ section.title }}</h2>
+{{ blocks(section) }}
+{% endif %}
+</section>
+{% endfor %}
 {% if settings %}
 <section>
 <h2>Settings</h2>

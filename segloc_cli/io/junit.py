@@ -1,12 +1,14 @@
-"""JUnit XML for CI: each scored pose and each summary gate of ``evaluate`` as one test case.
+"""JUnit XML for CI: each scored pose (or reference relation) and each gate of ``evaluate`` as
+one test case.
 
 The file follows the JUnit schema that pytest writes (``--junitxml``) and that CI services
 read (GitLab, Jenkins, GitHub test reporters): one ``<testsuites>`` holding one
 ``<testsuite>``, its ``<properties>`` (the run's settings and input hashes), then one
-``<testcase>`` per pose of Table 1 (``classname="<suite>.poses"``, ``name="pose <id>"``) and
-one per gate (``classname="<suite>.gates"``, ``name`` the gate's). A failed case holds a
+``<testcase>`` per ``JUnitCase`` (``classname="<suite>.<group>"``). A failed case holds a
 ``<failure type="gate">`` whose ``message`` says why; every case's ``<system-out>`` holds its
-figures in one line.
+figures in one line. Names stay the same from run to run (``pose 140``, ``gate: RMS position
+error ≤ 5 cm``) so that a CI service follows each case's history; what changes goes in the
+message and the output.
 
 XML 1.0 cannot carry most control characters, not even escaped; any found in a status, a
 name or a message is written as its ``\\xNN`` escape so that a strange status cannot make
@@ -18,22 +20,15 @@ from __future__ import annotations
 import re
 import xml.etree.ElementTree as ET
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 
 from segloc_cli.io.files import write_text_atomic
 
-if TYPE_CHECKING:
-    # Only the outcome's fields are read here: io/ does not import the layers above it.
-    from segloc_cli.scoring.gates import GateOutcome
-
 _NOT_XML = re.compile("[^\t\n\r\x20-\ud7ff\ue000-\ufffd\U00010000-\U0010ffff]")
 """Characters XML 1.0 does not allow: C0 controls but tab and line ends, surrogates, FFFE/F."""
-
-_POSE_COLUMNS = ("pose_id", "err_x_cm", "err_y_cm", "err_xy_cm", "err_theta_deg", "status")
 
 
 def _xml_text(value: object) -> str:
@@ -66,61 +61,46 @@ def pose_line(
     )
 
 
-def _case(parent: ET.Element, classname: str, name: str) -> ET.Element:
-    return ET.SubElement(
-        parent,
-        "testcase",
-        {"classname": _xml_text(classname), "name": _xml_text(name), "time": "0"},
-    )
+@dataclass(frozen=True)
+class JUnitCase:
+    """One test case: its ``group`` (``poses``, ``relations``, ``gates``: the class name's
+    last part), its ``name``, its one-line ``output`` and, when it failed, the ``failure``
+    message (None: passed)."""
 
-
-def _fail(case: ET.Element, message: str) -> None:
-    ET.SubElement(case, "failure", {"message": _xml_text(message), "type": "gate"})
-
-
-def _out(case: ET.Element, text: str) -> None:
-    ET.SubElement(case, "system-out").text = _xml_text(text)
+    group: str
+    name: str
+    output: str
+    failure: str | None = None
 
 
 def junit_xml(
-    table: pd.DataFrame,
-    pose_failures: Mapping[int, Sequence[str]],
-    outcomes: Sequence[GateOutcome],
+    cases: Sequence[JUnitCase],
     *,
     suite: str = "segloc evaluate",
     properties: Mapping[str, str] | None = None,
     timestamp: str | None = None,
 ) -> str:
-    """The JUnit XML text (UTF-8, with its declaration) of a scored run.
+    """The JUnit XML text (UTF-8, with its declaration) of ``cases``, in their order.
 
-    ``table`` is a ``scoring.evaluate.table1`` result (``pose_id``, ``err_x_cm``,
-    ``err_y_cm``, ``err_xy_cm`` in cm, ``err_theta_deg`` in degrees, ``status``); each row
-    becomes a case that fails exactly when ``pose_failures`` holds a non-empty list of
-    reasons for its ``pose_id`` (the failure's message: the reasons joined by ``"; "``).
-    Each ``GateOutcome`` of ``outcomes`` becomes a case after the poses, failed when it did
-    not pass, its ``text`` as output. ``properties`` (name → value: settings, input hashes)
-    go into the suite's ``<properties>`` in their order; ``timestamp`` (ISO 8601), when
-    given, into its ``timestamp`` attribute. Times are "0": a score takes no time worth
-    reporting.
+    ``properties`` (name → value: settings, input hashes) go into the suite's
+    ``<properties>`` in their order; ``timestamp`` (ISO 8601), when given, into its
+    ``timestamp`` attribute. Times are "0": a score takes no time worth reporting. The
+    suite's ``failures`` counts the cases that hold a failure.
 
-    Raises ``ValueError`` when ``table`` lacks a column or ``pose_failures`` gives reasons
-    for a pose that is not in ``table`` (they would go unreported).
+    Raises ``ValueError`` when two cases of one group share a name (a CI service would
+    merge their histories).
     """
-    missing = [c for c in _POSE_COLUMNS if c not in table.columns]
-    if missing:
-        raise ValueError(f"table lacks the column(s) {', '.join(missing)}")
-    ids = table["pose_id"].to_numpy()
-    failing = {int(k) for k, reasons in pose_failures.items() if len(reasons)}
-    unknown = sorted(failing - {int(i) for i in ids})
-    if unknown:
-        raise ValueError(f"pose_failures names poses not in the table: {unknown}")
-
+    seen: set[tuple[str, str]] = set()
+    for case in cases:
+        key = (case.group, case.name)
+        if key in seen:
+            raise ValueError(f"two {case.group} cases are named {case.name!r}")
+        seen.add(key)
     root = ET.Element("testsuites", {"name": _xml_text(suite)})
-    n_failed = len(failing) + sum(not outcome.passed for outcome in outcomes)
     attributes = {
         "name": _xml_text(suite),
-        "tests": str(len(table) + len(outcomes)),
-        "failures": str(n_failed),
+        "tests": str(len(cases)),
+        "failures": str(sum(case.failure is not None for case in cases)),
         "errors": "0",
         "skipped": "0",
         "time": "0",
@@ -132,19 +112,20 @@ def junit_xml(
         holder = ET.SubElement(testsuite, "properties")
         for name, value in properties.items():
             ET.SubElement(holder, "property", {"name": _xml_text(name), "value": _xml_text(value)})
-
-    x_cm, y_cm, xy_cm, theta_deg = (table[c].to_numpy(dtype=float) for c in _POSE_COLUMNS[1:5])
-    for row, (pose_id, status) in enumerate(zip(ids, table["status"], strict=True)):
-        case = _case(testsuite, f"{suite}.poses", f"pose {pose_id}")
-        reasons = pose_failures.get(int(pose_id), ())
-        if len(reasons):
-            _fail(case, "; ".join(str(reason) for reason in reasons))
-        _out(case, pose_line(x_cm[row], y_cm[row], xy_cm[row], theta_deg[row], str(status)))
-    for outcome in outcomes:
-        case = _case(testsuite, f"{suite}.gates", outcome.name)
-        if not outcome.passed:
-            _fail(case, outcome.text)
-        _out(case, outcome.text)
+    for case in cases:
+        element = ET.SubElement(
+            testsuite,
+            "testcase",
+            {
+                "classname": _xml_text(f"{suite}.{case.group}"),
+                "name": _xml_text(case.name),
+                "time": "0",
+            },
+        )
+        if case.failure is not None:
+            attributes = {"message": _xml_text(case.failure), "type": "gate"}
+            ET.SubElement(element, "failure", attributes)
+        ET.SubElement(element, "system-out").text = _xml_text(case.output)
     return '<?xml version="1.0" encoding="utf-8"?>\n' + ET.tostring(root, encoding="unicode") + "\n"
 
 

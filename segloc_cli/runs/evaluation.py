@@ -20,7 +20,7 @@ from __future__ import annotations
 import functools
 import json
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -46,6 +46,7 @@ GATE_FIELDS = {
     "fail_above_xy_cm": "xy_cm",
     "fail_above_deg": "deg",
     "min_within_pct": "min_within_pct",
+    "min_paired_pct": "min_paired_pct",
     "fail_rms_above_cm": "rms_cm",
     "fail_rms_above_deg": "rms_deg",
     "fail_mean_above_cm": "mean_cm",
@@ -57,6 +58,14 @@ GATE_FIELDS = {
 """The command's gate options (as click names them) → the ``Gates`` field each sets."""
 
 PER_POSE_OPTIONS = "--fail-above-cm, --fail-above-xy-cm or --fail-above-deg"
+
+FULL_COVERAGE_PCT = 100.0
+"""``--min-paired-pct`` whenever another gate is given: every surveyed pose (relation) needs
+an estimate."""
+
+WARN_BELOW_PAIRED_PCT = 50.0
+"""Under this share (%) of the truth paired with an estimate, a run warns even with no gate:
+more likely the wrong survey or log than a localizer that answered so rarely."""
 
 
 @dataclass(frozen=True)
@@ -92,14 +101,28 @@ class EvaluateOptions:
     baseline_path: Path | None = None
     fail_if_worse_cm: float | None = None
     fail_if_worse_deg: float | None = None
+    fail_if_fewer_pct: float | None = None
 
     @classmethod
     def from_options(cls, estimates_path: Path, given: dict) -> EvaluateOptions:
-        """From the command's options by their click names (the gate options among them)."""
+        """From the command's options by their click names (the gate options among them).
+
+        Whenever a gate is given, the share of the truth with an estimate is one too: 100 %
+        unless ``--min-paired-pct`` says otherwise, so that a localizer that fell silent
+        cannot pass on the poses it still answered. With ``--fail-if-worse-*``, the poses
+        compared with the baseline may not fall short of the baseline's (0 % unless
+        ``--fail-if-fewer-pct`` says otherwise)."""
         given = dict(given)
         limits = {GATE_FIELDS[k]: given.pop(k) for k in GATE_FIELDS if k in given}
         limits = {k: v for k, v in limits.items() if v is not None}
-        return cls(estimates_path, gates=Gates(**limits), **given)
+        gates = Gates(**limits)
+        worse = any(given.get(k) is not None for k in ("fail_if_worse_cm", "fail_if_worse_deg"))
+        if worse and given.get("fail_if_fewer_pct") is None:
+            given["fail_if_fewer_pct"] = 0.0
+        fewer = given.get("fail_if_fewer_pct") is not None
+        if gates.min_paired_pct is None and (gates.any or worse or fewer):
+            gates = replace(gates, min_paired_pct=FULL_COVERAGE_PCT)
+        return cls(estimates_path, gates=gates, **given)
 
     @property
     def tolerance_s(self) -> float:
@@ -123,6 +146,10 @@ class EvaluateOptions:
             named["--out (run file)"] = run_file_path(self.out_path)
         named |= {"--junit": self.junit_path, "--summary-md": self.summary_md_path}
         return named | {"--html": self.html_path}
+
+    REPORTS = ("--junit", "--summary-md", "--html")
+    """The outputs that are reports of the run: a rerun replaces them without --force, as CI
+    reruns a job in the same workspace (the table of --out, a result, keeps --force)."""
 
     @property
     def with_map(self) -> bool:
@@ -158,6 +185,8 @@ class EvaluateOptions:
         worse = self.fail_if_worse_cm is not None or self.fail_if_worse_deg is not None
         if worse and self.baseline_path is None:
             return "--fail-if-worse-cm/--fail-if-worse-deg go with --baseline OLD.json"
+        if self.fail_if_fewer_pct is not None and self.baseline_path is None:
+            return "--fail-if-fewer-pct goes with --baseline OLD.json"
         return None
 
 
@@ -179,16 +208,35 @@ def read_scored_estimates(options: EvaluateOptions) -> pd.DataFrame:
 
 GATE_SHOWN = 5
 """Violations of a gate named on its one line; the tables show them all."""
+IDS_SHOWN = 10
+"""Failing poses (relations) named by id in the verdict line."""
+
+
+@dataclass(frozen=True)
+class Item:
+    """One surveyed pose (or reference relation) as CI reports it: ``name`` (``pose 140``,
+    the same in every run), its figures in one ``line``, why it fails its gates (``reasons``,
+    empty when it does not) and whether the localizer gave no estimate for it at all
+    (``missing``)."""
+
+    name: str
+    line: str
+    reasons: tuple[str, ...] = ()
+    missing: bool = False
 
 
 @dataclass(frozen=True)
 class Scores:
-    """A scored run: ``text`` in the format asked, ``markdown`` the same in Markdown (for
-    the CI summary and the HTML page) with the extra figures beside (drift, covariance,
-    baseline), each gate's ``outcomes``, the per-pose ``failures`` (pose id → reasons; with
-    --survey alone), Table 1 (``table``; None with --relations), the ``comparison`` with a
-    baseline, ``pairing``: how the estimates met the truth, in one line, and the Markdown
-    in titled ``sections`` (the HTML page shows each under its title)."""
+    """A scored run: ``text`` in the format asked, ``markdown`` the same in Markdown (Table 1
+    or the relations' table with its lines), each gate's ``outcomes`` (the baseline's not
+    among them), the per-pose ``failures`` (pose id → reasons; with --survey alone),
+    Table 1 (``table``, every surveyed pose; None with --relations), the ``comparison``
+    with a baseline, ``pairing``: how the estimates met the truth, in one line, the extra
+    figures in titled Markdown ``sections`` (drift, covariance), the ``items`` CI reports
+    one by one (every surveyed pose; with --relations, the relations missing an end), of
+    ``item_kind`` ("pose" or "relation"), ``n_truth`` the surveyed poses or reference
+    relations scored against, ``warnings`` to print and Table 1's ``stats``
+    (``scoring.evaluate.summary``; None with --relations)."""
 
     text: str
     markdown: str
@@ -198,25 +246,81 @@ class Scores:
     comparison: Comparison | None = None
     pairing: str = ""
     sections: tuple[tuple[str, str], ...] = ()
+    items: tuple[Item, ...] = ()
+    item_kind: str = "pose"
+    n_truth: int = 0
+    warnings: tuple[str, ...] = ()
+    stats: pd.DataFrame | None = None
+
+    @functools.cached_property
+    def all_outcomes(self) -> list[GateOutcome]:
+        """Every gate's outcome, the baseline's last."""
+        baseline = [] if self.comparison is None else self.comparison.outcomes
+        return [*self.outcomes, *baseline]
+
+    @functools.cached_property
+    def _judged(self) -> tuple[bool, bool]:
+        """Whether an item with reasons fails (``gates.judged``): one with an estimate, and
+        one without."""
+        from segloc_cli.scoring.gates import judged
+
+        return judged(False, self.all_outcomes), judged(True, self.all_outcomes)
+
+    def fails(self, item: Item) -> bool:
+        """Whether ``item`` fails in the run's verdict: it has reasons and a gate that judges
+        them failed (``gates.judged``). One a gate tolerates (``--min-within-pct``,
+        ``--min-paired-pct`` under 100) does not."""
+        return bool(item.reasons) and self._judged[item.missing]
+
+    @functools.cached_property
+    def failing_items(self) -> list[Item]:
+        """The items that fail, in order."""
+        return [item for item in self.items if self.fails(item)]
 
     @property
     def violations(self) -> list[str]:
-        """Every failed gate in a phrase: the poses beyond their limits when a gate over
-        them failed, then the other gates, then the figures worse than the baseline's."""
-        failed = [o for o in self.outcomes if not o.passed]
-        poses = []
-        if any(o.per_pose for o in failed):
-            poses = [f"pose {p}: {r}" for p, reasons in self.failures.items() for r in reasons]
-        others = [o.text for o in failed if not o.per_pose]
+        """Every failed gate in a phrase: the poses beyond their limits or without an
+        estimate when a gate over them failed, then the other gates, then the figures worse
+        than the baseline's."""
+        poses = [f"{item.name}: {r}" for item in self.failing_items for r in item.reasons]
+        others = [o.text for o in self.outcomes if not o.passed and not o.per_pose]
         worse = [] if self.comparison is None else self.comparison.failures
         return poses + others + worse
 
     @property
     def passed(self) -> bool:
-        """Whether every gate held and nothing got worse than the baseline beyond its limit."""
-        return all(o.passed for o in self.outcomes) and not (
-            self.comparison is not None and self.comparison.failed
-        )
+        """Whether every gate held, the baseline's among them."""
+        return all(o.passed for o in self.all_outcomes)
+
+    @property
+    def verdict(self) -> str:
+        """``PASS``, ``FAIL`` or ``no gates``: the run's outcome in a word."""
+        if not self.passed:
+            return "FAIL"
+        return "PASS" if self.all_outcomes else "no gates"
+
+    @property
+    def verdict_line(self) -> str:
+        """The answer in one line: the verdict, which gates failed, how many poses (relations)
+        failed and the first of them."""
+        outcomes = self.all_outcomes
+        n_items = counted(self.n_truth, self.item_kind)
+        if not outcomes:
+            return f"No gates set: {n_items} scored, nothing to fail."
+        failed = [o for o in outcomes if not o.passed]
+        if not failed:
+            return f"PASS: {counted(len(outcomes), 'gate')} held over {n_items}."
+        titles = "; ".join(o.title for o in failed)
+        line = f"FAIL: {len(failed)} of {counted(len(outcomes), 'gate')} failed ({titles})"
+        failing = self.failing_items
+        if failing:
+            missing = sum(item.missing for item in failing)
+            without = f", {missing} without an estimate" if missing else ""
+            names = ", ".join(item.name.split(" ", 1)[-1] for item in failing[:IDS_SHOWN])
+            more = len(failing) - IDS_SHOWN
+            names += f" and {more} more" if more > 0 else ""
+            line += f"; {len(failing)} of {n_items} failed{without}: {names}"
+        return line + "."
 
     @property
     def violations_line(self) -> str:
@@ -254,29 +358,71 @@ def survey_scores(estimates: pd.DataFrame, survey: PoseTable, options: EvaluateO
             raise
         raise InputError(str(exc), path=options.survey_path) from None
     stats = summary(table, options.only_ok, options.gates)
-    sections = _survey_extras(table, survey, estimates, options)
+    extras = _survey_extras(table, survey, estimates, options)
     comparison = _comparison(table, options)
+    printed = dict(extras)
     if comparison is not None:
-        sections["baseline"] = (comparison.format_md(), comparison.as_json())
+        printed["baseline"] = (comparison.format_md(), comparison.as_json())
     table_md = format_table(table, stats, "md")
-    text = _with_extras(format_table(table, stats, options.fmt), options.fmt, sections)
-    titled = (("Table 1", table_md), *((SECTION_TITLES[k], md) for k, (md, _) in sections.items()))
+    asked = table_md if options.fmt == "md" else format_table(table, stats, options.fmt)
+    text = _with_extras(asked, options.fmt, printed)
+    failures = pose_failures(table, options.gates)
+    n_paired = stats.attrs["n_poses"]
     return Scores(
         text,
-        _with_extras(table_md, "md", sections),
+        table_md,
         stats.attrs["outcomes"],
-        pose_failures(table, options.gates),
+        failures,
         table,
         comparison,
-        _pairing_line(estimates, stats.attrs["n_surveyed"], len(table), options),
-        titled,
+        _pairing_line(estimates, len(table), n_paired, options),
+        tuple((SECTION_TITLES[k], md) for k, (md, _) in extras.items()),
+        _pose_items(table, failures),
+        "pose",
+        len(table),
+        _coverage_warnings(n_paired, len(table), "surveyed pose", "have an estimate", options),
+        stats,
+    )
+
+
+def _pose_items(table: pd.DataFrame, failures: Mapping[int, list[str]]) -> tuple[Item, ...]:
+    """Every pose of Table 1 as CI reports it: its final errors in a line (or why it has none),
+    and its reasons to fail."""
+    from segloc_cli.io.junit import pose_line
+    from segloc_cli.scoring.gates import missing_reason, unpaired_mask
+
+    missing = unpaired_mask(table)
+    none = missing_reason(table)
+    columns = ("err_x_cm", "err_y_cm", "err_xy_cm", "err_theta_deg")
+    x_cm, y_cm, xy_cm, theta_deg = (table[c].to_numpy(dtype=float) for c in columns)
+    items = []
+    for row, (pose_id, status) in enumerate(zip(table["pose_id"], table["status"], strict=True)):
+        errors = (x_cm[row], y_cm[row], xy_cm[row], theta_deg[row])
+        line = none if missing[row] else pose_line(*errors, str(status))
+        reasons = tuple(failures.get(int(pose_id), ()))
+        items.append(Item(f"pose {pose_id}", line, reasons, bool(missing[row])))
+    return tuple(items)
+
+
+def _coverage_warnings(
+    n_paired: int, n_truth: int, noun: str, having: str, options: EvaluateOptions
+) -> tuple[str, ...]:
+    """A warning when under ``WARN_BELOW_PAIRED_PCT`` of the truth was paired: more likely a
+    survey (relations) of another log, or times in another clock, than a localizer that
+    answered so rarely."""
+    if n_truth == 0 or 100.0 * n_paired / n_truth >= WARN_BELOW_PAIRED_PCT:
+        return ()
+    truth = options.survey_path or options.relations_path
+    return (
+        f"only {n_paired} of {counted(n_truth, noun)} ({100.0 * n_paired / n_truth:.1f} %) "
+        f"{having} within {options.tolerance_ms:g} ms: is {truth} the truth of "
+        f"{options.estimates_path}? (--tolerance-ms widens the pairing)",
     )
 
 
 SECTION_TITLES = {
     "drift": "Drift per travelled length",
     "covariance": "Covariance consistency",
-    "baseline": "Change against the baseline",
 }
 
 
@@ -347,6 +493,7 @@ def _comparison(table: pd.DataFrame, options: EvaluateOptions) -> Comparison | N
         only_ok=options.only_ok,
         fail_if_worse_cm=options.fail_if_worse_cm,
         fail_if_worse_deg=options.fail_if_worse_deg,
+        fail_if_fewer_pct=options.fail_if_fewer_pct,
     )
 
 
@@ -489,7 +636,10 @@ def relation_scores(
         )
     reference = None if options.published is None else PUBLISHED.get(options.published)
     caveat = None if options.published is None else published_note(options.published)
-    outcomes = relation_outcomes(100.0 * errors.trans_m, errors.rot_deg, options.gates)
+    within = f"within {options.tolerance_ms:g} ms"
+    outcomes = relation_outcomes(
+        100.0 * errors.trans_m, errors.rot_deg, options.gates, len(relations), within
+    )
     gate_lines = "".join(f"Gate: {o.text}.\n" for o in outcomes)
     summary = errors.summary()
     shown = functools.partial(
@@ -507,6 +657,30 @@ def relation_scores(
         f"at both times (within {options.tolerance_ms:g} ms), {errors.skipped} skipped"
     )
     scores = Scores(
-        text, markdown, outcomes, {}, pairing=pairing, sections=(("Relations", markdown),)
+        text,
+        markdown,
+        outcomes,
+        {},
+        pairing=pairing,
+        items=_relation_items(errors, relations),
+        item_kind="relation",
+        n_truth=len(relations),
+        warnings=_coverage_warnings(
+            errors.used, len(relations), "relation", "have estimates at both ends", options
+        ),
     )
     return scores, RelationRun(times_s, poses, errors, relations)
+
+
+def _relation_items(errors: RelationErrors, relations: Relations) -> tuple[Item, ...]:
+    """The relations left out for want of an estimate at an end, as CI reports them: named
+    by their row in the relations file (from 1), failing for want of it."""
+    return tuple(
+        Item(
+            f"relation {i + 1}",
+            f"t1 {relations.t1_s[i]:.3f} s, t2 {relations.t2_s[i]:.3f} s: {why}",
+            (why,),
+            missing=True,
+        )
+        for i, why in zip(errors.skipped_index, errors.skipped_why, strict=True)
+    )

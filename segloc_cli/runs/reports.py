@@ -2,6 +2,12 @@
 Markdown summary (also appended to GitHub's step summary when ``GITHUB_STEP_SUMMARY`` names
 one), and one self-contained HTML page.
 
+Each report opens with the answer: the verdict in one line (which gates failed, how many
+poses and which), then the gates, the change against a baseline, the poses that failed
+and the figures; the table of every pose comes last, folded, its failing rows marked. The
+Markdown summary stays under ``SUMMARY_MAX_BYTES`` (GitHub refuses a step summary over
+1 MiB): what does not fit is left out, and a line says what and where to find it.
+
 ``write_reports`` writes those asked for and returns their paths; nothing here prints.
 """
 
@@ -12,23 +18,33 @@ from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-import pandas as pd
+import numpy as np
 
 from segloc_cli.io.files import OutputError
+from segloc_cli.wording import counted
 
 if TYPE_CHECKING:
-    from segloc_cli.runs.evaluation import EvaluateOptions, Scores
-    from segloc_cli.scoring.gates import GateOutcome
+    from segloc_cli.io.html_report import ReportSection
+    from segloc_cli.io.junit import JUnitCase
+    from segloc_cli.runs.evaluation import EvaluateOptions, Item, Scores
 
 GITHUB_STEP_SUMMARY = "GITHUB_STEP_SUMMARY"
 """The variable GitHub Actions sets to the file a step appends its Markdown summary to."""
 
+STEP_SUMMARY_LIMIT_BYTES = 1024 * 1024
+"""The most GitHub Actions takes in one step's summary (1 MiB); more and it shows none."""
 
-def verdict_word(scores: Scores) -> str:
-    """``PASS``, ``FAIL`` or ``no gates``: the run's outcome in a word."""
-    if not scores.passed:
-        return "FAIL"
-    return "PASS" if scores.outcomes or scores.comparison is not None else "no gates"
+SUMMARY_MAX_BYTES = 1_000_000
+"""The most a Markdown summary of ``evaluate`` holds, under the step summary's limit with
+room for what else the step writes."""
+
+FAILING_SHOWN = 50
+"""Failing poses (relations) listed one by one in the summary and the page; the JUnit file
+and the full table hold them all."""
+
+FAIL_MARK = "✘"
+"""How the full table marks a pose that failed; one a gate tolerated is marked ``TOLERATED``."""
+TOLERATED_MARK = "(✘)"
 
 
 def _scored_against(options: EvaluateOptions) -> tuple[str, str]:
@@ -37,22 +53,162 @@ def _scored_against(options: EvaluateOptions) -> tuple[str, str]:
     return options.estimates_path.name, truth.name if truth is not None else ""
 
 
-def _outcomes(scores: Scores) -> list[GateOutcome]:
-    """Every gate's outcome, the baseline's last."""
-    baseline = [] if scores.comparison is None else scores.comparison.outcomes
-    return [*scores.outcomes, *baseline]
+def _gates_md(scores: Scores) -> str:
+    """The gates as a Markdown table: result, gate (what it asks), measured against limit."""
+    rows = ["| result | gate | measured |", "| --- | --- | --- |"]
+    for outcome in scores.all_outcomes:
+        result = "✔ pass" if outcome.passed else "✘ **FAIL**"
+        cells = (result, _cell(outcome.title), _cell(outcome.result))
+        rows.append("| " + " | ".join(cells) + " |")
+    return "\n".join(rows) + "\n"
 
 
-def summary_markdown(options: EvaluateOptions, scores: Scores) -> str:
-    """The Markdown summary: a heading with the outcome and what was scored against what,
-    how the estimates were paired, then every table and line the run printed in md."""
+def _cell(text: str) -> str:
+    return text.replace("|", "\\|")
+
+
+def _failing_md(scores: Scores, shown: int) -> str:
+    """The first ``shown`` failing poses (relations) with why each failed, and how many more."""
+    failing = scores.failing_items
+    if scores.table is None or scores.item_kind != "pose":
+        rows = ["| relation | why |", "| --- | --- |"]
+        rows += [f"| {item.name} | {_cell(item.line)} |" for item in failing[:shown]]
+        text = "\n".join(rows) + "\n"
+    else:
+        from segloc_cli.scoring.evaluate import pose_table_md
+
+        positions = np.flatnonzero([scores.fails(item) for item in scores.items])[:shown]
+        why = ["; ".join(scores.items[i].reasons) for i in positions]
+        text = pose_table_md(scores.table, rows=positions, extra={"why": why})
+    more = len(failing) - shown
+    if more > 0:
+        text += f"\n… and {counted(more, scores.item_kind)} more, every one in the JUnit file "
+        text += "and the full table.\n" if scores.table is not None else "file.\n"
+    return text
+
+
+def _marks(scores: Scores) -> list[str]:
+    """Each pose's mark in the full table: failed, failing but tolerated by a gate, or none."""
+    marks = []
+    for item in scores.items:
+        if scores.fails(item):
+            marks.append(FAIL_MARK)
+        else:
+            marks.append(TOLERATED_MARK if item.reasons else "")
+    return marks
+
+
+def _full_table_md(scores: Scores) -> str:
+    """Table 1 with a ``gate`` column marking the poses that failed."""
+    from segloc_cli.scoring.evaluate import pose_table_md
+
+    assert scores.table is not None
+    return pose_table_md(scores.table, scores.stats, extra={"gate": _marks(scores)})
+
+
+def _first_rows(table_md: str, n_poses: int, n_rows: int) -> str:
+    """``_full_table_md``'s text with its first ``n_rows`` poses only: the header, those
+    rows, the RMS and max rows and the lines under the table (every row has one width, so
+    the table stays whole)."""
+    lines = table_md.splitlines()
+    return "\n".join(lines[: 2 + n_rows] + lines[2 + n_poses :]) + "\n"
+
+
+def _full_elsewhere(options: EvaluateOptions) -> str:
+    """Where the full table is, in words: the outputs of this run that hold every pose."""
+    held = [
+        f"{option} {path}"
+        for option, path in (
+            ("--out", options.out_path),
+            ("--html", options.html_path),
+            ("--junit", options.junit_path),
+        )
+        if path is not None
+    ]
+    if held:
+        return "every pose is in " + " and ".join(held)
+    return "--out FILE or --html FILE writes every pose"
+
+
+def summary_markdown(
+    options: EvaluateOptions, scores: Scores, max_bytes: int = SUMMARY_MAX_BYTES
+) -> str:
+    """The Markdown summary, answer first: a heading with the verdict, the verdict line, how
+    the estimates were paired, the gates, the change against the baseline, the failing poses
+    (relations), the other figures, then Table 1 folded (``<details>``; with --relations,
+    the relation table). At most ``max_bytes`` of UTF-8: Table 1's rows, then the failing
+    poses, are cut to fit, with a line saying what was left out and where it is."""
     estimates, truth = _scored_against(options)
-    heading = f"### segloc evaluate: {verdict_word(scores)}"
-    what = f"`{estimates}` against `{truth}`"
-    parts = [heading, "", f"{what}: {scores.pairing}.", "", scores.markdown.rstrip("\n")]
-    if not scores.passed:
-        parts += ["", "Failed: " + "; ".join(scores.violations) + "."]
-    return "\n".join(parts) + "\n"
+    head = [
+        f"### segloc evaluate: {scores.verdict}",
+        f"**{scores.verdict_line}**",
+        f"`{estimates}` against `{truth}`: {scores.pairing}.",
+    ]
+    if scores.all_outcomes:
+        head.append(_gates_md(scores))
+    if scores.comparison is not None:
+        head.append("#### Change against the baseline\n\n" + scores.comparison.format_md())
+    if scores.table is None:
+        head.append(scores.markdown.rstrip("\n"))
+
+    full = None if scores.table is None else _full_table_md(scores)
+
+    def compose(failing_shown: int, table_rows: int | None) -> str:
+        parts = list(head)
+        failing = scores.failing_items
+        if failing and failing_shown > 0:
+            title = f"#### Failing {scores.item_kind}s ({len(failing)})"
+            parts.append(f"{title}\n\n{_failing_md(scores, failing_shown)}")
+        parts += [f"#### {title}\n\n{md.rstrip()}" for title, md in scores.sections]
+        if full is not None:
+            parts.append(_folded_table_md(scores, full, options, table_rows))
+        return "\n\n".join(part.rstrip("\n") for part in parts) + "\n"
+
+    text = compose(FAILING_SHOWN, None)
+    if _size(text) <= max_bytes or scores.table is None:
+        return _within(text, max_bytes)
+    # Cut Table 1 to the rows that fit: they all have one width.
+    bare = _size(compose(FAILING_SHOWN, 0))
+    per_row = (_size(text) - bare) / len(scores.table)
+    rows = int(max(0.0, max_bytes - bare) // per_row)
+    text = compose(FAILING_SHOWN, rows)
+    while rows > 0 and _size(text) > max_bytes:
+        rows -= max(1, rows // 100)
+        text = compose(FAILING_SHOWN, rows)
+    if _size(text) > max_bytes:
+        text = compose(0, 0)
+    return _within(text, max_bytes)
+
+
+def _folded_table_md(
+    scores: Scores, full: str, options: EvaluateOptions, n_rows: int | None
+) -> str:
+    """Table 1 (``full``, from ``_full_table_md``) in a ``<details>`` block: its first
+    ``n_rows`` poses when given, saying how many were left out and where they all are."""
+    assert scores.table is not None
+    n_poses = len(scores.table)
+    table, note = full, ""
+    if n_rows is not None and n_rows < n_poses:
+        table = _first_rows(full, n_poses, n_rows)
+        note = (
+            f"\n\nThis summary shows the first {n_rows} of {counted(n_poses, 'pose')} (a step "
+            f"summary holds at most 1 MiB); {_full_elsewhere(options)}."
+        )
+    title = f"Table 1: every surveyed pose ({n_poses}), failing ones marked {FAIL_MARK}"
+    return f"<details><summary>{title}</summary>\n\n{table.rstrip()}{note}\n\n</details>"
+
+
+def _size(text: str) -> int:
+    return len(text.encode("utf-8"))
+
+
+def _within(text: str, max_bytes: int) -> str:
+    """``text`` if it fits in ``max_bytes``; else its head cut at a line, saying so."""
+    if _size(text) <= max_bytes:
+        return text
+    note = "\n\n(cut here: a step summary holds at most 1 MiB)\n"
+    kept = text.encode("utf-8")[: max(0, max_bytes - _size(note))].decode("utf-8", "ignore")
+    return kept[: kept.rfind("\n") + 1] + note
 
 
 def _given(settings: Mapping[str, object]) -> dict[str, object]:
@@ -72,12 +228,37 @@ def _inputs(options: EvaluateOptions) -> dict[str, Path]:
     return {role: path for role, path in named.items() if path is not None}
 
 
+def junit_cases(scores: Scores) -> list[JUnitCase]:
+    """One case per pose of Table 1 (with --relations, per relation missing an end), then
+    one per gate. A pose fails when it fails the run's verdict (``Scores.fails``); one a gate
+    tolerates passes, its reasons in its output, so that the file fails exactly when the
+    exit status does."""
+    from segloc_cli.io.junit import JUnitCase
+
+    cases = [_item_case(scores, item) for item in scores.items]
+    for outcome in scores.all_outcomes:
+        failure = None if outcome.passed else outcome.text
+        cases.append(JUnitCase("gates", f"gate: {outcome.title}", outcome.text, failure))
+    return cases
+
+
+def _item_case(scores: Scores, item: Item) -> JUnitCase:
+    from segloc_cli.io.junit import JUnitCase
+
+    group = f"{scores.item_kind}s"
+    reasons = "; ".join(item.reasons)
+    if scores.fails(item):
+        return JUnitCase(group, item.name, item.line, reasons)
+    if item.reasons and item.line != reasons:
+        return JUnitCase(group, item.name, f"{item.line}; tolerated by the gates: {reasons}")
+    return JUnitCase(group, item.name, item.line)
+
+
 def _junit_text(scores: Scores, settings: Mapping[str, object]) -> str:
     from segloc_cli.io.junit import junit_xml
 
-    table = scores.table if scores.table is not None else pd.DataFrame({"pose_id": []})
     properties = {key: str(value) for key, value in _given(settings).items()}
-    return junit_xml(table, scores.failures, _outcomes(scores), properties=properties)
+    return junit_xml(junit_cases(scores), properties=properties)
 
 
 def _html_text(
@@ -89,25 +270,53 @@ def _html_text(
     from segloc_cli.io.html_report import ReportSection, html_report
 
     estimates, truth = _scored_against(options)
-    sections = [ReportSection("Pairing", lines=(scores.pairing + ".",))]
-    sections += [ReportSection(name, markdown_table=md) for name, md in scores.sections]
+    sections = []
+    if scores.comparison is not None:
+        change = scores.comparison.format_md()
+        sections.append(ReportSection("Change against the baseline", markdown_table=change))
+    failing = scores.failing_items
+    if failing:
+        title = f"Failing {scores.item_kind}s ({len(failing)})"
+        sections.append(ReportSection(title, markdown_table=_failing_md(scores, FAILING_SHOWN)))
+    sections.append(ReportSection("Pairing", lines=(scores.pairing + ".",)))
+    if scores.table is None:
+        sections.append(ReportSection("Relations", markdown_table=scores.markdown))
+    appendix = [ReportSection(name, markdown_table=md) for name, md in scores.sections]
+    appendix += _table_sections(scores)
     return html_report(
         title=f"segloc evaluate: {estimates} against {truth}",
+        verdict_line=scores.verdict_line,
         sections=sections,
-        gates=_outcomes(scores),
+        gates=scores.all_outcomes,
         figures=figures,
+        appendix=appendix,
         settings=_given(settings),
         inputs=_inputs(options),
     )
 
 
-def _append_step_summary(text: str) -> Path | None:
-    """Append ``text`` to the file ``GITHUB_STEP_SUMMARY`` names, if set; its path."""
+def _table_sections(scores: Scores) -> list[ReportSection]:
+    """Table 1, folded, with its failing rows marked."""
+    from segloc_cli.io.html_report import ReportSection
+
+    if scores.table is None:
+        return []
+    marked = frozenset(i for i, mark in enumerate(_marks(scores)) if mark == FAIL_MARK)
+    title = f"Table 1: every surveyed pose ({len(scores.table)})"
+    return [ReportSection(title, _full_table_md(scores), folded=True, marked_rows=marked)]
+
+
+def _append_step_summary(options: EvaluateOptions, scores: Scores) -> Path | None:
+    """Append the summary to the file ``GITHUB_STEP_SUMMARY`` names, if set, within what the
+    step's summary has room for; its path."""
     named = os.environ.get(GITHUB_STEP_SUMMARY, "").strip()
     if not named:
         return None
     path = Path(named)
     try:
+        used = path.stat().st_size if path.is_file() else 0
+        room = min(SUMMARY_MAX_BYTES, STEP_SUMMARY_LIMIT_BYTES - used - 1)
+        text = summary_markdown(options, scores, max(room, 0))
         with path.open("a", encoding="utf-8") as stream:
             stream.write(text + "\n")
     except OSError as exc:
@@ -125,8 +334,9 @@ def write_reports(
     settings: Mapping[str, object],
 ) -> list[Path]:
     """Write the CI outputs ``options`` asks for (JUnit, Markdown summary, GitHub's step
-    summary, HTML page) and return the paths written, in that order; ``settings`` are the
-    options the run was given by key, as the JUnit properties and the page show them."""
+    summary, HTML page), each replacing an earlier one, and return the paths written, in
+    that order; ``settings`` are the options the run was given by key, as the JUnit
+    properties and the page show them."""
     from segloc_cli.io.files import write_text_atomic
     from segloc_cli.io.html_report import write_html_report
     from segloc_cli.io.junit import write_junit
@@ -135,11 +345,10 @@ def write_reports(
     if options.junit_path is not None:
         write_junit(options.junit_path, _junit_text(scores, settings))
         written.append(options.junit_path)
-    markdown = summary_markdown(options, scores)
     if options.summary_md_path is not None:
-        write_text_atomic(options.summary_md_path, markdown)
+        write_text_atomic(options.summary_md_path, summary_markdown(options, scores))
         written.append(options.summary_md_path)
-    step_summary = _append_step_summary(markdown)
+    step_summary = _append_step_summary(options, scores)
     if step_summary is not None:
         written.append(step_summary)
     if options.html_path is not None:

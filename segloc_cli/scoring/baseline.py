@@ -15,6 +15,7 @@ is worse by more than the limit, and noise alone would rarely say so.
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 from dataclasses import asdict, dataclass
@@ -26,7 +27,13 @@ import pandas as pd
 from segloc_cli.errors import InputError
 from segloc_cli.estimates import ESTIMATED
 from segloc_cli.io.numbers import rounded_frame
-from segloc_cli.scoring.gates import GATE_SLACK, GateOutcome, with_unit
+from segloc_cli.scoring.gates import (
+    GATE_SLACK,
+    GateOutcome,
+    coverage_outcome,
+    outcomes_json,
+    with_unit,
+)
 from segloc_cli.wording import counted
 
 ERROR_KEYS = ("err_x_cm", "err_y_cm", "err_xy_cm", "err_theta_deg")
@@ -109,11 +116,14 @@ class Comparison:
     n_left_out: int
     only_ok: bool
     failed: bool
+    n_baseline: int = 0
+    fewer: GateOutcome | None = None
 
     @property
     def outcomes(self) -> list[GateOutcome]:
-        """A gate per figure that has a limit: the low end of its interval against it."""
-        return [
+        """The share of the baseline's poses compared, when bounded (``fewer``), then a gate
+        per figure that has a limit: the low end of its interval against it."""
+        figures = [
             GateOutcome(
                 f"worsening of {row.figure} against the baseline (95 % interval's low end)",
                 row.low,
@@ -124,11 +134,14 @@ class Comparison:
             for row in self.rows
             if row.limit is not None
         ]
+        return ([] if self.fewer is None else [self.fewer]) + figures
 
     @property
     def failures(self) -> list[str]:
-        """The figures worse beyond their limit, a phrase each."""
-        return [
+        """The figures worse beyond their limit, a phrase each, after the shortfall of poses
+        compared when it failed."""
+        fewer = [] if self.fewer is None or self.fewer.passed else [self.fewer.text]
+        return fewer + [
             f"{row.figure} worse by {with_unit(_num(row.change, row.unit), row.unit)} "
             f"({_INTERVAL} {with_unit(_interval(row), row.unit)}) beyond "
             f"{with_unit(f'{row.limit:g}', row.unit)}"
@@ -138,11 +151,14 @@ class Comparison:
 
     def _counts_line(self) -> str:
         why = "an error missing or a status not accepted" if self.only_ok else "an error missing"
-        return (
+        line = (
             f"{self.n_shared} poses of both runs compared; {self.n_only_baseline} only in the "
             f"baseline, {self.n_only_now} only in this run; {self.n_left_out} of both left out "
             f"({why} in at least one run)."
         )
+        if self.fewer is not None:
+            line += f" Poses compared: {self.fewer.text}."
+        return line
 
     def _verdict_line(self) -> str:
         limits = {row.unit: row.limit for row in self.rows if row.limit is not None}
@@ -199,11 +215,13 @@ class Comparison:
         ]
         return {
             "figures": figures,
+            "n_baseline": self.n_baseline,
             "n_shared": self.n_shared,
             "n_only_baseline": self.n_only_baseline,
             "n_only_now": self.n_only_now,
             "n_left_out": self.n_left_out,
             "only_ok": self.only_ok,
+            "fewer": None if self.fewer is None else outcomes_json([self.fewer])[0],
             "failed": self.failed,
         }
 
@@ -321,6 +339,7 @@ def compare(
     only_ok: bool = False,
     fail_if_worse_cm: float | None = None,
     fail_if_worse_deg: float | None = None,
+    fail_if_fewer_pct: float | None = None,
     n_resamples: int = 2000,
     seed: int = 0,
 ) -> Comparison:
@@ -332,12 +351,19 @@ def compare(
     interval the 2.5 and 97.5 percentiles of ``n_resamples`` paired bootstrap resamples
     drawn with ``np.random.default_rng(seed)``. A cm figure fails when its interval's low
     end exceeds ``fail_if_worse_cm``, a degree figure when it exceeds ``fail_if_worse_deg``.
+    With ``fail_if_fewer_pct``, the comparison also fails when the poses compared fall short
+    of those the baseline scored (its poses with errors, accepted ones with ``only_ok``) by
+    more than that share (%): a run that stopped answering must not pass on the poses it
+    still has.
 
-    Raises ``InputError`` when fewer than two poses are left to compare or a pose id repeats
-    in ``table``; ``ValueError`` for a negative limit or fewer than one resample.
+    Raises ``InputError`` when fewer than two poses are left to compare (unless the runs
+    share the survey and ``fail_if_fewer_pct`` is set: the comparison then fails on the
+    shortfall, with no figure) or a pose id repeats in ``table``; ``ValueError`` for a
+    negative limit or fewer than one resample.
     """
     _check_limit(fail_if_worse_cm, "fail_if_worse_cm")
     _check_limit(fail_if_worse_deg, "fail_if_worse_deg")
+    _check_limit(fail_if_fewer_pct, "fail_if_fewer_pct")
     if n_resamples < 1:
         raise ValueError(f"n_resamples must be at least 1, got {n_resamples}")
     before = _baseline_run(baseline, "baseline")
@@ -350,6 +376,27 @@ def compare(
     if only_ok:
         keep &= before.accepted[in_before] & now.accepted[in_now]
     n = int(np.count_nonzero(keep))
+    scored_before = np.isfinite(before.errors).all(axis=1)
+    if only_ok:
+        scored_before &= before.accepted
+    n_baseline = int(np.count_nonzero(scored_before))
+    fewer = None
+    if fail_if_fewer_pct is not None:
+        fewer = coverage_outcome(
+            n, n_baseline, 100.0 - fail_if_fewer_pct, "the baseline's scored pose", "", "compared"
+        )
+    comparison = functools.partial(
+        Comparison,
+        n_shared=n,
+        n_only_baseline=before.pose_id.size - shared.size,
+        n_only_now=now.pose_id.size - shared.size,
+        n_left_out=shared.size - n,
+        only_ok=only_ok,
+        n_baseline=n_baseline,
+        fewer=fewer,
+    )
+    if n < 2 and fewer is not None and shared.size >= 2:
+        return comparison(rows=[], failed=True)
     if n < 2:
         raise InputError(
             f"the baseline and this run share {counted(n, 'pose')} with errors to "
@@ -376,15 +423,8 @@ def compare(
         )
         for j, figure in enumerate(_FIGURES)
     ]
-    return Comparison(
-        rows=rows,
-        n_shared=n,
-        n_only_baseline=before.pose_id.size - shared.size,
-        n_only_now=now.pose_id.size - shared.size,
-        n_left_out=shared.size - n,
-        only_ok=only_ok,
-        failed=any(row.failed for row in rows),
-    )
+    failed = any(row.failed for row in rows) or (fewer is not None and not fewer.passed)
+    return comparison(rows=rows, failed=failed)
 
 
 def _paired_interval(

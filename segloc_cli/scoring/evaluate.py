@@ -15,6 +15,7 @@ the view over accepted estimates alone.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping, Sequence
 from dataclasses import asdict
 
 import numpy as np
@@ -22,10 +23,17 @@ import pandas as pd
 
 from segloc_cli.config import TIME_TOLERANCE_MS
 from segloc_cli.errors import InputError
-from segloc_cli.estimates import COVARIANCE_COLUMNS, ESTIMATE_COLUMNS, ESTIMATED, PoseTable
+from segloc_cli.estimates import (
+    COVARIANCE_COLUMNS,
+    ESTIMATE_COLUMNS,
+    ESTIMATED,
+    STATUS_NO_ESTIMATE,
+    PoseTable,
+)
 from segloc_cli.geometry import wrap_angle
 from segloc_cli.io.latex import latex_text, with_needs
 from segloc_cli.io.numbers import json_text, rounded_frame
+from segloc_cli.markdown import pipe_table
 from segloc_cli.method.confidence import RIGHT_PLACE_DEG, RIGHT_PLACE_M
 from segloc_cli.scoring.drift import travelled_m
 from segloc_cli.scoring.gates import (
@@ -34,6 +42,7 @@ from segloc_cli.scoring.gates import (
     outcomes_json,
     pose_failures,
     survey_outcomes,
+    unpaired_mask,
 )
 from segloc_cli.timing import pair_by_time
 from segloc_cli.wording import counted, plural
@@ -52,9 +61,6 @@ ERROR_COLUMNS = (
 
 FINAL_ERROR_COLUMNS = ("err_x_cm", "err_y_cm", "err_theta_deg", "err_xy_cm")
 """Errors of the final estimate; their summary covers the scored poses (``scored``)."""
-
-NO_ESTIMATE = "no_estimate"
-"""Status counted for a surveyed pose with no estimate row within the time tolerance."""
 
 TABLE_COLUMNS = ("pose_id", "time_s", "travelled_m", *ERROR_COLUMNS, "status")
 """Columns of Table 1: the survey's pose id and time (s), the distance travelled along the
@@ -106,13 +112,15 @@ def table1(
     estimates_path: object = "estimates",
     survey_path: object = "survey",
 ) -> pd.DataFrame:
-    """Per-pose errors of ``estimates`` against ``survey``, one row per matched survey pose.
+    """Per-pose errors of ``estimates`` against ``survey``, one row per survey pose.
 
     Each survey row is paired with the estimate nearest in time within
     ``tolerance_s`` seconds (``timing.pair_by_time``: two estimates with the
     time nearest a survey row, or two survey rows with one time, are refused
     with an ``InputError`` naming ``estimates_path`` or ``survey_path`` and the
-    rows). Unmatched survey rows are left out and the rest keep survey order.
+    rows). Rows keep survey order; a survey row no estimate was paired with has status
+    ``STATUS_NO_ESTIMATE`` and NaN in every column taken from an estimate, so a localizer
+    that stopped answering shows as such instead of vanishing from the table.
     Columns (TABLE_COLUMNS): ``pose_id`` (the survey's id), ``time_s`` (the survey's time),
     ``travelled_m`` (the path length along every surveyed pose in time order, from the
     first, up to this one: a distance axis for errors that grow with travel), ``ae_deg``
@@ -126,8 +134,7 @@ def table1(
     [-180, 180). ``survey`` is a PoseTable or any object with its ``pose_id``
     (N,), ``time_s`` (N,) and ``poses`` (N, 3: x m, y m, θ rad) arrays. Errors
     are NaN where the estimate holds NaN (e.g. a failed pose).
-    ``attrs["n_surveyed"]`` is the number of survey rows and
-    ``attrs["tolerance_s"]`` the tolerance, for ``summary``.
+    ``attrs["tolerance_s"]`` is the tolerance, for ``summary`` and the gates.
 
     Raises InputError when ``estimates`` lacks a column, a pairing is
     ambiguous, or no survey row has a match.
@@ -159,33 +166,36 @@ def table1(
             "(--tolerance-ms widens the pairing)"
         )
     est = estimates.iloc[match[matched]]
-    truth = survey_poses[matched]
 
     def col(name: str) -> np.ndarray:
-        return est[name].to_numpy(dtype=float)
+        """The estimates' column, one value per survey row (NaN where none was paired)."""
+        values = np.full(survey_times_s.size, np.nan)
+        values[matched] = est[name].to_numpy(dtype=float)
+        return values
 
-    truth_x_m, truth_y_m, truth_theta_rad = truth[:, 0], truth[:, 1], truth[:, 2]
-    final = final_errors(truth, col("x_m"), col("y_m"), col("theta_deg"))
+    truth_x_m, truth_y_m, truth_theta_rad = survey_poses.T
+    final = final_errors(survey_poses, col("x_m"), col("y_m"), col("theta_deg"))
     # Stage 1 searched a window around the initial heading; without one its peak is not an answer.
     align_theta_deg = np.where(np.isfinite(col("init_theta_deg")), col("align_theta_deg"), np.nan)
+    status = np.full(survey_times_s.size, STATUS_NO_ESTIMATE, dtype=object)
+    status[matched] = _status_text(est["status"].to_numpy(dtype=object))
     table = pd.DataFrame(
         {
-            "pose_id": survey_ids[matched].astype(np.int64),
-            "time_s": survey_times_s[matched],
-            "travelled_m": _travelled_m(survey_times_s, survey_poses)[matched],
+            "pose_id": survey_ids.astype(np.int64),
+            "time_s": survey_times_s,
+            "travelled_m": _travelled_m(survey_times_s, survey_poses),
             "ae_deg": _wrapped_deg(truth_theta_rad - np.deg2rad(align_theta_deg)),
             "init_x_cm": 100.0 * (truth_x_m - col("init_x_m")),
             "init_y_cm": 100.0 * (truth_y_m - col("init_y_m")),
             "init_theta_deg": _wrapped_deg(truth_theta_rad - np.deg2rad(col("init_theta_deg"))),
             **final,
-            "status": _status_text(est["status"].to_numpy(dtype=object)),
+            "status": status,
         },
         columns=list(TABLE_COLUMNS),
     )
     for name in COVARIANCE_COLUMNS:
         if name in est.columns:
             table[name] = col(name)
-    table.attrs["n_surveyed"] = int(survey_times_s.size)
     table.attrs["tolerance_s"] = float(tolerance_s)
     return table
 
@@ -241,13 +251,14 @@ def _max_abs(values: np.ndarray) -> float:
 
 
 def _status_counts(table: pd.DataFrame) -> dict[str, int]:
-    """Poses per status, most frequent first (ties by name); unmatched poses as NO_ESTIMATE."""
+    """Poses per status, most frequent first (ties by name); surveyed poses without an
+    estimate (``STATUS_NO_ESTIMATE``) last."""
     counts = table["status"].astype(str).value_counts()
     ordered = sorted(counts.items(), key=lambda item: (-item[1], item[0]))
-    result = {str(status): int(n) for status, n in ordered}
-    unmatched = int(table.attrs.get("n_surveyed", len(table))) - len(table)
-    if unmatched > 0:
-        result[NO_ESTIMATE] = unmatched
+    result = {str(status): int(n) for status, n in ordered if status != STATUS_NO_ESTIMATE}
+    unpaired = int(counts.get(STATUS_NO_ESTIMATE, 0))
+    if unpaired:
+        result[STATUS_NO_ESTIMATE] = unpaired
     return result
 
 
@@ -260,7 +271,8 @@ def summary(table: pd.DataFrame, only_ok: bool = False, gates: Gates | None = No
     accepted status). NaN values are skipped; a column with no value left is
     NaN. ``attrs`` holds the counts:
 
-    - ``n_surveyed``: survey rows; ``n_poses``: those matched to an estimate row;
+    - ``n_surveyed``: survey rows (the table's); ``n_poses``: those matched to an estimate
+      row;
     - ``n_scored``: poses in the summary; ``only_ok``: the option;
     - ``n_no_estimate``: surveyed poses without a final estimate (unmatched in
       time, or matched to a row without a pose);
@@ -280,9 +292,10 @@ def summary(table: pd.DataFrame, only_ok: bool = False, gates: Gates | None = No
         values = table[name].to_numpy(dtype=float)[score]
         stats[name] = [_rms(values), _max_abs(values)]
     result = pd.DataFrame(stats, index=pd.Index(["RMS", "max"], name="stat"))
-    n_surveyed = int(table.attrs.get("n_surveyed", len(table)))
+    n_surveyed = len(table)
     has_pose = scored(table)
     accepted = table["status"].isin(ESTIMATED).to_numpy()
+    paired = ~unpaired_mask(table)
     gates = gates if gates is not None and gates.any else None
     per_pose = gates is not None and gates.per_pose
     limits = gates if gates is not None else Gates()
@@ -290,11 +303,11 @@ def summary(table: pd.DataFrame, only_ok: bool = False, gates: Gates | None = No
     result.attrs.update(
         {
             "n_surveyed": n_surveyed,
-            "n_poses": len(table),
+            "n_poses": int(np.count_nonzero(paired)),
             "n_scored": int(np.count_nonzero(score)),
             "only_ok": bool(only_ok),
             "n_no_estimate": n_surveyed - int(np.count_nonzero(has_pose)),
-            "n_failed": int(np.count_nonzero(~accepted)),
+            "n_failed": int(np.count_nonzero(paired & ~accepted)),
             "status_counts": _status_counts(table),
             "tolerance_s": table.attrs.get("tolerance_s"),
             "gates": gates,
@@ -310,10 +323,12 @@ def verdict_quality(table: pd.DataFrame) -> dict[str, int]:
     """How the statuses of a ``table1`` result bear out against the truth.
 
     Right: within ``RIGHT_PLACE_M`` and ``RIGHT_PLACE_DEG`` of the surveyed pose, the place the
-    confidence speaks of; a pose without an estimate is wrong. Flagged: a status other than
+    confidence speaks of; a row without a pose is wrong. Flagged: a status other than
     an accepted one (``ok``, ``recovered``). Counts: ``accepted`` and ``accepted_right``,
-    ``right`` and ``right_flagged``, ``wrong`` and ``wrong_flagged``.
+    ``right`` and ``right_flagged``, ``wrong`` and ``wrong_flagged``, over the answers
+    given: surveyed poses no estimate was paired with are left out.
     """
+    table = table[~unpaired_mask(table)]
     err_m = table["err_xy_cm"].to_numpy(dtype=float) / 100.0
     err_deg = np.abs(table["err_theta_deg"].to_numpy(dtype=float))
     with np.errstate(invalid="ignore"):
@@ -351,14 +366,22 @@ def _displayed(table: pd.DataFrame) -> tuple[tuple[str, int, str, str], ...]:
     return _DISPLAY
 
 
-def _display_rows(table: pd.DataFrame, stats: pd.DataFrame, missing: str) -> list[list[str]]:
-    """Table rows then the RMS and max rows, as text cells (pose, displayed columns, status)."""
-    rows = []
-    shown = _displayed(table)
-    for _, record in table.iterrows():
-        cells = [_number_text(record[c], d, missing) for c, d, *_ in shown]
-        rows.append([str(record["pose_id"]), *cells, str(record["status"])])
-    for stat, record in stats.iterrows():
+def _display_rows(
+    table: pd.DataFrame,
+    stats: pd.DataFrame | None,
+    missing: str,
+    shown: tuple[tuple[str, int, str, str], ...],
+) -> list[list[str]]:
+    """Table rows then the RMS and max rows (none without ``stats``), as text cells (pose,
+    the ``shown`` columns, status)."""
+    numbers = [table[c].to_numpy(dtype=float) for c, *_ in shown]
+    decimals = [d for _, d, *_ in shown]
+    columns = list(zip(numbers, decimals, strict=True))
+    rows = [
+        [str(pose_id), *(_number_text(v[i], d, missing) for v, d in columns), str(status)]
+        for i, (pose_id, status) in enumerate(zip(table["pose_id"], table["status"], strict=True))
+    ]
+    for stat, record in [] if stats is None else stats.iterrows():
         cells = [_number_text(record[c], d, missing) for c, d, *_ in shown]
         rows.append([_STAT_LABELS.get(str(stat), str(stat)), *cells, ""])
     return rows
@@ -411,14 +434,34 @@ def summary_lines(stats: pd.DataFrame) -> list[str]:
 
 
 def _format_md(table: pd.DataFrame, stats: pd.DataFrame) -> str:
+    return pose_table_md(table, stats)
+
+
+def pose_table_md(
+    table: pd.DataFrame,
+    stats: pd.DataFrame | None = None,
+    *,
+    rows: np.ndarray | None = None,
+    extra: Mapping[str, Sequence[str]] | None = None,
+) -> str:
+    """A ``table1`` result as the md format shows it: a Markdown table of the poses at
+    positions ``rows`` (default: all), in the columns the whole table shows, with the
+    ``extra`` columns after the status (header → a cell per pose shown); with its
+    ``summary`` ``stats``, the RMS and max rows after the poses and the lines of
+    ``summary_lines`` under the table."""
     shown = _displayed(table)
-    headers = ["pose", *(md for _, _, md, _ in shown), "status"]
-    frame = pd.DataFrame(_display_rows(table, stats, _MISSING_MD), columns=headers)
-    body = frame.to_markdown(
-        index=False,
-        disable_numparse=True,
-        colalign=("left", *("right" for _ in shown), "left"),
-    )
+    part = table if rows is None else table.iloc[rows]
+    extra = extra or {}
+    headers = ["pose", *(md for _, _, md, _ in shown), "status", *extra]
+    cells = _display_rows(part, stats, _MISSING_MD, shown)
+    for i, row in enumerate(cells):
+        row += [str(column[i]) if i < len(part) else "" for column in extra.values()]
+    # A bare "|" in a cell (a reason such as "|XY| 12.0 cm > 10.0 cm") would end it.
+    cells = [[cell.replace("|", "\\|") for cell in row] for row in cells]
+    aligns = ("left", *("right" for _ in shown), "left", *("left" for _ in extra))
+    body = pipe_table(headers, cells, aligns)
+    if stats is None:
+        return body + "\n"
     return body + "\n\n" + "\n".join(summary_lines(stats)) + "\n"
 
 
@@ -427,7 +470,7 @@ def _format_latex(table: pd.DataFrame, stats: pd.DataFrame) -> str:
     rows under a rule and the counts of ``summary_lines`` in full-width rows under another."""
     shown = _displayed(table)
     headers = ["Pose", *(tex for _, _, _, tex in shown), "Status"]
-    rows = _display_rows(table, stats, _MISSING_LATEX)
+    rows = _display_rows(table, stats, _MISSING_LATEX, shown)
     for row in rows:
         row[1:-1] = [f"${cell}$" if cell != _MISSING_LATEX else cell for cell in row[1:-1]]
     frame = pd.DataFrame(rows, columns=headers)

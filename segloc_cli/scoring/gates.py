@@ -12,12 +12,13 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 
 import numpy as np
 import pandas as pd
 
-from segloc_cli.estimates import ESTIMATED
+from segloc_cli.estimates import ESTIMATED, STATUS_NO_ESTIMATE
+from segloc_cli.wording import counted
 
 # Errors pass through degree/radian conversions; a pose exactly at a limit must not fail on
 # the last bits of that round trip.
@@ -42,11 +43,13 @@ def _with_unit(value: float, unit: str, decimals: int | None = None) -> str:
 class GateOutcome:
     """One gate's result: ``name`` says what it bounds in words (``"RMS position error"``),
     ``measured`` and ``limit`` are in ``unit`` (``"cm"``, ``"°"`` or ``"%"``), ``passed``
-    whether ``measured`` keeps to ``limit`` (``at_least``: a lower bound, as for the share
-    of poses within limits; otherwise an upper bound). ``measured`` is NaN when nothing was
+    whether the gate held (``at_least``: ``limit`` is a lower bound, as for the share of
+    poses within limits; otherwise an upper bound). ``measured`` is NaN when nothing was
     there to measure, which fails the gate. ``per_pose``: the gate sums up the per-pose
     limits (their max, or the share of poses within them), so the poses beyond them say
-    why it failed."""
+    why it failed; ``coverage``: it bounds the share of the truth that has an estimate, so
+    the poses (or relations) without one say why. ``detail`` holds the counts behind the
+    measure (``"34 of 340"``), which change from run to run while ``title`` does not."""
 
     name: str
     measured: float
@@ -55,27 +58,64 @@ class GateOutcome:
     passed: bool
     at_least: bool = False
     per_pose: bool = False
+    coverage: bool = False
+    detail: str = ""
+
+    @property
+    def bound(self) -> str:
+        """The limit with its sense: ``≤ 5 cm``, ``≥ 100 %``."""
+        return f"{'≥' if self.at_least else '≤'} {_with_unit(self.limit, self.unit)}"
+
+    @property
+    def title(self) -> str:
+        """What the gate asks, the same in every run with the same options: ``RMS position
+        error ≤ 5 cm``; the name of its JUnit test case."""
+        return f"{self.name} {self.bound}"
+
+    @property
+    def holds(self) -> bool:
+        """Whether ``measured`` keeps to ``limit`` (a gate may fail for another reason its
+        ``detail`` gives, such as poses without an estimate)."""
+        if not math.isfinite(self.measured):
+            return False
+        if self.at_least:
+            return self.measured >= self.limit - GATE_SLACK
+        return self.measured <= self.limit + GATE_SLACK
+
+    @property
+    def result(self) -> str:
+        """The measure against the limit, with the counts: ``3.2 cm ≤ 5 cm``, ``10.0 % < 100 %
+        (34 of 340)``."""
+        if self.at_least:
+            sign = "≥" if self.holds else "<"
+        else:
+            sign = "≤" if self.holds else ">"
+        measured = _with_unit(self.measured, self.unit, _DECIMALS.get(self.unit, 2))
+        detail = f" ({self.detail})" if self.detail else ""
+        return f"{measured} {sign} {_with_unit(self.limit, self.unit)}{detail}"
 
     @property
     def text(self) -> str:
         """The outcome in one phrase: ``RMS position error 3.2 cm ≤ 5 cm: pass``."""
-        if self.at_least:
-            sign = "≥" if self.passed else "<"
-        else:
-            sign = "≤" if self.passed else ">"
-        measured = _with_unit(self.measured, self.unit, _DECIMALS.get(self.unit, 2))
-        verdict = "pass" if self.passed else "FAIL"
-        return f"{self.name} {measured} {sign} {_with_unit(self.limit, self.unit)}: {verdict}"
+        return f"{self.name} {self.result}: {'pass' if self.passed else 'FAIL'}"
 
 
 def _outcome(
-    name: str, measured: float, limit: float, unit: str, at_least=False, per_pose=False
+    name: str,
+    measured: float,
+    limit: float,
+    unit: str,
+    at_least: bool = False,
+    per_pose: bool = False,
+    coverage: bool = False,
+    detail: str = "",
+    also: bool = True,
 ) -> GateOutcome:
-    if at_least:
-        passed = math.isfinite(measured) and measured >= limit - GATE_SLACK
-    else:
-        passed = math.isfinite(measured) and measured <= limit + GATE_SLACK
-    return GateOutcome(name, float(measured), float(limit), unit, bool(passed), at_least, per_pose)
+    """The outcome of a gate that holds when ``measured`` keeps to ``limit`` and ``also``."""
+    outcome = GateOutcome(
+        name, float(measured), float(limit), unit, False, at_least, per_pose, coverage, detail
+    )
+    return replace(outcome, passed=bool(outcome.holds and also))
 
 
 @dataclass(frozen=True)
@@ -86,6 +126,8 @@ class Gates:
     error's magnitude, ``deg`` |θ|; a pose fails when beyond one of them, or not accepted
     (status other than ``ok``/``recovered``), or missing a bounded error.
     ``min_within_pct`` is the share (%) of poses that must pass them (default: all).
+    ``min_paired_pct`` bounds the share (%) of surveyed poses (or relations) that have an
+    estimate at all (``EvaluateOptions`` sets it to 100 whenever another gate is given).
     Over all poses (or relations): ``rms_cm``, ``rms_deg``, ``mean_cm``, ``mean_deg``,
     ``percentile_cm``, ``percentile_deg`` bound the RMS, mean and ``percentile``-th
     percentile of the position (translational) error in cm and the heading (rotational)
@@ -96,6 +138,7 @@ class Gates:
     xy_cm: float | None = None
     deg: float | None = None
     min_within_pct: float | None = None
+    min_paired_pct: float | None = None
     rms_cm: float | None = None
     rms_deg: float | None = None
     mean_cm: float | None = None
@@ -125,7 +168,8 @@ class Gates:
 
     @property
     def any(self) -> bool:
-        return self.per_pose or self.overall or self.min_within_pct is not None
+        limits = (self.min_within_pct, self.min_paired_pct)
+        return self.per_pose or self.overall or any(v is not None for v in limits)
 
     def limits_text(self) -> str:
         """The per-pose limits in words: ``|X|, |Y| ≤ 5 cm; |XY| ≤ 7 cm; |θ| ≤ 1°``."""
@@ -185,17 +229,37 @@ def failing_mask(table: pd.DataFrame, gates: Gates) -> np.ndarray:
     return beyond_mask(table, gates) | missing | ~accepted
 
 
+def missing_reason(table: pd.DataFrame) -> str:
+    """Why a surveyed pose of a Table 1 without an estimate fails: ``no estimate within 50
+    ms`` (the pairing's tolerance, from the table's ``attrs``)."""
+    tolerance_s = table.attrs.get("tolerance_s")
+    within = "" if tolerance_s is None else f" within {1e3 * float(tolerance_s):g} ms"
+    return f"no estimate{within}"
+
+
+def unpaired_mask(table: pd.DataFrame) -> np.ndarray:
+    """(N,) bool: the surveyed poses of a Table 1 that no estimate was paired with."""
+    return (table["status"] == STATUS_NO_ESTIMATE).to_numpy()
+
+
 def pose_failures(table: pd.DataFrame, gates: Gates) -> dict[int, list[str]]:
-    """Why each pose of a Table 1 fails the per-pose limits (pose id → reasons, in table
-    order; only failing poses), empty without such limits: a status other than an accepted
-    one (the one reason given then), a bounded error missing, or one beyond its limit
-    (``|X| 1.04 cm > 1.00 cm``)."""
+    """Why each pose of a Table 1 fails the per-pose limits or the pairing (pose id →
+    reasons, in table order; only failing poses), empty without such gates: no estimate
+    paired with it (``missing_reason``; with a per-pose limit or ``min_paired_pct``), a
+    status other than an accepted one (the one reason given then), a bounded error
+    missing, or one beyond its limit (``|X| 1.04 cm > 1.00 cm``)."""
     checks = gates._checks()
-    if not checks:
+    if not checks and gates.min_paired_pct is None:
         return {}
     columns = {column: np.abs(table[column].to_numpy(dtype=float)) for _, column, *_ in checks}
+    missing = missing_reason(table)
     failures: dict[int, list[str]] = {}
     for row, (pose_id, status) in enumerate(zip(table["pose_id"], table["status"], strict=True)):
+        if status == STATUS_NO_ESTIMATE:
+            failures[int(pose_id)] = [missing]
+            continue
+        if not checks:
+            continue
         if status not in ESTIMATED:
             failures[int(pose_id)] = [f"status {status}"]
             continue
@@ -245,25 +309,67 @@ def _figure_outcomes(
     return outcomes
 
 
+def coverage_outcome(
+    n_paired: int, n_truth: int, limit: float, noun: str, within: str, having: str
+) -> GateOutcome:
+    """The gate on the share (%) of ``n_truth`` surveyed poses or relations (``noun``, the
+    singular) ``having`` an estimate (``n_paired`` do; ``within``: how near, in words)."""
+    share = 100.0 * n_paired / n_truth if n_truth else math.nan
+    return _outcome(
+        f"share of {noun}s {having}",
+        share,
+        limit,
+        "%",
+        at_least=True,
+        coverage=True,
+        detail=f"{n_paired} of {n_truth} {within}".rstrip(),
+    )
+
+
 def survey_outcomes(table: pd.DataFrame, scored: np.ndarray, gates: Gates) -> list[GateOutcome]:
-    """Every gate's outcome on a Table 1: the max of each per-pose bound (over the poses with
-    an estimate) unless ``min_within_pct`` relaxes them, the share of poses passing the
-    per-pose limits, then the RMS, mean and percentile gates over the ``scored`` poses
+    """Every gate's outcome on a Table 1 (its surveyed poses without an estimate among its
+    rows, ``STATUS_NO_ESTIMATE``): the share of surveyed poses paired with an estimate,
+    the max of each per-pose bound (over the poses with an estimate, and failed by any
+    pose without one) unless ``min_within_pct`` relaxes them, the share of poses passing
+    the per-pose limits, then the RMS, mean and percentile gates over the ``scored`` poses
     ((N,) bool: the poses the summary covers)."""
     outcomes = []
+    n = len(table)
+    if gates.min_paired_pct is not None:
+        paired = n - int(np.count_nonzero(unpaired_mask(table)))
+        within = missing_reason(table).removeprefix("no estimate").strip()
+        outcomes.append(
+            coverage_outcome(
+                paired, n, gates.min_paired_pct, "surveyed pose", within, "with an estimate"
+            )
+        )
     if gates.per_pose and gates.min_within_pct is None:
         for label, column, limit, unit in _grouped_checks(gates):
-            values = np.abs(table[list(column)].to_numpy(dtype=float)).max(axis=1)
-            finite = values[np.isfinite(values)]
-            measured = float(finite.max()) if finite.size else math.nan
-            outcomes.append(_outcome(f"max {label}", measured, limit, unit, per_pose=True))
+            values = np.abs(table[list(column)].to_numpy(dtype=float))
+            finite_rows = np.all(np.isfinite(values), axis=1)
+            measured = float(values[finite_rows].max()) if finite_rows.any() else math.nan
+            n_without = n - int(np.count_nonzero(finite_rows))
+            detail = f"{n_without} of {counted(n, 'pose')} without an estimate" if n_without else ""
+            outcomes.append(
+                _outcome(
+                    f"max {label}",
+                    measured,
+                    limit,
+                    unit,
+                    per_pose=True,
+                    detail=detail,
+                    also=not n_without,
+                )
+            )
     if gates.per_pose:
-        n = len(table)
         passing = n - len(pose_failures(table, gates))
         required = 100.0 if gates.min_within_pct is None else gates.min_within_pct
-        name = f"poses accepted and within {gates.limits_text()} ({passing} of {n})"
+        name = f"share of poses accepted and within {gates.limits_text()}"
         share = 100.0 * passing / n if n else math.nan
-        outcomes.append(_outcome(name, share, required, "%", at_least=True, per_pose=True))
+        detail = f"{passing} of {counted(n, 'pose')}"
+        outcomes.append(
+            _outcome(name, share, required, "%", at_least=True, per_pose=True, detail=detail)
+        )
     elif gates.min_within_pct is not None:
         raise ValueError("min_within_pct needs a per-pose limit")
     position = table["err_xy_cm"].to_numpy(dtype=float)[scored]
@@ -283,12 +389,21 @@ def _grouped_checks(gates: Gates) -> list[tuple[str, tuple[str, ...], float, str
     return grouped
 
 
-def relation_outcomes(trans_cm: np.ndarray, rot_deg: np.ndarray, gates: Gates) -> list[GateOutcome]:
-    """The RMS, mean and percentile gates over relation errors: translational (cm) and
-    rotational (°), one value per used relation."""
+def relation_outcomes(
+    trans_cm: np.ndarray, rot_deg: np.ndarray, gates: Gates, n_relations: int, within: str = ""
+) -> list[GateOutcome]:
+    """The gates over relation errors: the share of the ``n_relations`` reference relations
+    with estimates at both ends (``within``: how near, in words) when ``min_paired_pct``
+    is set, then the RMS, mean and percentile of the translational (cm) and rotational (°)
+    errors, one value per used relation."""
     if gates.per_pose or gates.min_within_pct is not None:
         raise ValueError("relations take no per-pose limit")
-    return _figure_outcomes(trans_cm, rot_deg, gates, ("translational", "rotational"))
+    outcomes = []
+    if gates.min_paired_pct is not None:
+        used, limit = int(np.size(trans_cm)), gates.min_paired_pct
+        having = "estimated at both ends"
+        outcomes.append(coverage_outcome(used, n_relations, limit, "relation", within, having))
+    return outcomes + _figure_outcomes(trans_cm, rot_deg, gates, ("translational", "rotational"))
 
 
 def failed(outcomes: list[GateOutcome]) -> list[GateOutcome]:
@@ -306,7 +421,18 @@ def outcomes_json(outcomes: list[GateOutcome]) -> list[Mapping[str, object]]:
             "unit": o.unit,
             "at_least": o.at_least,
             "per_pose": o.per_pose,
+            "coverage": o.coverage,
+            "detail": o.detail,
             "passed": o.passed,
         }
         for o in outcomes
     ]
+
+
+def judged(missing: bool, outcomes: list[GateOutcome]) -> bool:
+    """Whether a pose (relation) with reasons to fail fails the run's verdict: a per-pose gate
+    failed, or it has no estimate and a gate on the share with one failed. A pose beyond
+    its limits that ``min_within_pct`` tolerates, or one without an estimate that
+    ``min_paired_pct`` tolerates, does not."""
+    failed = [o for o in outcomes if not o.passed]
+    return any(o.per_pose for o in failed) or (missing and any(o.coverage for o in failed))

@@ -112,7 +112,8 @@ class RelationErrors:
     file order; ``index`` (U,) the position of each used relation in the
     ``Relations``. ``used`` = U; ``skipped`` counts the relations left out
     because their t1 or t2 has no estimate within the tolerance or the nearest
-    estimate is NaN (a failed pose).
+    estimate is NaN (a failed pose); ``skipped_index`` (S,) their positions and
+    ``skipped_why`` (S,) the reason of each in words (``no estimate within 50 ms of t2``).
     """
 
     trans_m: np.ndarray
@@ -120,6 +121,8 @@ class RelationErrors:
     used: int
     skipped: int
     index: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    skipped_index: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    skipped_why: tuple[str, ...] = ()
 
     def summary(self) -> dict:
         """Statistics of the errors as a plain dict.
@@ -197,6 +200,11 @@ def relation_errors(
     usable = matched.copy()
     usable[matched] = finite_pose[first[matched]] & finite_pose[second[matched]]
     index = np.flatnonzero(usable)
+    skipped_index = np.flatnonzero(~usable)
+    within = f"within {1e3 * tolerance_s:g} ms of"
+    skipped_why = tuple(
+        _why_skipped(first[i], second[i], finite_pose, within) for i in skipped_index
+    )
 
     estimated = relative_motion(poses[first[index]], poses[second[index]])
     reference = np.asarray(relations.delta, dtype=float).reshape(-1, 3)[index]
@@ -209,7 +217,21 @@ def relation_errors(
         used=int(index.size),
         skipped=int(len(relations) - index.size),
         index=index.astype(np.int64),
+        skipped_index=skipped_index.astype(np.int64),
+        skipped_why=skipped_why,
     )
+
+
+def _why_skipped(first: int, second: int, finite_pose: np.ndarray, within: str) -> str:
+    """Why a relation whose ends were paired with estimate rows ``first`` and ``second`` (-1:
+    none ``within`` the tolerance) has no error: the ends without an estimate, or else
+    those whose estimate holds no pose."""
+    ends = {"t1": first, "t2": second}
+    unpaired = [end for end, row in ends.items() if row < 0]
+    if unpaired:
+        return f"no estimate {within} {' and '.join(unpaired)}"
+    no_pose = [end for end, row in ends.items() if not finite_pose[row]]
+    return f"the estimate at {' and '.join(no_pose)} has no accepted pose"
 
 
 def trajectory_from_estimates(
