@@ -628,7 +628,8 @@ def test_pipeline_evaluate_gate_passes(hall):
         cwd=hall.dir,
     )  # fmt: skip
     assert result.code == 0, f"the hall must pass a 2 cm / 0.3° gate; stderr:\n{result.err}"
-    assert "gate" not in result.err, result.err
+    assert "segloc: gate:" not in result.err, result.err
+    assert "segloc: PASS: 4 gates held over 10 poses." in result.err.splitlines()
     assert "Traceback" not in result.err
     assert len(md_pose_rows(result.out)) == 10, f"the table lists the 10 poses:\n{result.out}"
 
@@ -659,8 +660,10 @@ def test_pipeline_evaluate_gate_fails(hall):
     )
     assert result.code == 1, f"a 0.001 cm gate must fail; exit {result.code}, stderr:\n{result.err}"
     assert "Traceback" not in result.err
-    # One line, naming the first violations and counting the rest (the table shows them all).
-    (line,) = [ln for ln in result.err.splitlines() if "paired within" not in ln]
+    # The verdict in a line, then one naming the first violations and counting the rest (the
+    # table shows them all).
+    verdict, line = [ln for ln in result.err.splitlines() if "paired within" not in ln]
+    assert verdict.startswith("segloc: FAIL: 2 of 3 gates failed (max |X|, |Y| ≤ 0.001 cm; ")
     assert line.startswith("segloc: gate: pose ") and re.search(r"; and \d+ more$", line), line
     assert re.search(r"\bpose (10|[1-9])\b", result.err), (
         f"stderr must name a pose that exceeds the limit: {result.err!r}"

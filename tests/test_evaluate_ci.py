@@ -591,6 +591,39 @@ def test_a_per_pose_limit_with_relations_points_at_the_figure_gates(
     assert_one_line_error(result, "--fail-mean-above-cm", "--fail-percentile-above-cm")
 
 
+def test_relations_missing_an_end_fail_as_cases_of_their_own(
+    run_files, relations_file, tmp_path, capsys
+):
+    from junitparser import Failure, JUnitXml
+
+    # Estimates of every pose but the third: the relations that end there have no error.
+    kept = np.arange(N) != 2
+    estimates = write_csv_estimates(tmp_path / "est.csv", POSES[kept], TIMES_S[kept])
+    report = tmp_path / "relations.xml"
+    args = ("--relations", relations_file, "--fail-mean-above-cm", 100, "--junit", report)
+    code, _, err = run_cli(capsys, "evaluate", estimates, *args)
+    assert code == 1, err
+    missing = [k for k, (i, j) in enumerate(RELATION_PAIRS) if 2 in (i, j)]
+    (suite,) = JUnitXml.fromfile(str(report))
+    cases = {case.name: case for case in suite}
+    assert list(cases) == [
+        *(f"relation {k + 1}" for k in missing),
+        "gate: share of relations estimated at both ends ≥ 100 %",
+        "gate: mean translational error ≤ 100 cm",
+    ]
+    failed = {
+        name for name, case in cases.items() if any(isinstance(r, Failure) for r in case.result)
+    }
+    assert failed == {
+        *(f"relation {k + 1}" for k in missing),
+        "gate: share of relations estimated at both ends ≥ 100 %",
+    }
+    first = cases[f"relation {missing[0] + 1}"].result[0].message
+    assert first == "no estimate within 50 ms of " + (
+        "t1" if RELATION_PAIRS[missing[0]][0] == 2 else "t2"
+    )
+
+
 def test_relation_figures_are_drawn_as_pngs(run_files, relations_file, tmp_path, capsys):
 
     plots = tmp_path / "plots"
