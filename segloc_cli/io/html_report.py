@@ -346,6 +346,7 @@ tbody tr:nth-child(even) { background: #fbfcfd; }
 .align-right { text-align: right; }
 table.settings th { text-align: left; font-weight: 600; background: #f6f8fa; }
 td.pass { color: #116329; } td.fail { color: #a40e26; font-weight: 600; }
+table.gates td:first-child { white-space: nowrap; }
 p.verdict { font-size: 1.1em; font-weight: 600; margin: .2em 0 .8em; }
 p.verdict.fail { color: #a40e26; } p.verdict.pass { color: #116329; }
 tbody tr.failing, tbody tr.failing:nth-child(even) { background: #ffebe9; }

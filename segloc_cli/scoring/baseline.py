@@ -157,7 +157,8 @@ class Comparison:
             f"({why} in at least one run)."
         )
         if self.fewer is not None:
-            line += f" Poses compared: {self.fewer.text}."
+            verdict = "pass" if self.fewer.passed else "FAIL"
+            line += f" Poses compared, of those the baseline scored: {self.fewer.result}: {verdict}."
         return line
 
     def _verdict_line(self) -> str:
