@@ -158,7 +158,8 @@ class Comparison:
         )
         if self.fewer is not None:
             verdict = "pass" if self.fewer.passed else "FAIL"
-            line += f" Poses compared, of those the baseline scored: {self.fewer.result}: {verdict}."
+            compared = self.fewer.result
+            line += f" Poses compared, of those the baseline scored: {compared}: {verdict}."
         return line
 
     def _verdict_line(self) -> str:
