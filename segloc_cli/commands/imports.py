@@ -76,8 +76,9 @@ CARMEN_OPTIONS = (
         "--range-max-m",
         type=FiniteRange(min=0, max=MAX_RANGE_M, min_open=True),
         default=None,
-        help="Readings at or beyond this mean no return (default: from PARAM lines, or "
-        "the sentinel value the log repeats).",
+        help="Readings at or beyond this mean no return (default: the no-return value the "
+        "log's readings repeat; a PARAM line's limit only where they repeat none and no return "
+        "lies beyond it).",
     ),
     config_option,
     force_option,
