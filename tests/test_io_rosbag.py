@@ -306,6 +306,7 @@ def test_sensor_settings_and_warnings(bag):
     kind = "ROS 1 bag" if bag.suffix == ".bag" else "ROS 2 bag"
     assert log.sensor == {
         "range_max_m": "30.0",
+        "range_max_from": "LaserScan range_max",
         "range_min_m": "0.1",
         "readings": "181",
         "fov_deg": "180",
@@ -399,23 +400,108 @@ def test_odd_scans_are_read_with_warnings(tmp_path):
 
 def test_range_max_of_each_scan_and_the_largest_for_the_log(tmp_path):
     store = ROS1_STORE
-    ranges = np.array([29.0, 30.0, 49.0, 50.0, 51.0], dtype=np.float32)
     five_beams = ANGLE_MIN + 4 * ANGLE_INCREMENT
     messages = [
-        scan_record(store, 1, 0, ranges, range_max=30.0, angle_max=five_beams),
-        scan_record(store, 2, 9, ranges, range_max=50.0, angle_max=five_beams),
-    ]
+        scan_record(store, 1, 0, [29.0, 30.0, 12.0, 30.0, 31.0], range_max=30.0,
+                    angle_max=five_beams),
+        scan_record(store, 2, 9, [29.0, 30.0, 49.0, 50.0, 50.0], range_max=50.0,
+                    angle_max=five_beams),
+    ]  # fmt: skip
     path = write_bag("ros1", tmp_path, TOPICS, messages)
     log = read_rosbag(path, odom_topic=None)
 
+    # One reading (31 m) beyond the first scan's range_max is a stray, not returns.
     assert [scan.range_max_m for scan in log.scans] == [30.0, 50.0]
-    np.testing.assert_array_equal(log.scans[0].ranges_m, [29.0, 0.0, 0.0, 0.0, 0.0])
+    np.testing.assert_array_equal(log.scans[0].ranges_m, [29.0, 0.0, 12.0, 0.0, 0.0])
     np.testing.assert_array_equal(log.scans[1].ranges_m, [29.0, 30.0, 49.0, 0.0, 0.0])
     assert log.sensor["range_max_m"] == "50.0"
+    assert log.sensor["range_max_from"] == "LaserScan range_max"
     assert log.sensor["readings"] == "5"
     assert "test.bag: range_max varies between scans (30.0 to 50.0 m); each scan keeps its own" in (
         log.warnings
     )
+
+
+def far_ranges(k: int) -> np.ndarray:
+    """The float32 ranges of scan ``k`` of ``far_returns_bag``: 181 beams, 106 from 0.5 to
+    9.6 m, 45 from 10 to 49.9 m, continuous, and 30 at 50 m, the scanner's no-return value."""
+    ranges = np.concatenate(
+        [
+            np.linspace(0.5, 9.5, 106) + 0.005 * k,
+            np.linspace(10.0, 49.8, 45) + 0.005 * k,
+            np.full(30, 50.0),
+        ]
+    )
+    return ranges.astype(np.float32)
+
+
+def far_returns_bag(where: Path, kind: str, range_max: float = 10.0) -> Path:
+    """A bag of 20 scans (``far_ranges``) whose messages say ``range_max``."""
+    store = store_of(kind)
+    messages = [
+        scan_record(store, k + 1, k * 100_000_000, far_ranges(k), range_max=range_max)
+        for k in range(20)
+    ]
+    return write_bag(kind, where, TOPICS, messages)
+
+
+@pytest.mark.parametrize("kind", FORMATS)
+def test_a_range_max_below_real_returns_keeps_them_with_a_warning(tmp_path, kind):
+    path = far_returns_bag(tmp_path, kind)
+    log = read_rosbag(path, odom_topic=None)
+
+    written = np.concatenate([decimal(far_ranges(k)) for k in range(20)])
+    ranges = np.concatenate([s.ranges_m for s in log.scans])
+    beyond = (written >= 10.0) & (written < 50.0)
+    assert np.count_nonzero(beyond) == 20 * 45
+    np.testing.assert_array_equal(ranges[beyond], written[beyond])
+    assert not np.any(ranges[written == 50.0])
+    assert [s.range_max_m for s in log.scans] == [50.0] * 20
+    assert log.sensor["range_max_m"] == "50.0"
+    assert log.sensor["range_max_from"] == (
+        "for 20 scans whose range_max (10 m) returns lie beyond, inferred: 50 m, the largest "
+        "reading that repeats, is 40 % of the readings from 10 m on"
+    )
+    assert log.warnings[1:] == [
+        f"{path.name}: the range_max of 20 scans (10 m) is not the scanner's range limit: it "
+        "would have dropped 900 readings (24.9 % of the readings) that are returns, from 10 m "
+        "up to 49.895 m; the limit used is 50 m, the no-return value the readings repeat "
+        "(--range-max-m sets one)"
+    ]
+    # A limit given keeps its word, and needs no warning.
+    given = read_rosbag(path, odom_topic=None, range_max_m=10.0)
+    assert not np.any(np.concatenate([s.ranges_m for s in given.scans])[beyond])
+    assert given.sensor["range_max_from"] == "given"
+    assert given.warnings == log.warnings[:1]
+
+
+def test_import_says_so_in_one_line_and_info_where_the_limit_came_from(capsys, tmp_path):
+    path = far_returns_bag(tmp_path, "ros1")
+    out = tmp_path / "log.mcap"
+    done = run_cli(capsys, "import", "rosbag", path, "--out", out, "--odom-topic", "")
+    assert done.code == 0, done.err
+    said = [line for line in done.err.splitlines() if "range limit" in line]
+    assert said == [
+        "segloc: warning: test.bag: the range_max of 20 scans (10 m) is not the scanner's range "
+        "limit: it would have dropped 900 readings (24.9 % of the readings) that are returns, "
+        "from 10 m up to 49.895 m; the limit used is 50 m, the no-return value the readings "
+        "repeat (--range-max-m sets one)"
+    ]
+    assert np.count_nonzero(np.concatenate([s.valid for s in read_log(out).scans])) == 20 * 151
+    shown = run_cli(capsys, "info", out).out.splitlines()
+    assert "sensor.range_max_m: 50.0" in shown
+    assert (
+        "sensor.range_max_from: for 20 scans whose range_max (10 m) returns lie beyond, "
+        "inferred: 50 m, the largest reading that repeats, is 40 % of the readings from 10 m on"
+    ) in shown
+
+    given = tmp_path / "given.mcap"
+    args = ["import", "rosbag", path, "--out", given, "--odom-topic", "", "--range-max-m", "10"]
+    done = run_cli(capsys, *args)
+    assert done.code == 0, done.err
+    assert "range limit" not in done.err
+    assert np.count_nonzero(np.concatenate([s.valid for s in read_log(given).scans])) == 20 * 106
+    assert "sensor.range_max_from: given" in run_cli(capsys, "info", given).out.splitlines()
 
 
 # --- bad messages ----------------------------------------------------------------------

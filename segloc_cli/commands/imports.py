@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 
 import click
@@ -55,6 +56,17 @@ def _write_imported(log, out_path: Path) -> None:
     )
 
 
+def _range_max_option(default: str) -> Callable:
+    """``--range-max-m``: the scanner's range limit (m), overriding the one the importer finds
+    (``default`` says which)."""
+    return click.option(
+        "--range-max-m",
+        type=FiniteRange(min=0, max=MAX_RANGE_M, min_open=True),
+        default=None,
+        help=f"Readings at or beyond this mean no return (default: {default}).",
+    )
+
+
 CARMEN_OPTIONS = (
     path_option("--out", "out_path", required=True, help="MCAP log to write."),
     path_option(
@@ -72,13 +84,9 @@ CARMEN_OPTIONS = (
         show_default=True,
         help="Which laser's records to read (FLASER/ROBOTLASER1 or RLASER).",
     ),
-    click.option(
-        "--range-max-m",
-        type=FiniteRange(min=0, max=MAX_RANGE_M, min_open=True),
-        default=None,
-        help="Readings at or beyond this mean no return (default: the no-return value the "
-        "log's readings repeat; a PARAM line's limit only where they repeat none and no return "
-        "lies beyond it).",
+    _range_max_option(
+        "the no-return value the log's readings repeat; a PARAM line's limit only where they "
+        "repeat none and no return lies beyond it"
     ),
     config_option,
     force_option,
@@ -140,6 +148,10 @@ ROSBAG_OPTIONS = (
         "22 cm ahead. Overrides the bag's /tf_static (and unchanging /tf) transforms, which "
         "give it by default; with neither, the scanner is taken to be at the robot's origin.",
     ),
+    _range_max_option(
+        "each message's range_max, unless the scanner's returns lie beyond it: then the "
+        "no-return value its readings repeat"
+    ),
     config_option,
     force_option,
 )
@@ -148,7 +160,7 @@ ROSBAG_OPTIONS = (
 @import_group.command("rosbag")
 @click.argument("bag_path", metavar="PATH", type=click.Path(path_type=Path))
 @with_options(*ROSBAG_OPTIONS)
-def import_rosbag(bag_path, out_path, scan_topic, odom_topic, laser_offset, force):
+def import_rosbag(bag_path, out_path, scan_topic, odom_topic, laser_offset, range_max_m, force):
     """Import a ROS 1 .bag, a ROS 2 bag folder or a ROS 2 .mcap file.
 
     Scans stay in the scanner's frame; the scanner's pose on the robot (--laser-offset,
@@ -173,6 +185,7 @@ def import_rosbag(bag_path, out_path, scan_topic, odom_topic, laser_offset, forc
         odom_topic=odom_topic or None,
         laser_offset=given,
         progress=Progress,
+        range_max_m=range_max_m,
     )
     _write_imported(log, out_path)
     if log.laser_offset_source != "none":  # else a warning has said so
