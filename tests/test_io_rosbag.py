@@ -380,21 +380,34 @@ def test_odd_scans_are_read_with_warnings(tmp_path):
         scan_record(store, 1, 0, ranges, angle_max=ANGLE_MAX - ANGLE_INCREMENT),
         # three intensities for 181 ranges
         scan_record(store, 2, 100_000_000, ranges, [1.0, 2.0, 3.0]),
+        # 180 ranges where the angles give 181 beams, twice
+        scan_record(store, 3, 200_000_000, ranges[:-1]),
+        scan_record(store, 4, 300_000_000, ranges[:-1]),
     ]
     path = write_bag("ros1", tmp_path, TOPICS, messages)
     log = read_rosbag(path, odom_topic=None)
 
-    first, second = log.scans
+    first, second, short, _ = log.scans
     assert first.angles_rad[0] == ANGLE_MIN
     assert first.angles_rad[-1] == ANGLE_MIN + 180 * ANGLE_INCREMENT
     assert second.intensities.shape == (0,)
     np.testing.assert_array_equal(second.ranges_m, expected_ranges(0))
+    assert len(short) == 180
+    assert short.angles_rad[-1] == ANGLE_MIN + 179 * ANGLE_INCREMENT
+    assert log.sensor["readings"] == "180,181"
     assert log.warnings == [
         no_mounting("test.bag", robot=None),
-        "test.bag: 1 scan holds a number of ranges other than angle_min to angle_max at "
-        "angle_increment spans; their angles follow angle_min + i·angle_increment",
-        "test.bag: 1 scan holds a number of intensities other than the number of ranges; "
-        "their intensities were dropped",
+        "test.bag: 1 of 4 scans holds more readings than its angles give (181 readings, where "
+        "angle_min -1.5708 to angle_max 1.55334 rad in steps of 0.0174533 rad give 180 beams); "
+        "all its readings are kept, beam i at angle_min + i·angle_increment, so its last beam "
+        "lies past angle_max (at 1.5708 rad)",
+        "test.bag: 2 of 4 scans hold fewer readings than their angles give (first: 180 "
+        "readings, where angle_min -1.5708 to angle_max 1.5708 rad in steps of 0.0174533 rad "
+        "give 181 beams); all their readings are kept, beam i at angle_min + "
+        "i·angle_increment, so their last beam lies short of angle_max (first: at 1.55334 rad)",
+        "test.bag: 1 of 4 scans holds a number of intensities other than its number of "
+        "readings (3 intensities for 181 readings); its intensities were dropped and its "
+        "readings kept",
     ]
 
 

@@ -735,15 +735,21 @@ def _scans(
         usable.append(raw)
     limits, limit_notes, rule = _range_maxes(usable, range_max_m)
     scans = []
-    n_count_mismatch = 0
-    n_intensity_mismatch = 0
+    mismatched = []
+    intensity_counts: list[tuple[int, int]] = []
     for raw, limit_m, time_s in zip(usable, limits, times_s, strict=True):
-        n_count_mismatch += _spanned_count(raw) != len(raw.ranges)
+        if _spanned_count(raw) != len(raw.ranges):
+            mismatched.append(raw)
         if len(raw.intensities) not in (0, len(raw.ranges)):
-            n_intensity_mismatch += 1
+            intensity_counts.append((len(raw.intensities), len(raw.ranges)))
             raw = raw._replace(intensities=np.zeros(0))
         scans.append(_scan(raw._replace(range_max=limit_m), float(time_s), mount))
-    notes = _scan_notes(bad_limits, n_count_mismatch, n_intensity_mismatch) + limit_notes
+    notes = [
+        *_limit_notes(bad_limits),
+        *_count_notes(mismatched, len(scans)),
+        *_intensity_notes(intensity_counts, len(scans)),
+        *limit_notes,
+    ]
     range_maxes = sorted({s.range_max_m for s in scans})
     if len(range_maxes) > 1:
         notes.append(
@@ -818,29 +824,57 @@ def _scan(raw: _RawScan, time_s: float, mount: Pose2) -> Scan:
     )
 
 
-def _scan_notes(
-    bad_limits: list[str], n_count_mismatch: int, n_intensity_mismatch: int
-) -> list[str]:
-    """Notes on the scans whose range limits, angle span or intensities were not usable as
-    given (``bad_limits``: the limits each such scan gave)."""
+def _limit_notes(bad_limits: list[str]) -> list[str]:
+    """A note on the scans whose range limits cannot be applied as given (``bad_limits``:
+    the limits each such scan gave), or none."""
+    if not bad_limits:
+        return []
+    n = len(bad_limits)
+    return [
+        f"{counted(n, 'scan')} {plural(n, 'gives', 'give')} range limits that cannot be applied "
+        f"(first: {bad_limits[0]} m); their readings count up to {MAX_RANGE_M:g} m"
+    ]
+
+
+def _intensity_notes(counts: list[tuple[int, int]], n_scans: int) -> list[str]:
+    """A note on the scans among ``n_scans`` whose number of intensities is not their
+    number of readings (``counts``: the two numbers of each), or none."""
+    if not counts:
+        return []
+    k = len(counts)
+    its = plural(k, "its", "their")
+    first = f"{'first: ' if k > 1 else ''}{counted(counts[0][0], 'intensity', 'intensities')}"
+    return [
+        f"{k} of {counted(n_scans, 'scan')} {plural(k, 'holds', 'hold')} a number of "
+        f"intensities other than {its} number of readings ({first} for "
+        f"{counted(counts[0][1], 'reading')}); {its} intensities were dropped and {its} "
+        "readings kept"
+    ]
+
+
+def _count_notes(mismatched: list[_RawScan], n_scans: int) -> list[str]:
+    """Notes on the scans among ``n_scans`` whose number of readings is not the number of
+    beams angle_min to angle_max at angle_increment gives (by one at most: more is skipped
+    by ``_usable``): one for those with more readings, one for those with fewer."""
     notes = []
-    if bad_limits:
-        notes.append(
-            f"{counted(len(bad_limits), 'scan')} {plural(len(bad_limits), 'gives', 'give')} range "
-            "limits that cannot be applied (first: "
-            f"{bad_limits[0]} m); their readings count up to {MAX_RANGE_M:g} m"
+    for more, where in ((True, "past"), (False, "short of")):
+        group = [raw for raw in mismatched if (len(raw.ranges) > _spanned_count(raw)) == more]
+        if not group:
+            continue
+        k, first = len(group), group[0]
+        their = plural(k, "its", "their")
+        first_of = "first: " if k > 1 else ""
+        found = (
+            f"{counted(len(first.ranges), 'reading')}, where angle_min {first.angle_min:.6g} to "
+            f"angle_max {first.angle_max:.6g} rad in steps of {first.angle_increment:.6g} rad "
+            f"give {counted(_spanned_count(first), 'beam')}"
         )
-    if n_count_mismatch:
         notes.append(
-            f"{counted(n_count_mismatch, 'scan')} {plural(n_count_mismatch, 'holds', 'hold')} a "
-            "number of ranges other than angle_min to "
-            "angle_max at angle_increment spans; their angles follow angle_min + i·angle_increment"
-        )
-    if n_intensity_mismatch:
-        notes.append(
-            f"{counted(n_intensity_mismatch, 'scan')} "
-            f"{plural(n_intensity_mismatch, 'holds', 'hold')} a number of intensities other "
-            "than the number of ranges; their intensities were dropped"
+            f"{k} of {counted(n_scans, 'scan')} {plural(k, 'holds', 'hold')} "
+            f"{'more' if more else 'fewer'} readings than {their} angles give ({first_of}"
+            f"{found}); all {their} readings are kept, beam i at angle_min + i·angle_increment, "
+            f"so {their} last beam lies {where} angle_max ({first_of}at "
+            f"{_last_angle(first):.6g} rad)"
         )
     return notes
 
