@@ -517,6 +517,67 @@ def test_import_says_so_in_one_line_and_info_where_the_limit_came_from(capsys, t
     assert "sensor.range_max_from: given" in run_cli(capsys, "info", given).out.splitlines()
 
 
+# --- --survey-out: the odometry as a trajectory ----------------------------------------
+
+# The scans by stamp that lie inside the odometry's span, and their numbers in bag order.
+ODOM_SCAN_NUMBERS = [WRITTEN_ORDER[k] + 1 for k in range(1, 5)]
+
+
+@pytest.mark.parametrize("name", ["odom.csv", "odom.tum"])
+def test_survey_out_writes_the_odometry_and_reads_back_as_it(capsys, tmp_path, name):
+    from segloc_cli.io.tables import read_pose_table
+
+    path = write_bag("ros1", tmp_path, TOPICS, standard_messages("ros1"))
+    out, survey = tmp_path / "log.mcap", tmp_path / name
+    done = run_cli(capsys, "import", "rosbag", path, "--out", out, "--survey-out", survey)
+    assert done.code == 0, done.err
+    assert done.err.splitlines()[-1] == f"segloc: {survey}: 4 odometry poses"
+
+    table, log = read_pose_table(survey), read_log(out)
+    np.testing.assert_array_equal(table.time_s, EXPECTED_ODOM_TIMES_S)
+    np.testing.assert_array_equal(table.time_s, log.odom_times_s)
+    # Positions to 1 µm and headings to 1e-6° (CSV), or through a quaternion (TUM).
+    np.testing.assert_allclose(table.poses[:, :2], EXPECTED_ODOM_POSES[:, :2], rtol=0, atol=1e-6)
+    np.testing.assert_allclose(table.poses[:, :2], log.odom_poses[:, :2], rtol=0, atol=1e-6)
+    heading_error = (table.poses[:, 2] - EXPECTED_ODOM_POSES[:, 2] + np.pi) % (2 * np.pi) - np.pi
+    np.testing.assert_allclose(heading_error, 0.0, rtol=0, atol=2e-8)
+    if name.endswith(".csv"):
+        # Each row is the pose id of the scan its odometry was looked up at.
+        assert table.pose_id.tolist() == ODOM_SCAN_NUMBERS
+        header = survey.read_text().splitlines()[0]
+        assert header == "pose_id,time_s,x_m,y_m,theta_deg,original_time_s"
+
+
+def test_survey_out_without_odometry_is_one_line(capsys, tmp_path):
+    scans_only = [m for m in standard_messages("ros1") if m[0] == "/scan"]
+    survey, out = tmp_path / "odom.csv", tmp_path / "log.mcap"
+    base = ["import", "rosbag", "--out", out, "--survey-out", survey]
+
+    no_topic = write_bag("ros1", tmp_path, {"/scan": SCAN_TYPE}, scans_only)
+    assert_one_line_error(run_cli(capsys, *base, no_topic), "test.bag", "no topic /odom")
+    not_read = run_cli(capsys, *base, no_topic, "--odom-topic", "")
+    assert_one_line_error(not_read, "--survey-out", "--odom-topic ''")
+    (tmp_path / "test.bag").unlink()
+    empty_topic = write_bag("ros1", tmp_path, TOPICS, scans_only)
+    assert_one_line_error(
+        run_cli(capsys, *base, empty_topic), "test.bag", "no scan has an odometry pose from /odom"
+    )
+    assert not out.exists() and not survey.exists()
+
+
+def test_survey_out_refuses_an_existing_file_without_force(capsys, tmp_path):
+    path = write_bag("ros1", tmp_path, TOPICS, standard_messages("ros1"))
+    survey, out = tmp_path / "odom.csv", tmp_path / "log.mcap"
+    survey.write_text("precious\n", encoding="utf-8")
+    result = run_cli(capsys, "import", "rosbag", path, "--out", out, "--survey-out", survey)
+    assert_one_line_error(result, str(survey), "--survey-out", "--force")
+    assert survey.read_text(encoding="utf-8") == "precious\n"
+    assert not out.exists()
+    forced = ["import", "rosbag", path, "--out", out, "--survey-out", survey, "--force"]
+    assert run_cli(capsys, *forced).code == 0
+    assert survey.read_text(encoding="utf-8").startswith("pose_id,")
+
+
 # --- bad messages ----------------------------------------------------------------------
 
 
