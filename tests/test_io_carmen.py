@@ -144,17 +144,19 @@ def test_rear_laser_angles_offset_and_record_choice(tmp_path):
             "PARAM robot_rear_laser_max 5.5 h 0",
             laser_line([1.0, 3.0, 3.0], (0.0, 0.0, 0.0), (1.0, 1.0, HALF_PI), 1.0),
             laser_line([4.0, 5.0, 6.0], (1.0, 1.0, 0.5), (1.0, 1.0, 0.5), 1.5, kind="RLASER"),
-            laser_line([4.0, 5.0, 6.0], (9.0, 9.0, 0.0), (1.0, 2.0, 0.0), 2.0, kind="RLASER"),
+            laser_line([4.0, 5.0, 5.5], (9.0, 9.0, 0.0), (1.0, 2.0, 0.0), 2.0, kind="RLASER"),
         ],
     )
     rear = read_carmen(path, laser="rear")
     assert [s.time_s for s in rear.scans] == [1.5, 2.0]
+    np.testing.assert_array_equal(rear.scans[0].ranges_m, [4.0, 5.0, 6.0])
+    np.testing.assert_array_equal(rear.scans[1].ranges_m, [4.0, 5.0, 5.5])
     for scan in rear.scans:
         # Facing backward: from +90° to +270°, continuous and evenly spaced.
         np.testing.assert_allclose(
             scan.angles_rad, [HALF_PI, np.pi, 3 * HALF_PI], rtol=0, atol=1e-15
         )
-        np.testing.assert_array_equal(scan.ranges_m, [4.0, 5.0, 6.0])
+        # No value repeats at the top of the readings: the rear PARAM is the limit.
         np.testing.assert_array_equal(scan.valid, [True, True, False])
         assert scan.range_max_m == 5.5
     # The rear scanner sits 0.2 m behind the centre: odometry (≠ pose fields) moves back.
@@ -164,7 +166,10 @@ def test_rear_laser_angles_offset_and_record_choice(tmp_path):
     assert rear.sensor["laser_offset_m"] == "0.2"
     assert rear.sensor["records"] == "RLASER"
     assert rear.sensor["range_max_m"] == "5.5"
-    assert rear.sensor["range_max_from"] == "PARAM robot_rear_laser_max"
+    assert rear.sensor["range_max_from"] == (
+        "PARAM robot_rear_laser_max (the readings repeat no no-return value, and no return lies "
+        "beyond it)"
+    )
 
     front = read_carmen(path)
     assert [s.time_s for s in front.scans] == [1.0]
@@ -304,20 +309,157 @@ def test_range_max_argument_overrides_everything(tmp_path):
     "param",
     ["robot_front_laser_max 8.0 h 0", "laser_front_laser_max_range 8 h 0", "FRONT_LASER_MAX 8.0"],
 )
-def test_range_max_from_param(tmp_path, param):
+def test_range_max_from_param_when_the_readings_repeat_no_no_return_value(tmp_path, param):
     path = write(
         tmp_path / "param.log",
         [
             "PARAM robot_rear_laser_max 3.0 h 0",
-            laser_line([7.99, 8.0, 8.5, 8.5], (0,) * 3, (0,) * 3, 1.0),
+            laser_line([7.99, 8.0, 2.5, 4.0], (0,) * 3, (0,) * 3, 1.0),
             f"PARAM {param}",
         ],
     )
     log = read_carmen(path)
     assert log.scans[0].range_max_m == 8.0
-    np.testing.assert_array_equal(log.scans[0].valid, [True, False, False, False])
+    np.testing.assert_array_equal(log.scans[0].valid, [True, False, True, True])
     assert log.sensor["range_max_m"] == "8"
-    assert log.sensor["range_max_from"] == f"PARAM {param.split()[0]}"
+    assert log.sensor["range_max_from"] == (
+        f"PARAM {param.split()[0]} (the readings repeat no no-return value, and no return lies "
+        "beyond it)"
+    )
+    assert log.warnings == []
+
+
+def test_the_no_return_value_the_readings_repeat_comes_before_a_param(tmp_path):
+    """A PARAM that drops no return is not used either: the readings say where the
+    scanner's no-return value lies (8.5 m here), and a reading at the PARAM is a return."""
+    path = write(
+        tmp_path / "param.log",
+        [
+            "PARAM robot_front_laser_max 8.0 h 0",
+            laser_line([7.99, 8.0, 8.5, 8.5], (0,) * 3, (0,) * 3, 1.0),
+        ],
+    )
+    log = read_carmen(path)
+    assert log.scans[0].range_max_m == 8.5
+    np.testing.assert_array_equal(log.scans[0].valid, [True, True, False, False])
+    assert log.sensor["range_max_from"] == (
+        "inferred: 8.5 m, the largest reading that repeats, is 50 % of the readings; "
+        "PARAM robot_front_laser_max (8 m) not used"
+    )
+    assert log.warnings == []
+
+
+def returns_beyond_a_param_log(path, param_m: float = 10.0, scans: int = 40):
+    """A CARMEN log whose ``PARAM robot_front_laser_max`` says ``param_m`` while its scanner
+    (181 beams) returns readings from 0.5 m to 49.88 m and writes 50 m for no return: in each
+    scan, 30 beams at 50 m, and 45 beams from 10 to 49.88 m, continuous, as corridors give."""
+    lines = [f"PARAM robot_front_laser_max {param_m:g} h 0"]
+    for k in range(scans):
+        ranges = np.concatenate(
+            [
+                np.linspace(0.5, 9.5, 106) + 0.01 * k,
+                np.linspace(10.0, 49.8, 45) + 0.002 * k,
+                np.full(30, 50.0),
+            ]
+        )
+        lines.append(laser_line(np.round(ranges, 2), (k * 0.1, 0, 0), (k * 0.1, 0, 0), float(k)))
+    return write(path, lines)
+
+
+def test_a_param_below_real_returns_keeps_them_with_a_warning(tmp_path):
+    path = returns_beyond_a_param_log(tmp_path / "far.log")
+    log = read_carmen(path)
+    ranges = np.concatenate([s.ranges_m for s in log.scans])
+    valid = np.concatenate([s.valid for s in log.scans])
+    beyond = (ranges >= 10.0) & (ranges < 50.0)
+    assert np.count_nonzero(beyond) == 40 * 45
+    # Every return between the PARAM and the no-return value is kept; 50 m is no return.
+    assert valid[beyond].all()
+    assert not valid[ranges == 50.0].any()
+    assert valid[ranges < 10.0].all()
+    assert [s.range_max_m for s in log.scans] == [50.0] * 40
+    assert log.sensor["range_max_m"] == "50"
+    assert log.sensor["range_max_from"] == (
+        "inferred: 50 m, the largest reading that repeats, is 16.6 % of the readings; "
+        "PARAM robot_front_laser_max (10 m) not used: returns lie beyond it"
+    )
+    assert log.warnings == [
+        f"{path}: PARAM robot_front_laser_max (10 m) is not the scanner's range limit: it "
+        "would have dropped 1800 readings (24.9 % of the readings) that are returns, from 10 m "
+        "up to 49.88 m; the limit used is 50 m, the no-return value the readings repeat "
+        "(--range-max-m sets one)"
+    ]
+    # A limit given keeps its word, and needs no warning.
+    given = read_carmen(path, range_max_m=10.0)
+    assert not np.concatenate([s.valid for s in given.scans])[beyond].any()
+    assert given.warnings == []
+
+
+def test_import_says_so_in_one_line_and_info_where_the_limit_came_from(capsys, tmp_path):
+    from test_cli import run_cli
+
+    path = returns_beyond_a_param_log(tmp_path / "far.log")
+    out = tmp_path / "far.mcap"
+    done = run_cli(capsys, "import", "carmen", path, "--out", out)
+    assert done.code == 0, done.err
+    assert [line for line in done.err.splitlines() if "warning" in line] == [
+        f"segloc: warning: {path}: PARAM robot_front_laser_max (10 m) is not the scanner's "
+        "range limit: it would have dropped 1800 readings (24.9 % of the readings) that are "
+        "returns, from 10 m up to 49.88 m; the limit used is 50 m, the no-return value the "
+        "readings repeat (--range-max-m sets one)"
+    ]
+    assert np.count_nonzero(np.concatenate([s.valid for s in read_log(out).scans])) == 40 * 151
+    shown = run_cli(capsys, "info", out).out.splitlines()
+    assert "sensor.range_max_m: 50" in shown
+    assert (
+        "sensor.range_max_from: inferred: 50 m, the largest reading that repeats, is 16.6 % of "
+        "the readings; PARAM robot_front_laser_max (10 m) not used: returns lie beyond it"
+    ) in shown
+
+
+def test_robotlaser1_maximum_range_below_real_returns_is_not_used(tmp_path):
+    """A ROBOTLASER1 record's own maximum_range is checked as a PARAM is."""
+    lines = []
+    for k in range(10):
+        ranges = np.round(
+            np.concatenate([np.linspace(1.0, 7.9, 12), np.linspace(8.0, 29.0, 4), [30.0] * 4]), 2
+        )
+        ranges[:12] += 0.01 * k
+        fields = " ".join(f"{v:g}" for v in ranges)
+        lines.append(
+            f"ROBOTLASER1 0 -1.5 3.0 {3.0 / 19:.17g} 8.0 0.01 0 20 {fields} 0 "
+            f"0 0 0 0 0 0 0 0 1.0 0.5 1000000 {k}.5 host {k}.5"
+        )
+    path = write(tmp_path / "robot.log", lines)
+    log = read_carmen(path)
+    assert [s.range_max_m for s in log.scans] == [30.0] * 10
+    np.testing.assert_array_equal(log.scans[0].valid, [True] * 16 + [False] * 4)
+    assert log.sensor["range_max_from"] == (
+        "for 10 ROBOTLASER1 records whose maximum_range (8 m) returns lie beyond, inferred: 30 m, "
+        "the largest reading that repeats, is 50 % of the readings from 8 m on"
+    )
+    assert log.warnings == [
+        f"{path}: the maximum_range of 10 ROBOTLASER1 records (8 m) is not the scanner's range "
+        "limit: it would have dropped 40 readings (20 % of the readings) that are returns, from "
+        "8 m up to 29 m; the limit used is 30 m, the no-return value the readings repeat "
+        "(--range-max-m sets one)"
+    ]
+
+
+def test_a_param_is_not_overruled_by_stray_readings(tmp_path):
+    """Two readings beyond the PARAM among 7,240 (under 0.1 %) are strays, as above a
+    no-return value: the PARAM stands where the readings repeat no no-return value."""
+    lines = ["PARAM robot_front_laser_max 20 h 0"]
+    for k in range(40):
+        ranges = np.round(np.linspace(0.5, 19.0, 181) + 0.003 * k, 3)
+        if k in (3, 30):
+            ranges[90] = 25.0 + k
+        lines.append(laser_line(ranges, (0,) * 3, (0,) * 3, float(k)))
+    path = write(tmp_path / "stray.log", lines)
+    log = read_carmen(path)
+    assert [s.range_max_m for s in log.scans] == [20.0] * 40
+    assert not log.scans[3].valid[90] and not log.scans[30].valid[90]
+    assert log.warnings == []
 
 
 def test_unusable_param_falls_back_to_inference_with_a_warning(tmp_path):

@@ -306,6 +306,7 @@ def test_sensor_settings_and_warnings(bag):
     kind = "ROS 1 bag" if bag.suffix == ".bag" else "ROS 2 bag"
     assert log.sensor == {
         "range_max_m": "30.0",
+        "range_max_from": "LaserScan range_max",
         "range_min_m": "0.1",
         "readings": "181",
         "fov_deg": "180",
@@ -379,43 +380,202 @@ def test_odd_scans_are_read_with_warnings(tmp_path):
         scan_record(store, 1, 0, ranges, angle_max=ANGLE_MAX - ANGLE_INCREMENT),
         # three intensities for 181 ranges
         scan_record(store, 2, 100_000_000, ranges, [1.0, 2.0, 3.0]),
+        # 180 ranges where the angles give 181 beams, twice
+        scan_record(store, 3, 200_000_000, ranges[:-1]),
+        scan_record(store, 4, 300_000_000, ranges[:-1]),
     ]
     path = write_bag("ros1", tmp_path, TOPICS, messages)
     log = read_rosbag(path, odom_topic=None)
 
-    first, second = log.scans
+    first, second, short, _ = log.scans
     assert first.angles_rad[0] == ANGLE_MIN
     assert first.angles_rad[-1] == ANGLE_MIN + 180 * ANGLE_INCREMENT
     assert second.intensities.shape == (0,)
     np.testing.assert_array_equal(second.ranges_m, expected_ranges(0))
+    assert len(short) == 180
+    assert short.angles_rad[-1] == ANGLE_MIN + 179 * ANGLE_INCREMENT
+    assert log.sensor["readings"] == "180,181"
     assert log.warnings == [
         no_mounting("test.bag", robot=None),
-        "test.bag: 1 scan holds a number of ranges other than angle_min to angle_max at "
-        "angle_increment spans; their angles follow angle_min + i·angle_increment",
-        "test.bag: 1 scan holds a number of intensities other than the number of ranges; "
-        "their intensities were dropped",
+        "test.bag: 1 of 4 scans holds more readings than its angles give (181 readings, where "
+        "angle_min -1.5708 to angle_max 1.55334 rad in steps of 0.0174533 rad give 180 beams); "
+        "all its readings are kept, beam i at angle_min + i·angle_increment, so its last beam "
+        "lies past angle_max (at 1.5708 rad)",
+        "test.bag: 2 of 4 scans hold fewer readings than their angles give (first: 180 "
+        "readings, where angle_min -1.5708 to angle_max 1.5708 rad in steps of 0.0174533 rad "
+        "give 181 beams); all their readings are kept, beam i at angle_min + "
+        "i·angle_increment, so their last beam lies short of angle_max (first: at 1.55334 rad)",
+        "test.bag: 1 of 4 scans holds a number of intensities other than its number of "
+        "readings (3 intensities for 181 readings); its intensities were dropped and its "
+        "readings kept",
     ]
 
 
 def test_range_max_of_each_scan_and_the_largest_for_the_log(tmp_path):
     store = ROS1_STORE
-    ranges = np.array([29.0, 30.0, 49.0, 50.0, 51.0], dtype=np.float32)
     five_beams = ANGLE_MIN + 4 * ANGLE_INCREMENT
     messages = [
-        scan_record(store, 1, 0, ranges, range_max=30.0, angle_max=five_beams),
-        scan_record(store, 2, 9, ranges, range_max=50.0, angle_max=five_beams),
-    ]
+        scan_record(store, 1, 0, [29.0, 30.0, 12.0, 30.0, 31.0], range_max=30.0,
+                    angle_max=five_beams),
+        scan_record(store, 2, 9, [29.0, 30.0, 49.0, 50.0, 50.0], range_max=50.0,
+                    angle_max=five_beams),
+    ]  # fmt: skip
     path = write_bag("ros1", tmp_path, TOPICS, messages)
     log = read_rosbag(path, odom_topic=None)
 
+    # One reading (31 m) beyond the first scan's range_max is a stray, not returns.
     assert [scan.range_max_m for scan in log.scans] == [30.0, 50.0]
-    np.testing.assert_array_equal(log.scans[0].ranges_m, [29.0, 0.0, 0.0, 0.0, 0.0])
+    np.testing.assert_array_equal(log.scans[0].ranges_m, [29.0, 0.0, 12.0, 0.0, 0.0])
     np.testing.assert_array_equal(log.scans[1].ranges_m, [29.0, 30.0, 49.0, 0.0, 0.0])
     assert log.sensor["range_max_m"] == "50.0"
+    assert log.sensor["range_max_from"] == "LaserScan range_max"
     assert log.sensor["readings"] == "5"
     assert "test.bag: range_max varies between scans (30.0 to 50.0 m); each scan keeps its own" in (
         log.warnings
     )
+
+
+def far_ranges(k: int) -> np.ndarray:
+    """The float32 ranges of scan ``k`` of ``far_returns_bag``: 181 beams, 106 from 0.5 to
+    9.6 m, 45 from 10 to 49.9 m, continuous, and 30 at 50 m, the scanner's no-return value."""
+    ranges = np.concatenate(
+        [
+            np.linspace(0.5, 9.5, 106) + 0.005 * k,
+            np.linspace(10.0, 49.8, 45) + 0.005 * k,
+            np.full(30, 50.0),
+        ]
+    )
+    return ranges.astype(np.float32)
+
+
+def far_returns_bag(where: Path, kind: str, range_max: float = 10.0) -> Path:
+    """A bag of 20 scans (``far_ranges``) whose messages say ``range_max``."""
+    store = store_of(kind)
+    messages = [
+        scan_record(store, k + 1, k * 100_000_000, far_ranges(k), range_max=range_max)
+        for k in range(20)
+    ]
+    return write_bag(kind, where, TOPICS, messages)
+
+
+@pytest.mark.parametrize("kind", FORMATS)
+def test_a_range_max_below_real_returns_keeps_them_with_a_warning(tmp_path, kind):
+    path = far_returns_bag(tmp_path, kind)
+    log = read_rosbag(path, odom_topic=None)
+
+    written = np.concatenate([decimal(far_ranges(k)) for k in range(20)])
+    ranges = np.concatenate([s.ranges_m for s in log.scans])
+    beyond = (written >= 10.0) & (written < 50.0)
+    assert np.count_nonzero(beyond) == 20 * 45
+    np.testing.assert_array_equal(ranges[beyond], written[beyond])
+    assert not np.any(ranges[written == 50.0])
+    assert [s.range_max_m for s in log.scans] == [50.0] * 20
+    assert log.sensor["range_max_m"] == "50.0"
+    assert log.sensor["range_max_from"] == (
+        "for 20 scans whose range_max (10 m) returns lie beyond, inferred: 50 m, the largest "
+        "reading that repeats, is 40 % of the readings from 10 m on"
+    )
+    assert log.warnings[1:] == [
+        f"{path.name}: the range_max of 20 scans (10 m) is not the scanner's range limit: it "
+        "would have dropped 900 readings (24.9 % of the readings) that are returns, from 10 m "
+        "up to 49.895 m; the limit used is 50 m, the no-return value the readings repeat "
+        "(--range-max-m sets one)"
+    ]
+    # A limit given keeps its word, and needs no warning.
+    given = read_rosbag(path, odom_topic=None, range_max_m=10.0)
+    assert not np.any(np.concatenate([s.ranges_m for s in given.scans])[beyond])
+    assert given.sensor["range_max_from"] == "given"
+    assert given.warnings == log.warnings[:1]
+
+
+def test_import_says_so_in_one_line_and_info_where_the_limit_came_from(capsys, tmp_path):
+    path = far_returns_bag(tmp_path, "ros1")
+    out = tmp_path / "log.mcap"
+    done = run_cli(capsys, "import", "rosbag", path, "--out", out, "--odom-topic", "")
+    assert done.code == 0, done.err
+    said = [line for line in done.err.splitlines() if "range limit" in line]
+    assert said == [
+        "segloc: warning: test.bag: the range_max of 20 scans (10 m) is not the scanner's range "
+        "limit: it would have dropped 900 readings (24.9 % of the readings) that are returns, "
+        "from 10 m up to 49.895 m; the limit used is 50 m, the no-return value the readings "
+        "repeat (--range-max-m sets one)"
+    ]
+    assert np.count_nonzero(np.concatenate([s.valid for s in read_log(out).scans])) == 20 * 151
+    shown = run_cli(capsys, "info", out).out.splitlines()
+    assert "sensor.range_max_m: 50.0" in shown
+    assert (
+        "sensor.range_max_from: for 20 scans whose range_max (10 m) returns lie beyond, "
+        "inferred: 50 m, the largest reading that repeats, is 40 % of the readings from 10 m on"
+    ) in shown
+
+    given = tmp_path / "given.mcap"
+    args = ["import", "rosbag", path, "--out", given, "--odom-topic", "", "--range-max-m", "10"]
+    done = run_cli(capsys, *args)
+    assert done.code == 0, done.err
+    assert "range limit" not in done.err
+    assert np.count_nonzero(np.concatenate([s.valid for s in read_log(given).scans])) == 20 * 106
+    assert "sensor.range_max_from: given" in run_cli(capsys, "info", given).out.splitlines()
+
+
+# --- --survey-out: the odometry as a trajectory ----------------------------------------
+
+# The scans by stamp that lie inside the odometry's span, and their numbers in bag order.
+ODOM_SCAN_NUMBERS = [WRITTEN_ORDER[k] + 1 for k in range(1, 5)]
+
+
+@pytest.mark.parametrize("name", ["odom.csv", "odom.tum"])
+def test_survey_out_writes_the_odometry_and_reads_back_as_it(capsys, tmp_path, name):
+    from segloc_cli.io.tables import read_pose_table
+
+    path = write_bag("ros1", tmp_path, TOPICS, standard_messages("ros1"))
+    out, survey = tmp_path / "log.mcap", tmp_path / name
+    done = run_cli(capsys, "import", "rosbag", path, "--out", out, "--survey-out", survey)
+    assert done.code == 0, done.err
+    assert done.err.splitlines()[-1] == f"segloc: {survey}: 4 odometry poses"
+
+    table, log = read_pose_table(survey), read_log(out)
+    np.testing.assert_array_equal(table.time_s, EXPECTED_ODOM_TIMES_S)
+    np.testing.assert_array_equal(table.time_s, log.odom_times_s)
+    # Positions to 1 µm and headings to 1e-6° (CSV), or through a quaternion (TUM).
+    np.testing.assert_allclose(table.poses[:, :2], EXPECTED_ODOM_POSES[:, :2], rtol=0, atol=1e-6)
+    np.testing.assert_allclose(table.poses[:, :2], log.odom_poses[:, :2], rtol=0, atol=1e-6)
+    heading_error = (table.poses[:, 2] - EXPECTED_ODOM_POSES[:, 2] + np.pi) % (2 * np.pi) - np.pi
+    np.testing.assert_allclose(heading_error, 0.0, rtol=0, atol=2e-8)
+    if name.endswith(".csv"):
+        # Each row is the pose id of the scan its odometry was looked up at.
+        assert table.pose_id.tolist() == ODOM_SCAN_NUMBERS
+        header = survey.read_text().splitlines()[0]
+        assert header == "pose_id,time_s,x_m,y_m,theta_deg,original_time_s"
+
+
+def test_survey_out_without_odometry_is_one_line(capsys, tmp_path):
+    scans_only = [m for m in standard_messages("ros1") if m[0] == "/scan"]
+    survey, out = tmp_path / "odom.csv", tmp_path / "log.mcap"
+    base = ["import", "rosbag", "--out", out, "--survey-out", survey]
+
+    no_topic = write_bag("ros1", tmp_path, {"/scan": SCAN_TYPE}, scans_only)
+    assert_one_line_error(run_cli(capsys, *base, no_topic), "test.bag", "no topic /odom")
+    not_read = run_cli(capsys, *base, no_topic, "--odom-topic", "")
+    assert_one_line_error(not_read, "--survey-out", "--odom-topic ''")
+    (tmp_path / "test.bag").unlink()
+    empty_topic = write_bag("ros1", tmp_path, TOPICS, scans_only)
+    assert_one_line_error(
+        run_cli(capsys, *base, empty_topic), "test.bag", "no scan has an odometry pose from /odom"
+    )
+    assert not out.exists() and not survey.exists()
+
+
+def test_survey_out_refuses_an_existing_file_without_force(capsys, tmp_path):
+    path = write_bag("ros1", tmp_path, TOPICS, standard_messages("ros1"))
+    survey, out = tmp_path / "odom.csv", tmp_path / "log.mcap"
+    survey.write_text("precious\n", encoding="utf-8")
+    result = run_cli(capsys, "import", "rosbag", path, "--out", out, "--survey-out", survey)
+    assert_one_line_error(result, str(survey), "--survey-out", "--force")
+    assert survey.read_text(encoding="utf-8") == "precious\n"
+    assert not out.exists()
+    forced = ["import", "rosbag", path, "--out", out, "--survey-out", survey, "--force"]
+    assert run_cli(capsys, *forced).code == 0
+    assert survey.read_text(encoding="utf-8").startswith("pose_id,")
 
 
 # --- bad messages ----------------------------------------------------------------------

@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 
 import click
+import numpy as np
 
 from segloc_cli.commands.configfile import config_option
 from segloc_cli.commands.invocation import Invocation
@@ -17,6 +19,8 @@ from segloc_cli.commands.options import (
 )
 from segloc_cli.commands.optionvalues import parse_planar_pose
 from segloc_cli.commands.printing import info, warn
+from segloc_cli.errors import InputError
+from segloc_cli.estimates import PoseTable
 from segloc_cli.geometry import Pose2
 from segloc_cli.runs.runfile import run_file_path
 from segloc_cli.scan import MAX_RANGE_M
@@ -55,14 +59,28 @@ def _write_imported(log, out_path: Path) -> None:
     )
 
 
+SURVEY_FORMATS = "a survey CSV, or a TUM trajectory (which evo reads) for a name ending in .tum"
+"""What ``--survey-out`` writes, by the name's suffix (``_write_survey``)."""
+
+
+def _range_max_option(default: str) -> Callable:
+    """``--range-max-m``: the scanner's range limit (m), overriding the one the importer finds
+    (``default`` says which)."""
+    return click.option(
+        "--range-max-m",
+        type=FiniteRange(min=0, max=MAX_RANGE_M, min_open=True),
+        default=None,
+        help=f"Readings at or beyond this mean no return (default: {default}).",
+    )
+
+
 CARMEN_OPTIONS = (
     path_option("--out", "out_path", required=True, help="MCAP log to write."),
     path_option(
         "--survey-out",
         help=(
-            "Also write the laser records' poses as a reference trajectory: a survey CSV, or "
-            "a TUM trajectory (which evo reads) for a name ending in .tum; in a "
-            "SLAM-corrected log these are the corrected poses."
+            f"Also write the laser records' poses as a reference trajectory: {SURVEY_FORMATS}; "
+            "in a SLAM-corrected log these are the corrected poses."
         ),
     ),
     click.option(
@@ -72,16 +90,28 @@ CARMEN_OPTIONS = (
         show_default=True,
         help="Which laser's records to read (FLASER/ROBOTLASER1 or RLASER).",
     ),
-    click.option(
-        "--range-max-m",
-        type=FiniteRange(min=0, max=MAX_RANGE_M, min_open=True),
-        default=None,
-        help="Readings at or beyond this mean no return (default: from PARAM lines, or "
-        "the sentinel value the log repeats).",
+    _range_max_option(
+        "the no-return value the log's readings repeat; a PARAM line's limit only where they "
+        "repeat none and no return lies beyond it"
     ),
     config_option,
     force_option,
 )
+
+
+def _write_survey(
+    survey_out: Path, table: PoseTable, original_times_s: np.ndarray, what: str
+) -> None:
+    """Write ``table`` to ``survey_out``: a TUM trajectory for a name ending in .tum, else a
+    survey CSV with the poses' original times (s) in an ``original_time_s`` column; then
+    say how many poses (``what``: "reference pose") it holds."""
+    from segloc_cli.io.tables import write_pose_table, write_pose_table_tum
+
+    if survey_out.suffix.lower() == ".tum":
+        write_pose_table_tum(survey_out, table)  # TUM has no column for original times
+    else:
+        write_pose_table(survey_out, table, {"original_time_s": original_times_s})
+    info(f"{survey_out}: {counted(len(table), what)}")
 
 
 @import_group.command("carmen")
@@ -99,10 +129,8 @@ def import_carmen(log_path, out_path, survey_out, laser, range_max_m, force):
     publish time and in the survey's original_time_s column.
     """
 
-    from segloc_cli.estimates import PoseTable
     from segloc_cli.io.carmen import read_carmen
     from segloc_cli.io.files import check_outputs
-    from segloc_cli.io.tables import write_pose_table, write_pose_table_tum
     from segloc_cli.progress import Progress
 
     outputs = {"--out": out_path, "--survey-out": survey_out}
@@ -110,17 +138,19 @@ def import_carmen(log_path, out_path, survey_out, laser, range_max_m, force):
     log = read_carmen(log_path, laser=laser, range_max_m=range_max_m, progress=Progress)
     _write_imported(log, out_path)
     if survey_out is not None:
-        n = len(log.scans)
         reference = PoseTable(log.scan_numbers, log.odom_times_s, log.laser_poses)
-        if survey_out.suffix.lower() == ".tum":
-            write_pose_table_tum(survey_out, reference)  # TUM has no column for original times
-        else:
-            write_pose_table(survey_out, reference, {"original_time_s": log.original_times_s})
-        info(f"{survey_out}: {counted(n, 'reference pose')}")
+        _write_survey(survey_out, reference, log.original_times_s, "reference pose")
 
 
 ROSBAG_OPTIONS = (
     path_option("--out", "out_path", required=True, help="MCAP log to write."),
+    path_option(
+        "--survey-out",
+        help=(
+            "Also write the odometry at the scans (the robot's poses in the odometry frame, "
+            f"as the log holds them) as a trajectory: {SURVEY_FORMATS}."
+        ),
+    ),
     click.option(
         "--scan-topic", default="/scan", show_default=True, help="sensor_msgs/LaserScan topic."
     ),
@@ -139,6 +169,10 @@ ROSBAG_OPTIONS = (
         "22 cm ahead. Overrides the bag's /tf_static (and unchanging /tf) transforms, which "
         "give it by default; with neither, the scanner is taken to be at the robot's origin.",
     ),
+    _range_max_option(
+        "each message's range_max, unless the scanner's returns lie beyond it: then the "
+        "no-return value its readings repeat"
+    ),
     config_option,
     force_option,
 )
@@ -147,7 +181,9 @@ ROSBAG_OPTIONS = (
 @import_group.command("rosbag")
 @click.argument("bag_path", metavar="PATH", type=click.Path(path_type=Path))
 @with_options(*ROSBAG_OPTIONS)
-def import_rosbag(bag_path, out_path, scan_topic, odom_topic, laser_offset, force):
+def import_rosbag(
+    bag_path, out_path, survey_out, scan_topic, odom_topic, laser_offset, range_max_m, force
+):
     """Import a ROS 1 .bag, a ROS 2 bag folder or a ROS 2 .mcap file.
 
     Scans stay in the scanner's frame; the scanner's pose on the robot (--laser-offset,
@@ -163,16 +199,38 @@ def import_rosbag(bag_path, out_path, scan_topic, odom_topic, laser_offset, forc
     given = None
     if laser_offset is not None:
         given = parse_planar_pose(laser_offset, "--laser-offset", MAX_LASER_OFFSET_M, "0.22,0,0")
-    check_outputs(
-        {"--out": out_path, "--out (run file)": run_file_path(out_path)}, [bag_path], force
-    )
+    if survey_out is not None and not odom_topic:
+        raise click.UsageError(
+            "--survey-out writes the bag's odometry, but --odom-topic '' reads none; name the "
+            "odometry topic (nav_msgs/Odometry)"
+        )
+    outputs = {"--out": out_path, "--survey-out": survey_out}
+    check_outputs({**outputs, "--out (run file)": run_file_path(out_path)}, [bag_path], force)
     log = read_rosbag(
         bag_path,
         scan_topic=scan_topic,
         odom_topic=odom_topic or None,
         laser_offset=given,
         progress=Progress,
+        range_max_m=range_max_m,
     )
+    if survey_out is not None and log.odom_times_s.size == 0:
+        raise InputError(
+            f"no scan has an odometry pose from {odom_topic} (the topic holds none, or none "
+            "around the scans' times), so --survey-out has nothing to write",
+            path=bag_path,
+        )
     _write_imported(log, out_path)
     if log.laser_offset_source != "none":  # else a warning has said so
         info(laser_offset_line(log))
+    if survey_out is not None:
+        table, original_times_s = _odometry_rows(log)
+        _write_survey(survey_out, table, original_times_s, "odometry pose")
+
+
+def _odometry_rows(log) -> tuple[PoseTable, np.ndarray]:
+    """The log's odometry as survey rows, each with the pose id (number) of the scan it was
+    looked up at, and those scans' original times (s)."""
+    at = np.searchsorted(log.scan_times_s, log.odom_times_s)
+    table = PoseTable(log.scan_numbers[at], log.odom_times_s, log.odom_poses)
+    return table, log.original_times_s[at]

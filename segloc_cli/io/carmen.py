@@ -42,17 +42,17 @@ their time with another record or go back in time are given distinct times in
 file order by the rule of ``segloc_cli.io.times`` (one warning says how many);
 ``Log.original_times_s`` keeps the times as written.
 
-Maximum range: a reading at or above it means no return. It is, in order of
-precedence: the ``range_max_m`` argument; a ROBOTLASER1 record's own
-``maximum_range`` (for that record, when positive); the first ``PARAM`` whose
-name contains "laser", "max" and the laser's side ("front" or "rear"), e.g.
-``robot_front_laser_max``; else it is inferred from the readings of the chosen
-laser records. A scanner writes its no-return value (81.83 m, 50 m) thousands
-of times, at the top of its readings; a lone corrupt reading (99999 m) is not
-one. So the maximum is the largest positive reading value that occurs at least
-twice and makes up at least 0.5 % of all readings, provided that at most 0.1 %
-of the readings lie above it (those then count as no return too). When no value
-passes, there is no maximum (inf) and a warning says so.
+Maximum range: a reading at or above it means no return. It is the scanner's own, found
+as ``segloc_cli.io.range_limits`` says: the ``range_max_m`` argument when given; else, for a
+ROBOTLASER1 record with a positive ``maximum_range`` (the laser's configuration, carried in
+each record), that value; for the other records, the no-return value their readings repeat
+(81.83 m, 50 m; a lone corrupt 99999 m reading is not one). A ``PARAM`` whose name
+contains "laser", "max" and the laser's side ("front" or "rear"), e.g.
+``robot_front_laser_max``, is a setting of CARMEN's robot module (how far the navigation
+looks), not the scanner's limit: it is used only when the readings repeat no no-return
+value. A stated limit (that PARAM, a ``maximum_range``) that returns lie beyond is not used,
+and a warning says how many readings it would have dropped and which limit is used
+instead. When no limit is found, there is none (inf) and a warning says so.
 
 Laser offset: a non-zero ``PARAM robot_frontlaser_offset`` (``robot_rearlaser_offset``
 for the rear laser) says the scanner sits that many metres from the robot
@@ -97,6 +97,14 @@ from segloc_cli.errors import InputError
 from segloc_cli.geometry import wrap_angle
 from segloc_cli.io.files import reading
 from segloc_cli.io.log import MAX_LASER_OFFSET_M, Log
+from segloc_cli.io.range_limits import (
+    NoReturn,
+    dropped_returns,
+    fmt_m,
+    no_return_value,
+    overruled,
+    overruled_text,
+)
 from segloc_cli.io.times import MAX_TIME_S, importer_times
 from segloc_cli.progress import Progress, ProgressFactory, silent
 from segloc_cli.scan import MAX_READINGS, Scan, evenly_spaced_angles, fan_defect
@@ -116,12 +124,6 @@ FLASER_EXTRA_FIELDS = 11
 ROBOTLASER_EXTRA_FIELDS = 24
 ROBOTLASER_N_FIELD = 8
 ODOM_FIELDS = 10
-SENTINEL_MIN_FRACTION = 0.005
-"""Share of all readings the inferred no-return value must make up at least."""
-SENTINEL_MIN_COUNT = 2
-"""Times the inferred no-return value must occur at least: a lone reading never is one."""
-SENTINEL_MAX_ABOVE_FRACTION = 0.001
-"""Largest share of the readings that may lie above the inferred no-return value."""
 BINARY_LINE_FRACTION = 0.5
 """A file is refused as not text when more than this share of its non-empty lines hold NULs."""
 LINES_SHOWN = 5
@@ -454,43 +456,6 @@ def _range_max_param(
     return None
 
 
-def _infer_range_max(ranges: list[np.ndarray]) -> tuple[float, str, bool]:
-    """The no-return value of ``ranges`` (see the module docstring), how it was
-    found, and whether finding none deserves a warning (there were readings)."""
-    readings = np.concatenate(ranges) if ranges else np.zeros(0)
-    positive = readings[readings > 0.0]
-    if positive.size == 0:
-        return math.inf, "none: no positive readings to infer it from", False
-    values, counts = np.unique(positive, return_counts=True)
-    total = readings.size
-    needed = max(SENTINEL_MIN_COUNT, SENTINEL_MIN_FRACTION * total)
-    frequent = np.flatnonzero(counts >= needed)
-    if frequent.size:
-        i = int(frequent[-1])
-        above = int(counts[i + 1 :].sum())
-        if above <= SENTINEL_MAX_ABOVE_FRACTION * total:
-            share = 100.0 * float(counts[i]) / total
-            rule = (
-                f"inferred: {_fmt(float(values[i]))} m, the largest reading that repeats, "
-                f"is {share:.3g} % of the readings"
-            )
-            if above:
-                larger = "readings count" if above > 1 else "reading counts"
-                rule += f"; the {above} larger {larger} as no return"
-            return float(values[i]), rule, False
-    largest = _fmt(float(values[-1]))
-    return (
-        math.inf,
-        "none: no reading value repeats often enough at the top of the readings to be a "
-        f"no-return value (the largest reading is {largest} m)",
-        True,
-    )
-
-
-def _fmt(value: float) -> str:
-    return "inf" if math.isinf(value) else f"{value:.10g}"
-
-
 def _record_kinds(counts: Counter) -> str:
     if not counts:
         return "the file has no records"
@@ -649,38 +614,96 @@ def _check_records(path: Path, parsed: _Parsed, laser: str, warnings: list[str])
 def _range_maxes(
     path: Path, parsed: _Parsed, laser: str, range_max_m: float | None, warnings: list[str]
 ) -> tuple[list[float], str]:
-    """The maximum range (m) of each record and the rule that gave it (module docstring)."""
+    """The maximum range (m) of each record and the rules that gave them (module docstring)."""
     records = parsed.records
     if range_max_m is not None:
-        fallback, rule = float(range_max_m), "given"
-    else:
-        fallback, rule = _fallback_range_max(path, parsed, laser, warnings)
-    per_record = [
-        r.range_max_m if range_max_m is None and r.range_max_m is not None else fallback
-        for r in records
-    ]
-    if range_max_m is None and any(r.range_max_m is not None for r in records):
-        rule = "ROBOTLASER1 maximum_range" + ("" if len(set(per_record)) == 1 else f"; {rule}")
-    return per_record, rule
+        return [float(range_max_m)] * len(records), "given"
+    per_record = [math.inf] * len(records)
+    stating: dict[float, list[int]] = {}
+    for i, record in enumerate(records):
+        if record.range_max_m is not None:
+            stating.setdefault(record.range_max_m, []).append(i)
+    own_rules = []
+    for stated_m, indices in stating.items():
+        limit_m, rule = _own_range_max(path, records, indices, stated_m, warnings)
+        for i in indices:
+            per_record[i] = limit_m
+        own_rules.append(rule)
+    # An empty rule: those records keep their own maximum_range.
+    rules = ["ROBOTLASER1 maximum_range"] if "" in own_rules else []
+    rules += [rule for rule in own_rules if rule]
+    needing = [i for i, record in enumerate(records) if record.range_max_m is None]
+    if needing:
+        readings = np.concatenate([records[i].ranges_m for i in needing])
+        fallback, rule = _fallback_range_max(path, parsed, laser, readings, warnings)
+        for i in needing:
+            per_record[i] = fallback
+        rules.append(rule)
+    return per_record, "; ".join(rules)
+
+
+def _own_range_max(
+    path: Path,
+    records: list[_LaserRecord],
+    indices: list[int],
+    stated_m: float,
+    warnings: list[str],
+) -> tuple[float, str]:
+    """The maximum range (m) of the ROBOTLASER1 records ``indices``, whose own
+    ``maximum_range`` is ``stated_m``: that value, unless returns lie beyond it (a warning,
+    and the rule that gave the limit used instead; else the rule is "")."""
+    readings = np.concatenate([records[i].ranges_m for i in indices])
+    check = overruled(readings, stated_m)
+    if check is None:
+        return stated_m, ""
+    limit = check.no_return
+    stated = f"the maximum_range of {counted(len(indices), 'ROBOTLASER1 record')}"
+    dropped = dropped_returns(readings, stated_m, limit.value_m)
+    warnings.append(
+        f"{path}: {overruled_text(stated, stated_m, dropped, readings.size, limit.limit_text())}"
+    )
+    return limit.value_m, (
+        f"for {counted(len(indices), 'ROBOTLASER1 record')} whose maximum_range "
+        f"({fmt_m(stated_m)} m) returns lie beyond, {limit.rule}"
+    )
 
 
 def _fallback_range_max(
-    path: Path, parsed: _Parsed, laser: str, warnings: list[str]
+    path: Path, parsed: _Parsed, laser: str, readings: np.ndarray, warnings: list[str]
 ) -> tuple[float, str]:
-    """The maximum range (m) of records without their own, from a PARAM or inferred from
-    their readings, and how it was found; a warning when none is found."""
-    from_param = _range_max_param(path, parsed.params, laser, warnings)
-    if from_param is not None:
-        return from_param
-    needing = [r.ranges_m for r in parsed.records if r.range_max_m is None]
-    fallback, rule, unsure = _infer_range_max(needing)
-    if unsure:
-        warnings.append(
-            f"{path}: no maximum range found, {rule.removeprefix('none: ')}; every "
-            "positive reading counts as a return (pass --range-max-m if the scanner "
-            "has a maximum range)"
+    """The maximum range (m) of records without their own, holding ``readings``, and how it
+    was found: the no-return value the readings repeat, else the laser's maximum-range PARAM
+    unless returns lie beyond it (a warning when they do, and when no limit is found)."""
+    no_return = no_return_value(readings)
+    param = _range_max_param(path, parsed.params, laser, warnings)
+    if param is None:
+        if no_return.unsure:
+            warnings.append(_no_maximum_warning(path, no_return))
+        return no_return.value_m, no_return.rule
+    stated_m, source = param
+    check = overruled(readings, stated_m)
+    if check is None:
+        if no_return.found:
+            return no_return.value_m, f"{no_return.rule}; {source} ({fmt_m(stated_m)} m) not used"
+        return stated_m, (
+            f"{source} (the readings repeat no no-return value, and no return lies beyond it)"
         )
-    return fallback, rule
+    limit = no_return if no_return.found else check.no_return
+    dropped = dropped_returns(readings, stated_m, limit.value_m)
+    if dropped[0]:
+        used = limit.limit_text()
+        warnings.append(f"{path}: {overruled_text(source, stated_m, dropped, readings.size, used)}")
+    return limit.value_m, (
+        f"{limit.rule}; {source} ({fmt_m(stated_m)} m) not used: returns lie beyond it"
+    )
+
+
+def _no_maximum_warning(path: Path, no_return: NoReturn) -> str:
+    return (
+        f"{path}: no maximum range found, {no_return.rule.removeprefix('none: ')}; every "
+        "positive reading counts as a return (pass --range-max-m if the scanner "
+        "has a maximum range)"
+    )
 
 
 def _scans(records: list[_LaserRecord], per_record: list[float], times_s: np.ndarray) -> list[Scan]:
@@ -740,15 +763,15 @@ def _sensor(
 ) -> dict[str, str]:
     """Settings for the MCAP log's metadata record (str → str)."""
     beams = sorted({len(s) for s in scans})
-    fovs = sorted({_fmt(math.degrees(r.fov_rad)) for r in records}, key=float)
+    fovs = sorted({f"{math.degrees(r.fov_rad):.10g}" for r in records}, key=float)
     wanted = LASER_RECORDS[laser]
     return {
-        "range_max_m": _fmt(max(per_record)),
+        "range_max_m": fmt_m(max(per_record)),
         "range_max_from": rule,
         "readings": ",".join(str(n) for n in beams),
         "fov_deg": ",".join(fovs),
         "laser": laser,
-        "laser_offset_m": _fmt(offset_m),
+        "laser_offset_m": fmt_m(offset_m),
         "records": ",".join(k for k in wanted if any(r.kind == k for r in records)),
         "source": path.name,
         "format": "CARMEN log",

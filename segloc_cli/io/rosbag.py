@@ -11,9 +11,13 @@ What comes out, in segloc's units and frames:
   the shortest decimal that reads back as the message's float32 (1.07, not
   1.0700000524520874: the same reading, written in a log as briefly as the scanner
   gave it; a comparison of two gives what it gave).
-  A reading is invalid when it is non-finite, below ``range_min`` or at/above
-  ``range_max`` (the bags write ``range_max`` for "no return") and is returned as
-  0.0; ``Scan.range_max_m`` is the message's ``range_max``.
+  A reading is invalid when it is non-finite, below ``range_min`` or at/above the scan's
+  range limit, and is returned as 0.0. The limit (``Scan.range_max_m``) is the
+  ``range_max_m`` given, else the message's ``range_max`` (the bags write it, or a value
+  above it, for "no return"), unless the scanner's returns lie beyond it: then, as
+  ``segloc_cli.io.range_limits`` says, it is the no-return value the readings from
+  ``range_max`` on repeat (none: inf), and a warning says how many readings ``range_max``
+  would have dropped. The sensor setting ``range_max_from`` says which.
 - Odometry: ``nav_msgs/Odometry`` ``pose.pose`` as (x m, y m, yaw rad): the robot's
   pose (its ``child_frame_id``, e.g. ``base_link``) in the odometry frame (the
   messages' ``header.frame_id``), interpolated to each scan time that lies within
@@ -72,6 +76,7 @@ from segloc_cli.io.log import (
     laser_offset_of,
     laser_offset_settings,
 )
+from segloc_cli.io.range_limits import dropped_returns, fmt_m, overruled, overruled_text
 from segloc_cli.io.ros1_salvage import salvage_ros1
 from segloc_cli.io.tf import (
     TF_STATIC_TOPIC,
@@ -370,19 +375,23 @@ def read_rosbag(
     odom_topic: str | None = "/odom",
     laser_offset: tuple[float, float, float] | None = None,
     progress: ProgressFactory = silent,
+    range_max_m: float | None = None,
 ) -> Log:
     """Read laser scans and odometry from a ROS bag (see the module docstring); the
     messages read are steps of ``progress``.
 
     ``odom_topic=None`` reads no odometry. ``laser_offset`` (``x_m, y_m, theta_deg``:
     the scanner's pose in the robot frame, metres and degrees) sets the mounting instead
-    of the bag's transforms. Raises ``InputError`` naming the bag when it is missing or
-    not a bag, when a topic is absent or of the wrong type, when it is damaged, when it
-    holds no scan that can be decoded, or when its transforms stand the scanner nearer
-    vertical than level. A message that cannot be decoded is skipped and counted in
-    ``warnings``. The log's ``odom_times_s`` are the times of the scans inside the
-    odometry's time span.
+    of the bag's transforms. ``range_max_m`` (metres, positive, else ``ValueError``) is
+    every scan's range limit instead of the messages' ``range_max``. Raises ``InputError``
+    naming the bag when it is missing or not a bag, when a topic is absent or of the wrong
+    type, when it is damaged, when it holds no scan that can be decoded, or when its
+    transforms stand the scanner nearer vertical than level. A message that cannot be
+    decoded is skipped and counted in ``warnings``. The log's ``odom_times_s`` are the
+    times of the scans inside the odometry's time span.
     """
+    if range_max_m is not None and not range_max_m > 0:
+        raise ValueError(f"range_max_m must be positive, got {range_max_m}")
     path = Path(path)
     decoded, warnings = _bag_messages(path, scan_topic, odom_topic, set(TF_TOPICS), progress)
     warnings += [
@@ -402,7 +411,9 @@ def read_rosbag(
     times_s, collided = importer_times(
         original_times_s, path, "scans", "stamp and bag order", path.name
     )
-    scans, scan_warnings = _scans(raw_scans, times_s, laser_offset_of(offset_settings, path))
+    scans, scan_warnings, range_rule = _scans(
+        raw_scans, times_s, laser_offset_of(offset_settings, path), range_max_m
+    )
     warnings += [f"{path.name}: {text}" for text in scan_warnings]
     warnings += [collided] if collided else []
     scan_ns = np.array([s.stamp_ns for s in raw_scans], dtype=np.int64)
@@ -412,7 +423,8 @@ def read_rosbag(
         original_times_s=original_times_s,
         odom_times_s=odom_times_s,
         odom_poses=odom_poses,
-        sensor=_sensor(path, raw_scans, scan_topic, odom_topic) | offset_settings,
+        sensor=_sensor(path, raw_scans, scans, range_rule, scan_topic, odom_topic)
+        | offset_settings,
         warnings=warnings,
         numbers=np.array([raw.number for raw in raw_scans], dtype=np.int64),
     )
@@ -708,31 +720,81 @@ def _with_usable_limits(raw: _RawScan) -> _RawScan:
 
 
 def _scans(
-    raw_scans: list[_RawScan], times_s: np.ndarray, mount: Pose2
-) -> tuple[list[Scan], list[str]]:
+    raw_scans: list[_RawScan], times_s: np.ndarray, mount: Pose2, range_max_m: float | None
+) -> tuple[list[Scan], list[str], str]:
     """Scans (invalid readings as 0.0) at ``times_s`` (S,) seconds from decoded messages,
-    mounted at ``mount`` (the scanner's pose in the robot frame), and notes on oddities."""
-    scans = []
-    n_count_mismatch = 0
-    n_intensity_mismatch = 0
+    mounted at ``mount`` (the scanner's pose in the robot frame), with the range limit
+    ``range_max_m`` when given (else ``_range_maxes``); notes on oddities, and the rule that
+    gave the range limits."""
     bad_limits: list[str] = []
-    for given, time_s in zip(raw_scans, times_s, strict=True):
+    usable = []
+    for given in raw_scans:
         raw = _with_usable_limits(given)
         if (raw.range_min, raw.range_max) != (given.range_min, given.range_max):
             bad_limits.append(f"range_min {given.range_min!r}, range_max {given.range_max!r}")
-        n_count_mismatch += _spanned_count(raw) != len(raw.ranges)
+        usable.append(raw)
+    limits, limit_notes, rule = _range_maxes(usable, range_max_m)
+    scans = []
+    mismatched = []
+    intensity_counts: list[tuple[int, int]] = []
+    for raw, limit_m, time_s in zip(usable, limits, times_s, strict=True):
+        if _spanned_count(raw) != len(raw.ranges):
+            mismatched.append(raw)
         if len(raw.intensities) not in (0, len(raw.ranges)):
-            n_intensity_mismatch += 1
+            intensity_counts.append((len(raw.intensities), len(raw.ranges)))
             raw = raw._replace(intensities=np.zeros(0))
-        scans.append(_scan(raw, float(time_s), mount))
-    notes = _scan_notes(bad_limits, n_count_mismatch, n_intensity_mismatch)
+        scans.append(_scan(raw._replace(range_max=limit_m), float(time_s), mount))
+    notes = [
+        *_limit_notes(bad_limits),
+        *_count_notes(mismatched, len(scans)),
+        *_intensity_notes(intensity_counts, len(scans)),
+        *limit_notes,
+    ]
     range_maxes = sorted({s.range_max_m for s in scans})
     if len(range_maxes) > 1:
         notes.append(
             f"range_max varies between scans ({range_maxes[0]!r} to {range_maxes[-1]!r} m); "
             "each scan keeps its own"
         )
-    return scans, notes
+    return scans, notes, rule
+
+
+def _range_maxes(
+    raw_scans: list[_RawScan], range_max_m: float | None
+) -> tuple[list[float], list[str], str]:
+    """Each scan's range limit (m): ``range_max_m`` when given, else its message's
+    ``range_max`` unless the returns of the scans sharing that value lie beyond it
+    (``segloc_cli.io.range_limits``); a note on each ``range_max`` not used, and the rule
+    that gave the limits (the sensor setting ``range_max_from``)."""
+    if range_max_m is not None:
+        return [float(range_max_m)] * len(raw_scans), [], "given"
+    limits = [raw.range_max for raw in raw_scans]
+    sharing: dict[float, list[int]] = {}
+    for i, raw in enumerate(raw_scans):
+        if math.isfinite(raw.range_max):
+            sharing.setdefault(raw.range_max, []).append(i)
+    notes, rules = [], []
+    n_overruled = 0
+    for stated_m, indices in sorted(sharing.items()):
+        readings = np.concatenate([raw_scans[i].ranges for i in indices])
+        check = overruled(readings, stated_m)
+        if check is None:
+            continue
+        limit = check.no_return
+        for i in indices:
+            limits[i] = limit.value_m
+        n_overruled += len(indices)
+        scans = counted(len(indices), "scan")
+        dropped = dropped_returns(readings, stated_m, limit.value_m)
+        used = limit.limit_text()
+        notes.append(
+            overruled_text(f"the range_max of {scans}", stated_m, dropped, readings.size, used)
+        )
+        rules.append(
+            f"for {scans} whose range_max ({fmt_m(stated_m)} m) returns lie beyond, {limit.rule}"
+        )
+    kept = ["LaserScan range_max"] if n_overruled < len(raw_scans) else []
+    return limits, notes, "; ".join(kept + rules)
 
 
 def _spanned_count(raw: _RawScan) -> int:
@@ -762,29 +824,57 @@ def _scan(raw: _RawScan, time_s: float, mount: Pose2) -> Scan:
     )
 
 
-def _scan_notes(
-    bad_limits: list[str], n_count_mismatch: int, n_intensity_mismatch: int
-) -> list[str]:
-    """Notes on the scans whose range limits, angle span or intensities were not usable as
-    given (``bad_limits``: the limits each such scan gave)."""
+def _limit_notes(bad_limits: list[str]) -> list[str]:
+    """A note on the scans whose range limits cannot be applied as given (``bad_limits``:
+    the limits each such scan gave), or none."""
+    if not bad_limits:
+        return []
+    n = len(bad_limits)
+    return [
+        f"{counted(n, 'scan')} {plural(n, 'gives', 'give')} range limits that cannot be applied "
+        f"(first: {bad_limits[0]} m); their readings count up to {MAX_RANGE_M:g} m"
+    ]
+
+
+def _intensity_notes(counts: list[tuple[int, int]], n_scans: int) -> list[str]:
+    """A note on the scans among ``n_scans`` whose number of intensities is not their
+    number of readings (``counts``: the two numbers of each), or none."""
+    if not counts:
+        return []
+    k = len(counts)
+    its = plural(k, "its", "their")
+    first = f"{'first: ' if k > 1 else ''}{counted(counts[0][0], 'intensity', 'intensities')}"
+    return [
+        f"{k} of {counted(n_scans, 'scan')} {plural(k, 'holds', 'hold')} a number of "
+        f"intensities other than {its} number of readings ({first} for "
+        f"{counted(counts[0][1], 'reading')}); {its} intensities were dropped and {its} "
+        "readings kept"
+    ]
+
+
+def _count_notes(mismatched: list[_RawScan], n_scans: int) -> list[str]:
+    """Notes on the scans among ``n_scans`` whose number of readings is not the number of
+    beams angle_min to angle_max at angle_increment gives (by one at most: more is skipped
+    by ``_usable``): one for those with more readings, one for those with fewer."""
     notes = []
-    if bad_limits:
-        notes.append(
-            f"{counted(len(bad_limits), 'scan')} {plural(len(bad_limits), 'gives', 'give')} range "
-            "limits that cannot be applied (first: "
-            f"{bad_limits[0]} m); their readings count up to {MAX_RANGE_M:g} m"
+    for more, where in ((True, "past"), (False, "short of")):
+        group = [raw for raw in mismatched if (len(raw.ranges) > _spanned_count(raw)) == more]
+        if not group:
+            continue
+        k, first = len(group), group[0]
+        their = plural(k, "its", "their")
+        first_of = "first: " if k > 1 else ""
+        found = (
+            f"{counted(len(first.ranges), 'reading')}, where angle_min {first.angle_min:.6g} to "
+            f"angle_max {first.angle_max:.6g} rad in steps of {first.angle_increment:.6g} rad "
+            f"give {counted(_spanned_count(first), 'beam')}"
         )
-    if n_count_mismatch:
         notes.append(
-            f"{counted(n_count_mismatch, 'scan')} {plural(n_count_mismatch, 'holds', 'hold')} a "
-            "number of ranges other than angle_min to "
-            "angle_max at angle_increment spans; their angles follow angle_min + i·angle_increment"
-        )
-    if n_intensity_mismatch:
-        notes.append(
-            f"{counted(n_intensity_mismatch, 'scan')} "
-            f"{plural(n_intensity_mismatch, 'holds', 'hold')} a number of intensities other "
-            "than the number of ranges; their intensities were dropped"
+            f"{k} of {counted(n_scans, 'scan')} {plural(k, 'holds', 'hold')} "
+            f"{'more' if more else 'fewer'} readings than {their} angles give ({first_of}"
+            f"{found}); all {their} readings are kept, beam i at angle_min + i·angle_increment, "
+            f"so {their} last beam lies {where} angle_max ({first_of}at "
+            f"{_last_angle(first):.6g} rad)"
         )
     return notes
 
@@ -826,23 +916,29 @@ def _interpolate_odometry(
     return inside, np.column_stack([xy, heading])
 
 
-def _largest_range_max(raw_scans: list[_RawScan]) -> str:
-    """The largest usable (finite, positive) range_max of the scans, as text; "inf" if none."""
-    usable = [float(raw.range_max) for raw in raw_scans]
-    usable = [value for value in usable if math.isfinite(value) and value > 0]
-    return repr(max(usable)) if usable else "inf"
+def _largest_range_max(scans: list[Scan]) -> str:
+    """The largest range limit of the scans as text, "inf" if one has none."""
+    largest = max(scan.range_max_m for scan in scans)
+    return repr(float(largest)) if math.isfinite(largest) else "inf"
 
 
 def _sensor(
-    path: Path, raw_scans: list[_RawScan], scan_topic: str, odom_topic: str | None
+    path: Path,
+    raw_scans: list[_RawScan],
+    scans: list[Scan],
+    range_rule: str,
+    scan_topic: str,
+    odom_topic: str | None,
 ) -> dict[str, str]:
-    """Settings for the MCAP log's metadata record, from the scans (str → str)."""
+    """Settings for the MCAP log's metadata record, from the messages and the scans made of
+    them, whose range limits ``range_rule`` gave (str → str)."""
     first = raw_scans[0]
     fov_rad = abs(first.angle_increment) * max(len(first.ranges) - 1, 0)
     kind = "ROS 1 bag" if path.suffix == ".bag" else "ROS 2 bag"
     return {
         # The largest, so that no reading valid in its own scan is invalid in the log.
-        "range_max_m": _largest_range_max(raw_scans),
+        "range_max_m": _largest_range_max(scans),
+        "range_max_from": range_rule,
         "range_min_m": repr(min(raw.range_min for raw in raw_scans)),
         "readings": ",".join(str(n) for n in sorted({len(raw.ranges) for raw in raw_scans})),
         "fov_deg": f"{math.degrees(fov_rad):.6g}",
