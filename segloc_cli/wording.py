@@ -27,9 +27,9 @@ def said(message: str) -> str:
     return f"{PREFIX}{message}"
 
 
-def plural(n: int, noun: str, nouns: str | None = None) -> str:
+def plural(n: float, noun: str, nouns: str | None = None) -> str:
     """``noun`` where ``n`` is 1 (or -1), else its plural: ``nouns``, by default ``noun``
-    and an "s" ("hypothesis" needs ``nouns="hypotheses"``)."""
+    and an "s" ("hypothesis" needs ``nouns="hypotheses"``; "1.5 scans", a median, too)."""
     if abs(n) == 1:
         return noun
     return f"{noun}s" if nouns is None else nouns
