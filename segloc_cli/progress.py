@@ -30,6 +30,13 @@ SHOW_AFTER_S = 2.0
 """Work that ends sooner than this (s) shows no progress."""
 PLAIN_EVERY_S = 5.0
 """Seconds between the plain lines written when standard error is not a terminal."""
+STARTING = "starting"
+"""What a line or the bar says in place of the rate and the time left before there is a rate:
+until the step after the first has ended."""
+_STARTING_BAR = "{l_bar}{bar}| {n_fmt}/{total_fmt} [{elapsed}, " + STARTING + "{postfix}]"
+_STARTING_COUNT = "{desc}: {n_fmt}{unit} [{elapsed}, " + STARTING + "{postfix}]"
+"""The bar's formats (tqdm's own, with ``STARTING`` for the rate and the time left) until
+there is a rate, for a known total and for an unknown one."""
 
 
 class Progress:
@@ -68,6 +75,7 @@ class Progress:
                 unit=unit,
                 file=self._stream,
                 delay=SHOW_AFTER_S,
+                bar_format=_STARTING_BAR if total else _STARTING_COUNT,
                 leave=False,
                 dynamic_ncols=True,
                 smoothing=0,  # the average rate since the first step (see advance)
@@ -95,9 +103,11 @@ class Progress:
             self._show_tallies()
         now = time.monotonic()
         first = self._first is None
-        if first:
+        if self._first is None:
             self._first = (self.done, now)
         if self._bar is not None:
+            if self.done > self._first[0]:
+                self._bar.bar_format = None  # tqdm's own, with the rate and the time left
             self._bar.update(steps)
             if first:
                 self._count_from_here(now)
@@ -152,19 +162,21 @@ def plain_line(
 ) -> str:
     """``segloc: localizing: 30/100 scans (30%), 2.4 scans/s, 00:28 left``: the line
     written where no bar can be drawn (an unknown total gives the time so far instead);
-    ``rate`` in steps per second, by default ``done`` over ``elapsed_s`` (0: not known);
+    ``rate`` in steps per second, by default ``done`` over ``elapsed_s`` (0: not known yet,
+    and the line says "starting" instead of a rate and the time left);
     ``tallies``, steps by outcome, follow ("; 2 lost, 1 recovered")."""
     if rate is None:
         rate = done / elapsed_s if elapsed_s > 0 else 0.0
     speed = (
-        "?" if rate == 0 else f"{rate:.1f} {unit}s/s" if rate >= 1 else f"{1 / rate:.1f} s/{unit}"
+        STARTING
+        if rate <= 0
+        else f"{rate:.1f} {unit}s/s"
+        if rate >= 1
+        else f"{1 / rate:.1f} s/{unit}"
     )
     if total:
-        left = tqdm.format_interval((total - done) / rate) if rate > 0 else "?"
-        line = (
-            f"{what}: {done}/{total} {plural(total, unit)} ({done / total:.0%}), {speed}, "
-            f"{left} left"
-        )
+        left = f", {tqdm.format_interval((total - done) / rate)} left" if rate > 0 else ""
+        line = f"{what}: {done}/{total} {plural(total, unit)} ({done / total:.0%}), {speed}{left}"
     else:
         line = f"{what}: {counted(done, unit)}, {speed}, {tqdm.format_interval(elapsed_s)} so far"
     if tallies:

@@ -49,7 +49,10 @@ def test_a_plain_line_gives_count_share_rate_and_time_left():
         "segloc: fusing: 1 round, 8.0 s/round, 00:08 so far"
     )
     assert plain_line("reading", 0, 10, "scan", 0.0) == (
-        "segloc: reading: 0/10 scans (0%), ?, ? left"
+        "segloc: reading: 0/10 scans (0%), starting"
+    )
+    assert plain_line("reading", 0, None, "message", 3.0) == (
+        "segloc: reading: 0 messages, starting, 00:03 so far"
     )
     assert plain_line("writing", 1, 1, "scan", 2.0) == (
         "segloc: writing: 1/1 scan (100%), 2.0 s/scan, 00:00 left"
@@ -90,10 +93,28 @@ def test_a_terminal_gets_a_bar_with_rate_and_time_left(monkeypatch):
     stream = io.StringIO()
     with Progress("tracking", 10, "scan", stream=stream, terminal=True) as shown:
         shown.advance(3)
-    drawn = stream.getvalue()
-    bar = drawn.split("\r")[1]
-    assert bar.startswith("segloc: tracking:") and "/10 [00:00<" in bar and bar.endswith("scan/s]")
-    assert drawn.split("\r")[2].strip() == "", "the bar is cleared when the work ends"
+        time.sleep(0.15)  # tqdm redraws at most every 0.1 s
+        shown.advance()  # the rate counts from the end of the first step
+    drawn = stream.getvalue().split("\r")
+    bar = drawn[-3]
+    assert bar.startswith("segloc: tracking:") and "4/10 [00:00<" in bar and bar.endswith("scan/s]")
+    assert drawn[-2].strip() == "", "the bar is cleared when the work ends"
+
+
+def test_the_bar_says_starting_until_it_has_a_rate(monkeypatch):
+    monkeypatch.setattr(progress_module, "SHOW_AFTER_S", 0.0)
+    for total, count in ((10, "1/10"), (None, "1scan")):
+        stream = io.StringIO()
+        with Progress("localizing", total, "scan", stream=stream, terminal=True) as shown:
+            time.sleep(0.15)  # tqdm redraws at most every 0.1 s
+            shown.advance()  # the first step (compiling, reading a map) sets no rate
+            time.sleep(0.15)
+            shown.advance()
+        *first, last = [part for part in stream.getvalue().split("\r") if part.strip()]
+        assert all(part.startswith("segloc: localizing:") for part in first), first
+        assert first[-1].endswith(f"{count} [00:00, starting]"), first
+        assert all("?" not in part for part in first), first
+        assert last.endswith("scan/s]") and "starting" not in last, last
 
 
 def test_the_bar_counts_the_outcomes_it_is_told_to(monkeypatch):
@@ -153,7 +174,8 @@ def test_long_commands_report_progress_in_plain_lines(capsys, tmp_path, every_st
     assert {int(m.group(2)) for m in shown} == {local}
     done = [int(m.group(1)) for m in shown]
     assert len(done) > 3 and done == sorted(done) and done[-1] == local, done
-    assert all(line.endswith(" left") for line in fused), fused
+    assert all(line.endswith((" left", ", starting")) for line in fused), fused
+    assert fused[-1].endswith(" left"), fused
 
     estimates = tmp_path / "est.csv"
     ran = run_cli(capsys, "localize", HALL / "log.mcap", "--map", tmp_path / "map.json",
@@ -204,7 +226,7 @@ def test_the_rate_and_time_left_leave_the_first_step_out(monkeypatch):
     for _ in range(3):
         shown.advance()
     assert stream.getvalue().splitlines() == [
-        "segloc: localizing: 1/10 scans (10%), ?, ? left",
+        "segloc: localizing: 1/10 scans (10%), starting",
         "segloc: localizing: 2/10 scans (20%), 2.0 scans/s, 00:04 left",
         "segloc: localizing: 3/10 scans (30%), 2.0 scans/s, 00:03 left",
     ]
