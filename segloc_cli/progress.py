@@ -8,7 +8,8 @@ figures is written every ``PLAIN_EVERY_S`` seconds instead, and a last one when 
 Work that ends sooner shows nothing. The rate and the time left leave the first step out:
 it may include compiling the kernels or reading a map, which the steps after it do not.
 The library functions take a ``Progress`` (or a ``ProgressFactory`` for several stretches)
-and default to showing nothing, so they print only when a command asks.
+and default to showing nothing, so they print only when a command asks. The bar is erased
+when the work ends, or left where it stopped when Ctrl-C stops it, the line after it saying so.
 
 Every line and the bar start with ``segloc:`` (``wording.said``), as all of segloc's lines on
 standard error do. Work whose steps end in outcomes worth watching counts them beside the
@@ -84,8 +85,8 @@ class Progress:
     def __enter__(self) -> Progress:
         return self
 
-    def __exit__(self, *_exc: object) -> None:
-        self.close()
+    def __exit__(self, exc_type: type[BaseException] | None, *_exc: object) -> None:
+        self.close(stopped=exc_type is not None and issubclass(exc_type, KeyboardInterrupt))
 
     def tally(self, outcomes: Sequence[str]) -> Progress:
         """Count the steps that end in each of ``outcomes`` (``advance``'s ``outcome``) and
@@ -129,9 +130,12 @@ class Progress:
         self._bar.start_t = self._bar.last_print_t = time.time()
         self._bar.delay = max(0.0, SHOW_AFTER_S - (now - self._started))
 
-    def close(self) -> None:
-        """End the display: the bar is removed; plain lines end with a last one."""
+    def close(self, stopped: bool = False) -> None:
+        """End the display: the bar is removed, or when ``stopped`` (by Ctrl-C) left as it
+        stands on a line of its own, so that the line after it (``segloc: interrupted``)
+        follows it; plain lines end with a last one."""
         if self._bar is not None:
+            self._bar.leave = stopped
             self._bar.close()
             self._bar = None
         elif self._lines:
@@ -202,7 +206,7 @@ class _Silent(Progress):
     def tally(self, outcomes: Sequence[str]) -> Progress:
         return self
 
-    def close(self) -> None:
+    def close(self, stopped: bool = False) -> None:
         pass
 
 

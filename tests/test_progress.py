@@ -5,8 +5,16 @@ outcomes a track counts as it goes; and the commands that report it."""
 from __future__ import annotations
 
 import csv
+import fcntl
 import io
+import os
+import pty
 import re
+import select
+import signal
+import struct
+import sys
+import termios
 import time
 from collections import Counter
 
@@ -130,6 +138,79 @@ def test_the_bar_counts_the_outcomes_it_is_told_to(monkeypatch):
     last = [part for part in stream.getvalue().split("\r") if part.strip()][-1]
     assert last.startswith("segloc: tracking:") and "5/10" in last, last
     assert last.endswith("2 lost, 1 recovered]"), last
+
+
+WAITING = """
+import pathlib, sys, time
+from segloc_cli import progress
+from segloc_cli.cli import cli, main
+
+progress.SHOW_AFTER_S = float(sys.argv[1])
+
+@cli.command("wait")
+def wait():
+    with progress.Progress("waiting", 10, "step") as shown:
+        shown.advance()
+        pathlib.Path(sys.argv[2]).touch()
+        time.sleep(60)
+
+main(["wait"])
+"""
+"""A command that shows its bar after the seconds its first argument says, makes the file its
+second names once it is under way, and waits to be stopped."""
+
+
+def _screen(text: str) -> list[str]:
+    """The rows a terminal shows for ``text``: a carriage return goes back to the start of the
+    row, written over by what follows."""
+    rows, row, column = [], [], 0
+    for char in text:
+        if char == "\r":
+            column = 0
+        elif char == "\n":
+            rows.append("".join(row).rstrip())
+            row, column = [], 0
+        else:
+            row[column : column + 1] = [char]
+            column += 1
+    return rows + (["".join(row).rstrip()] if row else [])
+
+
+@pytest.mark.parametrize("bar", [True, False], ids=["bar", "no-bar-yet"])
+def test_ctrl_c_leaves_no_blank_line_before_interrupted(bar, tmp_path):
+    started = tmp_path / "started"
+    pid, terminal = pty.fork()
+    if pid == 0:  # the child: the command, on the terminal's other side
+        try:
+            argv = [sys.executable, "-c", WAITING, "0" if bar else "60", str(started)]
+            os.execv(sys.executable, argv)
+        finally:
+            os._exit(127)
+    fcntl.ioctl(terminal, termios.TIOCSWINSZ, struct.pack("HHHH", 24, 80, 0, 0))
+    shown, typed, ended, deadline = b"", False, False, time.monotonic() + 60
+    while not ended and time.monotonic() < deadline:
+        if not typed and started.exists():
+            os.write(terminal, b"\x03")  # Ctrl-C typed: the terminal sends SIGINT, echoes ^C
+            typed = True
+        if select.select([terminal], [], [], 0.1)[0]:
+            try:
+                data = os.read(terminal, 65536)
+            except OSError:  # the command has ended
+                data = b""
+            ended = not data
+            shown += data
+    if not ended:
+        os.kill(pid, signal.SIGKILL)
+    _, status = os.waitpid(pid, 0)
+    os.close(terminal)
+    assert typed, f"the command did not start: {shown!r}"
+    rows = _screen(shown.decode("utf-8", errors="replace"))
+    assert os.waitstatus_to_exitcode(status) == 130, rows
+    # Written over the "^C" the terminal echoed, on the row after the bar where it stopped.
+    assert rows[-1] == "segloc: interrupted", rows
+    if bar:
+        assert rows[-2].startswith("segloc: waiting:"), rows
+    assert "" not in rows, rows
 
 
 def test_the_silent_progress_prints_nothing(capsys):
