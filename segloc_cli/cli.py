@@ -29,7 +29,7 @@ from segloc_cli.errors import (
     Interrupted,
     SeglocError,
 )
-from segloc_cli.wording import said
+from segloc_cli.wording import did_you_mean, said
 
 """An unexpected error (a bug): one line, and the traceback in a file it names (sysexits'
 EX_SOFTWARE)."""
@@ -167,6 +167,8 @@ def _error_line(exc: BaseException) -> tuple[str, int]:
     # command, click's Abort while it reads the command line.
     if isinstance(exc, (click.exceptions.Abort, KeyboardInterrupt, Interrupted)):
         return "interrupted", EXIT_INTERRUPTED
+    if isinstance(exc, click.exceptions.NoSuchOption):
+        return f"error: {_no_such_option(exc)}", EXIT_BAD_INPUT
     if isinstance(exc, click.ClickException):
         no_args = getattr(click.exceptions, "NoArgsIsHelpError", None)  # click >= 8.2
         if no_args is not None and isinstance(exc, no_args):
@@ -193,3 +195,25 @@ def _error_line(exc: BaseException) -> tuple[str, int]:
         f"(a bug in segloc; the traceback is in {where}, please report it)",
         EXIT_INTERNAL_ERROR,
     )
+
+
+def _no_such_option(exc: click.exceptions.NoSuchOption) -> str:
+    """ "no such option --ouput; did you mean --out?": the command's long option closest to a
+    mistyped one (click names several alike, or none, where one is the closest), else where
+    to find them all."""
+    ctx = exc.ctx
+    if ctx is None:
+        return f"no such option {exc.option_name}"
+    listed = f"run '{ctx.command_path} --help' to list them"
+    known = [
+        name
+        for param in ctx.command.get_params(ctx)
+        for name in (*param.opts, *param.secondary_opts)
+        if name.startswith("--")
+    ]
+    hint = (
+        did_you_mean(exc.option_name, known, listed, quoted=False)
+        if exc.option_name.startswith("--")
+        else listed
+    )
+    return f"no such option {exc.option_name}; {hint}"

@@ -68,8 +68,11 @@ def with_article(word: str) -> str:
     return f"{article(word)} {word}"
 
 
-def did_you_mean(word: str, known: Sequence[str], otherwise: str = "") -> str:
-    """ "did you mean 'x'?", x being the one of ``known`` closest to a mistyped ``word``, or
-    ``otherwise`` where none is close."""
+def did_you_mean(word: str, known: Sequence[str], otherwise: str = "", quoted: bool = True) -> str:
+    """ "did you mean 'x'?", x being the one of ``known`` closest to a mistyped ``word``
+    (without quotes unless ``quoted``: "did you mean --out?"), or ``otherwise`` where none
+    is close."""
     close = difflib.get_close_matches(word, list(known), n=1)
-    return f"did you mean {close[0]!r}?" if close else otherwise
+    if not close:
+        return otherwise
+    return f"did you mean {close[0]!r}?" if quoted else f"did you mean {close[0]}?"

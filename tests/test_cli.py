@@ -479,6 +479,29 @@ def test_bad_option_value(case, small, tmp_path, capsys):
     assert not out.exists(), "a rejected command must not write its output"
 
 
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["localize", "log.mcap", "--map", "map.json", "--ouput", "x.csv"],
+         "no such option --ouput; did you mean --out?"),
+        (["localize", "log.mcap", "--ouput=x.csv"], "no such option --ouput; did you mean --out?"),
+        (["evaluate", "est.csv", "--survy", "s.csv"],
+         "no such option --survy; did you mean --survey?"),
+        (["map", "build", "log.mcap", "--min-observaions", "2"],
+         "no such option --min-observaions; did you mean --min-observations?"),
+        (["import", "carmen", "run.log", "--survey-ot", "ref.csv"],
+         "no such option --survey-ot; did you mean --survey-out?"),
+        (["localize", "--zzzz"],
+         "no such option --zzzz; run 'segloc localize --help' to list them"),
+        (["info", "-q"], "no such option -q; run 'segloc info --help' to list them"),
+    ],
+    ids=["localize", "localize-equals", "evaluate", "map-build", "import-carmen", "far", "short"],
+)  # fmt: skip
+def test_a_mistyped_option_names_the_closest_one(args, message, capsys):
+    result = run_cli(capsys, *args)
+    assert assert_one_line_error(result) == f"segloc: error: {message}"
+
+
 @pytest.mark.parametrize("args", [[], ["map"]], ids=["segloc", "segloc-map"])
 def test_missing_command(args, capsys):
     result = run_cli(capsys, *args)
