@@ -857,6 +857,19 @@ def test_evaluate_relations_scores_relative_motion(tmp_path, capsys):
     assert summary["rot_deg"]["mean"] == pytest.approx(0.0, abs=1e-12)
 
 
+def test_the_relations_table_names_the_estimates_file(tmp_path, capsys):
+    est = _estimates_csv(tmp_path / "run-7.csv", [(0, 0, 0, 90), (1, 1, 0, 90), (2, 2, 0, 90)])
+    rel = write_text(tmp_path / "ref.relations", "0 1 0 -1 0 0 0 0\n1 2 0 -1.1 0 0 0 0\n")
+    rows = {}
+    for fmt in ("md", "csv", "json"):
+        result = run_cli(capsys, "evaluate", est, "--relations", rel, "--format", fmt)
+        assert result.code == 0, result.err
+        rows[fmt] = result.out
+    assert rows["md"].splitlines()[2].startswith("| run-7.csv | 2 | 0 |"), rows["md"]
+    assert rows["csv"].splitlines()[1].startswith("run-7.csv,2,0,"), rows["csv"]
+    assert json.loads(rows["json"])["trajectory"] == "run-7.csv"
+
+
 def test_published_rows_say_where_they_are_not_like_for_like(tmp_path, capsys):
     """Beside a dataset whose maps segloc builds from its SLAM-corrected log, the table says
     under it that segloc's row is not like for like with the published ones; beside one it
