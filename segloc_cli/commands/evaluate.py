@@ -13,6 +13,7 @@ from segloc_cli.commands.invocation import Invocation
 from segloc_cli.commands.options import with_options
 from segloc_cli.commands.printing import info, load_log, warn
 from segloc_cli.errors import EXIT_GATE_FAILED
+from segloc_cli.wording import plural
 
 EPILOG = """\b
 Exit status: 0 every gate passed (or none was set); 1 a gate failed or the run got worse
@@ -99,9 +100,13 @@ def _score(estimates, options):
     if not drawn:
         return scores, {}
     if options.plots_dir is not None and (segments_world is None or log is None):
-        from segloc_cli.scoring.plots import MAP_FIGURES
+        from segloc_cli.scoring.plots import MAP_FIGURES, OVERLAY
 
-        info(f"skipped {', '.join(MAP_FIGURES)}: they need --map MAP.json and --log LOG.mcap")
+        # The stages' figures are segloc's own: another localizer's rows have no stages.
+        stages = estimates[["align_theta_deg", "init_theta_deg"]].notna().to_numpy().any()
+        skipped = MAP_FIGURES if stages else (OVERLAY,)
+        need = plural(len(skipped), "it needs", "they need")
+        info(f"skipped {', '.join(skipped)}: {need} --map MAP.json and --log LOG.mcap")
     return scores, evaluation.figures_of(options, scores, estimates, survey, segments_world, log)
 
 
