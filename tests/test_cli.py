@@ -273,6 +273,35 @@ def test_json_that_is_not_a_map(text, small, tmp_path, capsys):
     assert not out.exists(), "no estimates may be written when the map cannot be read"
 
 
+MAP_AS_POSES_CASES = {
+    "localize-initial": (
+        lambda out: ["localize", HALL / "log.mcap", "--map", HALL / "map.json",
+                     "--initial", HALL / "map.json", "--out", out / "est.csv"],
+        "--initial takes odom, the first scan's pose X,Y,THETA_DEG, or a file of guesses: ",
+    ),
+    "map-build-survey": (
+        lambda out: ["map", "build", HALL / "log.mcap", "--survey", HALL / "map.json",
+                     "--out", out / "map.json"],
+        "--survey takes the surveyed poses of the scans: ",
+    ),
+    "evaluate-survey": (
+        lambda out: ["evaluate", HALL / "survey.csv", "--survey", HALL / "world.json"],
+        "--survey takes the surveyed poses: ",
+    ),
+}  # fmt: skip
+
+
+@pytest.mark.parametrize("case", list(MAP_AS_POSES_CASES))
+def test_a_map_given_for_poses_says_what_the_option_takes(case, tmp_path, capsys):
+    command, takes = MAP_AS_POSES_CASES[case]
+    result = run_cli(capsys, *command(tmp_path))
+    given = "world.json: a segloc world" if case == "evaluate-survey" else "map.json: a segloc map"
+    pose_files = "a CSV with the header pose_id,time_s,x_m,y_m,theta_deg, or a TUM trajectory"
+    line = assert_one_line_error(result, f"{given}, not a table of poses; {takes}{pose_files}")
+    assert line.endswith(pose_files)
+    assert not list(tmp_path.iterdir()), "nothing is written"
+
+
 def _survey_with_bad_value(path: Path) -> Path:
     return write_text(
         path,

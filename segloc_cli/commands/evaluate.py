@@ -58,6 +58,7 @@ def evaluate(estimates_path, force, **given):
     relation errors over time).
     """
     from segloc_cli.io.files import check_outputs
+    from segloc_cli.io.tables import refuse_map
     from segloc_cli.runs import evaluation
 
     _unused_figure_inputs(given)
@@ -67,6 +68,8 @@ def evaluate(estimates_path, force, **given):
         raise click.UsageError(problem)
     # Outputs are checked before any input is read, so a refusal costs no work.
     check_outputs(options.outputs, options.inputs, force)
+    if options.survey_path is not None:
+        refuse_map(options.survey_path, "--survey", "the surveyed poses")
     if options.plots_dir is not None:
         evaluation.check_plots(options, force)
     estimates = evaluation.read_scored_estimates(options)
