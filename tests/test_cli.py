@@ -253,6 +253,47 @@ def test_text_file_given_as_log(command, small, tmp_path, capsys):
     assert "MCAP" in line, f"the error should say the file is not an MCAP log: {line!r}"
 
 
+# Every command that reads a log, on the hall's map and survey, as a function of the log's path
+# and a folder for outputs: each refuses a log that is not one before any work.
+HALL_LOG_COMMANDS = {
+    "localize": lambda log, out: ["localize", log, "--map", HALL / "map.json",
+                                  "--out", out / "est.csv"],
+    "map-build": lambda log, out: ["map", "build", log, "--survey", HALL / "survey.csv",
+                                   "--out", out / "map.json"],
+    "info": lambda log, out: ["info", log],
+}  # fmt: skip
+CARMEN_LINES = "# CARMEN Logfile\nPARAM robot_frontlaser_offset 0.0 nohost 0\n"
+
+
+@pytest.mark.parametrize(
+    ("name", "converted"),
+    [("run.log", "run.mcap"), ("run.log.gz", "run.mcap"), ("run.clf", "run.mcap"),
+     ("run.clf.gz", "run.mcap"), ("run.txt", "run.mcap"), ("run.mcap", "run-segloc.mcap")],
+)  # fmt: skip
+@pytest.mark.parametrize("command", list(HALL_LOG_COMMANDS))
+def test_a_carmen_log_given_as_log_names_the_import(name, converted, command, tmp_path, capsys):
+    import gzip
+
+    log = tmp_path / name
+    lines = (CARMEN_LINES + _flaser([1.0] * 181, (0, 0, 0), (0, 0, 0), 1.0) + "\n").encode()
+    log.write_bytes(gzip.compress(lines) if name.endswith(".gz") else lines)
+    out = tmp_path / "out"
+    out.mkdir()
+    result = run_cli(capsys, *HALL_LOG_COMMANDS[command](log, out))
+    assert assert_one_line_error(result) == (
+        f"segloc: error: {log}: a CARMEN log, not a segloc log; convert it first with "
+        f"`segloc import carmen {log} --out {tmp_path / converted}`"
+    )
+    assert not list(out.iterdir()), "nothing is written"
+
+
+def test_a_text_file_named_as_a_carmen_log_is_not_taken_for_one(tmp_path, capsys):
+    log = write_text(tmp_path / "run.log", "segloc: localizing: 3/10 scans (30%), starting\n")
+    result = run_cli(capsys, "info", log)
+    line = assert_one_line_error(result, "not an MCAP file")
+    assert "CARMEN" not in line
+
+
 @pytest.mark.parametrize(
     "text",
     [

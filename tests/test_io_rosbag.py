@@ -821,7 +821,7 @@ def test_a_bag_where_a_log_is_expected_names_the_import(tmp_path, capsys, kind):
         # bag that is not the bag itself.
         out = tmp_path / {"ros1": "test.mcap", "ros2-folder": "test_bag.mcap",
                           "ros2-mcap": "test-segloc.mcap"}[kind]  # fmt: skip
-        assert line.endswith(f"convert it with `segloc import rosbag {path} --out {out}`"), line
+        assert line.endswith(f"convert it first with `segloc import rosbag {path} --out {out}`")
 
 
 # --- the scanner's mounting: /tf_static, /tf and --laser-offset ---------------------------

@@ -162,9 +162,11 @@ def localize(
     segments_world = read_map(map_path)
     if mode == "global":
         pipeline.check_global_extent(segments_world, map_path, config.localize.search.region)
+    # Before the map is prepared (compiling the kernels, the first time): a log that is not
+    # one is told at once.
+    logs = [load_log(p) for p in log_paths]
     localizer = pipeline.localizer_for(segments_world, config, mode)
     stops: list[str] = []  # signals asking the run to stop, noted while it runs
-    logs = [load_log(p) for p in log_paths]
     runs = [
         pipeline.localize_log(
             log,
