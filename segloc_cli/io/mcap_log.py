@@ -81,6 +81,7 @@ from segloc_cli.io.other_logs import (
     HEAD_BYTES,
     ROS2_METADATA,
     conversion,
+    inside_ros2_bag,
     other_log,
 )
 from segloc_cli.io.runview import RUN_METADATA_NAME
@@ -828,8 +829,8 @@ def read_log(path: str | Path) -> Log:
     complete message before it is kept. Messages that cannot be used are
     skipped and counted in warnings (see the module docstring for the kinds).
     Raises ``InputError`` naming the file when it is missing, not MCAP (naming the
-    ``segloc import`` that converts another tool's log: a ROS 1 bag, a ROS 2 bag folder, a
-    CARMEN log; ``other_logs``), has no
+    ``segloc import`` that converts another tool's log: a ROS 1 bag, a ROS 2 bag folder or
+    a file inside one, a CARMEN log; ``other_logs``), has no
     ``/scan`` channel or a non-JSON one, has an unusable ``range_max_m`` or laser offset
     (naming the setting), or none of its ``/scan`` messages can be used.
     """
@@ -837,6 +838,13 @@ def read_log(path: str | Path) -> Log:
     if path.is_dir() and (path / ROS2_METADATA).is_file():
         raise InputError(
             f"a ROS 2 bag folder, not a segloc log; {conversion('rosbag', path)}",
+            path=path,
+        )
+    bag = inside_ros2_bag(path)
+    if bag is not None:
+        raise InputError(
+            f"a file inside a ROS 2 bag, not a segloc log; "
+            f"{conversion('rosbag', bag, 'the bag folder')}",
             path=path,
         )
     with reading(path, "an MCAP log file"):

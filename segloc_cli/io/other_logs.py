@@ -1,8 +1,9 @@
 """Other tools' logs given where segloc's own is wanted: what each is, and the ``segloc import``
 command that converts it, for the one-line errors of the readers.
 
-- a ROS 1 bag (its first bytes ``ROS1_BAG_MAGIC``) or a ROS 2 bag folder (it holds
-  ``metadata.yaml``): ``segloc import rosbag``;
+- a ROS 1 bag (its first bytes ``ROS1_BAG_MAGIC``), a ROS 2 bag folder (it holds
+  ``metadata.yaml``), or a file inside one (``inside_ros2_bag``: its ``metadata.yaml`` or
+  its ``.db3`` database, which are not the bag): ``segloc import rosbag``;
 - a CARMEN log (``is_carmen_log``): ``segloc import carmen``.
 
 The command converts into a log beside the source, named after it (``run.bag`` →
@@ -19,6 +20,8 @@ ROS1_BAG_MAGIC = b"#ROSBAG V"
 """How a ROS 1 bag begins (``#ROSBAG V2.0`` and a newline)."""
 ROS2_METADATA = "metadata.yaml"
 """The file that makes a folder a ROS 2 bag."""
+ROS2_DATABASE_SUFFIX = ".db3"
+"""The suffix of a ROS 2 bag's sqlite3 storage files."""
 CARMEN_SUFFIXES = (".log", ".log.gz", ".clf", ".clf.gz")
 """The names CARMEN logs go by."""
 CARMEN_RECORDS = frozenset(
@@ -32,6 +35,28 @@ CARMEN_RECORDS = frozenset(
 HEAD_BYTES = 1 << 16
 """How much of a file (after decompressing gzip) ``is_carmen_log`` looks at."""
 GZIP_MAGIC = b"\x1f\x8b"
+
+
+def inside_ros2_bag(path: Path) -> Path | None:
+    """The ROS 2 bag folder (the folder holding ``metadata.yaml``) of which ``path`` is the
+    ``metadata.yaml`` or a ``.db3`` database, files that are not the bag on their own; None
+    for anything else. A folder given as ``.`` is named by its absolute path."""
+    path = Path(path)
+    folder = path.parent
+    if not path.is_file() or not (folder / ROS2_METADATA).is_file():
+        return None
+    if path.name != ROS2_METADATA and path.suffix.lower() != ROS2_DATABASE_SUFFIX:
+        return None
+    return folder if str(folder) != "." else path.resolve().parent
+
+
+def give_the_bag_folder(folder: Path) -> str:
+    """What a file inside the ROS 2 bag ``folder`` is, and what to give instead, for an
+    error's line."""
+    return (
+        f"a file inside a ROS 2 bag; give the bag folder {folder} (the folder holding "
+        f"{ROS2_METADATA})"
+    )
 
 
 def is_carmen_log(path: Path, head: bytes) -> bool:
