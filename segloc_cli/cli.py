@@ -26,9 +26,10 @@ from segloc_cli.errors import (
     EXIT_BAD_INPUT,
     EXIT_INTERNAL_ERROR,
     EXIT_INTERRUPTED,
+    Interrupted,
     SeglocError,
 )
-from segloc_cli.wording import said
+from segloc_cli.wording import did_you_mean, said
 
 """An unexpected error (a bug): one line, and the traceback in a file it names (sysexits'
 EX_SOFTWARE)."""
@@ -36,7 +37,23 @@ EX_SOFTWARE)."""
 __all__ = ["cli", "main"]
 
 
-@click.group(context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
+class _SeglocGroup(click.Group):
+    """The command group, which hands Ctrl-C to ``main`` as ``Interrupted``: click would print
+    an empty line first (to end the line a terminal echoed "^C" on), and under a progress
+    bar that leaves a blank line before ``segloc: interrupted``; ``main`` starts that line at
+    the start of the terminal's line instead."""
+
+    def invoke(self, ctx: click.Context):
+        try:
+            return super().invoke(ctx)
+        except KeyboardInterrupt as exc:
+            raise Interrupted() from exc
+
+
+@click.group(
+    cls=_SeglocGroup,
+    context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100},
+)
 @click.version_option(__version__, prog_name="segloc")
 def cli() -> None:
     """Localize a robot in a known map from 2D laser scans, and measure how well it works.
@@ -123,8 +140,18 @@ def main(argv: list[str] | None = None) -> None:
         sys.exit(EXIT_BAD_INPUT)
     except (click.exceptions.Abort, KeyboardInterrupt, Exception) as exc:
         line, code = _error_line(exc)
-        click.echo(said(line), err=True)
+        # On a terminal, over the "^C" it echoed where the cursor was (a progress bar ends
+        # on its own line, see progress.Progress.close).
+        start = "\r" if code == EXIT_INTERRUPTED and _is_terminal(sys.stderr) else ""
+        click.echo(start + said(line), err=True)
         sys.exit(code)
+
+
+def _is_terminal(stream) -> bool:
+    try:
+        return stream.isatty()
+    except (AttributeError, ValueError):
+        return False
 
 
 def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
@@ -136,9 +163,12 @@ def _show_warning(message, category, filename, lineno, file=None, line=None) -> 
 
 def _error_line(exc: BaseException) -> tuple[str, int]:
     """The one line an error prints (after ``segloc:``), and the exit status it gives."""
-    # Click turns Ctrl-C (and SIGTERM or SIGHUP, which the entry point makes alike) into Abort.
-    if isinstance(exc, (click.exceptions.Abort, KeyboardInterrupt)):
+    # Ctrl-C (and SIGTERM or SIGHUP, which the entry point makes alike): Interrupted from a
+    # command, click's Abort while it reads the command line.
+    if isinstance(exc, (click.exceptions.Abort, KeyboardInterrupt, Interrupted)):
         return "interrupted", EXIT_INTERRUPTED
+    if isinstance(exc, click.exceptions.NoSuchOption):
+        return f"error: {_no_such_option(exc)}", EXIT_BAD_INPUT
     if isinstance(exc, click.ClickException):
         no_args = getattr(click.exceptions, "NoArgsIsHelpError", None)  # click >= 8.2
         if no_args is not None and isinstance(exc, no_args):
@@ -165,3 +195,25 @@ def _error_line(exc: BaseException) -> tuple[str, int]:
         f"(a bug in segloc; the traceback is in {where}, please report it)",
         EXIT_INTERNAL_ERROR,
     )
+
+
+def _no_such_option(exc: click.exceptions.NoSuchOption) -> str:
+    """ "no such option --ouput; did you mean --out?": the command's long option closest to a
+    mistyped one (click names several alike, or none, where one is the closest), else where
+    to find them all."""
+    ctx = exc.ctx
+    if ctx is None:
+        return f"no such option {exc.option_name}"
+    listed = f"run '{ctx.command_path} --help' to list them"
+    known = [
+        name
+        for param in ctx.command.get_params(ctx)
+        for name in (*param.opts, *param.secondary_opts)
+        if name.startswith("--")
+    ]
+    hint = (
+        did_you_mean(exc.option_name, known, listed, quoted=False)
+        if exc.option_name.startswith("--")
+        else listed
+    )
+    return f"no such option {exc.option_name}; {hint}"

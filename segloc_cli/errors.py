@@ -24,6 +24,11 @@ class InputError(SeglocError):
         self.row = row
 
 
+class Interrupted(Exception):
+    """Ctrl-C, SIGTERM or SIGHUP during a command: its ``KeyboardInterrupt``, taken from click
+    (which would print an empty line before the command line's own), exit status 130."""
+
+
 # The exit statuses of every command: 0 is success; these are the rest.
 EXIT_GATE_FAILED = 1
 """``evaluate``: a pose's error is above ``--fail-above-cm`` or ``--fail-above-deg``."""

@@ -8,7 +8,8 @@ figures is written every ``PLAIN_EVERY_S`` seconds instead, and a last one when 
 Work that ends sooner shows nothing. The rate and the time left leave the first step out:
 it may include compiling the kernels or reading a map, which the steps after it do not.
 The library functions take a ``Progress`` (or a ``ProgressFactory`` for several stretches)
-and default to showing nothing, so they print only when a command asks.
+and default to showing nothing, so they print only when a command asks. The bar is erased
+when the work ends, or left where it stopped when Ctrl-C stops it, the line after it saying so.
 
 Every line and the bar start with ``segloc:`` (``wording.said``), as all of segloc's lines on
 standard error do. Work whose steps end in outcomes worth watching counts them beside the
@@ -30,6 +31,13 @@ SHOW_AFTER_S = 2.0
 """Work that ends sooner than this (s) shows no progress."""
 PLAIN_EVERY_S = 5.0
 """Seconds between the plain lines written when standard error is not a terminal."""
+STARTING = "starting"
+"""What a line or the bar says in place of the rate and the time left before there is a rate:
+until the step after the first has ended."""
+_STARTING_BAR = "{l_bar}{bar}| {n_fmt}/{total_fmt} [{elapsed}, " + STARTING + "{postfix}]"
+_STARTING_COUNT = "{desc}: {n_fmt}{unit} [{elapsed}, " + STARTING + "{postfix}]"
+"""The bar's formats (tqdm's own, with ``STARTING`` for the rate and the time left) until
+there is a rate, for a known total and for an unknown one."""
 
 
 class Progress:
@@ -68,6 +76,7 @@ class Progress:
                 unit=unit,
                 file=self._stream,
                 delay=SHOW_AFTER_S,
+                bar_format=_STARTING_BAR if total else _STARTING_COUNT,
                 leave=False,
                 dynamic_ncols=True,
                 smoothing=0,  # the average rate since the first step (see advance)
@@ -76,8 +85,8 @@ class Progress:
     def __enter__(self) -> Progress:
         return self
 
-    def __exit__(self, *_exc: object) -> None:
-        self.close()
+    def __exit__(self, exc_type: type[BaseException] | None, *_exc: object) -> None:
+        self.close(stopped=exc_type is not None and issubclass(exc_type, KeyboardInterrupt))
 
     def tally(self, outcomes: Sequence[str]) -> Progress:
         """Count the steps that end in each of ``outcomes`` (``advance``'s ``outcome``) and
@@ -95,9 +104,11 @@ class Progress:
             self._show_tallies()
         now = time.monotonic()
         first = self._first is None
-        if first:
+        if self._first is None:
             self._first = (self.done, now)
         if self._bar is not None:
+            if self.done > self._first[0]:
+                self._bar.bar_format = None  # tqdm's own, with the rate and the time left
             self._bar.update(steps)
             if first:
                 self._count_from_here(now)
@@ -119,9 +130,12 @@ class Progress:
         self._bar.start_t = self._bar.last_print_t = time.time()
         self._bar.delay = max(0.0, SHOW_AFTER_S - (now - self._started))
 
-    def close(self) -> None:
-        """End the display: the bar is removed; plain lines end with a last one."""
+    def close(self, stopped: bool = False) -> None:
+        """End the display: the bar is removed, or when ``stopped`` (by Ctrl-C) left as it
+        stands on a line of its own, so that the line after it (``segloc: interrupted``)
+        follows it; plain lines end with a last one."""
         if self._bar is not None:
+            self._bar.leave = stopped
             self._bar.close()
             self._bar = None
         elif self._lines:
@@ -152,19 +166,21 @@ def plain_line(
 ) -> str:
     """``segloc: localizing: 30/100 scans (30%), 2.4 scans/s, 00:28 left``: the line
     written where no bar can be drawn (an unknown total gives the time so far instead);
-    ``rate`` in steps per second, by default ``done`` over ``elapsed_s`` (0: not known);
+    ``rate`` in steps per second, by default ``done`` over ``elapsed_s`` (0: not known yet,
+    and the line says "starting" instead of a rate and the time left);
     ``tallies``, steps by outcome, follow ("; 2 lost, 1 recovered")."""
     if rate is None:
         rate = done / elapsed_s if elapsed_s > 0 else 0.0
     speed = (
-        "?" if rate == 0 else f"{rate:.1f} {unit}s/s" if rate >= 1 else f"{1 / rate:.1f} s/{unit}"
+        STARTING
+        if rate <= 0
+        else f"{rate:.1f} {unit}s/s"
+        if rate >= 1
+        else f"{1 / rate:.1f} s/{unit}"
     )
     if total:
-        left = tqdm.format_interval((total - done) / rate) if rate > 0 else "?"
-        line = (
-            f"{what}: {done}/{total} {plural(total, unit)} ({done / total:.0%}), {speed}, "
-            f"{left} left"
-        )
+        left = f", {tqdm.format_interval((total - done) / rate)} left" if rate > 0 else ""
+        line = f"{what}: {done}/{total} {plural(total, unit)} ({done / total:.0%}), {speed}{left}"
     else:
         line = f"{what}: {counted(done, unit)}, {speed}, {tqdm.format_interval(elapsed_s)} so far"
     if tallies:
@@ -190,7 +206,7 @@ class _Silent(Progress):
     def tally(self, outcomes: Sequence[str]) -> Progress:
         return self
 
-    def close(self) -> None:
+    def close(self, stopped: bool = False) -> None:
         pass
 
 

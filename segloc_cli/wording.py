@@ -27,9 +27,9 @@ def said(message: str) -> str:
     return f"{PREFIX}{message}"
 
 
-def plural(n: int, noun: str, nouns: str | None = None) -> str:
+def plural(n: float, noun: str, nouns: str | None = None) -> str:
     """``noun`` where ``n`` is 1 (or -1), else its plural: ``nouns``, by default ``noun``
-    and an "s" ("hypothesis" needs ``nouns="hypotheses"``)."""
+    and an "s" ("hypothesis" needs ``nouns="hypotheses"``; "1.5 scans", a median, too)."""
     if abs(n) == 1:
         return noun
     return f"{noun}s" if nouns is None else nouns
@@ -68,8 +68,11 @@ def with_article(word: str) -> str:
     return f"{article(word)} {word}"
 
 
-def did_you_mean(word: str, known: Sequence[str], otherwise: str = "") -> str:
-    """ "did you mean 'x'?", x being the one of ``known`` closest to a mistyped ``word``, or
-    ``otherwise`` where none is close."""
+def did_you_mean(word: str, known: Sequence[str], otherwise: str = "", quoted: bool = True) -> str:
+    """ "did you mean 'x'?", x being the one of ``known`` closest to a mistyped ``word``
+    (without quotes unless ``quoted``: "did you mean --out?"), or ``otherwise`` where none
+    is close."""
     close = difflib.get_close_matches(word, list(known), n=1)
-    return f"did you mean {close[0]!r}?" if close else otherwise
+    if not close:
+        return otherwise
+    return f"did you mean {close[0]!r}?" if quoted else f"did you mean {close[0]}?"

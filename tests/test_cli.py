@@ -253,6 +253,47 @@ def test_text_file_given_as_log(command, small, tmp_path, capsys):
     assert "MCAP" in line, f"the error should say the file is not an MCAP log: {line!r}"
 
 
+# Every command that reads a log, on the hall's map and survey, as a function of the log's path
+# and a folder for outputs: each refuses a log that is not one before any work.
+HALL_LOG_COMMANDS = {
+    "localize": lambda log, out: ["localize", log, "--map", HALL / "map.json",
+                                  "--out", out / "est.csv"],
+    "map-build": lambda log, out: ["map", "build", log, "--survey", HALL / "survey.csv",
+                                   "--out", out / "map.json"],
+    "info": lambda log, out: ["info", log],
+}  # fmt: skip
+CARMEN_LINES = "# CARMEN Logfile\nPARAM robot_frontlaser_offset 0.0 nohost 0\n"
+
+
+@pytest.mark.parametrize(
+    ("name", "converted"),
+    [("run.log", "run.mcap"), ("run.log.gz", "run.mcap"), ("run.clf", "run.mcap"),
+     ("run.clf.gz", "run.mcap"), ("run.txt", "run.mcap"), ("run.mcap", "run-segloc.mcap")],
+)  # fmt: skip
+@pytest.mark.parametrize("command", list(HALL_LOG_COMMANDS))
+def test_a_carmen_log_given_as_log_names_the_import(name, converted, command, tmp_path, capsys):
+    import gzip
+
+    log = tmp_path / name
+    lines = (CARMEN_LINES + _flaser([1.0] * 181, (0, 0, 0), (0, 0, 0), 1.0) + "\n").encode()
+    log.write_bytes(gzip.compress(lines) if name.endswith(".gz") else lines)
+    out = tmp_path / "out"
+    out.mkdir()
+    result = run_cli(capsys, *HALL_LOG_COMMANDS[command](log, out))
+    assert assert_one_line_error(result) == (
+        f"segloc: error: {log}: a CARMEN log, not a segloc log; convert it first with "
+        f"`segloc import carmen {log} --out {tmp_path / converted}`"
+    )
+    assert not list(out.iterdir()), "nothing is written"
+
+
+def test_a_text_file_named_as_a_carmen_log_is_not_taken_for_one(tmp_path, capsys):
+    log = write_text(tmp_path / "run.log", "segloc: localizing: 3/10 scans (30%), starting\n")
+    result = run_cli(capsys, "info", log)
+    line = assert_one_line_error(result, "not an MCAP file")
+    assert "CARMEN" not in line
+
+
 @pytest.mark.parametrize(
     "text",
     [
@@ -271,6 +312,35 @@ def test_json_that_is_not_a_map(text, small, tmp_path, capsys):
     result = run_cli(capsys, "localize", small.log, "--map", bad_map, "--out", out)
     assert_one_line_error(result, bad_map.name)
     assert not out.exists(), "no estimates may be written when the map cannot be read"
+
+
+MAP_AS_POSES_CASES = {
+    "localize-initial": (
+        lambda out: ["localize", HALL / "log.mcap", "--map", HALL / "map.json",
+                     "--initial", HALL / "map.json", "--out", out / "est.csv"],
+        "--initial takes odom, the first scan's pose X,Y,THETA_DEG, or a file of guesses: ",
+    ),
+    "map-build-survey": (
+        lambda out: ["map", "build", HALL / "log.mcap", "--survey", HALL / "map.json",
+                     "--out", out / "map.json"],
+        "--survey takes the surveyed poses of the scans: ",
+    ),
+    "evaluate-survey": (
+        lambda out: ["evaluate", HALL / "survey.csv", "--survey", HALL / "world.json"],
+        "--survey takes the surveyed poses: ",
+    ),
+}  # fmt: skip
+
+
+@pytest.mark.parametrize("case", list(MAP_AS_POSES_CASES))
+def test_a_map_given_for_poses_says_what_the_option_takes(case, tmp_path, capsys):
+    command, takes = MAP_AS_POSES_CASES[case]
+    result = run_cli(capsys, *command(tmp_path))
+    given = "world.json: a segloc world" if case == "evaluate-survey" else "map.json: a segloc map"
+    pose_files = "a CSV with the header pose_id,time_s,x_m,y_m,theta_deg, or a TUM trajectory"
+    line = assert_one_line_error(result, f"{given}, not a table of poses; {takes}{pose_files}")
+    assert line.endswith(pose_files)
+    assert not list(tmp_path.iterdir()), "nothing is written"
 
 
 def _survey_with_bad_value(path: Path) -> Path:
@@ -477,6 +547,29 @@ def test_bad_option_value(case, small, tmp_path, capsys):
     result = run_cli(capsys, *command(small, out))
     assert_one_line_error(result, option)
     assert not out.exists(), "a rejected command must not write its output"
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["localize", "log.mcap", "--map", "map.json", "--ouput", "x.csv"],
+         "no such option --ouput; did you mean --out?"),
+        (["localize", "log.mcap", "--ouput=x.csv"], "no such option --ouput; did you mean --out?"),
+        (["evaluate", "est.csv", "--survy", "s.csv"],
+         "no such option --survy; did you mean --survey?"),
+        (["map", "build", "log.mcap", "--min-observaions", "2"],
+         "no such option --min-observaions; did you mean --min-observations?"),
+        (["import", "carmen", "run.log", "--survey-ot", "ref.csv"],
+         "no such option --survey-ot; did you mean --survey-out?"),
+        (["localize", "--zzzz"],
+         "no such option --zzzz; run 'segloc localize --help' to list them"),
+        (["info", "-q"], "no such option -q; run 'segloc info --help' to list them"),
+    ],
+    ids=["localize", "localize-equals", "evaluate", "map-build", "import-carmen", "far", "short"],
+)  # fmt: skip
+def test_a_mistyped_option_names_the_closest_one(args, message, capsys):
+    result = run_cli(capsys, *args)
+    assert assert_one_line_error(result) == f"segloc: error: {message}"
 
 
 @pytest.mark.parametrize("args", [[], ["map"]], ids=["segloc", "segloc-map"])
@@ -835,6 +928,19 @@ def test_evaluate_relations_scores_relative_motion(tmp_path, capsys):
     assert (summary["used"], summary["skipped"]) == (2, 1)
     assert summary["trans_m"]["mean"] == pytest.approx(0.05, abs=1e-12)
     assert summary["rot_deg"]["mean"] == pytest.approx(0.0, abs=1e-12)
+
+
+def test_the_relations_table_names_the_estimates_file(tmp_path, capsys):
+    est = _estimates_csv(tmp_path / "run-7.csv", [(0, 0, 0, 90), (1, 1, 0, 90), (2, 2, 0, 90)])
+    rel = write_text(tmp_path / "ref.relations", "0 1 0 -1 0 0 0 0\n1 2 0 -1.1 0 0 0 0\n")
+    rows = {}
+    for fmt in ("md", "csv", "json"):
+        result = run_cli(capsys, "evaluate", est, "--relations", rel, "--format", fmt)
+        assert result.code == 0, result.err
+        rows[fmt] = result.out
+    assert rows["md"].splitlines()[2].startswith("| run-7.csv | 2 | 0 |"), rows["md"]
+    assert rows["csv"].splitlines()[1].startswith("run-7.csv,2,0,"), rows["csv"]
+    assert json.loads(rows["json"])["trajectory"] == "run-7.csv"
 
 
 def test_published_rows_say_where_they_are_not_like_for_like(tmp_path, capsys):

@@ -785,7 +785,7 @@ def test_a_ros2_bag_in_mcap_points_at_the_importer(tmp_path):
         read_log(path)
     assert str(caught.value) == (
         f"{path}: channel /scan uses message encoding 'cdr'; segloc reads JSON-encoded foxglove "
-        f"messages; it is a ROS bag: convert it with `segloc import rosbag {path} --out "
+        f"messages; it is a ROS bag: convert it first with `segloc import rosbag {path} --out "
         f"{tmp_path / 'ros2-segloc.mcap'}`"
     )
 

@@ -981,7 +981,41 @@ def test_a_bag_where_a_log_is_expected_names_the_import(tmp_path, capsys, kind):
         # bag that is not the bag itself.
         out = tmp_path / {"ros1": "test.mcap", "ros2-folder": "test_bag.mcap",
                           "ros2-mcap": "test-segloc.mcap"}[kind]  # fmt: skip
-        assert line.endswith(f"convert it with `segloc import rosbag {path} --out {out}`"), line
+        assert line.endswith(f"convert it first with `segloc import rosbag {path} --out {out}`")
+
+
+@pytest.mark.parametrize("inside", ["database", "metadata"])
+def test_a_file_inside_a_ros2_bag_names_the_bag_folder(tmp_path, capsys, inside):
+    """A ROS 2 bag's .db3 or metadata.yaml, given where a bag is read (evaluate's EST, import
+    rosbag's LOG), says to give the bag folder; given where a log is read (info, localize,
+    map build), to convert the bag folder."""
+    messages = [scan_record(ROS2_STORE, 1, 0, scan_ranges(0))]
+    folder = write_bag("ros2-folder", tmp_path, TOPICS, messages)
+    (database,) = folder.glob("*.db3")
+    path = database if inside == "database" else folder / "metadata.yaml"
+    survey, out = HALL / "survey.csv", tmp_path / "out"
+    out.mkdir()
+    give = (
+        f"segloc: error: {path}: a file inside a ROS 2 bag; give the bag folder {folder} "
+        "(the folder holding metadata.yaml)"
+    )
+    for args in (
+        ["evaluate", path, "--survey", survey],
+        ["evaluate", path, "--est-format", "ros2", "--topic", "/amcl_pose", "--survey", survey],
+        ["import", "rosbag", path, "--out", out / "log.mcap"],
+    ):
+        assert assert_one_line_error(run_cli(capsys, *args)) == give
+    convert = (
+        f"segloc: error: {path}: a file inside a ROS 2 bag, not a segloc log; convert the bag "
+        f"folder first with `segloc import rosbag {folder} --out {tmp_path / 'test_bag.mcap'}`"
+    )
+    for args in (
+        ["info", path],
+        ["localize", path, "--map", HALL / "map.json", "--out", out / "est.csv"],
+        ["map", "build", path, "--survey", survey, "--out", out / "map.json"],
+    ):
+        assert assert_one_line_error(run_cli(capsys, *args)) == convert
+    assert not list(out.iterdir()), "nothing is written"
 
 
 # --- the scanner's mounting: /tf_static, /tf and --laser-offset ---------------------------

@@ -324,7 +324,8 @@ def test_sigterm_mid_command_is_one_line_and_leaves_no_fragment(capsys, tmp_path
     if proc.returncode == 0:
         pytest.skip("evaluate finished before the signal arrived")
     assert proc.returncode == 130, err
-    assert err.strip().splitlines()[-1] == "segloc: interrupted"
+    assert err.splitlines()[-1] == "segloc: interrupted"
+    assert "" not in err.splitlines(), f"a blank line on stderr:\n{err}"
     assert "Traceback" not in err
     left = [p.name for p in figures.iterdir()] if figures.exists() else []
     assert not [name for name in left if name.endswith(".tmp")], left

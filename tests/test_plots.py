@@ -11,14 +11,14 @@ import pandas as pd
 import pytest
 from conftest import HALL
 from matplotlib.image import imread
-from test_cli import run_script
+from test_cli import run_cli, run_script
 from test_trend_plots import legend_texts, overlapping_tick_labels
 
 from segloc_cli.geometry import Pose2, wrap_angle
 from segloc_cli.io.figures import FIGURE_DPI
 from segloc_cli.io.maps import read_map
 from segloc_cli.io.mcap_log import read_log
-from segloc_cli.io.tables import read_estimates, read_pose_table
+from segloc_cli.io.tables import read_estimates, read_pose_table, write_pose_table_tum
 from segloc_cli.method.align import VOTE_SCHEMES
 from segloc_cli.scoring.evaluate import table1
 from segloc_cli.scoring.plots import (
@@ -301,9 +301,21 @@ def test_evaluate_plots_without_map_and_log_draws_the_errors_only(hall, tmp_path
     assert result.code == 0, result.err
     assert {p.name for p in plots.iterdir()} == figure_files(TABLE_FIGURES)
     skipped = [ln for ln in result.err.splitlines() if ln.startswith("segloc: skipped")]
-    assert len(skipped) == 1, result.err
-    for fragment in (*MAP_FIGURES, "--map", "--log"):
-        assert fragment in skipped[0]
+    assert skipped == [
+        f"segloc: skipped {', '.join(MAP_FIGURES)}: they need --map MAP.json and --log LOG.mcap"
+    ], result.err
+
+
+def test_another_localizer_s_plots_skip_only_the_overlay_without_map_and_log(tmp_path, capsys):
+    # Another localizer's trajectory (here the survey itself, as TUM) has no stages to draw.
+    trajectory = tmp_path / "other.tum"
+    write_pose_table_tum(trajectory, read_pose_table(SURVEY))
+    result = run_cli(capsys, "evaluate", trajectory, "--survey", SURVEY, "--plots", tmp_path / "p")
+    assert result.code == 0, result.err
+    skipped = [ln for ln in result.err.splitlines() if ln.startswith("segloc: skipped")]
+    assert skipped == [f"segloc: skipped {OVERLAY}: it needs --map MAP.json and --log LOG.mcap"], (
+        result.err
+    )
 
 
 def test_evaluate_plots_with_relations_draws_the_relation_figures(hall, tmp_path):

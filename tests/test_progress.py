@@ -5,8 +5,16 @@ outcomes a track counts as it goes; and the commands that report it."""
 from __future__ import annotations
 
 import csv
+import fcntl
 import io
+import os
+import pty
 import re
+import select
+import signal
+import struct
+import sys
+import termios
 import time
 from collections import Counter
 
@@ -49,7 +57,10 @@ def test_a_plain_line_gives_count_share_rate_and_time_left():
         "segloc: fusing: 1 round, 8.0 s/round, 00:08 so far"
     )
     assert plain_line("reading", 0, 10, "scan", 0.0) == (
-        "segloc: reading: 0/10 scans (0%), ?, ? left"
+        "segloc: reading: 0/10 scans (0%), starting"
+    )
+    assert plain_line("reading", 0, None, "message", 3.0) == (
+        "segloc: reading: 0 messages, starting, 00:03 so far"
     )
     assert plain_line("writing", 1, 1, "scan", 2.0) == (
         "segloc: writing: 1/1 scan (100%), 2.0 s/scan, 00:00 left"
@@ -90,10 +101,28 @@ def test_a_terminal_gets_a_bar_with_rate_and_time_left(monkeypatch):
     stream = io.StringIO()
     with Progress("tracking", 10, "scan", stream=stream, terminal=True) as shown:
         shown.advance(3)
-    drawn = stream.getvalue()
-    bar = drawn.split("\r")[1]
-    assert bar.startswith("segloc: tracking:") and "/10 [00:00<" in bar and bar.endswith("scan/s]")
-    assert drawn.split("\r")[2].strip() == "", "the bar is cleared when the work ends"
+        time.sleep(0.15)  # tqdm redraws at most every 0.1 s
+        shown.advance()  # the rate counts from the end of the first step
+    drawn = stream.getvalue().split("\r")
+    bar = drawn[-3]
+    assert bar.startswith("segloc: tracking:") and "4/10 [00:00<" in bar and bar.endswith("scan/s]")
+    assert drawn[-2].strip() == "", "the bar is cleared when the work ends"
+
+
+def test_the_bar_says_starting_until_it_has_a_rate(monkeypatch):
+    monkeypatch.setattr(progress_module, "SHOW_AFTER_S", 0.0)
+    for total, count in ((10, "1/10"), (None, "1scan")):
+        stream = io.StringIO()
+        with Progress("localizing", total, "scan", stream=stream, terminal=True) as shown:
+            time.sleep(0.15)  # tqdm redraws at most every 0.1 s
+            shown.advance()  # the first step (compiling, reading a map) sets no rate
+            time.sleep(0.15)
+            shown.advance()
+        *first, last = [part for part in stream.getvalue().split("\r") if part.strip()]
+        assert all(part.startswith("segloc: localizing:") for part in first), first
+        assert first[-1].endswith(f"{count} [00:00, starting]"), first
+        assert all("?" not in part for part in first), first
+        assert last.endswith("scan/s]") and "starting" not in last, last
 
 
 def test_the_bar_counts_the_outcomes_it_is_told_to(monkeypatch):
@@ -109,6 +138,79 @@ def test_the_bar_counts_the_outcomes_it_is_told_to(monkeypatch):
     last = [part for part in stream.getvalue().split("\r") if part.strip()][-1]
     assert last.startswith("segloc: tracking:") and "5/10" in last, last
     assert last.endswith("2 lost, 1 recovered]"), last
+
+
+WAITING = """
+import pathlib, sys, time
+from segloc_cli import progress
+from segloc_cli.cli import cli, main
+
+progress.SHOW_AFTER_S = float(sys.argv[1])
+
+@cli.command("wait")
+def wait():
+    with progress.Progress("waiting", 10, "step") as shown:
+        shown.advance()
+        pathlib.Path(sys.argv[2]).touch()
+        time.sleep(60)
+
+main(["wait"])
+"""
+"""A command that shows its bar after the seconds its first argument says, makes the file its
+second names once it is under way, and waits to be stopped."""
+
+
+def _screen(text: str) -> list[str]:
+    """The rows a terminal shows for ``text``: a carriage return goes back to the start of the
+    row, written over by what follows."""
+    rows, row, column = [], [], 0
+    for char in text:
+        if char == "\r":
+            column = 0
+        elif char == "\n":
+            rows.append("".join(row).rstrip())
+            row, column = [], 0
+        else:
+            row[column : column + 1] = [char]
+            column += 1
+    return rows + (["".join(row).rstrip()] if row else [])
+
+
+@pytest.mark.parametrize("bar", [True, False], ids=["bar", "no-bar-yet"])
+def test_ctrl_c_leaves_no_blank_line_before_interrupted(bar, tmp_path):
+    started = tmp_path / "started"
+    pid, terminal = pty.fork()
+    if pid == 0:  # the child: the command, on the terminal's other side
+        try:
+            argv = [sys.executable, "-c", WAITING, "0" if bar else "60", str(started)]
+            os.execv(sys.executable, argv)
+        finally:
+            os._exit(127)
+    fcntl.ioctl(terminal, termios.TIOCSWINSZ, struct.pack("HHHH", 24, 80, 0, 0))
+    shown, typed, ended, deadline = b"", False, False, time.monotonic() + 60
+    while not ended and time.monotonic() < deadline:
+        if not typed and started.exists():
+            os.write(terminal, b"\x03")  # Ctrl-C typed: the terminal sends SIGINT, echoes ^C
+            typed = True
+        if select.select([terminal], [], [], 0.1)[0]:
+            try:
+                data = os.read(terminal, 65536)
+            except OSError:  # the command has ended
+                data = b""
+            ended = not data
+            shown += data
+    if not ended:
+        os.kill(pid, signal.SIGKILL)
+    _, status = os.waitpid(pid, 0)
+    os.close(terminal)
+    assert typed, f"the command did not start: {shown!r}"
+    rows = _screen(shown.decode("utf-8", errors="replace"))
+    assert os.waitstatus_to_exitcode(status) == 130, rows
+    # Written over the "^C" the terminal echoed, on the row after the bar where it stopped.
+    assert rows[-1] == "segloc: interrupted", rows
+    if bar:
+        assert rows[-2].startswith("segloc: waiting:"), rows
+    assert "" not in rows, rows
 
 
 def test_the_silent_progress_prints_nothing(capsys):
@@ -153,7 +255,8 @@ def test_long_commands_report_progress_in_plain_lines(capsys, tmp_path, every_st
     assert {int(m.group(2)) for m in shown} == {local}
     done = [int(m.group(1)) for m in shown]
     assert len(done) > 3 and done == sorted(done) and done[-1] == local, done
-    assert all(line.endswith(" left") for line in fused), fused
+    assert all(line.endswith((" left", ", starting")) for line in fused), fused
+    assert fused[-1].endswith(" left"), fused
 
     estimates = tmp_path / "est.csv"
     ran = run_cli(capsys, "localize", HALL / "log.mcap", "--map", tmp_path / "map.json",
@@ -204,7 +307,7 @@ def test_the_rate_and_time_left_leave_the_first_step_out(monkeypatch):
     for _ in range(3):
         shown.advance()
     assert stream.getvalue().splitlines() == [
-        "segloc: localizing: 1/10 scans (10%), ?, ? left",
+        "segloc: localizing: 1/10 scans (10%), starting",
         "segloc: localizing: 2/10 scans (20%), 2.0 scans/s, 00:04 left",
         "segloc: localizing: 3/10 scans (30%), 2.0 scans/s, 00:03 left",
     ]

@@ -242,3 +242,37 @@ def test_localize_uses_windows_where_the_log_has_odometry_and_says_so(tmp_path, 
         f"segloc: {log}: each scan alone (--no-refine: the paper's method, one scan a local map)"
     )
     assert row["window_scans"] == 1
+
+
+def test_a_window_of_one_scan_is_counted_in_the_singular(tmp_path, capsys):
+    from test_cli import run_cli
+
+    from segloc_cli.estimates import PoseTable
+    from segloc_cli.io.maps import write_map
+    from segloc_cli.io.mcap_log import write_log
+    from segloc_cli.io.tables import write_pose_table
+
+    # Scans 2 m apart with exact odometry: none lies within 1 m of travel of another.
+    rng = np.random.default_rng(5)
+    poses = [Pose2(3.0 + 2.0 * k, 1.0, 0.0) for k in range(3)]
+    scans = [simulate_scan(CORRIDOR, p, SHORT_RANGE, rng, 0.5 * k) for k, p in enumerate(poses)]
+    log = tmp_path / "log.mcap"
+    write_log(
+        log, scans, [(s.time_s, p) for s, p in zip(scans, poses, strict=True)],
+        {"range_max_m": "3.0"},
+    )  # fmt: skip
+    map_path = tmp_path / "map.json"
+    write_map(map_path, CORRIDOR.segments)
+    guesses = tmp_path / "guesses.csv"
+    write_pose_table(
+        guesses, PoseTable(np.array([2]), np.array([0.5]), np.array([[5.1, 1.0, 0.0]]))
+    )
+    result = run_cli(
+        capsys, "localize", log, "--map", map_path, "--initial", guesses,
+        "--out", tmp_path / "est.csv",
+    )  # fmt: skip
+    assert result.code == 0, result.err
+    assert result.err.splitlines()[0] == (
+        f"segloc: {log}: each scan with its neighbours within 1 m of odometry travel "
+        "(window of 1 scan, median)"
+    )

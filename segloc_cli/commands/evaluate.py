@@ -13,6 +13,7 @@ from segloc_cli.commands.invocation import Invocation
 from segloc_cli.commands.options import with_options
 from segloc_cli.commands.printing import info, load_log, warn
 from segloc_cli.errors import EXIT_GATE_FAILED
+from segloc_cli.wording import plural
 
 EPILOG = """\b
 Exit status: 0 every gate passed (or none was set); 1 a gate failed or the run got worse
@@ -59,6 +60,7 @@ def evaluate(estimates_path, force, **given):
     relation errors over time).
     """
     from segloc_cli.io.files import check_outputs
+    from segloc_cli.io.tables import refuse_map
     from segloc_cli.runs import evaluation
 
     _unused_figure_inputs(given)
@@ -68,6 +70,8 @@ def evaluate(estimates_path, force, **given):
         raise click.UsageError(problem)
     # Outputs are checked before any input is read, so a refusal costs no work.
     check_outputs(options.outputs, options.inputs, force, replaced=options.REPORTS)
+    if options.survey_path is not None:
+        refuse_map(options.survey_path, "--survey", "the surveyed poses")
     if options.plots_dir is not None:
         evaluation.check_plots(options, force)
     estimates = evaluation.read_scored_estimates(options)
@@ -105,9 +109,13 @@ def _score(estimates, options):
     if not drawn:
         return scores, {}
     if options.plots_dir is not None and (segments_world is None or log is None):
-        from segloc_cli.scoring.plots import MAP_FIGURES
+        from segloc_cli.scoring.plots import MAP_FIGURES, OVERLAY
 
-        info(f"skipped {', '.join(MAP_FIGURES)}: they need --map MAP.json and --log LOG.mcap")
+        # The stages' figures are segloc's own: another localizer's rows have no stages.
+        stages = estimates[["align_theta_deg", "init_theta_deg"]].notna().to_numpy().any()
+        skipped = MAP_FIGURES if stages else (OVERLAY,)
+        need = plural(len(skipped), "it needs", "they need")
+        info(f"skipped {', '.join(skipped)}: {need} --map MAP.json and --log LOG.mcap")
     return scores, evaluation.figures_of(options, scores, estimates, survey, segments_world, log)
 
 

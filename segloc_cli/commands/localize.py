@@ -162,9 +162,11 @@ def localize(
     segments_world = read_map(map_path)
     if mode == "global":
         pipeline.check_global_extent(segments_world, map_path, config.localize.search.region)
+    # Before the map is prepared (compiling the kernels, the first time): a log that is not
+    # one is told at once.
+    logs = [load_log(p) for p in log_paths]
     localizer = pipeline.localizer_for(segments_world, config, mode)
     stops: list[str] = []  # signals asking the run to stop, noted while it runs
-    logs = [load_log(p) for p in log_paths]
     runs = [
         pipeline.localize_log(
             log,
@@ -201,14 +203,20 @@ def _guess_source(initial: str, mode: str, n_logs: int):
     """Where ``--initial`` takes the guesses from: None (the log's /odom), the first scan's
     pose (a ``Pose2``, world frame) or a file's path. A pose is refused with ``--global``,
     which takes no initial pose, and for more than one log (``n_logs``), which would all
-    start there."""
+    start there; a file that is a segloc map or world, which would take guesses from nothing."""
     from segloc_cli.commands.optionvalues import seed_pose
     from segloc_cli.geometry import Pose2
+    from segloc_cli.io.tables import refuse_map
 
     if initial == GUESSES_KEYWORD:
         return None
     pose = seed_pose(initial)
     if pose is None:
+        refuse_map(
+            initial,
+            "--initial",
+            f"{GUESSES_KEYWORD}, the first scan's pose X,Y,THETA_DEG, or a file of guesses",
+        )
         return Path(initial)
     if mode == "global":
         raise click.UsageError(

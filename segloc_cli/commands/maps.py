@@ -76,7 +76,7 @@ def map_build(log_path, survey_path, out_path, mcap_path, force, **_):
     """
     from segloc_cli.io.files import check_outputs
     from segloc_cli.io.maps import bounds_problem, write_map
-    from segloc_cli.io.tables import read_pose_table
+    from segloc_cli.io.tables import read_pose_table, refuse_map
     from segloc_cli.jit import watching_compiles
     from segloc_cli.progress import Progress
     from segloc_cli.runs.pipeline import build_map
@@ -87,6 +87,7 @@ def map_build(log_path, survey_path, out_path, mcap_path, force, **_):
     outputs = {"--out": out_path, "--mcap": mcap_path}
     outputs["--out (run file)"] = run_file_path(out_path)
     check_outputs(outputs, [log_path, survey_path], force)
+    refuse_map(survey_path, "--survey", "the surveyed poses of the scans")
     log = load_log(log_path)
     selection = scan_selection(run.options)
     selected = selection.chosen(log.scan_times_s, log_path)

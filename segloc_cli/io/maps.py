@@ -100,6 +100,24 @@ def read_map(path: str | Path) -> np.ndarray:
     return segments
 
 
+def segloc_kind(path: str | Path) -> str | None:
+    """ "map" or "world" when ``path`` is a segloc map or world file (a JSON object whose
+    ``format`` says so), else None, also for a file that cannot be read (its own reader says
+    why). Of a file that does not start as a JSON object, only the first bytes are read."""
+    path = Path(path)
+    try:
+        if not path.is_file():
+            return None
+        with path.open("rb") as stream:
+            head = stream.read(64)
+        if not head.lstrip(b"\xef\xbb\xbf \t\r\n").startswith(b"{"):
+            return None
+        kind = _read_json(path).get("format")
+    except (OSError, InputError):
+        return None
+    return {MAP_FORMAT: "map", WORLD_FORMAT: "world"}.get(kind) if isinstance(kind, str) else None
+
+
 def write_world(path: str | Path, world: World) -> None:
     """Write a world file (its ``sensor`` only when it chooses one)."""
     segments = _checked_array(world.segments, "world")

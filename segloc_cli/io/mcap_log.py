@@ -77,6 +77,13 @@ from segloc_cli.errors import InputError
 from segloc_cli.geometry import Pose2, heading_to_quaternion, quaternion_to_heading, wrap_angle
 from segloc_cli.io.files import reading, writing_error
 from segloc_cli.io.log import SENSOR_METADATA_NAME, Log, laser_offset_of
+from segloc_cli.io.other_logs import (
+    HEAD_BYTES,
+    ROS2_METADATA,
+    conversion,
+    inside_ros2_bag,
+    other_log,
+)
 from segloc_cli.io.runview import RUN_METADATA_NAME
 from segloc_cli.limits import MAX_COORDINATE_M
 from segloc_cli.progress import SILENT, Progress
@@ -821,15 +828,23 @@ def read_log(path: str | Path) -> Log:
     first incomplete or corrupt record reading stops with a warning and every
     complete message before it is kept. Messages that cannot be used are
     skipped and counted in warnings (see the module docstring for the kinds).
-    Raises ``InputError`` naming the file when it is missing, not MCAP (naming
-    ``segloc import rosbag`` for a ROS 1 bag or a ROS 2 bag folder), has no
+    Raises ``InputError`` naming the file when it is missing, not MCAP (naming the
+    ``segloc import`` that converts another tool's log: a ROS 1 bag, a ROS 2 bag folder or
+    a file inside one, a CARMEN log; ``other_logs``), has no
     ``/scan`` channel or a non-JSON one, has an unusable ``range_max_m`` or laser offset
     (naming the setting), or none of its ``/scan`` messages can be used.
     """
     path = Path(path)
-    if path.is_dir() and (path / "metadata.yaml").is_file():
+    if path.is_dir() and (path / ROS2_METADATA).is_file():
         raise InputError(
-            f"a ROS 2 bag folder, not a segloc log; {_import_hint(path)}",
+            f"a ROS 2 bag folder, not a segloc log; {conversion('rosbag', path)}",
+            path=path,
+        )
+    bag = inside_ros2_bag(path)
+    if bag is not None:
+        raise InputError(
+            f"a file inside a ROS 2 bag, not a segloc log; "
+            f"{conversion('rosbag', bag, 'the bag folder')}",
             path=path,
         )
     with reading(path, "an MCAP log file"):
@@ -867,32 +882,15 @@ def _scan_numbers(records: list[_ScanRecord]) -> np.ndarray:
     return np.array([r.number for r in records], dtype=np.int64)
 
 
-ROS1_BAG_MAGIC = b"#ROSBAG V"
-"""How a ROS 1 bag begins (``#ROSBAG V2.0`` and a newline)."""
-
-
-def _import_hint(bag_path: Path) -> str:
-    """The command that converts the ROS bag at ``bag_path`` into a segloc log, in a hint:
-    the log beside it, named after it (``run.bag`` → ``run.mcap``; a ROS 2 ``run.mcap`` →
-    ``run-segloc.mcap``)."""
-    out = bag_path.with_name(f"{bag_path.stem}.mcap")
-    if bag_path.suffix.lower() == ".mcap":
-        out = bag_path.with_name(f"{bag_path.stem}-segloc.mcap")
-    return f"convert it with `segloc import rosbag {bag_path} --out {out}`"
-
-
 def _check_magic(path: Path, stream) -> None:
-    """Refuse a file that does not start as MCAP, naming the import for a ROS 1 bag; leaves
-    ``stream`` at its start."""
-    start = stream.read(max(len(MCAP_MAGIC), len(ROS1_BAG_MAGIC)))
-    if start.startswith(ROS1_BAG_MAGIC):
-        raise InputError(
-            f"a ROS 1 bag, not a segloc log; {_import_hint(path)}",
-            path=path,
-        )
+    """Refuse a file that does not start as MCAP, naming the import for another tool's log
+    (a ROS 1 bag, a CARMEN log: ``other_logs``); leaves ``stream`` at its start."""
+    start = stream.read(len(MCAP_MAGIC))
     if not start.startswith(MCAP_MAGIC):
+        other = other_log(path, start + stream.read(HEAD_BYTES - len(start)))
         raise InputError(
-            "not an MCAP file (it does not start with the MCAP magic bytes); expected a "
+            other
+            or "not an MCAP file (it does not start with the MCAP magic bytes); expected a "
             "segloc log such as `segloc simulate` writes",
             path=path,
         )
@@ -981,7 +979,7 @@ def _check_channels(path: Path, found: _Found) -> None:
     channels = found.channels.values()
     # A ROS 2 bag stored as MCAP is an MCAP file too, but of ROS messages.
     ros = any(c.message_encoding in ROS_ENCODINGS for c in channels)
-    to_import = f"; it is a ROS bag: {_import_hint(path)}" if ros else ""
+    to_import = f"; it is a ROS bag: {conversion('rosbag', path)}" if ros else ""
     scan_channels = [c for c in channels if c.topic == SCAN_TOPIC]
     if not scan_channels:
         found_topics = ", ".join(sorted({_clip(c.topic) for c in channels})) or "none"

@@ -50,6 +50,8 @@ STREAM_FSYNC_INTERVAL_S = 1.0
 """Streamed tables are flushed after every row and synced to disk at most this often (s)."""
 
 SURVEY_COLUMNS = ["pose_id", "time_s", "x_m", "y_m", "theta_deg"]
+POSE_FILES = "a CSV with the header pose_id,time_s,x_m,y_m,theta_deg, or a TUM trajectory"
+"""The pose tables ``read_pose_table`` reads, in words."""
 
 
 # --- shared reading helpers -------------------------------------------------------
@@ -190,6 +192,21 @@ def read_pose_table(path: str | Path, require_time: bool = True) -> PoseTable:
     _check_coordinates(path, table.poses)
     _check_unique_ids(path, table.pose_id)
     return table
+
+
+def refuse_map(path: str | Path, option: str, takes: str) -> None:
+    """Refuse a segloc map or world file given as ``option``, a pose table, before any work:
+    ``InputError`` naming the file, saying what it is and that ``option`` ``takes`` (in words,
+    "the surveyed poses") one of ``POSE_FILES``. Anything else passes, for its reader to judge.
+    """
+    from segloc_cli.io.maps import segloc_kind
+
+    kind = segloc_kind(path)
+    if kind is not None:
+        raise InputError(
+            f"a segloc {kind}, not a table of poses; {option} takes {takes}: {POSE_FILES}",
+            path=path,
+        )
 
 
 def _looks_like_csv_header(line: str) -> bool:

@@ -52,6 +52,7 @@ from segloc_cli.estimates import (
 )
 from segloc_cli.geometry import quaternion_to_heading
 from segloc_cli.io.files import reading
+from segloc_cli.io.other_logs import give_the_bag_folder, inside_ros2_bag
 from segloc_cli.limits import MAX_COORDINATE_M
 from segloc_cli.wording import counted, plural
 
@@ -124,9 +125,13 @@ def read_trajectory(
     ``frames`` (parent, child), e.g. ("map", "base_link"), for a transform topic.
     ``InputError``, one line saying what to do, on a file that cannot be read, a topic
     missing, empty or of an unsupported type, frames missing or not on one chain, a TUM
-    line that is not 8 numbers, or no usable pose.
+    line that is not 8 numbers, or no usable pose; naming the bag folder for a file inside
+    a ROS 2 bag (its ``metadata.yaml``, a ``.db3``).
     """
     path = Path(path)
+    folder = inside_ros2_bag(path)
+    if folder is not None:  # a .db3 read alone would lose the bag's other files
+        raise InputError(give_the_bag_folder(folder), path=path)
     fmt = guess_format(path) if fmt is None else fmt
     if fmt not in EST_FORMATS:
         raise InputError(

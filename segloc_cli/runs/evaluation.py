@@ -643,7 +643,11 @@ def relation_scores(
     gate_lines = "".join(f"Gate: {o.text}.\n" for o in outcomes)
     summary = errors.summary()
     shown = functools.partial(
-        format_relations, summary, published=reference, published_caveat=caveat
+        format_relations,
+        summary,
+        published=reference,
+        label=options.estimates_path.name,
+        published_caveat=caveat,
     )
     markdown = shown("md") + gate_lines
     text = markdown if options.fmt == "md" else shown(options.fmt)

@@ -29,7 +29,7 @@ from segloc_cli.geometry import Pose2
 from segloc_cli.io.log import Log
 from segloc_cli.progress import ProgressFactory, silent
 from segloc_cli.timing import pair_by_time, time_range
-from segloc_cli.wording import counted, with_article
+from segloc_cli.wording import counted, plural, with_article
 
 RUN_MODES = ("guided", "global", "track")
 """How a log is localized: each scan from its own guess, each with none, or along a track."""
@@ -327,9 +327,10 @@ def window_note(log: Log, localizer, config: Config, windows) -> str:
     if windows is None:
         return f"each scan alone ({alone_because(log, localizer, config)})"
     held = [len(n) + 1 for n in windows.neighbours]
+    median = float(np.median(held)) if held else 1.0
     return (
         f"each scan with its neighbours within {config.window.travel_m:g} m of odometry "
-        f"travel (window of {np.median(held) if held else 1:g} scans, median)"
+        f"travel (window of {median:g} {plural(median, 'scan')}, median)"
     )
 
 

@@ -341,7 +341,8 @@ def _format_md(summary: dict, published: dict | None, label: str, caveat: str | 
     for name, used, skipped, t_mean, t_std, r_mean, r_std in _display_rows(
         summary, published, label, _MISSING_MD
     ):
-        cells = [name, used, skipped, _pm(t_mean, t_std), _pm(r_mean, r_std)]
+        # A "|" in a file's name would end its cell.
+        cells = [name.replace("|", r"\|"), used, skipped, _pm(t_mean, t_std), _pm(r_mean, r_std)]
         lines.append("| " + " | ".join(cells) + " |")
     note = (
         "Absolute errors per relation, mean ± standard deviation "
@@ -445,7 +446,7 @@ def format_relations(
     ``published``, when given, is one dataset's entry of ``PUBLISHED``
     (method → {"trans_m": (mean, std), "rot_deg": (mean, std)}) and adds a row
     per method, with ``published_caveat`` (``published_note``) under the table where
-    given; ``label`` names the estimate's row.
+    given; ``label`` names the estimates' row (``segloc evaluate``: the estimates file's name).
 
     - ``md``: a Markdown table (trajectory, relations used, skipped, translational
       and rotational error mean ± std at 1 mm and 0.01°), a note on the metric and
