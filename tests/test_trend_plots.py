@@ -230,8 +230,8 @@ def test_error_trend_draws_each_error_against_time_or_travel(along, column, unit
         np.repeat(x[[9, 12]], 3).tolist()
     )
     # Failed poses without an estimate are lines across the panel at their place.
-    blanks = [line for line in ax_xy.get_lines() if line.get_linestyle() == ":"]
-    assert sorted(line.get_xdata()[0] for line in blanks) == sorted(x[[0, 5]])
+    (blanks,) = [c for c in ax_xy.collections if c.get_label().endswith("no estimate")]
+    assert sorted(segment[0][0] for segment in blanks.get_segments()) == sorted(x[[0, 5]])
     assert not overlapping_tick_labels(fig)
 
 

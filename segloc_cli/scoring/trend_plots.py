@@ -100,6 +100,10 @@ def thinned_slots(n: int, max_labels: int = MAX_TICK_LABELS) -> np.ndarray:
     return np.arange(0, n, step)
 
 
+MAX_MINOR_TICKS = 100
+"""Slots of a per-pose axis that each keep a minor tick; beyond, none do."""
+
+
 def slot_ticks(
     ax: Axes,
     labels: Sequence[str],
@@ -108,11 +112,13 @@ def slot_ticks(
 ) -> None:
     """Label the slots 0 … n−1 of ``ax``'s x axis with ``labels`` (one per slot), thinned to
     at most ``max_labels``, turned upright when they would not fit side by side on an axis
-    about ``axes_width_in`` inches wide; every slot keeps a minor tick."""
+    about ``axes_width_in`` inches wide; every slot keeps a minor tick while there are at
+    most ``MAX_MINOR_TICKS`` (more would merge into a bar, and cost a second each)."""
     n = len(labels)
     shown = thinned_slots(n, max_labels)
     ax.set_xlim(-0.5, n - 0.5)
-    ax.set_xticks(np.arange(n), minor=True)
+    if n <= MAX_MINOR_TICKS:
+        ax.set_xticks(np.arange(n), minor=True)
     ax.set_xticks(shown, [str(labels[i]) for i in shown])
     if shown.size == 0:
         return
@@ -300,13 +306,17 @@ def draw_error_trend(
                 label=failed_label,
             )
         blank = failed & ~np.isfinite(values).any(axis=1) & np.isfinite(x)
-        for k, at in enumerate(x[blank]):
-            ax.axvline(
-                at,
-                color=FLAGGED_COLOUR,
-                linestyle=":",
+        if blank.any():
+            # One collection for them all: a log whose localizer fell silent has thousands.
+            ax.vlines(
+                x[blank],
+                0.0,
+                1.0,
+                transform=ax.get_xaxis_transform(),
+                colors=FLAGGED_COLOUR,
+                linestyles=":",
                 linewidth=1.0,
-                label=f"{failed_label}, no estimate" if k == 0 else None,
+                label=f"{failed_label}, no estimate",
             )
         ax.axhline(0.0, color="0.5", linewidth=0.8)
         ax.set_ylabel(y_label)
