@@ -27,16 +27,14 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import numpy as np
+import amcl_bags
 import pytest
 from conftest import SEGLOC, start_emulator, stop_emulator
 from junitparser import JUnitXml
 from test_cli import Result
-from trajectory_samples import write_amcl_bag
 
 from segloc_cli.io.maps import read_world
 from segloc_cli.io.mcap_log import read_log
-from segloc_cli.io.tables import read_pose_table
 
 ROOT = Path(__file__).resolve().parents[1]
 README = ROOT / "README.md"
@@ -136,29 +134,10 @@ def run_shell(script: str, cwd: Path, env: dict[str, str]) -> Result:
 
 # ------------------------------------------------------------------- the CI example's bags
 
-SIGMA_M, SIGMA_RAD = 0.03, np.deg2rad(0.5)
-"""AMCL's claimed 1σ: 3 cm per axis, 0.5° in heading; the simulated errors are drawn from it."""
-WORSE_CM = 4.0
-
-
-def amcl_run(path: Path, seed: int, worse_cm: float = 0.0) -> Path:
-    """A ROS 2 bag of ``/amcl_pose`` at the hall survey's times: the surveyed poses plus
-    errors drawn from the covariance each message carries, pushed ``worse_cm`` further out."""
-    survey = read_pose_table(ROOT / "datasets" / "hall" / "survey.csv")
-    rng = np.random.default_rng(seed)
-    n = len(survey)
-    covariance = np.diag([SIGMA_M**2, SIGMA_M**2, SIGMA_RAD**2])
-    errors = rng.multivariate_normal(np.zeros(3), covariance, size=n)
-    norms = np.hypot(errors[:, 0], errors[:, 1])
-    errors[:, :2] *= ((norms + worse_cm / 100.0) / norms)[:, None]
-    poses = survey.poses + errors
-    return write_amcl_bag(path, survey.time_s, poses, np.repeat(covariance[None], n, axis=0))
-
 
 def amcl_runs(repo: Path) -> None:
     """main/ and pr/: the main branch's run and a pull request's, 4 cm worse on every pose."""
-    amcl_run(repo / "main", seed=7)
-    amcl_run(repo / "pr", seed=8, worse_cm=WORSE_CM)
+    amcl_bags.main(["--survey", str(repo / "datasets" / "hall" / "survey.csv"), "--out", str(repo)])
 
 
 def ci_reports(repo: Path, env: dict[str, str]) -> None:
