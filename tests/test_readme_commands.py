@@ -218,13 +218,15 @@ PAGES: dict[str, list[Expect]] = {
             "worker` run until stopped, on its machines; tests/test_sweep.py starts both on "
             "this one and sweeps on them",
         ),
-        Expect(CONFIG, "[map.build]"),
-        Expect(RUN, "--config estimates.run.toml"),
     ],
     "docs/accuracy.md": [],
     "docs/architecture.md": [
         Expect(DIAGRAM, "commands/   parse options"),
         Expect(DIAGRAM, "datasets/hall/"),
+    ],
+    "docs/configuration.md": [
+        Expect(CONFIG, "[map.build]"),
+        Expect(RUN, "--config estimates.run.toml"),
     ],
     "docs/explorer-protocol.md": [
         Expect(DIAGRAM, "A5 5A 02 04"),
