@@ -209,15 +209,6 @@ PAGES: dict[str, list[Expect]] = {
         Expect(RUN, "segloc evaluate main/", setup=amcl_runs),
         Expect(RUN, "segloc evaluate pr/", status=1, check=ci_reports),
         Expect(OUTPUT, "| pose "),
-        Expect(FILE, 'logs = ["datasets/hall/log.mcap"]', shipped="sweep.toml"),
-        Expect(RUN, "segloc sweep sweep.toml --out out/sweep.parquet"),
-        Expect(
-            SKIP,
-            "dask scheduler",
-            why="needs a Dask cluster: `dask scheduler` and `dask "
-            "worker` run until stopped, on its machines; tests/test_sweep.py starts both on "
-            "this one and sweeps on them",
-        ),
     ],
     "docs/accuracy.md": [],
     "docs/architecture.md": [
@@ -233,6 +224,17 @@ PAGES: dict[str, list[Expect]] = {
         Expect(DIAGRAM, "A5 5A 82 06"),
     ],
     "docs/refusals.md": [],
+    "docs/sweeps.md": [
+        Expect(FILE, 'logs = ["datasets/hall/log.mcap"]', shipped="sweep.toml"),
+        Expect(RUN, "segloc sweep sweep.toml --out out/sweep.parquet"),
+        Expect(
+            SKIP,
+            "dask scheduler",
+            why="needs a Dask cluster: `dask scheduler` and `dask "
+            "worker` run until stopped, on its machines; tests/test_sweep.py starts both on "
+            "this one and sweeps on them",
+        ),
+    ],
 }
 """Each page's blocks in order. A page or a block added needs its entry here."""
 
