@@ -33,7 +33,6 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import amcl_bags
 import click
 import pytest
 from conftest import SEGLOC, start_emulator, stop_emulator
@@ -145,18 +144,13 @@ def run_shell(script: str, cwd: Path, env: dict[str, str]) -> Result:
         )
 
 
-# ------------------------------------------------------------------- the CI example's bags
-
-
-def amcl_runs(repo: Path) -> None:
-    """main/ and pr/: the main branch's run and a pull request's, 4 cm worse on every pose."""
-    amcl_bags.main(["--survey", str(repo / "datasets" / "hall" / "survey.csv"), "--out", str(repo)])
+# ------------------------------------------------------------------- what blocks wrote
 
 
 def ci_reports(repo: Path, env: dict[str, str]) -> None:
     """The JUnit file has a case per surveyed pose and per gate, the baseline's failed; the
     step summary is appended to, the earlier steps' text kept."""
-    suite = next(iter(JUnitXml.fromfile(str(repo / "amcl.xml"))))
+    suite = next(iter(JUnitXml.fromfile(str(repo / "out" / "ci" / "amcl.xml"))))
     names = [case.name for case in suite]
     assert names[:10] == [f"pose {i}" for i in range(1, 11)], names
     failed = [case.name for case in suite if not case.is_passed]
@@ -203,21 +197,30 @@ PAGES: dict[str, list[Expect]] = {
         Expect(REAL, "--track --initial 0,0,0"),
         Expect(RUN, "--mcap run.mcap"),
         Expect(RUN, "segloc info --foxglove-layout"),
-        Expect(RUN, "segloc evaluate estimates.csv --survey sim/survey.csv\n"),
         Expect(REAL, "--relations ../shared/datasets/intel/intel.relations"),
-        Expect(RUN, "--plots figures --map map.json"),
-        Expect(RUN, "segloc evaluate main/", setup=amcl_runs),
-        Expect(RUN, "segloc evaluate pr/", status=1, check=ci_reports),
-        Expect(OUTPUT, "| pose "),
+        Expect(MAKE, "make ci-example"),
+        Expect(RUN, "segloc evaluate out/ci/main/"),
+        Expect(RUN, "segloc evaluate out/ci/pr/", status=1, check=ci_reports),
+        Expect(OUTPUT, "Gate: max position error"),
     ],
     "docs/accuracy.md": [],
     "docs/architecture.md": [
         Expect(DIAGRAM, "commands/   parse options"),
         Expect(DIAGRAM, "datasets/hall/"),
     ],
+    "docs/ci.md": [
+        Expect(MAKE, "make ci-example"),
+        Expect(RUN, "segloc evaluate out/ci/main/"),
+        Expect(RUN, "segloc evaluate out/ci/pr/", status=1, check=ci_reports),
+        Expect(OUTPUT, "| pose "),
+    ],
     "docs/configuration.md": [
         Expect(CONFIG, "[map.build]"),
         Expect(RUN, "--config estimates.run.toml"),
+    ],
+    "docs/evaluation.md": [
+        Expect(RUN, "segloc evaluate estimates.csv --survey datasets/hall/survey.csv\n"),
+        Expect(RUN, "--plots figures"),
     ],
     "docs/explorer-protocol.md": [
         Expect(DIAGRAM, "A5 5A 02 04"),
