@@ -65,9 +65,10 @@ DATASETS ?= ../shared/datasets
 bench-real: $(STAMP)
 	$(BIN)/python benchmarks/real_logs.py --datasets $(DATASETS) --out benchmarks/results-real.md
 
-# Every block of README.md top to bottom, in a folder beside the real logs (linked as
-# ../shared/datasets, the path README's commands read them from), those on the logs included;
-# make test runs the others. tests/test_readme_commands.py says how each block is checked.
+# Every page of README.md and docs/ that reads the real logs, each top to bottom in a folder
+# beside them (linked as ../shared/datasets, the path the pages' commands read them from),
+# those blocks included; make test runs the others. tests/test_readme_commands.py says how
+# each block is checked.
 readme-real: $(STAMP)
 	@if [ ! -d "$(DATASETS)" ]; then \
 		echo "readme-real: skipped: no public logs at $(DATASETS) (give DATASETS=FOLDER holding intel/, mit-csail/)"; \
