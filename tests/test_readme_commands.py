@@ -44,13 +44,12 @@ from segloc_cli.io.maps import read_world
 from segloc_cli.io.mcap_log import read_log
 
 ROOT = Path(__file__).resolve().parents[1]
-README = ROOT / "README.md"
 DOCS = ROOT / "docs"
 DATASETS_VARIABLE = "SEGLOC_README_DATASETS"
 """Set by ``make readme-real`` to the folder of the public logs (intel/, aces/, ...)."""
 BLOCK_TIMEOUT_S = 600.0
 CONFIG_NAME = "FILE.toml"
-"""Where a configuration block is written to be read back (README calls it FILE.toml)."""
+"""Where a configuration block is written to be read back (its page calls it FILE.toml)."""
 
 RUN = "run"  # runs as written on the shipped data and what earlier blocks wrote
 REAL = "real"  # reads the public logs in ../shared/datasets: make readme-real
