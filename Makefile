@@ -5,8 +5,9 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 DEMO_OUT := out/demo
 HALL := datasets/hall
+CI_OUT := out/ci
 
-.PHONY: setup demo test browser fuzz bench bench-real bench-sweep bench-peers calibrate figures lint hall readme-real clean
+.PHONY: setup demo ci-example test browser fuzz bench bench-real bench-sweep bench-peers calibrate figures lint hall readme-real clean
 
 # The last step compiles numba's kernels into their cache, so that no first run waits for it
 # (a failure there only costs that wait; tests/test_warmup.py catches it).
@@ -27,6 +28,12 @@ demo: $(STAMP)
 	$(BIN)/segloc map build $(HALL)/mapping/log.mcap --survey $(HALL)/mapping/survey.csv --out $(DEMO_OUT)/map.json --force
 	$(BIN)/segloc localize $(HALL)/log.mcap --map $(DEMO_OUT)/map.json --out $(DEMO_OUT)/estimates.csv --force
 	$(BIN)/segloc evaluate $(DEMO_OUT)/estimates.csv --survey $(HALL)/survey.csv --fail-above-cm 1 --fail-above-deg 0.2
+
+# Two ROS 2 bags of AMCL's /amcl_pose, simulated over the hall's surveyed poses with known
+# errors: a main branch's run and a pull request's 4 cm worse, for README's "Score my
+# localizer in CI" (examples/amcl_bags.py; each run replaces the bags of the last).
+ci-example: $(STAMP)
+	$(BIN)/python examples/amcl_bags.py --survey $(HALL)/survey.csv --out $(CI_OUT) --force
 
 # On every core (pytest-xdist), the 30 slowest tests listed at the end. The HTML report's
 # test opens it in Debian's headless Chromium; as root (CI) it is installed when missing,
@@ -58,9 +65,10 @@ DATASETS ?= ../shared/datasets
 bench-real: $(STAMP)
 	$(BIN)/python benchmarks/real_logs.py --datasets $(DATASETS) --out benchmarks/results-real.md
 
-# Every block of README.md top to bottom, in a folder beside the real logs (linked as
-# ../shared/datasets, the path README's commands read them from), those on the logs included;
-# make test runs the others. tests/test_readme_commands.py says how each block is checked.
+# Every page of README.md and docs/ that reads the real logs, each top to bottom in a folder
+# beside them (linked as ../shared/datasets, the path the pages' commands read them from),
+# those blocks included; make test runs the others. tests/test_readme_commands.py says how
+# each block is checked.
 readme-real: $(STAMP)
 	@if [ ! -d "$(DATASETS)" ]; then \
 		echo "readme-real: skipped: no public logs at $(DATASETS) (give DATASETS=FOLDER holding intel/, mit-csail/)"; \
@@ -91,8 +99,8 @@ figures: $(STAMP)
 
 # ruff (rules and format) over the code, and mypy over the package ([tool.mypy] in pyproject.toml).
 lint: $(STAMP)
-	$(BIN)/ruff check segloc_cli tests benchmarks
-	$(BIN)/ruff format --check segloc_cli tests benchmarks
+	$(BIN)/ruff check segloc_cli tests benchmarks examples
+	$(BIN)/ruff format --check segloc_cli tests benchmarks examples
 	$(BIN)/mypy
 
 # Regenerate the shipped hall dataset (see datasets/hall/README.md).

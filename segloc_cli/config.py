@@ -10,7 +10,7 @@ here.
 option of the command line (``--grid-m``) and the key in a ``--config`` table
 (``grid-m = 1.5``); ``path`` says which field of ``Config`` it sets; ``help``
 is the option's help text, or None for a tuning setting, which the command
-line accepts but does not list (the README's settings table lists them all).
+line accepts but does not list (docs/configuration.md's settings table lists them all).
 ``Setting.checked`` is the one check of a setting's value, whether it comes from the
 command line, a ``--config`` table, a run file or a sweep spec; ``run_config`` makes a
 localize run's ``Config`` and refuses settings that cannot go together.
@@ -822,7 +822,7 @@ def settings_table() -> str:
     return "\n".join(lines) + "\n"
 
 
-TABLE_BEGIN = "<!-- settings table: python -m segloc_cli.config README.md -->\n"
+TABLE_BEGIN = "<!-- settings table: python -m segloc_cli.config docs/configuration.md -->\n"
 TABLE_END = "<!-- end of settings table -->\n"
 
 

@@ -35,7 +35,9 @@ from segloc_cli.config import (
     settings_table,
 )
 
-README = Path(__file__).resolve().parents[1] / "README.md"
+ROOT = Path(__file__).resolve().parents[1]
+SETTINGS_PAGE = ROOT / "docs" / "configuration.md"
+PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
 
 
 def _commands(group: click.Group = cli, prefix: tuple[str, ...] = ()):
@@ -104,27 +106,32 @@ def test_values_set_nested_fields_and_switches_win_over_their_field():
     assert Config.from_values({}) == Config()
 
 
-def test_readme_settings_table_is_the_configurations():
-    text = README.read_text(encoding="utf-8")
+def test_the_settings_table_is_the_configurations():
+    text = SETTINGS_PAGE.read_text(encoding="utf-8")
     assert TABLE_BEGIN in text and TABLE_END in text
     block = text.split(TABLE_BEGIN)[1].split(TABLE_END)[0]
-    assert block == settings_table(), "run: python -m segloc_cli.config README.md"
+    assert block == settings_table(), "run: python -m segloc_cli.config docs/configuration.md"
 
 
-def test_readme_option_tables_give_the_configurations_defaults():
-    """The hand-written option tables (with the paper's values beside) agree too."""
-    rows = re.findall(r"^\| `--([a-z0-9-]+)` \| ([^|]+) \|", README.read_text(), re.M)
+def test_option_tables_give_the_configurations_defaults():
+    """The hand-written option tables of README and docs/ (with the paper's values beside)
+    agree too."""
+    rows = [
+        (page.name, *row)
+        for page in PAGES
+        for row in re.findall(r"^\| `--([a-z0-9-]+)` \| ([^|]+) \|", page.read_text(), re.M)
+    ]
     checked = 0
-    for key, shown in rows:
+    for page, key, shown in rows:
         if key not in SETTINGS:
             continue
         default, shown = SETTINGS[key].default, shown.strip().strip("`")
         if isinstance(default, bool):
-            assert shown == "off", f"README gives --{key} the default {shown}"
+            assert shown == "off", f"{page} gives --{key} the default {shown}"
         elif isinstance(default, str):
-            assert shown == default, f"README gives --{key} the default {shown}"
+            assert shown == default, f"{page} gives --{key} the default {shown}"
         else:
-            assert float(shown) == default, f"README gives --{key} the default {shown}"
+            assert float(shown) == default, f"{page} gives --{key} the default {shown}"
         checked += 1
     assert checked >= 10
 

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from amcl_bags import write_amcl_bag
 from PIL import Image
 from test_cli import assert_one_line_error, run_cli
 from trajectory_samples import (
@@ -26,7 +27,6 @@ from trajectory_samples import (
     amcl_messages,
     estimates_frame,
     odometry,
-    write_amcl_bag,
     write_bag,
     write_foxglove_mcap,
     write_tum,

@@ -1,17 +1,22 @@
-"""Every fenced block of README.md, run as written, in order, as a reader would.
+"""Every fenced block of README.md and of the pages in docs/, run as written, in order, as a
+reader would.
 
-``BLOCKS`` classifies each block of README.md in the order it appears, and says how it is
-checked. A command block runs with ``sh -e`` in a temporary copy of the repository's layout
-(its ``datasets/`` and the files README shows, such as ``sweep.toml``), with ``segloc`` on
-PATH from this test's environment, each block reading what the blocks before it wrote; it
-must exit with the status README gives (0 unless it says otherwise). A block README prints
+``PAGES`` lists the blocks of each Markdown page (README.md and every docs/*.md) in the order
+they appear, and says how each is checked. Each page runs on its own, top to bottom, in a
+temporary copy of the repository's layout (its ``datasets/`` and the files the page shows,
+such as ``sweep.toml``), with ``segloc`` on PATH from this test's environment, each block
+reading what the blocks before it on that page wrote. A command block runs with ``sh -e`` and
+must exit with the status its page gives (0 unless it says otherwise). A block a page prints
 as a command's output must be printed by the block before it; a TOML block must be the file
-it says it is, or be accepted by the commands its tables name. Blocks that need a serial
-scanner carry a ``# needs a scanner`` comment and run against ``segloc emulate``'s ptys
-instead; blocks on the public logs (``../shared/datasets``) run under ``make readme-real``,
-which runs the README top to bottom beside those logs. A block README gains without an entry
-here fails ``test_every_block_is_classified``: every block is either run or skipped with a
-reason.
+it says it is, or be accepted by the commands its tables name; a synopsis must name every
+command, each with options it has. Blocks that need a serial scanner carry a
+``# needs a scanner`` comment and run against ``segloc emulate``'s ptys instead; a ``make``
+block runs as written, in a copy that also holds the Makefile, ``pyproject.toml`` and
+``examples/``, with a ``.venv`` that stands for ``make setup``'s (this test's environment);
+blocks on the public logs (``../shared/datasets``) run under ``make readme-real``, which runs
+each page that has them top to bottom beside those logs. A page, or a block on a page,
+without an entry here fails ``test_every_block_is_classified``: every block is either run or
+skipped with a reason.
 """
 
 from __future__ import annotations
@@ -21,47 +26,51 @@ import re
 import shutil
 import signal
 import subprocess
+import sys
 import tempfile
 import tomllib
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import numpy as np
+import click
 import pytest
 from conftest import SEGLOC, start_emulator, stop_emulator
 from junitparser import JUnitXml
 from test_cli import Result
-from trajectory_samples import write_amcl_bag
 
+from segloc_cli.cli import cli
 from segloc_cli.io.maps import read_world
 from segloc_cli.io.mcap_log import read_log
-from segloc_cli.io.tables import read_pose_table
 
 ROOT = Path(__file__).resolve().parents[1]
-README = ROOT / "README.md"
+DOCS = ROOT / "docs"
 DATASETS_VARIABLE = "SEGLOC_README_DATASETS"
 """Set by ``make readme-real`` to the folder of the public logs (intel/, aces/, ...)."""
 BLOCK_TIMEOUT_S = 600.0
 CONFIG_NAME = "FILE.toml"
-"""Where a configuration block is written to be read back (README calls it FILE.toml)."""
+"""Where a configuration block is written to be read back (its page calls it FILE.toml)."""
 
 RUN = "run"  # runs as written on the shipped data and what earlier blocks wrote
 REAL = "real"  # reads the public logs in ../shared/datasets: make readme-real
 HARDWARE = "hardware"  # needs a serial scanner: run against emulators' ptys
+MAKE = "make"  # a make target needing no more than make setup: run as written
 SKIP = "skip"  # not run, for the reason given
 OUTPUT = "output"  # what the command block before it prints
 FILE = "file"  # a file the repository ships
 CONFIG = "config"  # a configuration file: each of its tables read by its command's --config
-DIAGRAM = "diagram"  # no command, no file
+SYNOPSIS = "synopsis"  # usage lines: every command named, each with options it has
+DIAGRAM = "diagram"  # no command, no file (a layout, a frame's bytes)
 
-SHELL_KINDS = (RUN, REAL, HARDWARE)
+SHELL_KINDS = (RUN, REAL, HARDWARE, MAKE)
+MAKE_FILES = ("Makefile", "pyproject.toml", "examples")
+"""What a MAKE block's copy holds besides the page's files, as a fresh clone has them."""
 HARDWARE_MARK = "# needs a scanner"
 
 
 @dataclass(frozen=True)
 class Block:
-    """A fenced block of a Markdown file: ``line`` of its opening fence (from 1), its info
+    """A fenced block of a Markdown page: ``line`` of its opening fence (from 1), its info
     string ``lang`` (``sh``, ``toml``, ``text`` or empty) and its ``text``."""
 
     line: int
@@ -77,7 +86,7 @@ class Block:
 class Expect:
     """How one block is checked: its ``kind`` and a fragment it ``holds`` (to tell it apart).
 
-    ``status`` is the exit status README gives the block; ``why`` a skip's reason;
+    ``status`` is the exit status the page gives the block; ``why`` a skip's reason;
     ``shipped`` the repository file a FILE block is; ``setup`` prepares the working folder
     before the block runs; ``check`` looks at what it wrote (working folder, environment);
     ``shorten`` replaces option values that would make a HARDWARE block run for minutes.
@@ -134,37 +143,13 @@ def run_shell(script: str, cwd: Path, env: dict[str, str]) -> Result:
         )
 
 
-# ------------------------------------------------------------------- the CI example's bags
-
-SIGMA_M, SIGMA_RAD = 0.03, np.deg2rad(0.5)
-"""AMCL's claimed 1σ: 3 cm per axis, 0.5° in heading; the simulated errors are drawn from it."""
-WORSE_CM = 4.0
-
-
-def amcl_run(path: Path, seed: int, worse_cm: float = 0.0) -> Path:
-    """A ROS 2 bag of ``/amcl_pose`` at the hall survey's times: the surveyed poses plus
-    errors drawn from the covariance each message carries, pushed ``worse_cm`` further out."""
-    survey = read_pose_table(ROOT / "datasets" / "hall" / "survey.csv")
-    rng = np.random.default_rng(seed)
-    n = len(survey)
-    covariance = np.diag([SIGMA_M**2, SIGMA_M**2, SIGMA_RAD**2])
-    errors = rng.multivariate_normal(np.zeros(3), covariance, size=n)
-    norms = np.hypot(errors[:, 0], errors[:, 1])
-    errors[:, :2] *= ((norms + worse_cm / 100.0) / norms)[:, None]
-    poses = survey.poses + errors
-    return write_amcl_bag(path, survey.time_s, poses, np.repeat(covariance[None], n, axis=0))
-
-
-def amcl_runs(repo: Path) -> None:
-    """main/ and pr/: the main branch's run and a pull request's, 4 cm worse on every pose."""
-    amcl_run(repo / "main", seed=7)
-    amcl_run(repo / "pr", seed=8, worse_cm=WORSE_CM)
+# ------------------------------------------------------------------- what blocks wrote
 
 
 def ci_reports(repo: Path, env: dict[str, str]) -> None:
     """The JUnit file has a case per surveyed pose and per gate, the baseline's failed; the
     step summary is appended to, the earlier steps' text kept."""
-    suite = next(iter(JUnitXml.fromfile(str(repo / "amcl.xml"))))
+    suite = next(iter(JUnitXml.fromfile(str(repo / "out" / "ci" / "amcl.xml"))))
     names = [case.name for case in suite]
     assert names[:10] == [f"pose {i}" for i in range(1, 11)], names
     failed = [case.name for case in suite if not case.is_passed]
@@ -187,71 +172,115 @@ def office_simulation(repo: Path, env: dict[str, str]) -> None:
 
 # ------------------------------------------------------------------------ the blocks
 
-BLOCKS = [
-    Expect(
-        SKIP,
-        "make demo",
-        why="long: make demo sets up .venv, then maps and localizes "
-        "the hall (about a minute); make test is this suite",
-    ),
-    Expect(RUN, "segloc simulate datasets/hall/world.json"),
-    Expect(RUN, "cat > office.json", check=office_simulation),
-    Expect(REAL, "segloc import carmen"),
-    Expect(
-        HARDWARE,
-        "segloc record --device scip2:/dev/ttyACM0",
-        shorten=(("--duration 60", "--duration 1"), ("--scans 500", "--scans 4")),
-    ),
-    Expect(RUN, "segloc emulate"),
-    Expect(RUN, "segloc info sim/log.mcap"),
-    Expect(RUN, "segloc map build sim/log.mcap"),
-    Expect(RUN, "segloc map import"),
-    Expect(RUN, "--initial guesses.csv"),
-    Expect(REAL, "--track --initial 0,0,0"),
-    Expect(RUN, "--mcap run.mcap"),
-    Expect(RUN, "segloc info --foxglove-layout"),
-    Expect(RUN, "segloc evaluate estimates.csv --survey sim/survey.csv\n"),
-    Expect(REAL, "--relations ../shared/datasets/intel/intel.relations"),
-    Expect(RUN, "--plots figures --map map.json"),
-    Expect(RUN, "segloc evaluate main/", setup=amcl_runs),
-    Expect(RUN, "segloc evaluate pr/", status=1, check=ci_reports),
-    Expect(OUTPUT, "| pose "),
-    Expect(FILE, 'logs = ["datasets/hall/log.mcap"]', shipped="sweep.toml"),
-    Expect(RUN, "segloc sweep sweep.toml --out out/sweep.parquet"),
-    Expect(
-        SKIP,
-        "dask scheduler",
-        why="needs a Dask cluster: `dask scheduler` and `dask "
-        "worker` run until stopped, on its machines; tests/test_sweep.py starts both on "
-        "this one and sweeps on them",
-    ),
-    Expect(CONFIG, "[map.build]"),
-    Expect(RUN, "--config estimates.run.toml"),
-    Expect(DIAGRAM, "segloc_cli/"),
-]
-"""README.md's blocks in order. A block added to README needs its entry here."""
+PAGES: dict[str, list[Expect]] = {
+    "README.md": [
+        Expect(
+            SKIP,
+            "make demo",
+            why="long: make demo sets up .venv, then maps and localizes "
+            "the hall (about a minute); make test is this suite",
+        ),
+        Expect(MAKE, "make ci-example"),
+        Expect(RUN, "segloc evaluate out/ci/main/"),
+        Expect(RUN, "segloc evaluate out/ci/pr/", status=1, check=ci_reports),
+        Expect(OUTPUT, "Gate: max position error"),
+        Expect(REAL, "segloc import rosbag ../shared/datasets/intel/intel.orig.bag"),
+        Expect(
+            HARDWARE,
+            "segloc record --device scip2:/dev/ttyACM0",
+            shorten=(("--duration 60", "--duration 1"), ("--scans 500", "--scans 4")),
+        ),
+        Expect(RUN, "segloc emulate"),
+        Expect(SYNOPSIS, "segloc simulate WORLD.json"),
+    ],
+    "docs/accuracy.md": [],
+    "docs/architecture.md": [
+        Expect(DIAGRAM, "commands/   parse options"),
+        Expect(DIAGRAM, "datasets/hall/"),
+    ],
+    "docs/ci.md": [
+        Expect(MAKE, "make ci-example"),
+        Expect(RUN, "segloc evaluate out/ci/main/"),
+        Expect(RUN, "segloc evaluate out/ci/pr/", status=1, check=ci_reports),
+        Expect(OUTPUT, "| pose "),
+    ],
+    "docs/configuration.md": [
+        Expect(CONFIG, "[map.build]"),
+        Expect(RUN, "--config estimates.run.toml"),
+    ],
+    "docs/evaluation.md": [
+        Expect(RUN, "segloc evaluate estimates.csv --survey datasets/hall/survey.csv\n"),
+        Expect(RUN, "--plots figures"),
+    ],
+    "docs/explorer-protocol.md": [
+        Expect(DIAGRAM, "A5 5A 02 04"),
+        Expect(DIAGRAM, "A5 5A 82 06"),
+    ],
+    "docs/localization.md": [
+        Expect(RUN, "--initial guesses.csv"),
+        Expect(REAL, "--track --initial 0,0,0"),
+        Expect(RUN, "--mcap run.mcap"),
+        Expect(RUN, "segloc info --foxglove-layout"),
+    ],
+    "docs/logs.md": [
+        Expect(REAL, "segloc import carmen"),
+        Expect(RUN, "segloc info datasets/hall/log.mcap"),
+    ],
+    "docs/maps.md": [
+        Expect(RUN, "segloc map build datasets/hall/mapping/log.mcap"),
+        Expect(RUN, "segloc map export"),
+    ],
+    "docs/refusals.md": [],
+    "docs/setup.md": [],
+    "docs/simulation.md": [
+        Expect(RUN, "segloc simulate datasets/hall/world.json"),
+        Expect(RUN, "cat > office.json", check=office_simulation),
+    ],
+    "docs/sweeps.md": [
+        Expect(FILE, 'logs = ["datasets/hall/log.mcap"]', shipped="sweep.toml"),
+        Expect(RUN, "segloc sweep sweep.toml --out out/sweep.parquet"),
+        Expect(
+            SKIP,
+            "dask scheduler",
+            why="needs a Dask cluster: `dask scheduler` and `dask "
+            "worker` run until stopped, on its machines; tests/test_sweep.py starts both on "
+            "this one and sweeps on them",
+        ),
+    ],
+}
+"""Each page's blocks in order. A page or a block added needs its entry here."""
 
-LANGS = {RUN: "sh", REAL: "sh", HARDWARE: "sh", SKIP: "sh", OUTPUT: "text", FILE: "toml",
-         CONFIG: "toml", DIAGRAM: ""}  # fmt: skip
+LANGS = {RUN: ("sh",), REAL: ("sh",), HARDWARE: ("sh",), MAKE: ("sh",), SKIP: ("sh",),
+         OUTPUT: ("text",), FILE: ("toml",), CONFIG: ("toml",), SYNOPSIS: ("text",),
+         DIAGRAM: ("", "text")}  # fmt: skip
 
 
-def classified(readme: Path = README) -> list[tuple[Block, Expect]]:
-    """README's blocks beside their entries; AssertionError when they no longer match."""
-    blocks = fenced_blocks(readme)
+def markdown_pages() -> list[str]:
+    """README.md and every page of docs/, as paths from the repository's top."""
+    return ["README.md", *(f"docs/{p.name}" for p in sorted(DOCS.glob("*.md")))]
+
+
+def classified(page: str, path: Path | None = None) -> list[tuple[Block, Expect]]:
+    """A page's blocks beside their entries (the page read from ``path`` when given);
+    AssertionError when they no longer match."""
+    blocks, expects = fenced_blocks(path or ROOT / page), PAGES[page]
     listing = "\n".join(f"  line {b.line} ({b.lang or 'no language'}): {b.title}" for b in blocks)
-    hint = f"README.md's blocks are now:\n{listing}\nUpdate BLOCKS in {Path(__file__).name}."
-    assert len(blocks) == len(BLOCKS), (
-        f"README has {len(blocks)} blocks, BLOCKS {len(BLOCKS)}. {hint}"
+    hint = f"{page}'s blocks are now:\n{listing}\nUpdate PAGES[{page!r}] in {Path(__file__).name}."
+    assert len(blocks) == len(expects), (
+        f"{page} has {len(blocks)} blocks, PAGES {len(expects)}. {hint}"
     )
-    for block, expect in zip(blocks, BLOCKS, strict=True):
-        where = f"README line {block.line} ({block.title!r})"
+    for block, expect in zip(blocks, expects, strict=True):
+        where = f"{page} line {block.line} ({block.title!r})"
         assert expect.holds in block.text, f"{where} lacks {expect.holds!r}. {hint}"
-        assert block.lang == LANGS[expect.kind], (
-            f"{where}: a {expect.kind} block is ```{LANGS[expect.kind]}"
+        assert block.lang in LANGS[expect.kind], (
+            f"{where}: a {expect.kind} block is ```{' or ```'.join(LANGS[expect.kind])}"
         )
-        assert expect.kind == SKIP or "make " not in block.title, (
-            f"{where}: make targets are not run here"
-        )
+        if expect.kind == MAKE:
+            assert block.title.startswith("make "), f"{where}: a make block starts with make"
+        else:
+            assert expect.kind == SKIP or "make " not in block.title, (
+                f"{where}: make targets run only as MAKE blocks"
+            )
         if expect.kind != REAL:
             assert "../shared/datasets" not in block.text, (
                 f"{where} reads the public logs: kind REAL"
@@ -260,7 +289,11 @@ def classified(readme: Path = README) -> list[tuple[Block, Expect]]:
             assert HARDWARE_MARK in block.text, f"{where}: says nothing of the scanner it needs"
         if expect.kind == SKIP:
             assert expect.why, f"{where}: a skipped block needs its reason"
-    return list(zip(blocks, BLOCKS, strict=True))
+    return list(zip(blocks, expects, strict=True))
+
+
+def pages_with(*kinds: str) -> list[str]:
+    return [page for page, expects in PAGES.items() if any(e.kind in kinds for e in expects)]
 
 
 def device_paths(text: str) -> dict[str, str]:
@@ -278,12 +311,30 @@ def run_on_emulators(block: Block, expect: Expect, cwd: Path, env: dict[str, str
             running.append(proc)
             script = script.replace(f"{protocol}:{path}", f"{protocol}:{port}")
         for long, short in expect.shorten:
-            assert long in script, f"README line {block.line} no longer says {long!r}"
+            assert long in script, f"line {block.line} no longer says {long!r}"
             script = script.replace(long, short)
         return run_shell(script, cwd, env)
     finally:
         for proc in running:
             stop_emulator(proc)
+
+
+def stand_in_for_setup(repo: Path) -> None:
+    """``repo/.venv`` as ``make setup`` leaves it, made of this test's environment (its
+    ``bin`` and ``lib`` linked, its ``pyvenv.cfg`` copied) and stamped after
+    ``pyproject.toml``, so that a make target runs in it and sets nothing up."""
+    venv, prefix = repo / ".venv", Path(sys.prefix)
+    venv.mkdir()
+    (venv / "bin").symlink_to(SEGLOC.parent)
+    if (prefix / "pyvenv.cfg").is_file():
+        shutil.copy2(prefix / "pyvenv.cfg", venv / "pyvenv.cfg")
+        (venv / "lib").symlink_to(prefix / "lib")
+    stamp = venv / ".installed"
+    stamp.touch()
+    before = stamp.stat().st_mtime - 60
+    os.utime(repo / "pyproject.toml", (before, before))
+    up_to_date = subprocess.run(["make", "-q", ".venv/.installed"], cwd=repo, check=False)
+    assert up_to_date.returncode == 0, "make would set .venv up again: not in a test"
 
 
 def significant_lines(text: str) -> list[str]:
@@ -300,19 +351,64 @@ def command_tables(table: dict, prefix: tuple[str, ...] = ()) -> Iterator[tuple[
             yield (*prefix, key)
 
 
-def failure(block: Block, what: str, result: Result | None = None) -> str:
+def leaf_commands(group: click.Group = cli, path: tuple[str, ...] = ()) -> set[tuple[str, ...]]:
+    """Every command segloc has, as the words that name it: ("map", "build"), ("info",)."""
+    found: set[tuple[str, ...]] = set()
+    for name, command in group.commands.items():
+        if isinstance(command, click.Group):
+            found |= leaf_commands(command, (*path, name))
+        else:
+            found.add((*path, name))
+    return found
+
+
+def synopsis_problems(text: str) -> list[str]:
+    """What a synopsis gets wrong: a ``segloc`` line that names no command or gives an option
+    its command lacks, and the commands it leaves out."""
+    problems, named = [], set()
+    for line in text.replace("\\\n", " ").splitlines():
+        words = line.split()
+        if not words or words[0] != "segloc":
+            continue
+        command, path = cli, ()
+        while isinstance(command, click.Group) and len(words) > len(path) + 1:
+            word = words[len(path) + 1]
+            if word not in command.commands:
+                break
+            command, path = command.commands[word], (*path, word)
+        if isinstance(command, click.Group):
+            problems.append(f"{line.strip()!r} names no command")
+            continue
+        named.add(path)
+        options = {o for p in command.params for o in (*p.opts, *p.secondary_opts)} | {"--help"}
+        unknown = sorted(set(re.findall(r"(?<![\w-])--[a-z][a-z0-9-]*", line)) - options)
+        if unknown:
+            problems.append(f"segloc {' '.join(path)} has no {', '.join(unknown)}")
+    left_out = sorted(" ".join(c) for c in leaf_commands() - named)
+    if left_out:
+        problems.append(f"names no line for: {', '.join(left_out)}")
+    return problems
+
+
+def failure(page: str, block: Block, what: str, result: Result | None = None) -> str:
     told = f"\nstdout:\n{result.out[-1500:]}\nstderr:\n{result.err[-1500:]}" if result else ""
-    return f"README line {block.line} ({block.title!r}): {what}{told}"
+    return f"{page} line {block.line} ({block.title!r}): {what}{told}"
 
 
-def run_readme(work: Path, datasets: Path | None) -> list[str]:
-    """Run README's blocks in order in a copy of the repository's layout under ``work``
+def run_page(page: str, work: Path, datasets: Path | None) -> list[str]:
+    """Run a page's blocks in order in a copy of the repository's layout under ``work``
     (the public logs linked at ``work/shared/datasets`` when ``datasets`` is given; without
     them REAL blocks are left out); the failures, one message per block."""
+    expects = PAGES[page]
     repo = work / "repo"
     shutil.copytree(ROOT / "datasets", repo / "datasets")
-    for name in {e.shipped for e in BLOCKS if e.shipped}:
+    for name in {e.shipped for e in expects if e.shipped}:
         shutil.copy2(ROOT / name, repo / name)
+    if any(e.kind == MAKE for e in expects):
+        for name in MAKE_FILES:
+            copy = shutil.copytree if (ROOT / name).is_dir() else shutil.copy2
+            copy(ROOT / name, repo / name)
+        stand_in_for_setup(repo)
     if datasets is not None:
         (work / "shared").mkdir()
         (work / "shared" / "datasets").symlink_to(datasets.resolve())
@@ -325,7 +421,7 @@ def run_readme(work: Path, datasets: Path | None) -> list[str]:
     }
     failures: list[str] = []
     printed: Result | None = None
-    for block, expect in classified():
+    for block, expect in classified(page):
         if expect.kind == SKIP or (expect.kind == REAL and datasets is None):
             continue
         if expect.kind in SHELL_KINDS:
@@ -337,48 +433,70 @@ def run_readme(work: Path, datasets: Path | None) -> list[str]:
                 printed = run_shell(block.text, repo, env)
             if printed.code != expect.status:
                 failures.append(
-                    failure(block, f"exit {printed.code}, not {expect.status}", printed)
+                    failure(page, block, f"exit {printed.code}, not {expect.status}", printed)
                 )
             elif expect.check is not None:
                 try:
                     expect.check(repo, env)
                 except AssertionError as exc:
-                    failures.append(failure(block, f"wrote what README does not say: {exc}"))
+                    failures.append(failure(page, block, f"wrote what it does not say: {exc}"))
         elif expect.kind == OUTPUT:
             lines = (printed.out + printed.err).splitlines() if printed else []
             missing = [s for s in block.text.splitlines() if s.strip() and s not in lines]
             if missing:
-                failures.append(failure(block, f"the block before does not print {missing}"))
+                failures.append(failure(page, block, f"the block before prints no {missing}"))
         elif expect.kind == FILE:
             shipped = (ROOT / expect.shipped).read_text(encoding="utf-8")
             if significant_lines(shipped) != significant_lines(block.text):
-                failures.append(failure(block, f"differs from {expect.shipped}"))
+                failures.append(failure(page, block, f"differs from {expect.shipped}"))
         elif expect.kind == CONFIG:
             (repo / CONFIG_NAME).write_text(block.text, encoding="utf-8")
             for command in command_tables(tomllib.loads(block.text)):
                 script = f"segloc {' '.join(command)} --config {CONFIG_NAME} --help >/dev/null"
                 result = run_shell(script, repo, env)
                 if result.code != 0:
-                    failures.append(failure(block, f"refused by `{script}`", result))
+                    failures.append(failure(page, block, f"refused by `{script}`", result))
+        elif expect.kind == SYNOPSIS:
+            failures += [failure(page, block, problem) for problem in synopsis_problems(block.text)]
     return failures
 
 
-def test_every_block_is_classified():
-    assert list(classified())
+def test_every_page_is_listed():
+    assert sorted(PAGES) == sorted(markdown_pages()), "every page of docs/ needs its PAGES entry"
 
 
-def test_a_block_added_to_the_readme_fails_until_it_is_classified(tmp_path):
-    readme = tmp_path / "README.md"
-    text = README.read_text(encoding="utf-8")
-    readme.write_text(text + "\n```sh\nsegloc frobnicate\n```\n", encoding="utf-8")
+@pytest.mark.parametrize("page", markdown_pages())
+def test_every_block_is_classified(page):
+    assert len(classified(page)) == len(PAGES[page])
+
+
+@pytest.mark.parametrize("page", ["README.md", "docs/architecture.md"])
+def test_a_block_added_to_a_page_fails_until_it_is_classified(tmp_path, page):
+    copy = tmp_path / "page.md"
+    text = (ROOT / page).read_text(encoding="utf-8")
+    copy.write_text(text + "\n```sh\nsegloc frobnicate\n```\n", encoding="utf-8")
     with pytest.raises(AssertionError, match="segloc frobnicate"):
-        classified(readme)
+        classified(page, copy)
+
+
+def test_a_synopsis_names_every_command_with_options_it_has():
+    good = "\n".join(f"segloc {' '.join(c)}" for c in sorted(leaf_commands()))
+    assert synopsis_problems(good) == []
+    assert synopsis_problems(good + "\nsegloc map frobnicate X") == [
+        "'segloc map frobnicate X' names no command"
+    ]
+    assert synopsis_problems(good + "\nsegloc localize LOG --frobnicate") == [
+        "segloc localize has no --frobnicate"
+    ]
+    assert synopsis_problems(good.replace("segloc sweep", "")) == ["names no line for: sweep"]
 
 
 @pytest.mark.parametrize(
-    "expect", [e for e in BLOCKS if e.kind in (SKIP, REAL)], ids=lambda e: e.holds[:40]
+    ("page", "expect"),
+    [(page, e) for page, expects in PAGES.items() for e in expects if e.kind in (SKIP, REAL)],
+    ids=lambda v: v if isinstance(v, str) else v.holds[:40],
 )
-def test_blocks_make_test_leaves_out(expect):
+def test_blocks_make_test_leaves_out(page, expect):
     """Listed so that the report names them: skipped ones with their reason, and those on
     the public logs, which ``make readme-real`` runs."""
     if expect.kind == SKIP:
@@ -386,18 +504,21 @@ def test_blocks_make_test_leaves_out(expect):
     pytest.skip("reads the public logs in ../shared/datasets: make readme-real runs it")
 
 
-def test_every_block_runs_as_written_on_the_shipped_data(tmp_path):
-    failures = run_readme(tmp_path, datasets=None)
+@pytest.mark.parametrize("page", pages_with(*SHELL_KINDS, OUTPUT, FILE, CONFIG, SYNOPSIS))
+def test_every_block_runs_as_written_on_the_shipped_data(tmp_path, page):
+    failures = run_page(page, tmp_path, datasets=None)
     assert not failures, "\n\n".join(failures)
 
 
-def test_the_readme_top_to_bottom_beside_the_public_logs(tmp_path):
-    """``make readme-real``: every block but the skipped ones, those on the public logs
-    included, in one folder beside them, as a reader with the logs would run them."""
+@pytest.mark.parametrize("page", pages_with(REAL))
+def test_the_page_top_to_bottom_beside_the_public_logs(tmp_path, page):
+    """``make readme-real``: every block of a page that reads the public logs but the
+    skipped ones, those on the logs included, in one folder beside them, as a reader with
+    the logs would run them."""
     datasets = os.environ.get(DATASETS_VARIABLE)
     if not datasets:
         pytest.skip(f"make readme-real runs it (sets {DATASETS_VARIABLE})")
     if not Path(datasets).is_dir():
-        pytest.skip(f"{datasets} is not a folder: no public logs to run README's blocks on")
-    failures = run_readme(tmp_path, datasets=Path(datasets))
+        pytest.skip(f"{datasets} is not a folder: no public logs to run its blocks on")
+    failures = run_page(page, tmp_path, datasets=Path(datasets))
     assert not failures, "\n\n".join(failures)

@@ -1,7 +1,7 @@
 """``segloc simulate`` on the user's own building: a map (built, or imported from a plan) taken
 as a world of one material, the world file's keys and its ``sensor``, the sensor chosen by
 options (beams, field of view, noise, clutter, glass), the run file that repeats it, and bad
-input in one line. README's world example runs in test_readme_commands.py."""
+input in one line. docs/simulation.md's world example runs in test_readme_commands.py."""
 
 from __future__ import annotations
 

@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
+from amcl_bags import write_amcl_bag
 from trajectory_samples import (
     NS,
     ODOMETRY,
@@ -26,7 +27,6 @@ from trajectory_samples import (
     pose_stamped,
     pose_with_covariance,
     tf_message,
-    write_amcl_bag,
     write_bag,
     write_foxglove_mcap,
     write_json_pose_mcap,

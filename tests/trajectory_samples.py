@@ -2,6 +2,9 @@
 own writers: ROS 1 and ROS 2 bags (rosbags), MCAP files of ``foxglove.PoseInFrame``
 (foxglove-sdk for protobuf, the ``mcap`` writer for JSON), TUM text.
 
+AMCL's ROS 2 bags come from ``examples/amcl_bags.py`` (``write_amcl_bag``), the script of
+the CI quick start; tests import it from there (``examples/`` is on pytest's path).
+
 Poses are (N, 3) arrays ``x_m, y_m, theta_rad``; covariances (N, 3, 3) over (x m, y m,
 yaw rad); stamps integer nanoseconds.
 """
@@ -175,22 +178,6 @@ def amcl_messages(
         ("/amcl_pose", stamp + 5_000_000, pose_with_covariance(store, stamp, frame, p, c))
         for stamp, p, c in zip(stamps, np.asarray(poses), np.asarray(covariances), strict=True)
     ]
-
-
-def write_amcl_bag(
-    path: Path,
-    times_s: np.ndarray,
-    poses: np.ndarray,
-    covariances: np.ndarray,
-    storage: str = "mcap",
-) -> Path:
-    """A ROS 2 bag folder at ``path`` (it must not exist) holding ``/amcl_pose``: one
-    ``geometry_msgs/PoseWithCovarianceStamped`` in frame ``map`` per pose, stamped at
-    ``times_s`` (s, whole nanoseconds kept) and recorded 5 ms later, as AMCL publishes its
-    estimates. ``poses`` (N, 3) x m, y m, θ rad; ``covariances`` (N, 3, 3) over (x, y, yaw);
-    ``storage`` "mcap" or "sqlite3". Returns ``path``."""
-    messages = amcl_messages(ROS2_STORE, stamps_ns(times_s), poses, covariances)
-    return write_bag(storage, path, {"/amcl_pose": PWCS}, messages)
 
 
 def write_foxglove_mcap(path: Path, stamps: list[int], poses: np.ndarray, frame: str = "map"):
