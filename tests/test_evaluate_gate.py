@@ -13,9 +13,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from amcl_bags import write_amcl_bag
 from junitparser import Failure, JUnitXml
 from test_cli import run_cli
-from trajectory_samples import estimates_frame, write_amcl_bag
+from trajectory_samples import estimates_frame
 
 from segloc_cli.estimates import PoseTable
 from segloc_cli.io.tables import write_estimates, write_pose_table

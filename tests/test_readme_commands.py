@@ -153,7 +153,8 @@ def ci_reports(repo: Path, env: dict[str, str]) -> None:
     names = [case.name for case in suite]
     assert names[:10] == [f"pose {i}" for i in range(1, 11)], names
     failed = [case.name for case in suite if not case.is_passed]
-    assert any(name.startswith("worsening of RMS |XY|") for name in failed), failed
+    assert "gate: RMS |XY| worse than the baseline's by ≤ 1 cm" in failed, failed
+    assert suite.failures == len(failed) == 8
     summary = Path(env["GITHUB_STEP_SUMMARY"]).read_text(encoding="utf-8")
     assert summary.startswith("earlier steps\n"), summary[:200]
     assert "### segloc evaluate: FAIL" in summary

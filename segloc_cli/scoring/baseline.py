@@ -125,11 +125,12 @@ class Comparison:
         per figure that has a limit: the low end of its interval against it."""
         figures = [
             GateOutcome(
-                f"worsening of {row.figure} against the baseline (95 % interval's low end)",
+                f"{row.figure} worse than the baseline's by",
                 row.low,
                 row.limit,
                 row.unit,
                 not row.failed,
+                detail=f"the low end of the {_INTERVAL}",
             )
             for row in self.rows
             if row.limit is not None
