@@ -6,11 +6,16 @@ system install, a container run as another user, a read-only checkout). There se
 kernels are defined uncached instead: every run compiles the ones it uses, which costs
 time but never the result, and the first one defined says so once on stderr.
 
-A first run with an empty cache compiles on two cores (``watching_compiles``): when the
-first kernel is compiled, a second process starts compiling the hypothesis search's and
-refinement's kernels into the cache while this one compiles extraction and the two
-stages; the localizer waits for it (``await_compiled``) before its first search, then
-loads them from the cache instead of compiling them a second time.
+A run says once, at the first kernel it compiles, that it is compiling and about how long
+it takes (``watching_compiles``): all of a first run's kernels on an empty cache, or, once
+the warm-up has cached those of map build and a default localize, the few an option adds
+on its first use (``LaterKernels``: ``--global``, ``--seen-through drop``).
+
+A first run with an empty cache compiles on two cores: when the first kernel is compiled,
+a second process starts compiling the hypothesis search's and refinement's kernels into
+the cache while this one compiles extraction and the two stages; the localizer waits for
+it (``await_compiled``) before its first search, then loads them from the cache instead of
+compiling them a second time.
 
 A global search shares its work among numba's threads (``prange``, one per core by
 default; ``NUMBA_NUM_THREADS`` sets how many). They run on numba's own ``workqueue`` layer
@@ -27,12 +32,13 @@ import subprocess
 import sys
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from typing import Any
+from typing import Any, NamedTuple
 
 import numba
 from numba import njit as _numba_njit
 from numba import prange  # noqa: F401  (the kernels take it from here, beside njit)
 from numba.core import event
+from numba.core.dispatcher import Dispatcher
 
 from segloc_cli.wording import said
 
@@ -47,6 +53,22 @@ a second process compiling ahead (measured on the shipped hall on two cores: 19.
 for the whole run)."""
 UNCACHED_COMPILE_S = 35
 """The same where nothing can be cached, so one process compiles everything (35 s)."""
+
+
+class LaterKernels(NamedTuple):
+    """The kernels an option compiles on its first use, beyond those of map build and a
+    default localize (which the warm-up compiles): the option as typed, and about how long
+    (s) they take to compile on two cores."""
+
+    option: str
+    about_s: int
+
+
+GLOBAL_KERNELS = LaterKernels("--global", 10)
+"""The global search's: its parallel bounds and the batches after the first."""
+SEEN_THROUGH_KERNELS = LaterKernels("--seen-through drop", 6)
+"""The free-space carving of ``map build``: each beam against the map's segments."""
+
 AHEAD_ENV = "SEGLOC_COMPILING_AHEAD"
 """Set in the process that compiles ahead, so that it starts no other."""
 AHEAD_MODULE = "segloc_cli.runs.warmup"
@@ -57,9 +79,11 @@ AHEAD_READY = "ready"
 AHEAD_WAIT_S = 120.0
 """The longest a run waits for the process compiling ahead before compiling itself."""
 
+_announced = False
+_compiles = 0
+"""How many of segloc's kernels this process has compiled while watching."""
 _ahead: subprocess.Popen | None = None
 _ahead_started = False
-_announced = False
 
 
 def njit(function: Callable | None = None, **options: Any):
@@ -89,50 +113,110 @@ def _say_uncached() -> None:
 
 
 def _say(message: str) -> None:
-    print(said(message), file=sys.stderr)
+    print(said(message), file=sys.stderr, flush=True)
+
+
+def loaded_kernels() -> list[Dispatcher]:
+    """Every numba kernel defined in the modules of segloc_cli imported so far."""
+    kernels = {}
+    for name, module in list(sys.modules.items()):
+        if name.startswith("segloc_cli.") and module is not None:
+            for value in list(vars(module).values()):
+                if isinstance(value, Dispatcher) and value.py_func.__module__ == name:
+                    kernels[id(value)] = value
+    return list(kernels.values())
+
+
+def kernel_name(kernel: Dispatcher) -> str:
+    """``module.function`` of a kernel: ``segloc_cli.method.search._descend``."""
+    return f"{kernel.py_func.__module__}.{kernel.py_func.__qualname__}"
+
+
+def partly_cached() -> bool:
+    """Whether this process has loaded any of segloc's kernels from numba's cache: if so, a
+    kernel it compiles is one that was not cached yet, not the first of an empty cache."""
+    return any(kernel.stats.cache_hits for kernel in loaded_kernels())
+
+
+def first_compile_notice(partly: bool, later: LaterKernels | None = None) -> str:
+    """What a run says at the first kernel it compiles: where nothing can be cached, that it
+    compiles every time; on an empty cache (not ``partly`` cached), that it compiles once,
+    about how long; else what ``later`` adds, or the kernels that are not cached yet."""
+    extra_s = later.about_s if later is not None else 0
+    if _said_uncached:
+        return (
+            f"compiling segloc's kernels about {UNCACHED_COMPILE_S + extra_s} s, in every run "
+            "as none can be cached here"
+        )
+    if not partly:
+        return (
+            f"compiling segloc's kernels once, about {FIRST_COMPILE_S + extra_s} s; later runs "
+            f"load them from numba's cache (`python -m {AHEAD_MODULE}` compiles them ahead)"
+        )
+    if later is not None:
+        return (
+            f"compiling the kernels {later.option} uses, once, about {later.about_s} s; later "
+            "runs load them from numba's cache"
+        )
+    return (
+        "compiling the kernels of this run that numba's cache does not hold yet, once; later "
+        "runs load them from there"
+    )
+
+
+def _segloc_kernel(ev: event.Event) -> Dispatcher | None:
+    """The kernel of a ``numba:compile`` event, if it is one of segloc's."""
+    dispatcher = ev.data.get("dispatcher") if isinstance(ev.data, dict) else None
+    module = getattr(getattr(dispatcher, "py_func", None), "__module__", "")
+    return dispatcher if module.startswith("segloc_cli.") else None
 
 
 class _FirstCompile(event.Listener):
     """Hears numba compile a kernel (not load one from the cache): the first of segloc's
-    says what is happening, and may start the process that compiles ahead."""
+    says what is happening (``notice``), and may start the process that compiles ahead."""
 
-    def __init__(self, ahead: bool, say: bool):
-        self.ahead, self.say = ahead, say
+    def __init__(self, ahead: bool, notice: Callable[[bool], str]):
+        self.ahead, self.notice = ahead, notice
 
     def on_start(self, ev: event.Event) -> None:
-        global _announced
-        dispatcher = ev.data["dispatcher"] if isinstance(ev.data, dict) else None
-        module = getattr(getattr(dispatcher, "py_func", None), "__module__", "")
-        if _announced or not module.startswith("segloc_cli."):
+        global _announced, _compiles
+        if _segloc_kernel(ev) is None:
+            return
+        _compiles += 1
+        if _announced:
             return
         _announced = True
-        if self.ahead:
+        partly = partly_cached()
+        if self.ahead and not partly:
             _start_ahead()
-        if not self.say:
-            return
-        if _said_uncached:
-            said = f"about {UNCACHED_COMPILE_S} s, in every run as none can be cached here"
-        else:
-            said = (
-                f"once, about {FIRST_COMPILE_S} s; later runs load them from numba's cache "
-                f"(`python -m {AHEAD_MODULE}` compiles them ahead)"
-            )
-        _say(f"compiling segloc's kernels {said}")
+        message = self.notice(partly)
+        if message:
+            _say(message)
 
     def on_end(self, ev: event.Event) -> None:
         pass
 
 
 @contextmanager
-def watching_compiles(ahead: bool = False, say: bool = True) -> Iterator[None]:
-    """While in the block, at the first kernel this process compiles: say once that it is
-    compiling (unless not ``say``); with ``ahead``, start a second process compiling the
-    later stages' kernels then (where they can be cached, and unless this process is that
-    one, or already started one)."""
+def watching_compiles(
+    ahead: bool = False,
+    later: LaterKernels | None = None,
+    notice: Callable[[bool], str] | None = None,
+) -> Iterator[None]:
+    """While in the block, at the first kernel this process compiles: say once what
+    ``notice(partly_cached())`` returns (nothing for ""), by default ``first_compile_notice``
+    with the kernels ``later`` adds; with ``ahead``, on an empty cache, start a second process
+    compiling the later stages' kernels then (where they can be cached, and unless this
+    process is that one, or already started one)."""
     if os.environ.get(AHEAD_ENV):
         yield
         return
-    with event.install_listener("numba:compile", _FirstCompile(ahead, say)):
+    if notice is None:
+
+        def notice(partly: bool) -> str:
+            return first_compile_notice(partly, later)
+
+    with event.install_listener("numba:compile", _FirstCompile(ahead, notice)):
         yield
 
 
@@ -151,6 +235,13 @@ def _start_ahead() -> None:
         )
     except OSError:
         _ahead = None  # no second process: this one compiles everything, as without it
+
+
+def compiles_heard() -> int:
+    """How many of segloc's kernels (specializations, those called by others included) this
+    process has compiled in ``watching_compiles`` blocks: where it grew, the time of the work
+    in between includes compiling."""
+    return _compiles
 
 
 def one_thread() -> None:

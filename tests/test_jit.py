@@ -1,5 +1,7 @@
-"""``jit``: a first run says once that it compiles, and has a second process compile the
-later stages ahead, waiting for its word before it needs them.
+"""``jit``: a run says once that it compiles, and about how long: all of a first run's
+kernels on an empty cache, or those an option adds once the rest are cached; a first run
+has a second process compile the later stages ahead, waiting for its word before it needs
+them.
 
 The kernels compiled here are tiny functions of this file, named into ``segloc_cli`` (the
 watch hears segloc's kernels only); the second process is a stand-in that answers as the
@@ -29,11 +31,13 @@ def fresh_kernel(module: str = "segloc_cli.stand_in"):
 
 @pytest.fixture
 def first_run(monkeypatch):
-    """A process that has said nothing and started no second process yet."""
+    """A process that has said nothing, started no second process yet and loaded nothing
+    from the cache (an empty cache)."""
     monkeypatch.setattr(jit, "_announced", False)
     monkeypatch.setattr(jit, "_ahead_started", False)
     monkeypatch.setattr(jit, "_ahead", None)
     monkeypatch.setattr(jit, "_said_uncached", False)
+    monkeypatch.setattr(jit, "partly_cached", lambda: False)
     monkeypatch.delenv(jit.AHEAD_ENV, raising=False)
 
 
@@ -49,6 +53,56 @@ def test_the_first_kernel_compiled_is_said_once(first_run, capsys):
     with jit.watching_compiles():
         fresh_kernel("elsewhere")(4)
     assert capsys.readouterr().err == ""
+
+
+def test_once_some_kernels_are_cached_a_run_says_what_it_compiles_and_starts_no_other(
+    first_run, monkeypatch, capsys
+):
+    monkeypatch.setattr(jit, "partly_cached", lambda: True)
+    monkeypatch.setattr(jit, "AHEAD_COMMAND", [sys.executable, "-c", "print('ready')"])
+    with jit.watching_compiles(ahead=True, later=jit.GLOBAL_KERNELS):
+        fresh_kernel()(1)
+    assert not jit.started_ahead()
+    option, about_s = jit.GLOBAL_KERNELS
+    assert capsys.readouterr().err == (
+        f"segloc: compiling the kernels {option} uses, once, about {about_s} s; later runs "
+        "load them from numba's cache\n"
+    )
+    jit._announced = False
+    with jit.watching_compiles():
+        fresh_kernel()(2)
+    assert "numba's cache does not hold yet, once" in capsys.readouterr().err
+    # On an empty cache, the option's kernels add to the first run's.
+    jit._announced = False
+    monkeypatch.setattr(jit, "partly_cached", lambda: False)
+    with jit.watching_compiles(later=jit.SEEN_THROUGH_KERNELS):
+        fresh_kernel()(3)
+    total_s = jit.FIRST_COMPILE_S + jit.SEEN_THROUGH_KERNELS.about_s
+    assert f"compiling segloc's kernels once, about {total_s} s;" in capsys.readouterr().err
+
+
+def test_a_run_can_say_its_own_line_or_none(first_run, capsys):
+    heard = []
+
+    def notice(partly: bool) -> str:
+        heard.append(partly)
+        return "warm-up: compiling"
+
+    with jit.watching_compiles(notice=notice):
+        fresh_kernel()(1)
+    assert heard == [False] and capsys.readouterr().err == "segloc: warm-up: compiling\n"
+    jit._announced = False
+    with jit.watching_compiles(notice=lambda partly: ""):
+        fresh_kernel()(2)
+    assert capsys.readouterr().err == ""
+
+
+def test_compiles_are_counted_so_that_timings_can_leave_them_out(first_run):
+    before = jit.compiles_heard()
+    with jit.watching_compiles(notice=lambda partly: ""):
+        fresh_kernel()(1)
+        fresh_kernel("elsewhere")(1)  # not segloc's
+    assert jit.compiles_heard() == before + 1
 
 
 def test_the_run_waits_for_the_ready_line_not_for_the_end(first_run, monkeypatch):

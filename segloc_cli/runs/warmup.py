@@ -43,6 +43,7 @@ from segloc_cli.errors import SeglocError
 from segloc_cli.estimates import PoseTable
 from segloc_cli.geometry import Pose2
 from segloc_cli.io.log import Log
+from segloc_cli.jit import loaded_kernels
 from segloc_cli.method.refine import nearest_segments
 from segloc_cli.method.search import HypothesisSearch
 from segloc_cli.runs import pipeline
@@ -168,17 +169,6 @@ def _drain(rows: Iterator) -> None:
         pass
 
 
-def loaded_kernels() -> list[Dispatcher]:
-    """Every numba kernel defined in the modules of segloc_cli imported so far."""
-    kernels = {}
-    for name, module in list(sys.modules.items()):
-        if name.startswith("segloc_cli.") and module is not None:
-            for value in vars(module).values():
-                if isinstance(value, Dispatcher) and value.py_func.__module__ == name:
-                    kernels[id(value)] = value
-    return list(kernels.values())
-
-
 def compile_times(kernels: list[Dispatcher]) -> list[tuple[float, str]]:
     """(seconds, kernel) of each specialization this process compiled, longest first: the
     time in numba's compiler, the kernels it calls that were not compiled yet included."""
@@ -201,7 +191,7 @@ def main(show_times: int = 0) -> None:
     t0 = time.perf_counter()
     # On two cores, as a first run; alone when the compile times are asked for, so that
     # each kernel's time is its own and not shared with a second process.
-    with watching_compiles(ahead=not show_times, say=False):
+    with watching_compiles(ahead=not show_times, notice=lambda partly: ""):
         left_out = warm_up()
     ran = [option for option in LOCALIZE_RUNS if option not in left_out]
     kernels = loaded_kernels()
