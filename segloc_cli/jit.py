@@ -15,7 +15,8 @@ A first run with an empty cache compiles on two cores: when the first kernel is 
 a second process starts compiling the hypothesis search's and refinement's kernels into
 the cache while this one compiles extraction and the two stages; the localizer waits for
 it (``await_compiled``) before its first search, then loads them from the cache instead of
-compiling them a second time.
+compiling them a second time. The second process names each kernel it has compiled
+(``reporting_compiles``), so that the warm-up can count them (``compiled_ahead``).
 
 A global search shares its work among numba's threads (``prange``, one per core by
 default; ``NUMBA_NUM_THREADS`` sets how many). They run on numba's own ``workqueue`` layer
@@ -27,9 +28,9 @@ thread each: ``one_thread``).
 from __future__ import annotations
 
 import os
-import select
 import subprocess
 import sys
+import threading
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from typing import Any, NamedTuple
@@ -76,13 +77,16 @@ AHEAD_COMMAND = [sys.executable, "-m", AHEAD_MODULE, "--late-stages"]
 """The second process of a first run: the warm-up of the later stages alone."""
 AHEAD_READY = "ready"
 """The line the process compiling ahead writes once the later stages' kernels are cached."""
+AHEAD_COMPILED = "compiled"
+"""What starts the line the process compiling ahead writes for each kernel it compiled,
+followed by the kernel's name (``kernel_name``)."""
 AHEAD_WAIT_S = 120.0
 """The longest a run waits for the process compiling ahead before compiling itself."""
 
 _announced = False
 _compiles = 0
 """How many of segloc's kernels this process has compiled while watching."""
-_ahead: subprocess.Popen | None = None
+_ahead: _Ahead | None = None
 _ahead_started = False
 
 
@@ -220,21 +224,55 @@ def watching_compiles(
         yield
 
 
+class _Ahead:
+    """The process compiling ahead, and what it has said so far: the kernels it compiled,
+    and whether the later stages' are ready (or it ended)."""
+
+    def __init__(self, process: subprocess.Popen):
+        self.process = process
+        self.ready = threading.Event()
+        self.compiled: set[str] = set()
+        self.awaited = False
+        self.listener_pid = os.getpid()
+        """The process whose thread listens: a forked worker inherits no thread."""
+        threading.Thread(target=self._listen, daemon=True).start()
+
+    def await_ready(self, timeout_s: float) -> None:
+        """Wait (at most ``timeout_s``) for the later stages to be ready, or the process to
+        end. A forked worker, which has no thread listening (``--jobs`` forks once the
+        parent has waited, unless its first scan did not search), does not wait: it loads
+        what is cached and compiles the rest."""
+        if os.getpid() == self.listener_pid:
+            self.ready.wait(timeout_s)
+
+    def _listen(self) -> None:
+        assert self.process.stdout is not None
+        for line in self.process.stdout:
+            word, _, name = line.strip().partition(" ")
+            if word == AHEAD_COMPILED:
+                self.compiled.add(name)
+            elif word == AHEAD_READY:
+                self.ready.set()
+        self.ready.set()  # it ended: nothing more to wait for
+
+
 def _start_ahead() -> None:
     global _ahead, _ahead_started
     if _said_uncached or _ahead_started:
         return  # nothing compiled elsewhere could be loaded here, or it runs already
     _ahead_started = True  # forked workers inherit it and start none
     try:
-        _ahead = subprocess.Popen(
+        process = subprocess.Popen(
             AHEAD_COMMAND,
             env={**os.environ, AHEAD_ENV: "compiling"},
             stdin=subprocess.DEVNULL,
             stdout=subprocess.PIPE,
             stderr=subprocess.DEVNULL,
+            text=True,
         )
     except OSError:
-        _ahead = None  # no second process: this one compiles everything, as without it
+        return  # no second process: this one compiles everything, as without it
+    _ahead = _Ahead(process)
 
 
 def compiles_heard() -> int:
@@ -255,22 +293,65 @@ def started_ahead() -> bool:
     return _ahead_started
 
 
+def compiled_ahead() -> set[str]:
+    """The kernels (``kernel_name``) the process compiling ahead has said it compiled."""
+    return set() if _ahead is None else set(_ahead.compiled)
+
+
 def await_compiled() -> None:
     """Wait (at most ``AHEAD_WAIT_S``) for the process compiling the later stages ahead, if
     one runs, to say they are in the cache (its line ``AHEAD_READY``, or its end), so their
-    kernels load from there; nothing to do otherwise."""
-    global _ahead
-    if _ahead is None:
+    kernels load from there; nothing to do otherwise, or once waited for."""
+    if _ahead is None or _ahead.awaited:
         return
-    ahead, _ahead = _ahead, None
-    assert ahead.stdout is not None
-    ready, _, _ = select.select([ahead.stdout], [], [], AHEAD_WAIT_S)
-    if ready:
-        ahead.stdout.readline()  # its "ready" line, or nothing when it ended
-    # Else it took too long: this process compiles what it needs itself.
+    _ahead.awaited = True
+    _ahead.await_ready(AHEAD_WAIT_S)  # if it takes longer, this process compiles them itself
+
+
+def finish_ahead(timeout_s: float = AHEAD_WAIT_S) -> None:
+    """Wait (at most ``timeout_s``) for the process compiling ahead, if one was started, to
+    end: for a run that should leave nothing compiling behind it (the warm-up)."""
+    if _ahead is None or os.getpid() != _ahead.listener_pid:
+        return
+    try:
+        _ahead.process.wait(timeout_s)
+    except subprocess.TimeoutExpired:
+        _ahead.process.kill()
+        _ahead.process.wait()
+
+
+class _Reporter(event.Listener):
+    """In the process compiling ahead: names each of segloc's kernels once it is compiled,
+    on its own line (``AHEAD_COMPILED``); stops when nobody reads them any more."""
+
+    def __init__(self) -> None:
+        self.heard = True
+
+    def on_start(self, ev: event.Event) -> None:
+        pass
+
+    def on_end(self, ev: event.Event) -> None:
+        dispatcher = _segloc_kernel(ev)
+        if not self.heard or dispatcher is None:
+            return
+        try:
+            print(f"{AHEAD_COMPILED} {kernel_name(dispatcher)}", flush=True)
+        except OSError:  # the run that started it has ended: it compiles on, silently
+            self.heard = False
+
+
+@contextmanager
+def reporting_compiles() -> Iterator[None]:
+    """While in the block, in the process compiling ahead: name each kernel compiled on
+    standard output, for the run that started it (``compiled_ahead``)."""
+    with event.install_listener("numba:compile", _Reporter()):
+        yield
 
 
 def say_ahead_ready() -> None:
     """In the process compiling ahead: tell the run waiting for it that the later stages'
     kernels are in the cache."""
-    print(AHEAD_READY, flush=True)
+    try:
+        print(AHEAD_READY, flush=True)
+    except OSError:
+        pass

@@ -1,7 +1,7 @@
 """``jit``: a run says once that it compiles, and about how long: all of a first run's
 kernels on an empty cache, or those an option adds once the rest are cached; a first run
 has a second process compile the later stages ahead, waiting for its word before it needs
-them.
+them, and hears which kernels it compiled.
 
 The kernels compiled here are tiny functions of this file, named into ``segloc_cli`` (the
 watch hears segloc's kernels only); the second process is a stand-in that answers as the
@@ -11,6 +11,7 @@ warm-up's ``--late-stages`` does, so nothing here compiles segloc's own kernels.
 from __future__ import annotations
 
 import sys
+import threading
 import time
 
 import pytest
@@ -106,19 +107,32 @@ def test_compiles_are_counted_so_that_timings_can_leave_them_out(first_run):
 
 
 def test_the_run_waits_for_the_ready_line_not_for_the_end(first_run, monkeypatch):
-    # The stand-in says it is ready, then works on for a long while, as the warm-up does.
-    script = "import time; print('ready', flush=True); time.sleep(30)"
+    # The stand-in names what it compiled and says it is ready, then works on for a long
+    # while, as the warm-up does.
+    script = (
+        "import time; print('compiled segloc_cli.method.search._descend', flush=True); "
+        "print('ready', flush=True); time.sleep(30)"
+    )
     monkeypatch.setattr(jit, "AHEAD_COMMAND", [sys.executable, "-c", script])
     with jit.watching_compiles(ahead=True):
         fresh_kernel()(1)
-        started = jit._ahead
-        assert started is not None and jit.started_ahead()
+        assert jit._ahead is not None and jit.started_ahead()
+        started = jit._ahead.process
         t0 = time.monotonic()
         jit.await_compiled()
         waited_s = time.monotonic() - t0
     try:
-        assert jit._ahead is None and started.poll() is None  # still working, not awaited
+        assert started.poll() is None  # still working, not awaited
         assert waited_s < jit.AHEAD_WAIT_S
+        assert jit.compiled_ahead() == {"segloc_cli.method.search._descend"}
+        t0 = time.monotonic()
+        jit.await_compiled()  # waited for once: not again
+        # A forked worker (another process than the one listening) does not wait at all.
+        monkeypatch.setattr(jit._ahead, "awaited", False)
+        monkeypatch.setattr(jit._ahead, "ready", threading.Event())
+        monkeypatch.setattr(jit._ahead, "listener_pid", -1)
+        jit.await_compiled()
+        assert time.monotonic() - t0 < 1.0
     finally:
         started.kill()
         started.wait()
@@ -126,7 +140,17 @@ def test_the_run_waits_for_the_ready_line_not_for_the_end(first_run, monkeypatch
     with jit.watching_compiles(ahead=True):
         jit._announced = False
         fresh_kernel()(2)
-    assert jit._ahead is None
+    assert jit._ahead.process is started
+
+
+def test_a_run_can_wait_for_the_second_process_to_end(first_run, monkeypatch):
+    script = "import time; print('ready', flush=True); time.sleep(0.5)"
+    monkeypatch.setattr(jit, "AHEAD_COMMAND", [sys.executable, "-c", script])
+    jit.finish_ahead()  # none started: nothing to wait for
+    with jit.watching_compiles(ahead=True):
+        fresh_kernel()(1)
+    jit.finish_ahead()
+    assert jit._ahead is not None and jit._ahead.process.returncode == 0
 
 
 def test_no_second_process_where_nothing_can_be_cached_or_in_the_second_process(
