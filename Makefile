@@ -6,10 +6,12 @@ STAMP := $(VENV)/.installed
 DEMO_OUT := out/demo
 HALL := datasets/hall
 
-.PHONY: setup demo test browser fuzz bench bench-real bench-sweep bench-peers calibrate figures lint hall readme-real clean
+.PHONY: setup demo test kernels browser fuzz bench bench-real bench-sweep bench-peers calibrate figures lint hall readme-real clean
 
-# The last step compiles numba's kernels into their cache, so that no first run waits for it
-# (a failure there only costs that wait; tests/test_warmup.py catches it).
+# The last step compiles the kernels of make demo and of a first default localize into numba's
+# cache, saying how many and showing its progress, so that no first run waits for them; the
+# other options' kernels (--global, --seen-through drop) compile on their first use, which says
+# so. A failure there only costs that wait; tests/test_warmup.py catches it.
 setup: $(STAMP)
 
 $(STAMP): pyproject.toml
@@ -28,10 +30,16 @@ demo: $(STAMP)
 	$(BIN)/segloc localize $(HALL)/log.mcap --map $(DEMO_OUT)/map.json --out $(DEMO_OUT)/estimates.csv --force
 	$(BIN)/segloc evaluate $(DEMO_OUT)/estimates.csv --survey $(HALL)/survey.csv --fail-above-cm 1 --fail-above-deg 0.2
 
-# On every core (pytest-xdist), the 30 slowest tests listed at the end. The HTML report's
-# test opens it in Debian's headless Chromium; as root (CI) it is installed when missing,
-# elsewhere that one test is skipped and says why.
-test: $(STAMP) browser
+# Every kernel in numba's cache, those of the options setup leaves to their first use included
+# (--global, --seen-through drop...), so that the processes of the tests and benchmarks load
+# them instead of each compiling its own; a few seconds when they are all cached already.
+kernels: $(STAMP)
+	$(BIN)/python -m segloc_cli.runs.warmup --all || echo "warning: warm-up failed" >&2
+
+# On every core (pytest-xdist), once every kernel is compiled, the 30 slowest tests listed at
+# the end. The HTML report's test opens it in Debian's headless Chromium; as root (CI) it is
+# installed when missing, elsewhere that one test is skipped and says why.
+test: kernels browser
 	$(BIN)/python -m pytest -q -n auto --durations=30
 
 browser:
@@ -50,18 +58,18 @@ fuzz: $(STAMP)
 
 # pytest-benchmark over benchmarks/: time per pose, accuracy, and the speed figures of
 # test_bench_speed.py (the real logs from DATASETS, defined below; missing ones are skipped).
-bench: $(STAMP)
+bench: kernels
 	SEGLOC_DATASETS=$(DATASETS) $(BIN)/python -m pytest benchmarks -q --benchmark-only -s --benchmark-columns=median,min,max,rounds --benchmark-sort=name --benchmark-warmup=on
 
 # Real public logs (not shipped): both protocols on intel, aces, fr079, mit-csail.
 DATASETS ?= ../shared/datasets
-bench-real: $(STAMP)
+bench-real: kernels
 	$(BIN)/python benchmarks/real_logs.py --datasets $(DATASETS) --out benchmarks/results-real.md
 
 # Every block of README.md top to bottom, in a folder beside the real logs (linked as
 # ../shared/datasets, the path README's commands read them from), those on the logs included;
 # make test runs the others. tests/test_readme_commands.py says how each block is checked.
-readme-real: $(STAMP)
+readme-real: kernels
 	@if [ ! -d "$(DATASETS)" ]; then \
 		echo "readme-real: skipped: no public logs at $(DATASETS) (give DATASETS=FOLDER holding intel/, mit-csail/)"; \
 	else \
@@ -70,18 +78,18 @@ readme-real: $(STAMP)
 	fi
 
 # segloc sweep on the real logs' held-out scans (3 search windows × 2 seeds), on 1 and 2 workers.
-bench-sweep: $(STAMP)
+bench-sweep: kernels
 	$(BIN)/python benchmarks/sweep_real.py --datasets $(DATASETS) --out benchmarks/results-sweep.md
 
 # Fit the verdict's confidence model on simulated rooms and the real logs' calibration splits
 # (scans the benchmarks do not score): segloc_cli/method/confidence_model.json and
 # benchmarks/results-calibration.md.
-calibrate: $(STAMP)
+calibrate: kernels
 	$(BIN)/python benchmarks/calibrate.py --datasets $(DATASETS)
 
 # Every method (two-stage, ICP, correlative) on the same seeded trials per initial-error bin,
 # on the hall and the real logs: benchmarks/results-peers.md and benchmarks/peers-trials.csv.
-bench-peers: $(STAMP)
+bench-peers: kernels
 	$(BIN)/python benchmarks/peers.py --datasets $(DATASETS)
 
 # The hall's figures into benchmarks/figures/hall/, and success against initial error
