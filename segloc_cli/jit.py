@@ -192,7 +192,7 @@ class _FirstCompile(event.Listener):
         _announced = True
         partly = partly_cached()
         if self.ahead and not partly:
-            _start_ahead()
+            start_ahead()
         message = self.notice(partly)
         if message:
             _say(message)
@@ -235,7 +235,8 @@ class _Ahead:
         self.awaited = False
         self.listener_pid = os.getpid()
         """The process whose thread listens: a forked worker inherits no thread."""
-        threading.Thread(target=self._listen, daemon=True).start()
+        self.listener = threading.Thread(target=self._listen, daemon=True)
+        self.listener.start()
 
     def await_ready(self, timeout_s: float) -> None:
         """Wait (at most ``timeout_s``) for the later stages to be ready, or the process to
@@ -256,14 +257,18 @@ class _Ahead:
         self.ready.set()  # it ended: nothing more to wait for
 
 
-def _start_ahead() -> None:
+def start_ahead(*arguments: str) -> None:
+    """Start the process compiling ahead (``AHEAD_COMMAND``, and ``arguments``), where
+    what it compiles can be cached and unless one was started already. The first kernel
+    compiled starts it on an empty cache (``watching_compiles``); the warm-up of every path
+    starts it itself, whatever the cache holds."""
     global _ahead, _ahead_started
     if _said_uncached or _ahead_started:
         return  # nothing compiled elsewhere could be loaded here, or it runs already
     _ahead_started = True  # forked workers inherit it and start none
     try:
         process = subprocess.Popen(
-            AHEAD_COMMAND,
+            [*AHEAD_COMMAND, *arguments],
             env={**os.environ, AHEAD_ENV: "compiling"},
             stdin=subprocess.DEVNULL,
             stdout=subprocess.PIPE,
@@ -318,6 +323,7 @@ def finish_ahead(timeout_s: float = AHEAD_WAIT_S) -> None:
     except subprocess.TimeoutExpired:
         _ahead.process.kill()
         _ahead.process.wait()
+    _ahead.listener.join(timeout_s)  # the last of what it said, heard
 
 
 class _Reporter(event.Listener):

@@ -153,6 +153,15 @@ def test_a_run_can_wait_for_the_second_process_to_end(first_run, monkeypatch):
     assert jit._ahead is not None and jit._ahead.process.returncode == 0
 
 
+def test_the_warm_up_can_start_the_second_process_itself_with_its_arguments(first_run, monkeypatch):
+    script = "import sys; print('compiled segloc_cli.given' + sys.argv[-1], flush=True)"
+    monkeypatch.setattr(jit, "AHEAD_COMMAND", [sys.executable, "-c", script])
+    jit.start_ahead("--all")
+    jit.start_ahead("--other")  # one a process: started already
+    jit.finish_ahead()
+    assert jit.compiled_ahead() == {"segloc_cli.given--all"}
+
+
 def test_no_second_process_where_nothing_can_be_cached_or_in_the_second_process(
     first_run, monkeypatch, capsys
 ):

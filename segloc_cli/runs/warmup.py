@@ -131,9 +131,6 @@ def warm_up(every_path: bool = False) -> list[str]:
     _localize(log, built.segments, "guided", Config())
     if not every_path:
         return []
-    # What ``map build --seen-through drop`` adds: the scans' beams against the map.
-    carving = Config.from_values({"seen-through": "drop"})
-    pipeline.build_map(log, PLACEHOLDER_PATH, survey, PLACEHOLDER_PATH, carving)
     ran = []
     for option, (mode, settings) in LATER_RUNS.items():
         try:
@@ -142,7 +139,15 @@ def warm_up(every_path: bool = False) -> list[str]:
             option += " (not installed)"
         ran.append(option)
     _library_paths(log, built.segments)
+    # Last, as the second process compiles it first once its own are done (``--all``).
+    _carve(log, survey)
     return ran
+
+
+def _carve(log: Log, survey: PoseTable) -> None:
+    """What ``map build --seen-through drop`` adds: the scans' beams against the map."""
+    carving = Config.from_values({"seen-through": "drop"})
+    pipeline.build_map(log, PLACEHOLDER_PATH, survey, PLACEHOLDER_PATH, carving)
 
 
 def _localize(log: Log, segments: np.ndarray, mode: str, config: Config) -> None:
@@ -167,12 +172,14 @@ def _library_paths(log: Log, segments: np.ndarray) -> None:
     search.search(log.scans[0].points(), headings, centre, half, reach_m=30.0, first_batch=1)
 
 
-def compile_late_stages(seed: int = SEED) -> None:
+def compile_late_stages(seed: int = SEED, every_path: bool = False) -> None:
     """Compile the kernels of the hypothesis search and of refinement first, then the rest
     of a guided localize, on a simulated room whose walls are its own map: what a first run
     on an empty cache has a second process do (``jit.watching_compiles``) while it extracts
     segments and runs the two stages. No extraction is needed: the walls, placed in the
-    robot's frame, are the local map. Each kernel compiled is named on standard output
+    robot's frame, are the local map. With ``every_path`` (the second process of ``--all``),
+    then the free-space carving of ``map build --seen-through drop``, while the first
+    compiles the global search. Each kernel compiled is named on standard output
     (``jit.reporting_compiles``)."""
     from segloc_cli.geometry import transform_segments
     from segloc_cli.jit import reporting_compiles, say_ahead_ready
@@ -195,6 +202,8 @@ def compile_late_stages(seed: int = SEED) -> None:
         # The rest, whatever this run has not compiled yet (stage 1, stage 2, the verdict).
         local_map = transform_segments(world.segments, truth.inverse())
         localizer.localize(local_map, guess, points)
+        if every_path:
+            _carve(*simulated_run(seed))
 
 
 def _drain(rows: Iterator) -> None:
@@ -222,7 +231,7 @@ def main(every_path: bool = False, show_times: int = 0) -> None:
     goes, and end with one line on what was done (``warmup_lines``); with ``show_times``,
     compile in this process alone, quietly, and list that many kernels it compiled, longest
     first."""
-    from segloc_cli.jit import finish_ahead, watching_compiles
+    from segloc_cli.jit import finish_ahead, start_ahead, watching_compiles
     from segloc_cli.runs.warmup_lines import CompileCount, closing_line
 
     t0 = time.perf_counter()
@@ -231,7 +240,10 @@ def main(every_path: bool = False, show_times: int = 0) -> None:
     else:
         count = CompileCount(FIRST_RUN, FIRST_RUN_KERNELS, FIRST_RUN_S, bool(show_times))
     # On two cores, as a first run; alone when the compile times are asked for, so that
-    # each kernel's time is its own and not shared with a second process.
+    # each kernel's time is its own and not shared with a second process. Every path has
+    # kernels of its own for the second process even where a first run's are cached.
+    if every_path and not show_times:
+        start_ahead("--all")
     with watching_compiles(ahead=not show_times, notice=count.notice), count:
         ran = warm_up(every_path)
         finish_ahead()
@@ -271,6 +283,6 @@ def _arguments(argv: list[str]) -> argparse.Namespace:
 if __name__ == "__main__":
     arguments = _arguments(sys.argv[1:])
     if arguments.late_stages:
-        compile_late_stages()
+        compile_late_stages(every_path=arguments.all)
     else:
         main(every_path=arguments.all, show_times=arguments.times)
