@@ -8,8 +8,10 @@ HALL := datasets/hall
 
 .PHONY: setup demo test kernels browser fuzz bench bench-real bench-sweep bench-peers calibrate figures lint hall readme-real clean
 
-# pip installs quietly; setuptools' notice that the install is an editable one (which pip
-# passes on as a warning) is filtered out, its other warnings are not. The last step compiles
+# pip installs quietly, and leaves each module's bytecode to be written when it is first
+# imported (--no-compile: compiling all of them took over half of its time, for modules most
+# runs never import); setuptools' notice that the install is an editable one (which pip passes
+# on as a warning) is filtered out, its other warnings are not. The last step compiles
 # the kernels of make demo and of a first default localize into numba's cache, saying how many
 # and showing its progress, so that no first run waits for them; the other options' kernels
 # (--global, --seen-through drop) compile on their first use, which says so. A failure there
@@ -20,7 +22,7 @@ $(STAMP): pyproject.toml
 	@command -v $(PYTHON) >/dev/null 2>&1 || { echo "error: $(PYTHON) not found; install Python 3.11 or run 'make PYTHON=python3 ...'" >&2; exit 2; }
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	PYTHONWARNINGS='ignore:Editable installation:UserWarning' $(BIN)/python -m pip install --quiet -e '.[dev,peers,sweep]'
+	PYTHONWARNINGS='ignore:Editable installation:UserWarning' $(BIN)/python -m pip install --quiet --no-compile -e '.[dev,peers,sweep]'
 	$(BIN)/python -m segloc_cli.runs.warmup || echo "warning: warm-up failed" >&2
 	@touch $(STAMP)
 
