@@ -2,33 +2,42 @@
 PYTHON ?= python3.11
 VENV := .venv
 BIN := $(VENV)/bin
+BASE := $(VENV)/.installed-base
 STAMP := $(VENV)/.installed
 DEMO_OUT := out/demo
 HALL := datasets/hall
 
 .PHONY: setup demo test kernels browser fuzz bench bench-real bench-sweep bench-peers calibrate figures lint hall readme-real clean
 
-# pip installs quietly, and leaves each module's bytecode to be written when it is first
-# imported (--no-compile: compiling all of them took over half of its time, for modules most
-# runs never import); setuptools' notice that the install is an editable one (which pip passes
-# on as a warning) is filtered out, its other warnings are not. The last step compiles
-# the kernels of make demo and of a first default localize into numba's cache, saying how many
-# and showing its progress, so that no first run waits for them; the other options' kernels
-# (--global, --seen-through drop) compile on their first use, which says so. A failure there
-# only costs that wait; tests/test_warmup.py catches it.
+# Setup installs segloc (editable), compiles the kernels a first run uses, then adds the extras
+# of the tests, lint and benchmarks (dev), of --method icp|correlative (peers) and of segloc
+# sweep (sweep); make demo needs the first two steps only ($(BASE)). pip installs quietly, and
+# leaves each module's bytecode to be written when it is first imported (--no-compile:
+# compiling all of them took over half of its time, for modules most runs never import);
+# setuptools' notice that the install is an editable one (which pip passes on as a warning)
+# is filtered out, its other warnings are not. The warm-up compiles the kernels of make demo
+# and of a first default localize into numba's cache, saying how many and showing its
+# progress, so that no first run waits for them; the other options' kernels (--global,
+# --seen-through drop) compile on their first use, which says so. A failure there only costs
+# that wait; tests/test_warmup.py catches it.
+PIP_INSTALL := PYTHONWARNINGS='ignore:Editable installation:UserWarning' $(BIN)/python -m pip install --quiet --no-compile
 setup: $(STAMP)
 
-$(STAMP): pyproject.toml
+$(BASE): pyproject.toml
 	@command -v $(PYTHON) >/dev/null 2>&1 || { echo "error: $(PYTHON) not found; install Python 3.11 or run 'make PYTHON=python3 ...'" >&2; exit 2; }
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	PYTHONWARNINGS='ignore:Editable installation:UserWarning' $(BIN)/python -m pip install --quiet --no-compile -e '.[dev,peers,sweep]'
+	$(PIP_INSTALL) -e .
 	$(BIN)/python -m segloc_cli.runs.warmup || echo "warning: warm-up failed" >&2
+	@touch $(BASE)
+
+$(STAMP): $(BASE)
+	$(PIP_INSTALL) -e '.[dev,peers,sweep]'
 	@touch $(STAMP)
 
 # Build the hall's map from its mapping run, localize the 10 test scans (none of them in the
 # map) from the paper's initial errors and print Table 1; fail above the paper's 1 cm / 0.2°.
-demo: $(STAMP)
+demo: $(BASE)
 	@mkdir -p $(DEMO_OUT)
 	$(BIN)/segloc map build $(HALL)/mapping/log.mcap --survey $(HALL)/mapping/survey.csv --out $(DEMO_OUT)/map.json --force
 	$(BIN)/segloc localize $(HALL)/log.mcap --map $(DEMO_OUT)/map.json --out $(DEMO_OUT)/estimates.csv --force
@@ -108,7 +117,7 @@ lint: $(STAMP)
 	$(BIN)/mypy
 
 # Regenerate the shipped hall dataset (see datasets/hall/README.md).
-hall: $(STAMP)
+hall: $(BASE)
 	bash $(HALL)/regenerate.sh
 
 clean:
