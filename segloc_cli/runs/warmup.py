@@ -2,15 +2,15 @@
 
 The kernels (``@njit(cache=True)``) are compiled on first use and kept in numba's
 on-disk cache beside their modules (``segloc_cli/__pycache__/*.nbi``, ``*.nbc``).
-``make setup`` runs this module as its last step: it simulates a small room, builds its
-map and localizes its scans at the default settings, through the functions the commands
-call, so that each kernel of ``make demo`` and of a first default ``segloc localize``
-(extraction, stage 1, stage 2, the hypothesis search, refinement, the verdict) is compiled
-with the argument types a real run gives it, whatever its name or module:
-``FIRST_RUN_KERNELS`` kernels in about ``FIRST_RUN_S`` s on two cores, a second process
-compiling the search's and refinement's (``jit.watching_compiles``). It says so when it
-starts compiling, shows how many kernels are compiled every few seconds, and ends with a
-line on what it did (``warmup_lines``). ``--no-refine``, ``--track`` and the peers
+``make setup`` (and ``make demo``) runs this module once segloc is installed: it simulates
+a small room, builds its map and localizes its scans at the default settings, through the
+functions the commands call, so that each kernel of ``make demo`` and of a first default
+``segloc localize`` (extraction, stage 1, stage 2, the hypothesis search, refinement, the
+verdict) is compiled with the argument types a real run gives it, whatever its name or
+module: ``FIRST_RUN_KERNELS`` kernels in about ``FIRST_RUN_S`` s on two cores, a second
+process compiling the search's and refinement's (``jit.watching_compiles``). It says so
+when it starts compiling, shows how many kernels are compiled every few seconds, and ends
+with a line on what it did (``warmup_lines``). ``--no-refine``, ``--track`` and the peers
 (``--method icp|correlative``: their own libraries come compiled; their verdict is
 segloc's) use no other kernel.
 
