@@ -140,7 +140,8 @@ def warm_up(every_path: bool = False) -> list[str]:
             option += " (not installed)"
         ran.append(option)
     _library_paths(log, built.segments)
-    # Last, as the second process compiles it first once its own are done (``--all``).
+    # Last: the second process of ``--all`` compiles it once done with its own kernels, while
+    # this one compiles those above.
     _carve(log, survey)
     return ran
 
