@@ -203,3 +203,27 @@ def test_every_kernel_is_compiled_by_the_warm_up_of_every_path(later_cache):
         if not any(index.startswith(f"{stem}.{name}-") for index in indexed)
     ]
     assert not missing, f"not compiled by segloc_cli.runs.warmup --all: {missing}"
+
+
+def test_the_warm_ups_lines_say_what_it_compiles_and_who_compiled_it(monkeypatch):
+    from segloc_cli.runs import warmup_lines
+
+    count = warmup_lines.CompileCount("map build", 7, 40)
+    assert (
+        count.notice(False)
+        == "warm-up: compiling the 7 kernels of map build, about 40 s on 2 cores"
+    )
+    assert count.notice(True).startswith("warm-up: compiling those of the 7 kernels of map build")
+    assert warmup_lines.CompileCount("map build", 7, 40, quiet=True).notice(False) == ""
+    monkeypatch.setattr(warmup_lines, "compiled_here", lambda: {"a", "b"})
+    monkeypatch.setattr(warmup_lines, "compiled_ahead", lambda: {"b", "c"})
+    assert warmup_lines.closing_line("it", 1.5, False) == (
+        "segloc warm-up: it run on a simulated room in 1.5 s; 3 numba kernels compiled, 2 by this "
+        "process and 1 by a second one"
+    )
+    monkeypatch.setattr(warmup_lines, "compiled_ahead", set)
+    assert warmup_lines.closing_line("it", 2.0, True).endswith(
+        "2 numba kernels compiled, the others were in numba's cache"
+    )
+    monkeypatch.setattr(warmup_lines, "compiled_here", set)
+    assert warmup_lines.closing_line("it", 2.0, True).endswith("; all were cached")
