@@ -2,28 +2,43 @@
 PYTHON ?= python3.11
 VENV := .venv
 BIN := $(VENV)/bin
+BASE := $(VENV)/.installed-base
 STAMP := $(VENV)/.installed
 DEMO_OUT := out/demo
 HALL := datasets/hall
 CI_OUT := out/ci
 
-.PHONY: setup demo ci-example test browser fuzz bench bench-real bench-sweep bench-peers calibrate figures lint hall readme-real clean
+.PHONY: setup demo ci-example test kernels browser fuzz bench bench-real bench-sweep bench-peers calibrate figures lint hall readme-real clean
 
-# The last step compiles numba's kernels into their cache, so that no first run waits for it
-# (a failure there only costs that wait; tests/test_warmup.py catches it).
+# Setup installs segloc (editable), compiles the kernels a first run uses, then adds the extras
+# of the tests, lint and benchmarks (dev), of --method icp|correlative (peers) and of segloc
+# sweep (sweep); make demo needs the first two steps only ($(BASE)). pip installs quietly, and
+# leaves each module's bytecode to be written when it is first imported (--no-compile:
+# compiling all of them took over half of its time, for modules most runs never import);
+# setuptools' notice that the install is an editable one (which pip passes on as a warning)
+# is filtered out, its other warnings are not. The warm-up compiles the kernels of make demo
+# and of a first default localize into numba's cache, saying how many and showing its
+# progress, so that no first run waits for them; the other options' kernels (--global,
+# --seen-through drop) compile on their first use, which says so. A failure there only costs
+# that wait; tests/test_warmup.py catches it.
+PIP_INSTALL := PYTHONWARNINGS='ignore:Editable installation:UserWarning' $(BIN)/python -m pip install --quiet --no-compile
 setup: $(STAMP)
 
-$(STAMP): pyproject.toml
+$(BASE): pyproject.toml
 	@command -v $(PYTHON) >/dev/null 2>&1 || { echo "error: $(PYTHON) not found; install Python 3.11 or run 'make PYTHON=python3 ...'" >&2; exit 2; }
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e '.[dev,peers,sweep]'
+	$(PIP_INSTALL) -e .
 	$(BIN)/python -m segloc_cli.runs.warmup || echo "warning: warm-up failed" >&2
+	@touch $(BASE)
+
+$(STAMP): $(BASE)
+	$(PIP_INSTALL) -e '.[dev,peers,sweep]'
 	@touch $(STAMP)
 
 # Build the hall's map from its mapping run, localize the 10 test scans (none of them in the
 # map) from the paper's initial errors and print Table 1; fail above the paper's 1 cm / 0.2°.
-demo: $(STAMP)
+demo: $(BASE)
 	@mkdir -p $(DEMO_OUT)
 	$(BIN)/segloc map build $(HALL)/mapping/log.mcap --survey $(HALL)/mapping/survey.csv --out $(DEMO_OUT)/map.json --force
 	$(BIN)/segloc localize $(HALL)/log.mcap --map $(DEMO_OUT)/map.json --out $(DEMO_OUT)/estimates.csv --force
@@ -35,10 +50,16 @@ demo: $(STAMP)
 ci-example: $(STAMP)
 	$(BIN)/python examples/amcl_bags.py --survey $(HALL)/survey.csv --out $(CI_OUT) --force
 
-# On every core (pytest-xdist), the 30 slowest tests listed at the end. The HTML report's
-# test opens it in Debian's headless Chromium; as root (CI) it is installed when missing,
-# elsewhere that one test is skipped and says why.
-test: $(STAMP) browser
+# Every kernel in numba's cache, those of the options setup leaves to their first use included
+# (--global, --seen-through drop...), so that the processes of the tests and benchmarks load
+# them instead of each compiling its own; a few seconds when they are all cached already.
+kernels: $(STAMP)
+	$(BIN)/python -m segloc_cli.runs.warmup --all || echo "warning: warm-up failed" >&2
+
+# On every core (pytest-xdist), once every kernel is compiled, the 30 slowest tests listed at
+# the end. The HTML report's test opens it in Debian's headless Chromium; as root (CI) it is
+# installed when missing, elsewhere that one test is skipped and says why.
+test: kernels browser
 	$(BIN)/python -m pytest -q -n auto --durations=30
 
 browser:
@@ -57,19 +78,19 @@ fuzz: $(STAMP)
 
 # pytest-benchmark over benchmarks/: time per pose, accuracy, and the speed figures of
 # test_bench_speed.py (the real logs from DATASETS, defined below; missing ones are skipped).
-bench: $(STAMP)
+bench: kernels
 	SEGLOC_DATASETS=$(DATASETS) $(BIN)/python -m pytest benchmarks -q --benchmark-only -s --benchmark-columns=median,min,max,rounds --benchmark-sort=name --benchmark-warmup=on
 
 # Real public logs (not shipped): both protocols on intel, aces, fr079, mit-csail.
 DATASETS ?= ../shared/datasets
-bench-real: $(STAMP)
+bench-real: kernels
 	$(BIN)/python benchmarks/real_logs.py --datasets $(DATASETS) --out benchmarks/results-real.md
 
 # Every page of README.md and docs/ that reads the real logs, each top to bottom in a folder
 # beside them (linked as ../shared/datasets, the path the pages' commands read them from),
 # those blocks included; make test runs the others. tests/test_readme_commands.py says how
 # each block is checked.
-readme-real: $(STAMP)
+readme-real: kernels
 	@if [ ! -d "$(DATASETS)" ]; then \
 		echo "readme-real: skipped: no public logs at $(DATASETS) (give DATASETS=FOLDER holding intel/, mit-csail/)"; \
 	else \
@@ -78,18 +99,18 @@ readme-real: $(STAMP)
 	fi
 
 # segloc sweep on the real logs' held-out scans (3 search windows × 2 seeds), on 1 and 2 workers.
-bench-sweep: $(STAMP)
+bench-sweep: kernels
 	$(BIN)/python benchmarks/sweep_real.py --datasets $(DATASETS) --out benchmarks/results-sweep.md
 
 # Fit the verdict's confidence model on simulated rooms and the real logs' calibration splits
 # (scans the benchmarks do not score): segloc_cli/method/confidence_model.json and
 # benchmarks/results-calibration.md.
-calibrate: $(STAMP)
+calibrate: kernels
 	$(BIN)/python benchmarks/calibrate.py --datasets $(DATASETS)
 
 # Every method (two-stage, ICP, correlative) on the same seeded trials per initial-error bin,
 # on the hall and the real logs: benchmarks/results-peers.md and benchmarks/peers-trials.csv.
-bench-peers: $(STAMP)
+bench-peers: kernels
 	$(BIN)/python benchmarks/peers.py --datasets $(DATASETS)
 
 # The hall's figures into benchmarks/figures/hall/, and success against initial error
@@ -104,7 +125,7 @@ lint: $(STAMP)
 	$(BIN)/mypy
 
 # Regenerate the shipped hall dataset (see datasets/hall/README.md).
-hall: $(STAMP)
+hall: $(BASE)
 	bash $(HALL)/regenerate.sh
 
 clean:

@@ -21,9 +21,10 @@ Sections, one test each, every figure measured in the same run:
 
 ms/scan is the median of the estimates' ``runtime_ms`` (the time segloc spent on each scan);
 wall is the whole command: start-up, reading the map and the log, writing the estimates.
-Kernels are compiled into numba's cache first (``python -m segloc_cli.runs.warmup``), so no run
-but section 6's first pays for compiling. A global search shares its work among numba's
-threads (one per core); every other section's time is one process on one core.
+Kernels are compiled into numba's cache first (``python -m segloc_cli.runs.warmup --all``, the
+global search's too), so no run but section 6's first pays for compiling. A global search
+shares its work among numba's threads (one per core); every other section's time is one
+process on one core.
 pytest-benchmark's table gives each section's total wall time, its preparation (importing
 logs, building the held-out maps, simulating) left out. Nothing is asserted but that every
 command succeeded. Every command run goes to ``WORK/commands.md``.
@@ -129,7 +130,7 @@ def _compiled_kernels():
     every command run."""
     start = time.perf_counter()
     warmup = subprocess.run(
-        [sys.executable, "-m", "segloc_cli.runs.warmup"],
+        [sys.executable, "-m", "segloc_cli.runs.warmup", "--all"],
         capture_output=True,
         text=True,
         check=False,

@@ -1,5 +1,7 @@
-"""``jit``: a first run says once that it compiles, and has a second process compile the
-later stages ahead, waiting for its word before it needs them.
+"""``jit``: a run says once that it compiles, and about how long: all of a first run's
+kernels on an empty cache, or those an option adds once the rest are cached; a first run
+has a second process compile the later stages ahead, waiting for its word before it needs
+them, and hears which kernels it compiled.
 
 The kernels compiled here are tiny functions of this file, named into ``segloc_cli`` (the
 watch hears segloc's kernels only); the second process is a stand-in that answers as the
@@ -9,6 +11,7 @@ warm-up's ``--late-stages`` does, so nothing here compiles segloc's own kernels.
 from __future__ import annotations
 
 import sys
+import threading
 import time
 
 import pytest
@@ -29,11 +32,13 @@ def fresh_kernel(module: str = "segloc_cli.stand_in"):
 
 @pytest.fixture
 def first_run(monkeypatch):
-    """A process that has said nothing and started no second process yet."""
+    """A process that has said nothing, started no second process yet and loaded nothing
+    from the cache (an empty cache)."""
     monkeypatch.setattr(jit, "_announced", False)
     monkeypatch.setattr(jit, "_ahead_started", False)
     monkeypatch.setattr(jit, "_ahead", None)
     monkeypatch.setattr(jit, "_said_uncached", False)
+    monkeypatch.setattr(jit, "partly_cached", lambda: False)
     monkeypatch.delenv(jit.AHEAD_ENV, raising=False)
 
 
@@ -51,20 +56,83 @@ def test_the_first_kernel_compiled_is_said_once(first_run, capsys):
     assert capsys.readouterr().err == ""
 
 
+def test_once_some_kernels_are_cached_a_run_says_what_it_compiles_and_starts_no_other(
+    first_run, monkeypatch, capsys
+):
+    monkeypatch.setattr(jit, "partly_cached", lambda: True)
+    monkeypatch.setattr(jit, "AHEAD_COMMAND", [sys.executable, "-c", "print('ready')"])
+    with jit.watching_compiles(ahead=True, later=jit.GLOBAL_KERNELS):
+        fresh_kernel()(1)
+    assert not jit.started_ahead()
+    option, about_s = jit.GLOBAL_KERNELS
+    assert capsys.readouterr().err == (
+        f"segloc: compiling the kernels {option} uses, once, about {about_s} s; later runs "
+        "load them from numba's cache\n"
+    )
+    jit._announced = False
+    with jit.watching_compiles():
+        fresh_kernel()(2)
+    assert "numba's cache does not hold yet, once" in capsys.readouterr().err
+    # On an empty cache, the option's kernels add to the first run's.
+    jit._announced = False
+    monkeypatch.setattr(jit, "partly_cached", lambda: False)
+    with jit.watching_compiles(later=jit.SEEN_THROUGH_KERNELS):
+        fresh_kernel()(3)
+    total_s = jit.FIRST_COMPILE_S + jit.SEEN_THROUGH_KERNELS.about_s
+    assert f"compiling segloc's kernels once, about {total_s} s;" in capsys.readouterr().err
+
+
+def test_a_run_can_say_its_own_line_or_none(first_run, capsys):
+    heard = []
+
+    def notice(partly: bool) -> str:
+        heard.append(partly)
+        return "warm-up: compiling"
+
+    with jit.watching_compiles(notice=notice):
+        fresh_kernel()(1)
+    assert heard == [False] and capsys.readouterr().err == "segloc: warm-up: compiling\n"
+    jit._announced = False
+    with jit.watching_compiles(notice=lambda partly: ""):
+        fresh_kernel()(2)
+    assert capsys.readouterr().err == ""
+
+
+def test_compiles_are_counted_so_that_timings_can_leave_them_out(first_run):
+    before = jit.compiles_heard()
+    with jit.watching_compiles(notice=lambda partly: ""):
+        fresh_kernel()(1)
+        fresh_kernel("elsewhere")(1)  # not segloc's
+    assert jit.compiles_heard() == before + 1
+
+
 def test_the_run_waits_for_the_ready_line_not_for_the_end(first_run, monkeypatch):
-    # The stand-in says it is ready, then works on for a long while, as the warm-up does.
-    script = "import time; print('ready', flush=True); time.sleep(30)"
+    # The stand-in names what it compiled and says it is ready, then works on for a long
+    # while, as the warm-up does.
+    script = (
+        "import time; print('compiled segloc_cli.method.search._descend', flush=True); "
+        "print('ready', flush=True); time.sleep(30)"
+    )
     monkeypatch.setattr(jit, "AHEAD_COMMAND", [sys.executable, "-c", script])
     with jit.watching_compiles(ahead=True):
         fresh_kernel()(1)
-        started = jit._ahead
-        assert started is not None and jit.started_ahead()
+        assert jit._ahead is not None and jit.started_ahead()
+        started = jit._ahead.process
         t0 = time.monotonic()
         jit.await_compiled()
         waited_s = time.monotonic() - t0
     try:
-        assert jit._ahead is None and started.poll() is None  # still working, not awaited
+        assert started.poll() is None  # still working, not awaited
         assert waited_s < jit.AHEAD_WAIT_S
+        assert jit.compiled_ahead() == {"segloc_cli.method.search._descend"}
+        t0 = time.monotonic()
+        jit.await_compiled()  # waited for once: not again
+        # A forked worker (another process than the one listening) does not wait at all.
+        monkeypatch.setattr(jit._ahead, "awaited", False)
+        monkeypatch.setattr(jit._ahead, "ready", threading.Event())
+        monkeypatch.setattr(jit._ahead, "listener_pid", -1)
+        jit.await_compiled()
+        assert time.monotonic() - t0 < 1.0
     finally:
         started.kill()
         started.wait()
@@ -72,7 +140,26 @@ def test_the_run_waits_for_the_ready_line_not_for_the_end(first_run, monkeypatch
     with jit.watching_compiles(ahead=True):
         jit._announced = False
         fresh_kernel()(2)
-    assert jit._ahead is None
+    assert jit._ahead.process is started
+
+
+def test_a_run_can_wait_for_the_second_process_to_end(first_run, monkeypatch):
+    script = "import time; print('ready', flush=True); time.sleep(0.5)"
+    monkeypatch.setattr(jit, "AHEAD_COMMAND", [sys.executable, "-c", script])
+    jit.finish_ahead()  # none started: nothing to wait for
+    with jit.watching_compiles(ahead=True):
+        fresh_kernel()(1)
+    jit.finish_ahead()
+    assert jit._ahead is not None and jit._ahead.process.returncode == 0
+
+
+def test_the_warm_up_can_start_the_second_process_itself_with_its_arguments(first_run, monkeypatch):
+    script = "import sys; print('compiled segloc_cli.given' + sys.argv[-1], flush=True)"
+    monkeypatch.setattr(jit, "AHEAD_COMMAND", [sys.executable, "-c", script])
+    jit.start_ahead("--all")
+    jit.start_ahead("--other")  # one a process: started already
+    jit.finish_ahead()
+    assert jit.compiled_ahead() == {"segloc_cli.given--all"}
 
 
 def test_no_second_process_where_nothing_can_be_cached_or_in_the_second_process(

@@ -1,14 +1,19 @@
-"""The warm-up ``make setup`` runs compiles every kernel, with the types a real run uses.
+"""The warm-up ``make setup`` runs compiles the kernels of ``make demo`` and of a first default
+``localize``, with the types a real run uses; ``--all`` (``make test``) compiles every other.
 
 One subprocess runs ``python -m segloc_cli.runs.warmup`` into an empty numba cache (a
-temporary folder, so the normal cache is left alone); every ``@njit`` function of
-segloc_cli must then have its index file there. Localizing the hall on that
-cache (guided, tracked, with a peer) must add no compiled code: had the warm-up
-called a kernel with other argument types (another dtype, layout or integer
-width), the first real run would compile it again.
+temporary folder, so the normal cache is left alone). It says when it starts compiling how
+many kernels it compiles, and ends with one line on stdout; the cache then holds that many
+kernels. The demo's commands (``map build`` with a survey, a default ``localize``) on that
+cache, and ``--track``, ``--no-refine`` and a peer, which use no other kernel, must add no
+compiled code: had the warm-up called a kernel with other argument types (another dtype,
+layout or integer width), or left one out, the first real run would compile it.
 
-A new kernel that fails the first test sits on a path the warm-up does not
-run: run that path in ``segloc_cli.runs.warmup``.
+A first ``--global`` or ``--seen-through drop`` after it compiles the kernels of its own,
+says so in one line and finishes. ``--all`` then compiles whatever is left: every ``@njit``
+function of segloc_cli must have its index file in the cache. A new kernel that fails that
+test sits on a path the warm-up does not run: run that path in ``segloc_cli.runs.warmup``
+(in ``warm_up`` itself when a default localize or the demo reaches it).
 
 Before the warm-up, the same cache gets what a first run's second process compiles
 ahead (``--late-stages``): the hypothesis search's and refinement's kernels, and no
@@ -19,6 +24,7 @@ from __future__ import annotations
 
 import ast
 import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -26,8 +32,12 @@ from pathlib import Path
 import pytest
 from conftest import HALL, SEGLOC
 
+from segloc_cli.jit import GLOBAL_KERNELS, SEEN_THROUGH_KERNELS
+from segloc_cli.runs.warmup import FIRST_RUN_KERNELS
+
 PACKAGE = Path(__file__).resolve().parents[1] / "segloc_cli"
 TIMEOUT_S = 600
+WARM_UP = [sys.executable, "-m", "segloc_cli.runs.warmup"]
 
 
 def njit_functions() -> list[tuple[str, str]]:
@@ -51,28 +61,60 @@ def cached(cache_dir: Path, suffix: str) -> set[str]:
     return {path.name for path in cache_dir.rglob(f"*{suffix}")}
 
 
+def cached_kernels(cache_dir: Path) -> set[str]:
+    """``stem.function`` of every kernel with an index file under ``cache_dir``."""
+    return {name.rsplit("-", 1)[0] for name in cached(cache_dir, ".nbi")}
+
+
 def _run(args: list[str], env: dict[str, str]) -> subprocess.CompletedProcess:
     done = subprocess.run(args, env=env, capture_output=True, text=True, timeout=TIMEOUT_S)
     assert done.returncode == 0, done.stderr[-4000:]
     return done
 
 
+def _segloc(args: list[str], env: dict[str, str]) -> subprocess.CompletedProcess:
+    return _run([str(SEGLOC), *args], env)
+
+
+def _compiling_lines(err: str) -> list[str]:
+    return [line for line in err.splitlines() if line.startswith("segloc: compiling")]
+
+
 @pytest.fixture(scope="module")
-def warm_cache(tmp_path_factory) -> tuple[Path, dict[str, str], dict[str, float]]:
+def warm_cache(tmp_path_factory) -> tuple[Path, dict[str, str], dict[str, float], str]:
     """An empty numba cache after ``python -m segloc_cli.runs.warmup --late-stages`` then
-    ``python -m segloc_cli.runs.warmup``, the environment that points numba at it, and the
-    compiled files the first of them wrote with their modification times."""
+    ``python -m segloc_cli.runs.warmup``, the environment that points numba at it, the
+    compiled files the first of them wrote with their modification times, and what the
+    warm-up wrote on stderr."""
     cache_dir = tmp_path_factory.mktemp("numba")
     env = dict(os.environ, NUMBA_CACHE_DIR=str(cache_dir))
-    _run([sys.executable, "-m", "segloc_cli.runs.warmup", "--late-stages"], env)
+    _run([*WARM_UP, "--late-stages"], env)
     ahead = {path.name: path.stat().st_mtime for path in cache_dir.rglob("*.nbc")}
-    done = _run([sys.executable, "-m", "segloc_cli.runs.warmup"], env)
+    done = _run(WARM_UP, env)
     assert len(done.stdout.splitlines()) == 1, done.stdout
-    return cache_dir, env, ahead
+    assert done.stdout.startswith("segloc warm-up: map build and a default localize run")
+    return cache_dir, env, ahead, done.stderr
+
+
+@pytest.fixture(scope="module")
+def demo_map(warm_cache, tmp_path_factory) -> Path:
+    """The demo's map of the hall, built on the warm cache (which it must leave as it is)."""
+    cache_dir, env, _, _ = warm_cache
+    before = cached(cache_dir, ".nbc")
+    out = tmp_path_factory.mktemp("demo") / "map.json"
+    mapping = HALL / "mapping"
+    built = _segloc(
+        ["map", "build", str(mapping / "log.mcap"), "--survey", str(mapping / "survey.csv"),
+         "--out", str(out)],
+        env,
+    )  # fmt: skip
+    assert cached(cache_dir, ".nbc") == before
+    assert not _compiling_lines(built.stderr), built.stderr
+    return out
 
 
 def test_compiling_ahead_takes_the_search_and_refinement_not_extraction(warm_cache):
-    cache_dir, _, ahead = warm_cache
+    cache_dir, _, ahead, _ = warm_cache
     for kernel in ("search._descend-", "refine._fit-", "refine._gauss_newton-"):
         assert any(name.startswith(kernel) for name in ahead), f"{kernel} not compiled ahead"
     assert not any(name.startswith("extract.") for name in ahead), sorted(ahead)
@@ -85,29 +127,103 @@ def test_the_source_holds_kernels():
     assert len(njit_functions()) >= 10
 
 
-def test_every_kernel_is_compiled_by_the_warm_up(warm_cache):
-    cache_dir, _, _ = warm_cache
+def test_the_warm_up_compiles_the_first_runs_kernels_and_says_how_many(warm_cache):
+    cache_dir, _, _, err = warm_cache
+    kernels = cached_kernels(cache_dir)
+    assert len(kernels) == FIRST_RUN_KERNELS, (
+        f"the warm-up cached {len(kernels)} kernels; update runs.warmup.FIRST_RUN_KERNELS "
+        "(and the README's count) if a default localize or map build now uses another number"
+    )
+    # Every stage of a default localize, and map build's extraction.
+    for kernel in ("extract._extract", "align._votes", "overlap._search_kernel",
+                   "search._descend", "refine._fit", "freespace._crossed"):  # fmt: skip
+        assert kernel in kernels
+    # Not those of the options left to their first use.
+    assert not {"search._bound_headings_parallel", "freespace._seen_through"} & kernels
+    lines = err.splitlines()
+    assert all(line.startswith("segloc: ") for line in lines), err
+    assert lines[0].startswith(f"segloc: warm-up: compiling the {FIRST_RUN_KERNELS} kernels")
+
+
+@pytest.mark.parametrize(
+    "options", [[], ["--track"], ["--no-refine"], ["--method", "icp"]], ids=" ".join
+)
+def test_the_demo_and_a_first_localize_after_the_warm_up_compile_nothing(
+    warm_cache, demo_map, tmp_path, options
+):
+    cache_dir, env, _, _ = warm_cache
+    before = cached(cache_dir, ".nbc")
+    argv = ["localize", str(HALL / "log.mcap"), "--map", str(demo_map), *options]
+    done = _segloc([*argv, "--out", str(tmp_path / "estimates.csv")], env)
+    assert cached(cache_dir, ".nbc") == before
+    assert not _compiling_lines(done.stderr), done.stderr
+
+
+@pytest.fixture(scope="module")
+def later_cache(warm_cache, demo_map, tmp_path_factory) -> tuple[Path, dict[str, str], str]:
+    """A copy of the warm cache after a first ``localize --global`` (one scan) and a first
+    ``map build --seen-through drop``, each with what it wrote on stderr."""
+    cache_dir, _, _, _ = warm_cache
+    copy = tmp_path_factory.mktemp("later") / "numba"
+    shutil.copytree(cache_dir, copy)
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(copy))
+    out = copy.parent
+    searched = _segloc(
+        ["localize", str(HALL / "log.mcap"), "--map", str(demo_map), "--global", "--scans", "1",
+         "--out", str(out / "global.csv")],
+        env,
+    )  # fmt: skip
+    mapping = HALL / "mapping"
+    carved = _segloc(
+        ["map", "build", str(mapping / "log.mcap"), "--survey", str(mapping / "survey.csv"),
+         "--seen-through", "drop", "--out", str(out / "carved.json")],
+        env,
+    )  # fmt: skip
+    return copy, env, searched.stderr + carved.stderr
+
+
+def test_a_first_global_or_seen_through_says_it_compiles_its_kernels_once(later_cache):
+    _, _, err = later_cache
+    said = _compiling_lines(err)
+    assert said == [
+        f"segloc: compiling the kernels {later.option} uses, once, about {later.about_s} s; "
+        "later runs load them from numba's cache"
+        for later in (GLOBAL_KERNELS, SEEN_THROUGH_KERNELS)
+    ], err
+
+
+def test_every_kernel_is_compiled_by_the_warm_up_of_every_path(later_cache):
+    cache_dir, env, _ = later_cache
+    done = _run([*WARM_UP, "--all"], env)
+    assert done.stdout.startswith("segloc warm-up: map build (and --seen-through drop)")
     indexed = cached(cache_dir, ".nbi")
     missing = [
         f"{stem}.{name}"
         for stem, name in njit_functions()
         if not any(index.startswith(f"{stem}.{name}-") for index in indexed)
     ]
-    assert not missing, f"not compiled by segloc_cli.runs.warmup: {missing}"
+    assert not missing, f"not compiled by segloc_cli.runs.warmup --all: {missing}"
 
 
-@pytest.mark.parametrize("options", [[], ["--track"], ["--method", "icp"]], ids=" ".join)
-def test_a_first_localize_after_the_warm_up_compiles_nothing(warm_cache, tmp_path, options):
-    cache_dir, env, _ = warm_cache
-    before = cached(cache_dir, ".nbc")
-    argv = [str(SEGLOC), "localize", str(HALL / "log.mcap"), "--map", str(HALL / "map.json")]
-    done = subprocess.run(
-        [*argv, *options, "--out", str(tmp_path / "estimates.csv")],
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=TIMEOUT_S,
+def test_the_warm_ups_lines_say_what_it_compiles_and_who_compiled_it(monkeypatch):
+    from segloc_cli.runs import warmup_lines
+
+    count = warmup_lines.CompileCount("map build", 7, 40)
+    assert (
+        count.notice(False)
+        == "warm-up: compiling the 7 kernels of map build, about 40 s on 2 cores"
     )
-    assert done.returncode == 0, done.stderr[-4000:]
-    assert cached(cache_dir, ".nbc") == before
-    assert "compiling segloc's kernels" not in done.stderr
+    assert count.notice(True).startswith("warm-up: compiling those of the 7 kernels of map build")
+    assert warmup_lines.CompileCount("map build", 7, 40, quiet=True).notice(False) == ""
+    monkeypatch.setattr(warmup_lines, "compiled_here", lambda: {"a", "b"})
+    monkeypatch.setattr(warmup_lines, "compiled_ahead", lambda: {"b", "c"})
+    assert warmup_lines.closing_line("it", 1.5, False) == (
+        "segloc warm-up: it run on a simulated room in 1.5 s; 3 numba kernels compiled, 2 by this "
+        "process and 1 by a second one"
+    )
+    monkeypatch.setattr(warmup_lines, "compiled_ahead", set)
+    assert warmup_lines.closing_line("it", 2.0, True).endswith(
+        "2 numba kernels compiled, the others were in numba's cache"
+    )
+    monkeypatch.setattr(warmup_lines, "compiled_here", set)
+    assert warmup_lines.closing_line("it", 2.0, True).endswith("; all were cached")

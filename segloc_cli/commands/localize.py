@@ -145,15 +145,15 @@ def localize(
     """
     from segloc_cli.io.files import check_outputs
     from segloc_cli.io.maps import read_map
-    from segloc_cli.jit import watching_compiles
+    from segloc_cli.jit import GLOBAL_KERNELS, watching_compiles
     from segloc_cli.progress import Progress
     from segloc_cli.runs import pipeline
-
-    click.get_current_context().with_resource(watching_compiles(ahead=True))
     from segloc_cli.runs.rowstream import RowOutputs, write_rows
 
     run = Invocation.current()
     config, mode = _config(run, global_search, track)
+    later = GLOBAL_KERNELS if mode == "global" and config.method == "two-stage" else None
+    click.get_current_context().with_resource(watching_compiles(ahead=True, later=later))
     guesses = _guess_source(initial, mode, len(log_paths))
     selection = scan_selection(run.options)
     written = RowOutputs.beside(out_path, tum_path, hypotheses, mcap_path)

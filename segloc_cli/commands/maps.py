@@ -77,13 +77,13 @@ def map_build(log_path, survey_path, out_path, mcap_path, force, **_):
     from segloc_cli.io.files import check_outputs
     from segloc_cli.io.maps import bounds_problem, write_map
     from segloc_cli.io.tables import read_pose_table, refuse_map
-    from segloc_cli.jit import watching_compiles
+    from segloc_cli.jit import SEEN_THROUGH_KERNELS, watching_compiles
     from segloc_cli.progress import Progress
     from segloc_cli.runs.pipeline import build_map
 
-    click.get_current_context().with_resource(watching_compiles())
-
     run = Invocation.current()
+    later = SEEN_THROUGH_KERNELS if run.config.fuse.seen_through == "drop" else None
+    click.get_current_context().with_resource(watching_compiles(later=later))
     outputs = {"--out": out_path, "--mcap": mcap_path}
     outputs["--out (run file)"] = run_file_path(out_path)
     check_outputs(outputs, [log_path, survey_path], force)

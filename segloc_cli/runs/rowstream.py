@@ -130,9 +130,10 @@ def write_rows(
 ) -> RunSummary:
     """Write the rows of ``runs`` (of one ``mode``) to ``outputs`` as they come (to the run
     view with ``view``, what it shows), showing ``progress``. A global search, whose scans
-    take long, calls ``expect(runtime_ms, planned)`` once its first row is written: the time
-    to expect per scan. The stop signals are noted in ``stops`` (which the runs' ``stop``
-    reads) and end the run between scans, every finished row kept."""
+    take long, calls ``expect(runtime_ms, planned)`` once its first row is written whose time
+    includes no compiling of kernels (``jit.compiles_heard``): the time to expect per scan.
+    The stop signals are noted in ``stops`` (which the runs' ``stop`` reads) and end the run
+    between scans, every finished row kept."""
     from segloc_cli.io.runview import RunViewWriter
 
     planned = sum(run.times_s.size for run in runs)
@@ -147,8 +148,8 @@ def write_rows(
         def shown() -> Progress:
             return progress(PROGRESS_LABELS[mode], planned, "scan").tally(tallied)
 
-        first_row = expect if mode == "global" else None
-        statuses, runtimes_ms = _written(rows, outputs, stops, shown, first_row, planned)
+        timed = expect if mode == "global" else None
+        statuses, runtimes_ms = _written(rows, outputs, stops, shown, timed, planned)
         elapsed_s = time.perf_counter() - t0
     skipped = sum(run.skipped for run in runs)
     stopped_by = stops[0] if stops else None
@@ -160,16 +161,18 @@ def _written(
     outputs: RowOutputs,
     stops: list[str],
     progress: Callable[[], Progress],
-    first_row: Callable[[float, int], None] | None,
+    timed: Callable[[float, int], None] | None,
     planned: int,
 ) -> tuple[tuple[str, ...], tuple[float, ...]]:
     """Write ``rows`` until they end or a stop is noted in ``stops``, showing the
-    ``progress()`` made once the files are open; (statuses, runtimes in ms) of those
+    ``progress()`` made once the files are open, and calling ``timed(runtime_ms, planned)``
+    at the first row whose time includes no compiling; (statuses, runtimes in ms) of those
     written."""
     from segloc_cli.stopping import stop_requests
 
     statuses: list[str] = []
     runtimes_ms: list[float] = []
+    compiles = _compiles_heard() if timed is not None else 0
     with ExitStack() as stack:
         stack.enter_context(stop_requests(stops))
         writers = _writers(stack, outputs)
@@ -181,13 +184,22 @@ def _written(
                     writer.write_row(row)
                 statuses.append(row["status"])
                 runtimes_ms.append(row["runtime_ms"])
-                if first_row is not None and len(runtimes_ms) == 1:
-                    first_row(row["runtime_ms"], planned)
+                if timed is not None:
+                    compiles, before = _compiles_heard(), compiles
+                    if compiles == before:  # a time with no compiling in it
+                        timed(row["runtime_ms"], planned)
+                        timed = None
                 if stops:
                     break
         except KeyboardInterrupt:  # Ctrl-C that arrived outside the stop handler
             stops.append("Ctrl-C")
     return tuple(statuses), tuple(runtimes_ms)
+
+
+def _compiles_heard() -> int:
+    from segloc_cli.jit import compiles_heard
+
+    return compiles_heard()
 
 
 def _writers(stack: ExitStack, outputs: RowOutputs) -> list[RowWriter]:

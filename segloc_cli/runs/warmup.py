@@ -2,21 +2,26 @@
 
 The kernels (``@njit(cache=True)``) are compiled on first use and kept in numba's
 on-disk cache beside their modules (``segloc_cli/__pycache__/*.nbi``, ``*.nbc``).
-Compiling them all takes 10–20 s, which a newcomer's first
-``segloc localize`` would otherwise spend. ``make setup`` runs this module as its
-last step: it simulates a small room, builds its map and localizes a few of its
-scans in every mode of the command line, through the functions the commands
-call, so each kernel on those paths is compiled with the argument types a real
-run gives it, whatever its name or module.
+``make setup`` (and ``make demo``) runs this module once segloc is installed: it simulates
+a small room, builds its map and localizes its scans at the default settings, through the
+functions the commands call, so that each kernel of ``make demo`` and of a first default
+``segloc localize`` (extraction, stage 1, stage 2, the hypothesis search, refinement, the
+verdict) is compiled with the argument types a real run gives it, whatever its name or
+module: ``FIRST_RUN_KERNELS`` kernels in about ``FIRST_RUN_S`` s on two cores, a second
+process compiling the search's and refinement's (``jit.watching_compiles``). It says so
+when it starts compiling, shows how many kernels are compiled every few seconds, and ends
+with a line on what it did (``warmup_lines``). ``--no-refine``, ``--track`` and the peers
+(``--method icp|correlative``: their own libraries come compiled; their verdict is
+segloc's) use no other kernel.
 
-Run here: extraction, ``map build`` (fusion, and the free-space carving of
-``--seen-through drop``), and ``localize`` guided (stage 1,
-stage 2, the hypothesis search, refinement, the verdict), ``--no-refine``,
-``--global``, ``--track`` (its failed matches retried by the wider search), and
-``--method icp|correlative`` where their packages are installed (their own
-libraries come compiled; their verdict is segloc's). Not run, as they compile
-nothing of their own: ``evaluate`` and ``--jobs`` (its workers are forked from
-a parent that has compiled already).
+``--all`` runs every other path too: ``map build --seen-through drop`` (the free-space
+carving), ``localize --global`` (its parallel bounds, and the later batches a small room
+does not reach), ``--track``, the peers where their packages are installed, and a library
+call without a grid of the map. ``make kernels`` runs it before the tests and benchmarks,
+so that their processes load every kernel instead of each compiling its own. Without it,
+a first ``--global`` or ``--seen-through drop`` compiles its kernels and says so
+(``jit.LaterKernels``). Not run, as they compile nothing of their own: ``evaluate`` and
+``--jobs`` (its workers are forked from a parent that has compiled already).
 
 ``--times [N]`` compiles in one process and lists the N kernels (10 by default) that took
 longest; ``--late-stages`` is what a first run's second process does (``jit.py``).
@@ -29,6 +34,7 @@ module's kernels are compiled on their first use and cached from then on.
 
 from __future__ import annotations
 
+import argparse
 import sys
 import time
 from collections.abc import Iterator
@@ -43,8 +49,7 @@ from segloc_cli.errors import SeglocError
 from segloc_cli.estimates import PoseTable
 from segloc_cli.geometry import Pose2
 from segloc_cli.io.log import Log
-from segloc_cli.method.refine import nearest_segments
-from segloc_cli.method.search import HypothesisSearch
+from segloc_cli.jit import kernel_name, loaded_kernels
 from segloc_cli.runs import pipeline
 from segloc_cli.sim import (
     SensorModel,
@@ -66,16 +71,25 @@ SCAN_PERIOD_S = 1.0
 PLACEHOLDER_PATH = Path("warmup.mcap")
 """The name the in-memory log and survey go by (only messages about bad input would show it)."""
 
-LOCALIZE_RUNS: dict[str, tuple[str, dict[str, Any]]] = {
-    "guided": ("guided", {}),
-    "--no-refine": ("guided", {"no-refine": True}),
+FIRST_RUN = "map build and a default localize"
+"""What the warm-up runs unless asked for every path, in words."""
+FIRST_RUN_KERNELS = 107
+"""The kernels map build and a default localize use: what the warm-up compiles
+(tests/test_warmup.py checks the count)."""
+FIRST_RUN_S = 40
+"""About how long (s) the warm-up takes on an empty cache, on two cores (38–43 s)."""
+ALL_S = 50
+"""About how long (s) ``--all`` takes on an empty cache, on two cores (48 s; 18 s after the
+warm-up, 4 s when every kernel is cached)."""
+
+LATER_RUNS: dict[str, tuple[str, dict[str, Any]]] = {
     "--global": ("global", {}),
     "--track": ("track", {}),
     "--method icp": ("guided", {"method": "icp"}),
     "--method correlative": ("guided", {"method": "correlative"}),
 }
-"""The ``localize`` runs, by their options: (``pipeline.RUN_MODES`` entry, settings as
-``Config.from_values`` takes them)."""
+"""The ``localize`` runs of ``--all`` beyond the default one, by their options:
+(``pipeline.RUN_MODES`` entry, settings as ``Config.from_values`` takes them)."""
 
 
 def simulated_run(seed: int = SEED) -> tuple[Log, PoseTable]:
@@ -101,82 +115,103 @@ def simulated_run(seed: int = SEED) -> tuple[Log, PoseTable]:
     return log, survey
 
 
-def warm_up() -> list[str]:
-    """Build the simulated room's map (also with ``--seen-through drop``) and localize its
-    log in each of ``LOCALIZE_RUNS``, at default settings otherwise; returns the runs left
-    out (a peer not installed).
+def warm_up(every_path: bool = False) -> list[str]:
+    """Build the simulated room's map and localize its log with ``--no-refine``, then at the
+    default settings; with ``every_path``, also build it with ``--seen-through drop`` and
+    localize it in each of ``LATER_RUNS``. Returns the options of ``LATER_RUNS`` run, those
+    left out (a peer not installed) marked so.
 
     The map and estimates are thrown away: only the compiling counts.
     """
     log, survey = simulated_run()
     built = pipeline.build_map(log, PLACEHOLDER_PATH, survey, PLACEHOLDER_PATH, Config())
-    # What ``map build --seen-through drop`` adds: the scans' beams against the map.
+    # The two stages and the check of their answer by the points first, as ``--no-refine``
+    # runs them: on an empty cache, while a second process compiles the search's and
+    # refinement's kernels (``compile_late_stages``), which the default run then loads.
+    _localize(log, built.segments, "guided", Config.from_values({"no-refine": True}))
+    _localize(log, built.segments, "guided", Config())
+    if not every_path:
+        return []
+    ran = []
+    for option, (mode, settings) in LATER_RUNS.items():
+        try:
+            _localize(log, built.segments, mode, Config.from_values(settings))
+        except SeglocError:  # a peer's package is missing: the command would refuse it too
+            option += " (not installed)"
+        ran.append(option)
+    _library_paths(log, built.segments)
+    # Last: the second process of ``--all`` compiles it once done with its own kernels, while
+    # this one compiles those above.
+    _carve(log, survey)
+    return ran
+
+
+def _carve(log: Log, survey: PoseTable) -> None:
+    """What ``map build --seen-through drop`` adds: the scans' beams against the map."""
     carving = Config.from_values({"seen-through": "drop"})
     pipeline.build_map(log, PLACEHOLDER_PATH, survey, PLACEHOLDER_PATH, carving)
-    left_out = []
-    for option, (mode, settings) in LOCALIZE_RUNS.items():
-        config = Config.from_values(settings)
-        try:
-            localizer = pipeline.localizer_for(built.segments, config, mode)
-        except SeglocError:  # a peer's package is missing: the command would refuse it too
-            left_out.append(option)
-            continue
-        run = pipeline.localize_log(log, PLACEHOLDER_PATH, localizer, mode, None, config)
-        _drain(run.rows)
-    # What a library call without a grid of the map runs (the commands always pass one).
-    nearest_segments(log.scans[0].points(), built.segments)
-    # A global search's later batches, which a room this small does not reach: one top
-    # square a batch.
-    search = HypothesisSearch(built.segments)
+
+
+def _localize(log: Log, segments: np.ndarray, mode: str, config: Config) -> None:
+    """Localize every scan of ``log`` on the map ``segments`` (M, 4), as ``localize`` in
+    ``mode`` does with ``config``."""
+    localizer = pipeline.localizer_for(segments, config, mode)
+    run = pipeline.localize_log(log, PLACEHOLDER_PATH, localizer, mode, None, config)
+    _drain(run.rows)
+
+
+def _library_paths(log: Log, segments: np.ndarray) -> None:
+    """What no command of a small room reaches: a library call without a grid of the map
+    (the commands always pass one), and a global search's later batches, one top square a
+    batch."""
+    from segloc_cli.method.refine import nearest_segments
+    from segloc_cli.method.search import HypothesisSearch
+
+    nearest_segments(log.scans[0].points(), segments)
+    search = HypothesisSearch(segments)
     centre, half = search.extent()
     headings = np.deg2rad(np.arange(0.0, 360.0, 10.0))
     search.search(log.scans[0].points(), headings, centre, half, reach_m=30.0, first_batch=1)
-    return left_out
 
 
-def compile_late_stages(seed: int = SEED) -> None:
+def compile_late_stages(seed: int = SEED, every_path: bool = False) -> None:
     """Compile the kernels of the hypothesis search and of refinement first, then the rest
     of a guided localize, on a simulated room whose walls are its own map: what a first run
-    on an empty cache has a second process do (``jit.watch_compiles``) while it extracts
+    on an empty cache has a second process do (``jit.watching_compiles``) while it extracts
     segments and runs the two stages. No extraction is needed: the walls, placed in the
-    robot's frame, are the local map."""
+    robot's frame, are the local map. With ``every_path`` (the second process of ``--all``),
+    then the free-space carving of ``map build --seen-through drop``, while the first
+    compiles the global search. Each kernel compiled is named on standard output
+    (``jit.reporting_compiles``)."""
     from segloc_cli.geometry import transform_segments
-    from segloc_cli.jit import say_ahead_ready
+    from segloc_cli.jit import reporting_compiles, say_ahead_ready
     from segloc_cli.method.refine import refine_pose
 
-    rng = np.random.default_rng(seed)
-    world = random_world(rng, ROOM_M)
-    truth = Pose2(*random_free_poses(world, 1, rng)[0])
-    points = simulate_scan(world, truth, SENSOR, rng, 0.0).points()
-    config = Config()
-    localizer = pipeline.localizer_for(world.segments, config, "guided")
-    guess = Pose2(truth.x + 0.3, truth.y - 0.2, truth.theta + 0.1)
-    if localizer.prepared.search is not None:
-        peaks = np.array([guess.theta])
-        localizer.prepared.search.around(points, guess, 20.0, peaks, guess)
-    near = localizer.prepared.near_index
-    refine_pose(points, localizer.segments_world, guess, config.localize.refine, index=near)
-    say_ahead_ready()
-    # The rest, whatever this run has not compiled yet (stage 1, stage 2, the verdict).
-    local_map = transform_segments(world.segments, truth.inverse())
-    localizer.localize(local_map, guess, points)
+    with reporting_compiles():
+        rng = np.random.default_rng(seed)
+        world = random_world(rng, ROOM_M)
+        truth = Pose2(*random_free_poses(world, 1, rng)[0])
+        points = simulate_scan(world, truth, SENSOR, rng, 0.0).points()
+        config = Config()
+        localizer = pipeline.localizer_for(world.segments, config, "guided")
+        guess = Pose2(truth.x + 0.3, truth.y - 0.2, truth.theta + 0.1)
+        if localizer.prepared.search is not None:
+            peaks = np.array([guess.theta])
+            localizer.prepared.search.around(points, guess, 20.0, peaks, guess)
+        near = localizer.prepared.near_index
+        refine_pose(points, localizer.segments_world, guess, config.localize.refine, index=near)
+        say_ahead_ready()
+        # The rest, whatever this run has not compiled yet (stage 1, stage 2, the verdict).
+        local_map = transform_segments(world.segments, truth.inverse())
+        localizer.localize(local_map, guess, points)
+        if every_path:
+            _carve(*simulated_run(seed))
 
 
 def _drain(rows: Iterator) -> None:
     """Make every row of a lazily localized log."""
     for _ in rows:
         pass
-
-
-def loaded_kernels() -> list[Dispatcher]:
-    """Every numba kernel defined in the modules of segloc_cli imported so far."""
-    kernels = {}
-    for name, module in list(sys.modules.items()):
-        if name.startswith("segloc_cli.") and module is not None:
-            for value in vars(module).values():
-                if isinstance(value, Dispatcher) and value.py_func.__module__ == name:
-                    kernels[id(value)] = value
-    return list(kernels.values())
 
 
 def compile_times(kernels: list[Dispatcher]) -> list[tuple[float, str]]:
@@ -188,43 +223,68 @@ def compile_times(kernels: list[Dispatcher]) -> list[tuple[float, str]]:
             metadata = kernel.get_metadata(signature) or {}  # none when loaded from the cache
             timers = metadata.get("timers", {})
             if "compiler_lock" in timers:
-                name = f"{kernel.py_func.__module__}.{kernel.py_func.__qualname__}"
-                times.append((float(timers["compiler_lock"]), name))
+                times.append((float(timers["compiler_lock"]), kernel_name(kernel)))
     return sorted(times, reverse=True)
 
 
-def main(show_times: int = 0) -> None:
-    """Warm the cache up and say in one line what was done; with ``show_times``, list that
-    many kernels this process compiled, longest first."""
-    from segloc_cli.jit import started_ahead, watching_compiles
+def main(every_path: bool = False, show_times: int = 0) -> None:
+    """Warm the cache up, with ``every_path`` on every path of the command line: say when it
+    starts compiling (how many kernels, about how long), count the kernels compiled as it
+    goes, and end with one line on what was done (``warmup_lines``); with ``show_times``,
+    compile in this process alone, quietly, and list that many kernels it compiled, longest
+    first."""
+    from segloc_cli.jit import finish_ahead, start_ahead, watching_compiles
+    from segloc_cli.runs.warmup_lines import CompileCount, closing_line
 
     t0 = time.perf_counter()
+    if every_path:
+        count = CompileCount("every command and option", _every_kernel(), ALL_S, bool(show_times))
+    else:
+        count = CompileCount(FIRST_RUN, FIRST_RUN_KERNELS, FIRST_RUN_S, bool(show_times))
     # On two cores, as a first run; alone when the compile times are asked for, so that
-    # each kernel's time is its own and not shared with a second process.
-    with watching_compiles(ahead=not show_times, say=False):
-        left_out = warm_up()
-    ran = [option for option in LOCALIZE_RUNS if option not in left_out]
-    kernels = loaded_kernels()
-    compiled = sum(bool(kernel.stats.cache_misses) for kernel in kernels)
-    done = f"{len(kernels)} numba kernels in the cache, {compiled} compiled by this process"
-    if not compiled:
-        done = "all were cached"
-    elif started_ahead():
-        done += " and the search's and refinement's by a second one"
-    missing = f" (not installed: {', '.join(left_out)})" if left_out else ""
-    print(
-        f"segloc warm-up: map build and localize ({', '.join(ran)}) run on a simulated room "
-        f"in {time.perf_counter() - t0:.1f} s{missing}; {done}"
-    )
+    # each kernel's time is its own and not shared with a second process. Every path has
+    # kernels of its own for the second process even where a first run's are cached.
+    if every_path and not show_times:
+        start_ahead("--all")
+    with watching_compiles(ahead=not show_times, notice=count.notice), count:
+        ran = warm_up(every_path)
+        finish_ahead()
+    runs = FIRST_RUN
+    if every_path:
+        options = ", ".join(["guided", "--no-refine", *ran])
+        runs = f"map build (and --seen-through drop) and localize ({options})"
+    print(closing_line(runs, time.perf_counter() - t0, count.partly))
     if show_times:
+        kernels = [kernel for kernel in loaded_kernels() if kernel.overloads]
         for seconds, name in compile_times(kernels)[:show_times]:
             print(f"  {seconds:5.1f} s  {name}")
 
 
+def _every_kernel() -> int:
+    """How many kernels segloc defines: those of every module of ``segloc_cli.method``."""
+    import importlib
+    import pkgutil
+
+    import segloc_cli.method
+
+    for module in pkgutil.iter_modules(segloc_cli.method.__path__):
+        importlib.import_module(f"segloc_cli.method.{module.name}")
+    return len(loaded_kernels())
+
+
+def _arguments(argv: list[str]) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(
+        prog=f"python -m {__name__}", description=__doc__.splitlines()[0]
+    )
+    parser.add_argument("--all", action="store_true", help="every path, not the first run's")
+    parser.add_argument("--times", nargs="?", type=int, const=10, default=0, metavar="N")
+    parser.add_argument("--late-stages", action="store_true", help=argparse.SUPPRESS)
+    return parser.parse_args(argv)
+
+
 if __name__ == "__main__":
-    if sys.argv[1:] == ["--late-stages"]:
-        compile_late_stages()
-    elif sys.argv[1:2] == ["--times"]:
-        main(show_times=int(sys.argv[2]) if len(sys.argv) > 2 else 10)
+    arguments = _arguments(sys.argv[1:])
+    if arguments.late_stages:
+        compile_late_stages(every_path=arguments.all)
     else:
-        main()
+        main(every_path=arguments.all, show_times=arguments.times)
