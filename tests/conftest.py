@@ -8,8 +8,11 @@ answers in another protocol, one with a clock about to wrap).
 
 from __future__ import annotations
 
+import fcntl
 import multiprocessing
+import os
 import select
+import shutil
 import subprocess
 import sys
 from collections.abc import Callable, Iterator
@@ -32,6 +35,27 @@ START_TIMEOUT_S = 20.0
 def _no_step_summary(monkeypatch: pytest.MonkeyPatch) -> None:
     """Runs of the suite inside a GitHub job keep its step summary out of the tests."""
     monkeypatch.delenv("GITHUB_STEP_SUMMARY", raising=False)
+
+
+def made_once(
+    tmp_path_factory: pytest.TempPathFactory, name: str, make: Callable[[Path], None]
+) -> Path:
+    """A folder of this test session named ``name``, filled by ``make`` once: the pytest-xdist
+    worker that asks first makes it while the others wait, then all share it (a module's
+    fixture is otherwise made on every worker that runs one of its tests). ``make`` gets the
+    empty folder; a ``make`` that fails leaves the next asker to try again."""
+    base = tmp_path_factory.getbasetemp()
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        base = base.parent  # the session's folder, above each worker's own
+    folder, made = base / name, base / f"{name}.made"
+    with open(base / f"{name}.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if not made.exists():
+            shutil.rmtree(folder, ignore_errors=True)
+            folder.mkdir()
+            make(folder)
+            made.touch()
+    return folder
 
 
 class SilentDevice(EmulatedDevice):

@@ -330,8 +330,10 @@ def stand_in_for_setup(repo: Path) -> None:
     if (prefix / "pyvenv.cfg").is_file():
         shutil.copy2(prefix / "pyvenv.cfg", venv / "pyvenv.cfg")
         (venv / "lib").symlink_to(prefix / "lib")
-    stamp = venv / ".installed"
-    stamp.touch()
+    # Setup's two stamps: segloc installed with a first run's kernels, then the extras.
+    for step, stamp in enumerate((venv / ".installed-base", venv / ".installed")):
+        stamp.touch()
+        os.utime(stamp, (stamp.stat().st_mtime + step, stamp.stat().st_mtime + step))
     before = stamp.stat().st_mtime - 60
     os.utime(repo / "pyproject.toml", (before, before))
     up_to_date = subprocess.run(["make", "-q", ".venv/.installed"], cwd=repo, check=False)

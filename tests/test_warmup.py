@@ -23,6 +23,7 @@ extraction; the warm-up after it must load those, not compile them again.
 from __future__ import annotations
 
 import ast
+import json
 import os
 import shutil
 import subprocess
@@ -30,7 +31,7 @@ import sys
 from pathlib import Path
 
 import pytest
-from conftest import HALL, SEGLOC
+from conftest import HALL, SEGLOC, made_once
 
 from segloc_cli.jit import GLOBAL_KERNELS, SEEN_THROUGH_KERNELS
 from segloc_cli.runs.warmup import FIRST_RUN_KERNELS
@@ -85,32 +86,44 @@ def warm_cache(tmp_path_factory) -> tuple[Path, dict[str, str], dict[str, float]
     """An empty numba cache after ``python -m segloc_cli.runs.warmup --late-stages`` then
     ``python -m segloc_cli.runs.warmup``, the environment that points numba at it, the
     compiled files the first of them wrote with their modification times, and what the
-    warm-up wrote on stderr."""
-    cache_dir = tmp_path_factory.mktemp("numba")
-    env = dict(os.environ, NUMBA_CACHE_DIR=str(cache_dir))
-    _run([*WARM_UP, "--late-stages"], env)
-    ahead = {path.name: path.stat().st_mtime for path in cache_dir.rglob("*.nbc")}
-    done = _run(WARM_UP, env)
-    assert len(done.stdout.splitlines()) == 1, done.stdout
-    assert done.stdout.startswith("segloc warm-up: map build and a default localize run")
-    return cache_dir, env, ahead, done.stderr
+    warm-up wrote on stderr. Made once for the session (a minute of CPU), whichever worker
+    asks first."""
+
+    def make(folder: Path) -> None:
+        env = dict(os.environ, NUMBA_CACHE_DIR=str(folder / "numba"))
+        _run([*WARM_UP, "--late-stages"], env)
+        ahead = {path.name: path.stat().st_mtime for path in folder.rglob("*.nbc")}
+        done = _run(WARM_UP, env)
+        (folder / "ahead.json").write_text(json.dumps(ahead), encoding="utf-8")
+        (folder / "stdout.txt").write_text(done.stdout, encoding="utf-8")
+        (folder / "stderr.txt").write_text(done.stderr, encoding="utf-8")
+
+    folder = made_once(tmp_path_factory, "warm-cache", make)
+    stdout = (folder / "stdout.txt").read_text(encoding="utf-8")
+    assert len(stdout.splitlines()) == 1, stdout
+    assert stdout.startswith("segloc warm-up: map build and a default localize run")
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(folder / "numba"))
+    ahead = json.loads((folder / "ahead.json").read_text(encoding="utf-8"))
+    return folder / "numba", env, ahead, (folder / "stderr.txt").read_text(encoding="utf-8")
 
 
 @pytest.fixture(scope="module")
 def demo_map(warm_cache, tmp_path_factory) -> Path:
     """The demo's map of the hall, built on the warm cache (which it must leave as it is)."""
     cache_dir, env, _, _ = warm_cache
-    before = cached(cache_dir, ".nbc")
-    out = tmp_path_factory.mktemp("demo") / "map.json"
-    mapping = HALL / "mapping"
-    built = _segloc(
-        ["map", "build", str(mapping / "log.mcap"), "--survey", str(mapping / "survey.csv"),
-         "--out", str(out)],
-        env,
-    )  # fmt: skip
-    assert cached(cache_dir, ".nbc") == before
-    assert not _compiling_lines(built.stderr), built.stderr
-    return out
+
+    def make(folder: Path) -> None:
+        before = cached(cache_dir, ".nbc")
+        mapping = HALL / "mapping"
+        built = _segloc(
+            ["map", "build", str(mapping / "log.mcap"), "--survey", str(mapping / "survey.csv"),
+             "--out", str(folder / "map.json")],
+            env,
+        )  # fmt: skip
+        assert cached(cache_dir, ".nbc") == before
+        assert not _compiling_lines(built.stderr), built.stderr
+
+    return made_once(tmp_path_factory, "demo-map", make) / "map.json"
 
 
 def test_compiling_ahead_takes_the_search_and_refinement_not_extraction(warm_cache):
@@ -164,22 +177,26 @@ def later_cache(warm_cache, demo_map, tmp_path_factory) -> tuple[Path, dict[str,
     """A copy of the warm cache after a first ``localize --global`` (one scan) and a first
     ``map build --seen-through drop``, each with what it wrote on stderr."""
     cache_dir, _, _, _ = warm_cache
-    copy = tmp_path_factory.mktemp("later") / "numba"
-    shutil.copytree(cache_dir, copy)
-    env = dict(os.environ, NUMBA_CACHE_DIR=str(copy))
-    out = copy.parent
-    searched = _segloc(
-        ["localize", str(HALL / "log.mcap"), "--map", str(demo_map), "--global", "--scans", "1",
-         "--out", str(out / "global.csv")],
-        env,
-    )  # fmt: skip
-    mapping = HALL / "mapping"
-    carved = _segloc(
-        ["map", "build", str(mapping / "log.mcap"), "--survey", str(mapping / "survey.csv"),
-         "--seen-through", "drop", "--out", str(out / "carved.json")],
-        env,
-    )  # fmt: skip
-    return copy, env, searched.stderr + carved.stderr
+
+    def make(folder: Path) -> None:
+        shutil.copytree(cache_dir, folder / "numba")
+        env = dict(os.environ, NUMBA_CACHE_DIR=str(folder / "numba"))
+        searched = _segloc(
+            ["localize", str(HALL / "log.mcap"), "--map", str(demo_map), "--global",
+             "--scans", "1", "--out", str(folder / "global.csv")],
+            env,
+        )  # fmt: skip
+        mapping = HALL / "mapping"
+        carved = _segloc(
+            ["map", "build", str(mapping / "log.mcap"), "--survey", str(mapping / "survey.csv"),
+             "--seen-through", "drop", "--out", str(folder / "carved.json")],
+            env,
+        )  # fmt: skip
+        (folder / "stderr.txt").write_text(searched.stderr + carved.stderr, encoding="utf-8")
+
+    folder = made_once(tmp_path_factory, "later-cache", make)
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(folder / "numba"))
+    return folder / "numba", env, (folder / "stderr.txt").read_text(encoding="utf-8")
 
 
 def test_a_first_global_or_seen_through_says_it_compiles_its_kernels_once(later_cache):
