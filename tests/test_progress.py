@@ -182,6 +182,10 @@ def test_ctrl_c_leaves_no_blank_line_before_interrupted(bar, tmp_path):
     pid, terminal = pty.fork()
     if pid == 0:  # the child: the command, on the terminal's other side
         try:
+            # As a shell starts it: the test's process may ignore Ctrl-C (an earlier test in
+            # the same pytest worker, a worker started so), and an ignored signal stays
+            # ignored across exec.
+            signal.signal(signal.SIGINT, signal.SIG_DFL)
             argv = [sys.executable, "-c", WAITING, "0" if bar else "60", str(started)]
             os.execv(sys.executable, argv)
         finally:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -186,31 +188,44 @@ def test_a_noise_free_window_in_open_space_changes_nothing_but_the_evidence():
     assert np.hypot(est.pose.x - truth.x, est.pose.y - truth.y) < 1e-6
 
 
-def test_localize_uses_windows_where_the_log_has_odometry_and_says_so(tmp_path, capsys):
-    from conftest import HALL
-    from test_cli import run_cli
-
+def corridor_run(
+    folder: Path, step_m: float, n_scans: int, guess: tuple[int, float, float]
+) -> tuple[Path, Path, Path]:
+    """A log of ``n_scans`` scans down the corridor from x = 3 m, ``step_m`` apart, one every
+    0.5 s, with exact odometry; the corridor's map; a guess file of one row (pose id, time s,
+    x m; y 1 m, heading 0). Their paths, in ``folder``."""
     from segloc_cli.estimates import PoseTable
     from segloc_cli.io.maps import write_map
     from segloc_cli.io.mcap_log import write_log
-    from segloc_cli.io.tables import read_estimates, write_pose_table
+    from segloc_cli.io.tables import write_pose_table
 
-    # A robot driving down the corridor, 0.25 m per scan, its odometry exact.
     rng = np.random.default_rng(5)
-    poses = [Pose2(3.0 + 0.25 * k, 1.0, 0.0) for k in range(17)]
+    poses = [Pose2(3.0 + step_m * k, 1.0, 0.0) for k in range(n_scans)]
     scans = [simulate_scan(CORRIDOR, p, SHORT_RANGE, rng, 0.5 * k) for k, p in enumerate(poses)]
-    log = tmp_path / "log.mcap"
+    log = folder / "log.mcap"
     write_log(
         log, scans, [(s.time_s, p) for s, p in zip(scans, poses, strict=True)],
         {"range_max_m": "3.0"},
     )  # fmt: skip
-    map_path = tmp_path / "map.json"
+    map_path = folder / "map.json"
     write_map(map_path, CORRIDOR.segments)
-    # Guesses for the scan at x = 5: 0.4 m off along the corridor.
-    guesses = tmp_path / "guesses.csv"
+    guesses = folder / "guesses.csv"
+    pose_id, time_s, x_m = guess
     write_pose_table(
-        guesses, PoseTable(np.array([9]), np.array([4.0]), np.array([[5.4, 1.0, 0.0]]))
+        guesses, PoseTable(np.array([pose_id]), np.array([time_s]), np.array([[x_m, 1.0, 0.0]]))
     )
+    return log, map_path, guesses
+
+
+def test_localize_uses_windows_where_the_log_has_odometry_and_says_so(tmp_path, capsys):
+    from conftest import HALL
+    from test_cli import run_cli
+
+    from segloc_cli.io.tables import read_estimates
+
+    # A robot driving down the corridor, 0.25 m per scan, its odometry exact; a guess for the
+    # scan at x = 5 (the ninth), 0.4 m off along the corridor.
+    log, map_path, guesses = corridor_run(tmp_path, 0.25, 17, (9, 4.0, 5.4))
     runs = {}
     for name, extra in (
         ("window", ()),
@@ -247,26 +262,8 @@ def test_localize_uses_windows_where_the_log_has_odometry_and_says_so(tmp_path, 
 def test_a_window_of_one_scan_is_counted_in_the_singular(tmp_path, capsys):
     from test_cli import run_cli
 
-    from segloc_cli.estimates import PoseTable
-    from segloc_cli.io.maps import write_map
-    from segloc_cli.io.mcap_log import write_log
-    from segloc_cli.io.tables import write_pose_table
-
     # Scans 2 m apart with exact odometry: none lies within 1 m of travel of another.
-    rng = np.random.default_rng(5)
-    poses = [Pose2(3.0 + 2.0 * k, 1.0, 0.0) for k in range(3)]
-    scans = [simulate_scan(CORRIDOR, p, SHORT_RANGE, rng, 0.5 * k) for k, p in enumerate(poses)]
-    log = tmp_path / "log.mcap"
-    write_log(
-        log, scans, [(s.time_s, p) for s, p in zip(scans, poses, strict=True)],
-        {"range_max_m": "3.0"},
-    )  # fmt: skip
-    map_path = tmp_path / "map.json"
-    write_map(map_path, CORRIDOR.segments)
-    guesses = tmp_path / "guesses.csv"
-    write_pose_table(
-        guesses, PoseTable(np.array([2]), np.array([0.5]), np.array([[5.1, 1.0, 0.0]]))
-    )
+    log, map_path, guesses = corridor_run(tmp_path, 2.0, 3, (2, 0.5, 5.1))
     result = run_cli(
         capsys, "localize", log, "--map", map_path, "--initial", guesses,
         "--out", tmp_path / "est.csv",

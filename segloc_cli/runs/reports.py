@@ -82,8 +82,8 @@ def _failing_md(scores: Scores, shown: int) -> str:
         text = pose_table_md(scores.table, rows=positions, extra={"why": why})
     more = len(failing) - shown
     if more > 0:
-        text += f"\n… and {counted(more, scores.item_kind)} more, every one in the JUnit file "
-        text += "and the full table.\n" if scores.table is not None else "file.\n"
+        where = f", each marked {FAIL_MARK} in Table 1" if scores.table is not None else ""
+        text += f"\n… and {counted(more, scores.item_kind)} more{where}.\n"
     return text
 
 
