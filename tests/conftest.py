@@ -3,7 +3,9 @@
 ``emulator`` runs ``segloc emulate`` (a protocol's device scanning a world);
 ``device_process`` serves any ``EmulatedDevice`` built in a forked child with
 the same loop, for devices a test scripts itself (a silent one, one that
-answers in another protocol, one with a clock about to wrap).
+answers in another protocol, one with a clock about to wrap). ``made_once`` makes a
+folder once a session for every worker; ``kernel_caches`` (a plugin of this suite) holds
+the numba caches compiled from empty that several tests share.
 """
 
 from __future__ import annotations
@@ -29,6 +31,8 @@ HALL_WORLD = HALL / "world.json"
 HALL_POSE = (11.0, 1.6, 90.0)
 """A pose inside the hall (the survey's first): x_m, y_m, theta_deg."""
 START_TIMEOUT_S = 20.0
+
+pytest_plugins = ["kernel_caches"]
 
 
 @pytest.fixture(autouse=True)

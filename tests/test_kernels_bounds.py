@@ -2,20 +2,24 @@
 
 A scan or a map no one tuned segloc for must end in a status, never in a read
 outside an array (which, unchecked, corrupts memory and kills the process with
-no message). One subprocess compiles every kernel with ``NUMBA_BOUNDSCHECK=1``
-(its cache in a temporary folder, so the checked code never reaches the normal
-cache) and runs the localizer's every path over a corpus of bad scans and maps,
-hand-made and drawn at random; an out-of-bounds index there raises instead of
-corrupting memory, and fails.
+no message). One subprocess runs the localizer's every path with
+``NUMBA_BOUNDSCHECK=1`` over a corpus of bad scans and maps, hand-made and drawn
+at random; an out-of-bounds index there raises instead of corrupting memory, and
+fails. It starts from a copy of the suite's cache of every kernel compiled with
+the checks on (``kernel_caches.every_kernel_cache``, in a temporary folder, so the
+checked code never reaches the normal cache), and compiles what the corpus's
+argument types add.
 """
 
 from __future__ import annotations
 
 import json
-import os
+import shutil
 import subprocess
 import sys
 import textwrap
+
+from kernel_caches import checked_env
 
 from segloc_cli.estimates import (
     STATUS_AMBIGUOUS,
@@ -198,8 +202,9 @@ CORPUS = textwrap.dedent(
 )
 
 
-def test_every_path_on_hostile_input_stays_inside_its_arrays(tmp_path):
-    env = dict(os.environ, NUMBA_BOUNDSCHECK="1", NUMBA_CACHE_DIR=str(tmp_path / "numba"))
+def test_every_path_on_hostile_input_stays_inside_its_arrays(every_kernel_cache, tmp_path):
+    shutil.copytree(every_kernel_cache[0], tmp_path / "numba")
+    env = checked_env(tmp_path / "numba")
     script = tmp_path / "corpus.py"
     script.write_text(CORPUS)
     done = subprocess.run(

@@ -2,7 +2,8 @@
 ``localize``, with the types a real run uses; ``--all`` (``make test``) compiles every other.
 
 One subprocess runs ``python -m segloc_cli.runs.warmup`` into an empty numba cache (a
-temporary folder, so the normal cache is left alone). It says when it starts compiling how
+temporary folder, so the normal cache is left alone; the caches are shared with other tests
+and compiled with bounds checks: ``kernel_caches.py``). It says when it starts compiling how
 many kernels it compiles, and ends with one line on stdout; the cache then holds that many
 kernels. The demo's commands (``map build`` with a survey, a default ``localize``) on that
 cache, and ``--track``, ``--no-refine`` and a peer, which use no other kernel, must add no
@@ -23,22 +24,16 @@ extraction; the warm-up after it must load those, not compile them again.
 from __future__ import annotations
 
 import ast
-import json
-import os
-import shutil
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
-from conftest import HALL, SEGLOC, made_once
+from conftest import HALL
+from kernel_caches import cached, compiling_lines, segloc
 
 from segloc_cli.jit import GLOBAL_KERNELS, SEEN_THROUGH_KERNELS
 from segloc_cli.runs.warmup import FIRST_RUN_KERNELS
 
 PACKAGE = Path(__file__).resolve().parents[1] / "segloc_cli"
-TIMEOUT_S = 600
-WARM_UP = [sys.executable, "-m", "segloc_cli.runs.warmup"]
 
 
 def njit_functions() -> list[tuple[str, str]]:
@@ -57,77 +52,13 @@ def _is_njit(decorator: ast.expr) -> bool:
     return name in ("njit", "jit")
 
 
-def cached(cache_dir: Path, suffix: str) -> set[str]:
-    """Names of numba's cache files under ``cache_dir`` ending in ``suffix``."""
-    return {path.name for path in cache_dir.rglob(f"*{suffix}")}
-
-
 def cached_kernels(cache_dir: Path) -> set[str]:
     """``stem.function`` of every kernel with an index file under ``cache_dir``."""
     return {name.rsplit("-", 1)[0] for name in cached(cache_dir, ".nbi")}
 
 
-def _run(args: list[str], env: dict[str, str]) -> subprocess.CompletedProcess:
-    done = subprocess.run(args, env=env, capture_output=True, text=True, timeout=TIMEOUT_S)
-    assert done.returncode == 0, done.stderr[-4000:]
-    return done
-
-
-def _segloc(args: list[str], env: dict[str, str]) -> subprocess.CompletedProcess:
-    return _run([str(SEGLOC), *args], env)
-
-
-def _compiling_lines(err: str) -> list[str]:
-    return [line for line in err.splitlines() if line.startswith("segloc: compiling")]
-
-
-@pytest.fixture(scope="module")
-def warm_cache(tmp_path_factory) -> tuple[Path, dict[str, str], dict[str, float], str]:
-    """An empty numba cache after ``python -m segloc_cli.runs.warmup --late-stages`` then
-    ``python -m segloc_cli.runs.warmup``, the environment that points numba at it, the
-    compiled files the first of them wrote with their modification times, and what the
-    warm-up wrote on stderr. Made once for the session (a minute of CPU), whichever worker
-    asks first."""
-
-    def make(folder: Path) -> None:
-        env = dict(os.environ, NUMBA_CACHE_DIR=str(folder / "numba"))
-        _run([*WARM_UP, "--late-stages"], env)
-        ahead = {path.name: path.stat().st_mtime for path in folder.rglob("*.nbc")}
-        done = _run(WARM_UP, env)
-        (folder / "ahead.json").write_text(json.dumps(ahead), encoding="utf-8")
-        (folder / "stdout.txt").write_text(done.stdout, encoding="utf-8")
-        (folder / "stderr.txt").write_text(done.stderr, encoding="utf-8")
-
-    folder = made_once(tmp_path_factory, "warm-cache", make)
-    stdout = (folder / "stdout.txt").read_text(encoding="utf-8")
-    assert len(stdout.splitlines()) == 1, stdout
-    assert stdout.startswith("segloc warm-up: map build and a default localize run")
-    env = dict(os.environ, NUMBA_CACHE_DIR=str(folder / "numba"))
-    ahead = json.loads((folder / "ahead.json").read_text(encoding="utf-8"))
-    return folder / "numba", env, ahead, (folder / "stderr.txt").read_text(encoding="utf-8")
-
-
-@pytest.fixture(scope="module")
-def demo_map(warm_cache, tmp_path_factory) -> Path:
-    """The demo's map of the hall, built on the warm cache (which it must leave as it is)."""
-    cache_dir, env, _, _ = warm_cache
-
-    def make(folder: Path) -> None:
-        before = cached(cache_dir, ".nbc")
-        mapping = HALL / "mapping"
-        built = _segloc(
-            ["map", "build", str(mapping / "log.mcap"), "--survey", str(mapping / "survey.csv"),
-             "--out", str(folder / "map.json")],
-            env,
-        )  # fmt: skip
-        assert cached(cache_dir, ".nbc") == before
-        assert not _compiling_lines(built.stderr), built.stderr
-
-    return made_once(tmp_path_factory, "demo-map", make) / "map.json"
-
-
 def test_compiling_ahead_takes_the_search_and_refinement_not_extraction(warm_cache):
-    cache_dir, _, ahead, _ = warm_cache
+    cache_dir, _, ahead, _, _ = warm_cache
     for kernel in ("search._descend-", "refine._fit-", "refine._gauss_newton-"):
         assert any(name.startswith(kernel) for name in ahead), f"{kernel} not compiled ahead"
     assert not any(name.startswith("extract.") for name in ahead), sorted(ahead)
@@ -141,7 +72,9 @@ def test_the_source_holds_kernels():
 
 
 def test_the_warm_up_compiles_the_first_runs_kernels_and_says_how_many(warm_cache):
-    cache_dir, _, _, err = warm_cache
+    cache_dir, _, _, out, err = warm_cache
+    assert len(out.splitlines()) == 1, out
+    assert out.startswith("segloc warm-up: map build and a default localize run")
     kernels = cached_kernels(cache_dir)
     assert len(kernels) == FIRST_RUN_KERNELS, (
         f"the warm-up cached {len(kernels)} kernels; update runs.warmup.FIRST_RUN_KERNELS "
@@ -164,44 +97,17 @@ def test_the_warm_up_compiles_the_first_runs_kernels_and_says_how_many(warm_cach
 def test_the_demo_and_a_first_localize_after_the_warm_up_compile_nothing(
     warm_cache, demo_map, tmp_path, options
 ):
-    cache_dir, env, _, _ = warm_cache
+    cache_dir, env, *_ = warm_cache
     before = cached(cache_dir, ".nbc")
     argv = ["localize", str(HALL / "log.mcap"), "--map", str(demo_map), *options]
-    done = _segloc([*argv, "--out", str(tmp_path / "estimates.csv")], env)
+    done = segloc([*argv, "--out", str(tmp_path / "estimates.csv")], env)
     assert cached(cache_dir, ".nbc") == before
-    assert not _compiling_lines(done.stderr), done.stderr
-
-
-@pytest.fixture(scope="module")
-def later_cache(warm_cache, demo_map, tmp_path_factory) -> tuple[Path, dict[str, str], str]:
-    """A copy of the warm cache after a first ``localize --global`` (one scan) and a first
-    ``map build --seen-through drop``, each with what it wrote on stderr."""
-    cache_dir, _, _, _ = warm_cache
-
-    def make(folder: Path) -> None:
-        shutil.copytree(cache_dir, folder / "numba")
-        env = dict(os.environ, NUMBA_CACHE_DIR=str(folder / "numba"))
-        searched = _segloc(
-            ["localize", str(HALL / "log.mcap"), "--map", str(demo_map), "--global",
-             "--scans", "1", "--out", str(folder / "global.csv")],
-            env,
-        )  # fmt: skip
-        mapping = HALL / "mapping"
-        carved = _segloc(
-            ["map", "build", str(mapping / "log.mcap"), "--survey", str(mapping / "survey.csv"),
-             "--seen-through", "drop", "--out", str(folder / "carved.json")],
-            env,
-        )  # fmt: skip
-        (folder / "stderr.txt").write_text(searched.stderr + carved.stderr, encoding="utf-8")
-
-    folder = made_once(tmp_path_factory, "later-cache", make)
-    env = dict(os.environ, NUMBA_CACHE_DIR=str(folder / "numba"))
-    return folder / "numba", env, (folder / "stderr.txt").read_text(encoding="utf-8")
+    assert not compiling_lines(done.stderr), done.stderr
 
 
 def test_a_first_global_or_seen_through_says_it_compiles_its_kernels_once(later_cache):
     _, _, err = later_cache
-    said = _compiling_lines(err)
+    said = compiling_lines(err)
     assert said == [
         f"segloc: compiling the kernels {later.option} uses, once, about {later.about_s} s; "
         "later runs load them from numba's cache"
@@ -209,10 +115,9 @@ def test_a_first_global_or_seen_through_says_it_compiles_its_kernels_once(later_
     ], err
 
 
-def test_every_kernel_is_compiled_by_the_warm_up_of_every_path(later_cache):
-    cache_dir, env, _ = later_cache
-    done = _run([*WARM_UP, "--all"], env)
-    assert done.stdout.startswith("segloc warm-up: map build (and --seen-through drop)")
+def test_every_kernel_is_compiled_by_the_warm_up_of_every_path(every_kernel_cache):
+    cache_dir, out = every_kernel_cache
+    assert out.startswith("segloc warm-up: map build (and --seen-through drop)")
     indexed = cached(cache_dir, ".nbi")
     missing = [
         f"{stem}.{name}"
