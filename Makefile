@@ -12,16 +12,21 @@ CI_OUT := out/ci
 
 # Setup installs segloc (editable), compiles the kernels a first run uses, then adds the extras
 # of the tests, lint and benchmarks (dev), of --method icp|correlative (peers) and of segloc
-# sweep (sweep); make demo needs the first two steps only ($(BASE)). pip installs quietly, and
-# leaves each module's bytecode to be written when it is first imported (--no-compile:
-# compiling all of them took over half of its time, for modules most runs never import);
-# setuptools' notice that the install is an editable one (which pip passes on as a warning)
-# is filtered out, its other warnings are not. The warm-up compiles the kernels of make demo
+# sweep (sweep); make demo needs the first two steps only ($(BASE)). pip installs quietly
+# without compiling the modules' bytecode (--no-compile), which compileall then does on every
+# core, segloc_cli's own included (COMPILE_BYTECODE: pip compiles one module at a time, over
+# half of its install time).
+# The bytecode is not left to be written on first import: where PYTHONDONTWRITEBYTECODE is
+# set, as in many container images, nothing would write it, and every process would compile
+# each module it imports from source again (about 3 s of a segloc localize's 4.5 s). setuptools'
+# notice that the install is an editable one (which pip passes on as a warning) is filtered
+# out, its other warnings are not. The warm-up compiles the kernels of make demo
 # and of a first default localize into numba's cache, saying how many and showing its
 # progress, so that no first run waits for them; the other options' kernels (--global,
 # --seen-through drop) compile on their first use, which says so. A failure there only costs
 # that wait; tests/test_warmup.py catches it.
 PIP_INSTALL := PYTHONWARNINGS='ignore:Editable installation:UserWarning' $(BIN)/python -m pip install --quiet --no-compile
+COMPILE_BYTECODE := $(BIN)/python -m compileall -q -j 0 $(VENV)/lib segloc_cli
 setup: $(STAMP)
 
 $(BASE): pyproject.toml
@@ -29,11 +34,13 @@ $(BASE): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	$(PIP_INSTALL) -e .
+	$(COMPILE_BYTECODE)
 	$(BIN)/python -m segloc_cli.runs.warmup || echo "warning: warm-up failed" >&2
 	@touch $(BASE)
 
 $(STAMP): $(BASE)
 	$(PIP_INSTALL) -e '.[dev,peers,sweep]'
+	$(COMPILE_BYTECODE)
 	@touch $(STAMP)
 
 # Build the hall's map from its mapping run, localize the 10 test scans (none of them in the
