@@ -76,8 +76,8 @@ FIRST_RUN = "map build and a default localize"
 FIRST_RUN_KERNELS = 107
 """The kernels map build and a default localize use: what the warm-up compiles
 (tests/test_warmup.py checks the count)."""
-FIRST_RUN_S = 40
-"""About how long (s) the warm-up takes on an empty cache, on two cores (38–43 s)."""
+FIRST_RUN_S = 33
+"""About how long (s) the warm-up takes on an empty cache, on two cores (31–35 s)."""
 ALL_S = 50
 """About how long (s) ``--all`` takes on an empty cache, on two cores (48 s; 18 s after the
 warm-up, 4 s when every kernel is cached)."""
