@@ -930,8 +930,11 @@ def test_under_a_process_limit_runs_with_what_starts_or_says_why_not(
         pytest.skip("one core: --jobs 2 asks for no more than it gives")
     spec_dir = open_dir
     if command == "localize":
+        # Copies: the unprivileged user may not reach the repository's own (a clone in a
+        # folder only its owner may enter), and segloc checks that it may read its inputs.
+        log, segment_map = (Path(shutil.copy(f, spec_dir)) for f in (HALL_LOG, HALL_MAP))
         out = spec_dir / "est.csv"
-        argv = ["localize", HALL_LOG, "--map", HALL_MAP, "--out", out, "--jobs", "400"]
+        argv = ["localize", log, "--map", segment_map, "--out", out, "--jobs", "400"]
     else:
         out = spec_dir / "results.parquet"
         text = SPEC.replace("seeds = [1, 2]", "seeds = [1, 2, 3]")
