@@ -26,7 +26,8 @@ CI_OUT := out/ci
 # --seen-through drop) compile on their first use, which says so. A failure there only costs
 # that wait; tests/test_warmup.py catches it.
 PIP_INSTALL := PYTHONWARNINGS='ignore:Editable installation:UserWarning' $(BIN)/python -m pip install --quiet --no-compile
-COMPILE_BYTECODE := $(BIN)/python -m compileall -q -j 0 $(VENV)/lib segloc_cli
+COMPILE_BYTECODE := $(BIN)/python -m compileall -q -j 0 $(VENV)/lib segloc_cli >/dev/null || \
+	echo "warning: some modules' bytecode was not compiled ahead; Python compiles them when it imports them" >&2
 setup: $(STAMP)
 
 $(BASE): pyproject.toml
