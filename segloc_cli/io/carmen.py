@@ -104,6 +104,7 @@ from segloc_cli.io.range_limits import (
     no_return_value,
     overruled,
     overruled_text,
+    stated_limit,
 )
 from segloc_cli.io.times import MAX_TIME_S, importer_times
 from segloc_cli.progress import Progress, ProgressFactory, silent
@@ -653,19 +654,12 @@ def _own_range_max(
     ``maximum_range`` is ``stated_m``: that value, unless returns lie beyond it (a warning,
     and the rule that gave the limit used instead; else the rule is "")."""
     readings = np.concatenate([records[i].ranges_m for i in indices])
-    check = overruled(readings, stated_m)
-    if check is None:
+    group = counted(len(indices), "ROBOTLASER1 record")
+    limit = stated_limit(readings, stated_m, "maximum_range", group)
+    if limit is None:
         return stated_m, ""
-    limit = check.no_return
-    stated = f"the maximum_range of {counted(len(indices), 'ROBOTLASER1 record')}"
-    dropped = dropped_returns(readings, stated_m, limit.value_m)
-    warnings.append(
-        f"{path}: {overruled_text(stated, stated_m, dropped, readings.size, limit.limit_text())}"
-    )
-    return limit.value_m, (
-        f"for {counted(len(indices), 'ROBOTLASER1 record')} whose maximum_range "
-        f"({fmt_m(stated_m)} m) returns lie beyond, {limit.rule}"
-    )
+    warnings.append(f"{path}: {limit.warning}")
+    return limit.value_m, limit.rule
 
 
 def _fallback_range_max(

@@ -146,6 +146,36 @@ def dropped_returns(readings_m: np.ndarray, stated_m: float, limit_m: float) -> 
     return int(dropped.size), float(dropped.max()) if dropped.size else math.nan
 
 
+@dataclass(frozen=True)
+class GroupLimit:
+    """The range limit used for a group of scans or records that state one of their own
+    (``stated_limit``) which returns lie beyond: ``value_m`` metres, the ``warning`` saying
+    so and the ``rule`` that gave it (for the sensor setting ``range_max_from``)."""
+
+    value_m: float
+    warning: str
+    rule: str
+
+
+def stated_limit(
+    readings_m: np.ndarray, stated_m: float, field: str, group: str
+) -> GroupLimit | None:
+    """The limit of a ``group`` ("3 scans") whose ``field`` ("range_max") states
+    ``stated_m`` metres and whose readings are ``readings_m``: None when the readings agree
+    with it (``overruled``), else the no-return value found beyond it, with the warning and
+    the rule."""
+    check = overruled(readings_m, stated_m)
+    if check is None:
+        return None
+    limit = check.no_return
+    dropped = dropped_returns(readings_m, stated_m, limit.value_m)
+    warning = overruled_text(
+        f"the {field} of {group}", stated_m, dropped, np.size(readings_m), limit.limit_text()
+    )
+    rule = f"for {group} whose {field} ({fmt_m(stated_m)} m) returns lie beyond, {limit.rule}"
+    return GroupLimit(limit.value_m, warning, rule)
+
+
 def overruled_text(
     stated: str, stated_m: float, dropped: tuple[int, float], total: int, used: str
 ) -> str:

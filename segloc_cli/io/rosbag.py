@@ -77,7 +77,7 @@ from segloc_cli.io.log import (
     laser_offset_settings,
 )
 from segloc_cli.io.other_logs import give_the_bag_folder, inside_ros2_bag
-from segloc_cli.io.range_limits import dropped_returns, fmt_m, overruled, overruled_text
+from segloc_cli.io.range_limits import stated_limit
 from segloc_cli.io.ros1_salvage import salvage_ros1
 from segloc_cli.io.tf import (
     TF_STATIC_TOPIC,
@@ -782,22 +782,14 @@ def _range_maxes(
     n_overruled = 0
     for stated_m, indices in sorted(sharing.items()):
         readings = np.concatenate([raw_scans[i].ranges for i in indices])
-        check = overruled(readings, stated_m)
-        if check is None:
+        limit = stated_limit(readings, stated_m, "range_max", counted(len(indices), "scan"))
+        if limit is None:
             continue
-        limit = check.no_return
         for i in indices:
             limits[i] = limit.value_m
         n_overruled += len(indices)
-        scans = counted(len(indices), "scan")
-        dropped = dropped_returns(readings, stated_m, limit.value_m)
-        used = limit.limit_text()
-        notes.append(
-            overruled_text(f"the range_max of {scans}", stated_m, dropped, readings.size, used)
-        )
-        rules.append(
-            f"for {scans} whose range_max ({fmt_m(stated_m)} m) returns lie beyond, {limit.rule}"
-        )
+        notes.append(limit.warning)
+        rules.append(limit.rule)
     kept = ["LaserScan range_max"] if n_overruled < len(raw_scans) else []
     return limits, notes, "; ".join(kept + rules)
 
