@@ -16,6 +16,8 @@ from __future__ import annotations
 import zlib
 from pathlib import Path
 
+from segloc_cli.errors import InputError
+
 ROS1_BAG_MAGIC = b"#ROSBAG V"
 """How a ROS 1 bag begins (``#ROSBAG V2.0`` and a newline)."""
 ROS2_METADATA = "metadata.yaml"
@@ -50,13 +52,17 @@ def inside_ros2_bag(path: Path) -> Path | None:
     return folder if str(folder) != "." else path.resolve().parent
 
 
-def give_the_bag_folder(folder: Path) -> str:
-    """What a file inside the ROS 2 bag ``folder`` is, and what to give instead, for an
-    error's line."""
-    return (
-        f"a file inside a ROS 2 bag; give the bag folder {folder} (the folder holding "
-        f"{ROS2_METADATA})"
-    )
+def refuse_inside_ros2_bag(path: Path) -> None:
+    """Refuse a file inside a ROS 2 bag (``inside_ros2_bag``) where a bag is read: an
+    ``InputError`` naming the bag folder to give instead (a ``.db3`` read alone would lose
+    the bag's other files). Anything else passes."""
+    folder = inside_ros2_bag(path)
+    if folder is not None:
+        raise InputError(
+            f"a file inside a ROS 2 bag; give the bag folder {folder} (the folder holding "
+            f"{ROS2_METADATA})",
+            path=path,
+        )
 
 
 def is_carmen_log(path: Path, head: bytes) -> bool:

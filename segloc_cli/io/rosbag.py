@@ -76,7 +76,7 @@ from segloc_cli.io.log import (
     laser_offset_of,
     laser_offset_settings,
 )
-from segloc_cli.io.other_logs import give_the_bag_folder, inside_ros2_bag
+from segloc_cli.io.other_logs import refuse_inside_ros2_bag
 from segloc_cli.io.range_limits import stated_limit
 from segloc_cli.io.ros1_salvage import salvage_ros1
 from segloc_cli.io.tf import (
@@ -223,9 +223,7 @@ def open_bag(path: Path) -> AnyReader:
     or a ``.db3``) one that names the folder."""
     if not path.exists():
         raise InputError("file or folder not found; check the path", path=path)
-    folder = inside_ros2_bag(path)
-    if folder is not None:  # a .db3 read alone would lose the bag's other files
-        raise InputError(give_the_bag_folder(folder), path=path)
+    refuse_inside_ros2_bag(path)
     if not path.is_file() and not path.is_dir():
         raise InputError(
             f"is not a regular file (a pipe, socket or device); expected {EXPECTED_BAG}", path=path

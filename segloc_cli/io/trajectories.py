@@ -52,7 +52,7 @@ from segloc_cli.estimates import (
 )
 from segloc_cli.geometry import quaternion_to_heading
 from segloc_cli.io.files import reading
-from segloc_cli.io.other_logs import give_the_bag_folder, inside_ros2_bag
+from segloc_cli.io.other_logs import refuse_inside_ros2_bag
 from segloc_cli.limits import MAX_COORDINATE_M
 from segloc_cli.wording import counted, plural
 
@@ -129,9 +129,7 @@ def read_trajectory(
     a ROS 2 bag (its ``metadata.yaml``, a ``.db3``).
     """
     path = Path(path)
-    folder = inside_ros2_bag(path)
-    if folder is not None:  # a .db3 read alone would lose the bag's other files
-        raise InputError(give_the_bag_folder(folder), path=path)
+    refuse_inside_ros2_bag(path)
     fmt = guess_format(path) if fmt is None else fmt
     if fmt not in EST_FORMATS:
         raise InputError(
