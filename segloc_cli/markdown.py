@@ -31,10 +31,15 @@ def _rule(width: int, align: str) -> str:
     return ":" + "-" * (width - 1)
 
 
+def cell(text: str) -> str:
+    """``text`` as a pipe table's cell: each ``|`` escaped (``\\|``), which would end it."""
+    return text.replace("|", "\\|")
+
+
 def pipe_table(headers: Sequence[str], rows: Sequence[Sequence[str]], aligns: Sequence[str]) -> str:
     """The table of ``headers`` (C,) and ``rows`` (each of C text cells) with the column
     alignments ``aligns`` (C,; each of ``ALIGNMENTS``), without a final newline. A cell is
-    written as given: a ``|`` in it must come escaped (``\\|``)."""
+    written as given: a ``|`` in it must come escaped (``cell``)."""
     if not len(headers) == len(aligns) or any(len(row) != len(headers) for row in rows):
         raise ValueError("every row and the alignments need one entry per header")
     unknown = set(aligns) - set(ALIGNMENTS)

@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from segloc_cli.io.files import OutputError
+from segloc_cli.markdown import cell
 from segloc_cli.wording import counted
 
 if TYPE_CHECKING:
@@ -58,13 +59,9 @@ def _gates_md(scores: Scores) -> str:
     rows = ["| result | gate | measured |", "| --- | --- | --- |"]
     for outcome in scores.all_outcomes:
         result = "✔ pass" if outcome.passed else "✘ **FAIL**"
-        cells = (result, _cell(outcome.title), _cell(outcome.result))
+        cells = (result, cell(outcome.title), cell(outcome.result))
         rows.append("| " + " | ".join(cells) + " |")
     return "\n".join(rows) + "\n"
-
-
-def _cell(text: str) -> str:
-    return text.replace("|", "\\|")
 
 
 def _failing_md(scores: Scores, shown: int) -> str:
@@ -72,7 +69,7 @@ def _failing_md(scores: Scores, shown: int) -> str:
     failing = scores.failing_items
     if scores.table is None or scores.item_kind != "pose":
         rows = ["| relation | why |", "| --- | --- |"]
-        rows += [f"| {item.name} | {_cell(item.line)} |" for item in failing[:shown]]
+        rows += [f"| {item.name} | {cell(item.line)} |" for item in failing[:shown]]
         text = "\n".join(rows) + "\n"
     else:
         from segloc_cli.scoring.evaluate import pose_table_md

@@ -27,6 +27,7 @@ import pandas as pd
 from segloc_cli.errors import InputError
 from segloc_cli.estimates import ESTIMATED
 from segloc_cli.io.numbers import rounded_frame
+from segloc_cli.markdown import cell
 from segloc_cli.scoring.gates import (
     GATE_SLACK,
     GateOutcome,
@@ -192,7 +193,7 @@ class Comparison:
         rows = [
             [
                 # A bare "|" would end the cell.
-                f"{row.figure} ({row.unit})".replace("|", "\\|"),
+                cell(f"{row.figure} ({row.unit})"),
                 _num(row.baseline, row.unit),
                 _num(row.now, row.unit),
                 _num(row.change, row.unit, sign=True),

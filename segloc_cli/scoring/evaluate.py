@@ -33,7 +33,7 @@ from segloc_cli.estimates import (
 from segloc_cli.geometry import wrap_angle
 from segloc_cli.io.latex import latex_text, with_needs
 from segloc_cli.io.numbers import json_text, rounded_frame
-from segloc_cli.markdown import pipe_table
+from segloc_cli.markdown import cell, pipe_table
 from segloc_cli.method.confidence import RIGHT_PLACE_DEG, RIGHT_PLACE_M
 from segloc_cli.scoring.drift import travelled_m
 from segloc_cli.scoring.gates import (
@@ -457,7 +457,7 @@ def pose_table_md(
     for i, row in enumerate(cells):
         row += [str(column[i]) if i < len(part) else "" for column in extra.values()]
     # A bare "|" in a cell (a reason such as "|XY| 12.0 cm > 10.0 cm") would end it.
-    cells = [[cell.replace("|", "\\|") for cell in row] for row in cells]
+    cells = [[cell(text) for text in row] for row in cells]
     aligns = ("left", *("right" for _ in shown), "left", *("left" for _ in extra))
     body = pipe_table(headers, cells, aligns)
     if stats is None:
@@ -472,7 +472,7 @@ def _format_latex(table: pd.DataFrame, stats: pd.DataFrame) -> str:
     headers = ["Pose", *(tex for _, _, _, tex in shown), "Status"]
     rows = _display_rows(table, stats, _MISSING_LATEX, shown)
     for row in rows:
-        row[1:-1] = [f"${cell}$" if cell != _MISSING_LATEX else cell for cell in row[1:-1]]
+        row[1:-1] = [f"${text}$" if text != _MISSING_LATEX else text for text in row[1:-1]]
     frame = pd.DataFrame(rows, columns=headers)
     styler = frame.style.hide(axis="index").format(escape="latex", subset=["Status"])
     n_columns = len(shown) + 2

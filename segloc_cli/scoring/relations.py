@@ -38,6 +38,7 @@ from segloc_cli.estimates import ESTIMATE_COLUMNS, ESTIMATED, Relations
 from segloc_cli.geometry import relative_motion, wrap_angle
 from segloc_cli.io.latex import latex_text, with_needs
 from segloc_cli.io.numbers import json_text, number_text, unit_of
+from segloc_cli.markdown import cell
 from segloc_cli.scoring.evaluate import FORMATS
 from segloc_cli.timing import pair_by_time
 
@@ -341,8 +342,7 @@ def _format_md(summary: dict, published: dict | None, label: str, caveat: str | 
     for name, used, skipped, t_mean, t_std, r_mean, r_std in _display_rows(
         summary, published, label, _MISSING_MD
     ):
-        # A "|" in a file's name would end its cell.
-        cells = [name.replace("|", r"\|"), used, skipped, _pm(t_mean, t_std), _pm(r_mean, r_std)]
+        cells = [cell(name), used, skipped, _pm(t_mean, t_std), _pm(r_mean, r_std)]
         lines.append("| " + " | ".join(cells) + " |")
     note = (
         "Absolute errors per relation, mean ± standard deviation "
