@@ -433,10 +433,6 @@ def summary_lines(stats: pd.DataFrame) -> list[str]:
     return lines
 
 
-def _format_md(table: pd.DataFrame, stats: pd.DataFrame) -> str:
-    return pose_table_md(table, stats)
-
-
 def pose_table_md(
     table: pd.DataFrame,
     stats: pd.DataFrame | None = None,
@@ -572,7 +568,7 @@ def format_table(table: pd.DataFrame, summary: pd.DataFrame, fmt: str) -> str:
       written as null.
     """
     if fmt == "md":
-        return _format_md(table, summary)
+        return pose_table_md(table, summary)
     if fmt == "csv":
         return _format_csv(table, summary)
     if fmt == "latex":

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass, fields
 
 import numpy as np
 import pandas as pd
@@ -76,11 +76,7 @@ class GateOutcome:
     def holds(self) -> bool:
         """Whether ``measured`` keeps to ``limit`` (a gate may fail for another reason its
         ``detail`` gives, such as poses without an estimate)."""
-        if not math.isfinite(self.measured):
-            return False
-        if self.at_least:
-            return self.measured >= self.limit - GATE_SLACK
-        return self.measured <= self.limit + GATE_SLACK
+        return _keeps_to(self.measured, self.limit, self.at_least)
 
     @property
     def result(self) -> str:
@@ -100,6 +96,14 @@ class GateOutcome:
         return f"{self.name} {self.result}: {'pass' if self.passed else 'FAIL'}"
 
 
+def _keeps_to(measured: float, limit: float, at_least: bool) -> bool:
+    """Whether ``measured`` is finite and within ``GATE_SLACK`` of keeping to ``limit``, a
+    lower bound when ``at_least``, else an upper one."""
+    if not math.isfinite(measured):
+        return False
+    return measured >= limit - GATE_SLACK if at_least else measured <= limit + GATE_SLACK
+
+
 def _outcome(
     name: str,
     measured: float,
@@ -112,10 +116,18 @@ def _outcome(
     also: bool = True,
 ) -> GateOutcome:
     """The outcome of a gate that holds when ``measured`` keeps to ``limit`` and ``also``."""
-    outcome = GateOutcome(
-        name, float(measured), float(limit), unit, False, at_least, per_pose, coverage, detail
+    passed = _keeps_to(measured, limit, at_least) and also
+    return GateOutcome(
+        name,
+        float(measured),
+        float(limit),
+        unit,
+        bool(passed),
+        at_least,
+        per_pose,
+        coverage,
+        detail,
     )
-    return replace(outcome, passed=bool(outcome.holds and also))
 
 
 @dataclass(frozen=True)
@@ -229,12 +241,17 @@ def failing_mask(table: pd.DataFrame, gates: Gates) -> np.ndarray:
     return beyond_mask(table, gates) | missing | ~accepted
 
 
+def pairing_within(table: pd.DataFrame) -> str:
+    """How near in time a Table 1's poses were paired with estimates, in words: ``within 50
+    ms`` (the tolerance in the table's ``attrs``), or "" where it does not say."""
+    tolerance_s = table.attrs.get("tolerance_s")
+    return "" if tolerance_s is None else f"within {1e3 * float(tolerance_s):g} ms"
+
+
 def missing_reason(table: pd.DataFrame) -> str:
     """Why a surveyed pose of a Table 1 without an estimate fails: ``no estimate within 50
-    ms`` (the pairing's tolerance, from the table's ``attrs``)."""
-    tolerance_s = table.attrs.get("tolerance_s")
-    within = "" if tolerance_s is None else f" within {1e3 * float(tolerance_s):g} ms"
-    return f"no estimate{within}"
+    ms`` (``pairing_within``)."""
+    return f"no estimate {pairing_within(table)}".rstrip()
 
 
 def unpaired_mask(table: pd.DataFrame) -> np.ndarray:
@@ -337,7 +354,7 @@ def survey_outcomes(table: pd.DataFrame, scored: np.ndarray, gates: Gates) -> li
     n = len(table)
     if gates.min_paired_pct is not None:
         paired = n - int(np.count_nonzero(unpaired_mask(table)))
-        within = missing_reason(table).removeprefix("no estimate").strip()
+        within = pairing_within(table)
         outcomes.append(
             coverage_outcome(
                 paired, n, gates.min_paired_pct, "surveyed pose", within, "with an estimate"
