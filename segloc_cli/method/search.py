@@ -1007,7 +1007,8 @@ class HypothesisSearch:
         threads share the work, with the same answer.
         """
         p = self.params
-        points = np.asarray(points_robot, dtype=float).reshape(-1, 2)
+        # Contiguous: a strided view (points[::4]) would have numba compile the kernels anew.
+        points = np.ascontiguousarray(points_robot, dtype=float).reshape(-1, 2)
         headings = np.atleast_1d(np.asarray(headings_rad, dtype=float))
         if points.shape[0] == 0 or headings.size == 0 or self.segments_world.shape[0] == 0:
             return []
