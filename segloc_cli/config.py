@@ -278,6 +278,41 @@ class WindowParams:
 
 
 @dataclass(frozen=True)
+class SlamParams:
+    """Settings of the segment SLAM (metres, degrees)."""
+
+    keyframe_m: float = 0.25
+    """A scan becomes a keyframe once the odometry moved this far since the last one..."""
+    keyframe_deg: float = 10.0
+    """...or turned this much."""
+    local_map_m: float = 4.0
+    """The keyframes within this much travel before a scan make the map it is fitted to."""
+    min_inlier_ratio: float = 0.3
+    """A fit with fewer of the scan's points on the local map is not taken: the odometry
+    places the keyframe, with its own spread (``odom_sigma_*``)."""
+    point_sigma_m: float = 0.05
+    """Spread of a point about its wall in the fit's information (wider than the range
+    noise: the points of one scan do not err independently)."""
+    odom_sigma_m: float = 0.05
+    """Spread of an odometry edge per metre travelled (position, per axis)..."""
+    odom_sigma_deg: float = 2.0
+    """...and of its heading per metre travelled (plus one tenth of the turn)."""
+    submap_m: float = 8.0
+    """Travel covered by one submap."""
+    loop_min_travel_m: float = 15.0
+    """A keyframe is searched for only in submaps ended at least this much travel before it."""
+    loop_radius_m: float = 1.0
+    """Pose uncertainty just after a loop (position)..."""
+    loop_radius_per_m: float = 0.05
+    """...growing by this much per metre travelled since, up to ``loop_max_radius_m``."""
+    loop_max_radius_m: float = 6.0
+    loop_every: int = 3
+    """Every this-many-th keyframe is searched for in older submaps."""
+    loop_cauchy: float = 1.0
+    """Scale of the Cauchy loss on loop edges, in their standard deviations."""
+
+
+@dataclass(frozen=True)
 class Config:
     """Every setting of a run: the stages' parameters and the choices around them."""
 
@@ -288,6 +323,8 @@ class Config:
     track: TrackParams = field(default_factory=TrackParams)
     window: WindowParams = field(default_factory=WindowParams)
     """Neighbours placed by odometry into each scan's local map (guided and global runs)."""
+    slam: SlamParams = field(default_factory=SlamParams)
+    """``map build`` without a survey: keyframes, submaps and loops."""
     method: str = "two-stage"
     """One of ``METHODS``."""
     icp_variant: str = "gicp"

@@ -18,7 +18,7 @@ from segloc_cli.commands.options import (
     with_options,
 )
 from segloc_cli.commands.optionvalues import parse_planar_pose
-from segloc_cli.commands.printing import info, warn
+from segloc_cli.commands.printing import info, warn, write_pose_file
 from segloc_cli.errors import InputError
 from segloc_cli.estimates import PoseTable
 from segloc_cli.geometry import Pose2
@@ -99,21 +99,6 @@ CARMEN_OPTIONS = (
 )
 
 
-def _write_survey(
-    survey_out: Path, table: PoseTable, original_times_s: np.ndarray, what: str
-) -> None:
-    """Write ``table`` to ``survey_out``: a TUM trajectory for a name ending in .tum, else a
-    survey CSV with the poses' original times (s) in an ``original_time_s`` column; then
-    say how many poses (``what``: "reference pose") it holds."""
-    from segloc_cli.io.tables import write_pose_table, write_pose_table_tum
-
-    if survey_out.suffix.lower() == ".tum":
-        write_pose_table_tum(survey_out, table)  # TUM has no column for original times
-    else:
-        write_pose_table(survey_out, table, {"original_time_s": original_times_s})
-    info(f"{survey_out}: {counted(len(table), what)}")
-
-
 @import_group.command("carmen")
 @click.argument("log_path", metavar="FILE[.gz]", type=click.Path(path_type=Path))
 @with_options(*CARMEN_OPTIONS)
@@ -139,7 +124,7 @@ def import_carmen(log_path, out_path, survey_out, laser, range_max_m, force):
     _write_imported(log, out_path)
     if survey_out is not None:
         reference = PoseTable(log.scan_numbers, log.odom_times_s, log.laser_poses)
-        _write_survey(survey_out, reference, log.original_times_s, "reference pose")
+        write_pose_file(survey_out, reference, log.original_times_s, "reference pose")
 
 
 ROSBAG_OPTIONS = (
@@ -225,7 +210,7 @@ def import_rosbag(
         info(laser_offset_line(log))
     if survey_out is not None:
         table, original_times_s = _odometry_rows(log)
-        _write_survey(survey_out, table, original_times_s, "odometry pose")
+        write_pose_file(survey_out, table, original_times_s, "odometry pose")
 
 
 def _odometry_rows(log) -> tuple[PoseTable, np.ndarray]:

@@ -1,5 +1,6 @@
 """``segloc map``: the group, and ``map build``, a segment map from the scans of a log at
-surveyed poses (``commands/plans.py`` holds ``map import`` and ``map export``)."""
+surveyed poses, or at the poses segment SLAM finds from its odometry (``commands/plans.py``
+holds ``map import`` and ``map export``)."""
 
 from __future__ import annotations
 
@@ -19,10 +20,13 @@ from segloc_cli.commands.options import (
     tuning_options,
     with_options,
 )
+from segloc_cli.commands.optionvalues import parse_planar_pose
 from segloc_cli.commands.plans import map_export, map_import
-from segloc_cli.commands.printing import info, load_log
+from segloc_cli.commands.printing import info, load_log, write_pose_file
 from segloc_cli.config import EXTRACT, FUSE
 from segloc_cli.errors import InputError
+from segloc_cli.geometry import Pose2
+from segloc_cli.limits import MAX_COORDINATE_M
 from segloc_cli.runs.runfile import run_file_path
 from segloc_cli.wording import counted
 
@@ -40,10 +44,25 @@ BUILD_OPTIONS = (
     path_option(
         "--survey",
         "survey_path",
-        required=True,
-        help="Poses of the scans (survey CSV or TUM); scans without a row are ignored.",
+        help="Poses of the scans (survey CSV or TUM); scans without a row are ignored. "
+        "Without it, the scans' poses are found from the log itself (segment SLAM on its "
+        "scans and odometry).",
     ),
     path_option("--out", "out_path", required=True, help="MAP.json to write."),
+    click.option(
+        "--initial",
+        "initial_text",
+        metavar="X,Y,THETA_DEG",
+        help="Without --survey: the first scan's pose in the map's frame (metres, degrees); "
+        "default 0,0,0.",
+    ),
+    path_option(
+        "--poses-out",
+        "poses_out",
+        help="Without --survey: also write every scan's pose found, at the scan's time: TUM "
+        "for a name ending in .tum, else a CSV pose_id,time_s,x_m,y_m,theta_deg that --survey "
+        "reads back.",
+    ),
     path_option(
         "--mcap",
         "mcap_path",
@@ -64,15 +83,23 @@ BUILD_OPTIONS = (
 @map_group.command("build")
 @click.argument("log_path", metavar="LOG.mcap", type=click.Path(path_type=Path))
 @with_options(*BUILD_OPTIONS)
-def map_build(log_path, survey_path, out_path, mcap_path, force, **_):
-    """Build a global segment map from the scans of a log at surveyed poses.
+def map_build(
+    log_path, survey_path, out_path, mcap_path, initial_text, poses_out, force, **_
+):  # fmt: skip
+    """Build a global segment map from the scans of a log at surveyed poses, or, without
+    --survey, at the poses the log's own scans and odometry give.
 
-    Each scan with a survey row becomes a local map, is placed at its pose and
-    fused with the others: nearly collinear segments that overlap or nearly
-    touch become one. With --min-observations, segments seen from too few
-    poses are dropped; with --seen-through drop, those that more poses see
-    through than see (people walking by). Beside OUT goes its run file
-    (OUT.run.toml).
+    With --survey, each scan with a survey row becomes a local map, is placed at
+    its pose and fused with the others: nearly collinear segments that overlap
+    or nearly touch become one. Without it, segment SLAM places the scans: each
+    is fitted to the map of the last few metres from where the odometry puts
+    it, the scans that moved far enough become keyframes, each keyframe is
+    searched for in the older parts of the map near it (a loop, taken when the
+    verdict is ok), and a pose graph over the keyframes is solved (gtsam)
+    before every scan's local map is fused at its pose. With --min-observations, segments seen
+    from too few poses are dropped; with --seen-through drop, those that more
+    poses see through than see (people walking by). Beside OUT goes its run
+    file (OUT.run.toml).
     """
     from segloc_cli.io.files import check_outputs
     from segloc_cli.io.maps import bounds_problem, write_map
@@ -84,9 +111,24 @@ def map_build(log_path, survey_path, out_path, mcap_path, force, **_):
     run = Invocation.current()
     later = SEEN_THROUGH_KERNELS if run.config.fuse.seen_through == "drop" else None
     click.get_current_context().with_resource(watching_compiles(later=later))
-    outputs = {"--out": out_path, "--mcap": mcap_path}
+    if survey_path is not None:
+        for option, value in (("--initial", initial_text), ("--poses-out", poses_out)):
+            if value is not None:
+                raise click.UsageError(
+                    f"{option} is for a map built without --survey (the survey gives every "
+                    "scan's pose)"
+                )
+    initial = None
+    if initial_text is not None:
+        initial = Pose2.from_deg(
+            *parse_planar_pose(initial_text, "--initial", MAX_COORDINATE_M, "2.5,1.0,90")
+        )
+    outputs = {"--out": out_path, "--mcap": mcap_path, "--poses-out": poses_out}
     outputs["--out (run file)"] = run_file_path(out_path)
     check_outputs(outputs, [log_path, survey_path], force)
+    if survey_path is None:
+        _map_without_survey(run, log_path, out_path, mcap_path, poses_out, initial)
+        return
     refuse_map(survey_path, "--survey", "the surveyed poses of the scans")
     log = load_log(log_path)
     selection = scan_selection(run.options)
@@ -97,17 +139,12 @@ def map_build(log_path, survey_path, out_path, mcap_path, force, **_):
     if problem is not None:
         raise InputError(f"the map built would be refused when read: {problem}", path=out_path)
     source = {"log": str(log_path), "survey": str(survey_path)}
-    source |= {"scans_used": built.scans_used, "local_segments": built.local_segments}
-    if not selection.whole:
-        source["scans_selected"] = f"{selected.size} ({selection.options_text()})"
-    source |= {"dropped_segments": int(built.dropped.shape[0])}
-    source |= {"dropped_seen_through": int(built.dropped_seen_through.sum())}
-    source |= {"extract": asdict(run.config.extract), "fuse": asdict(run.config.fuse)}
+    source |= _built_source(built, selection, selected, run.config)
     write_map(out_path, built.segments, source=source)
     run.write_run_file(out_path)
     if mcap_path is not None:
         metadata = {"command": "map build", "log": str(log_path), "survey": str(survey_path)}
-        _write_build_view(mcap_path, log, built, metadata)
+        _write_build_view(mcap_path, log, built, metadata, "at the surveyed pose")
     unsurveyed = selected.size - built.scans_used
     which = "scan" if selection.whole else "selected scan"
     info(
@@ -116,6 +153,65 @@ def map_build(log_path, survey_path, out_path, mcap_path, force, **_):
         f"{counted(built.scans_used, 'scan')} ({counted(unsurveyed, which)} had no survey row)"
         f"{_dropped_note(built, run.config.fuse)}"
     )
+
+
+def _map_without_survey(run, log_path, out_path, mcap_path, poses_out, initial) -> None:
+    """``map build`` without ``--survey``: segment SLAM (``runs.pipeline.slam_map``), the
+    map, its run file, and with ``poses_out`` every scan's pose."""
+    from segloc_cli.estimates import PoseTable
+    from segloc_cli.io.maps import bounds_problem, write_map
+    from segloc_cli.progress import Progress
+    from segloc_cli.runs.pipeline import slam_map
+
+    log = load_log(log_path)
+    selection = scan_selection(run.options)
+    selected = selection.chosen(log.scan_times_s, log_path)
+    if not log.has_odometry and selected.size > 1:
+        info(
+            "the log has no odometry: each scan is guessed to move as the one before did, "
+            "and loops rest on the scans alone"
+        )
+    built, slam = slam_map(log, log_path, run.config, Progress, selected, initial)
+    problem = bounds_problem(built.segments)
+    if problem is not None:
+        raise InputError(f"the map built would be refused when read: {problem}", path=log_path)
+    accepted = slam.loops_accepted
+    source = {"log": str(log_path), "poses": "segment SLAM on the log's scans and odometry"}
+    if not log.has_odometry:
+        source["poses"] = "segment SLAM on the log's scans (no odometry)"
+    source |= _built_source(built, selection, selected, run.config)
+    source |= {"keyframes": int(slam.keyframes.size), "loops_accepted": accepted}
+    source |= {"loops_rejected": len(slam.loops) - accepted, "slam": asdict(run.config.slam)}
+    write_map(out_path, built.segments, source=source)
+    run.write_run_file(out_path)
+    if poses_out is not None:
+        table = PoseTable(log.scan_numbers[selected], log.scan_times_s[selected], slam.poses)
+        write_pose_file(poses_out, table, log.original_times_s[selected], "scan pose")
+    if mcap_path is not None:
+        metadata = {"command": "map build", "log": str(log_path), "poses": source["poses"]}
+        _write_build_view(mcap_path, log, built, metadata, "at the pose found")
+    corrections = [loop.correction_m for loop in slam.loops if loop.accepted]
+    largest = f", the largest correcting {max(corrections):.2f} m" if corrections else ""
+    info(
+        f"{out_path}: {counted(built.segments.shape[0], 'segment')} fused from "
+        f"{counted(built.local_segments, 'local segment')} of "
+        f"{counted(built.scans_used, 'scan')} ({counted(slam.keyframes.size, 'keyframe')}); "
+        f"{counted(accepted, 'loop')} accepted of "
+        f"{counted(len(slam.loops), 'candidate')}{largest}"
+        f"{_dropped_note(built, run.config.fuse)}"
+    )
+
+
+def _built_source(built, selection, selected, config) -> dict:
+    """The map's provenance common to both ways of building it: the scans and local
+    segments used, the selection, the segments dropped, the extraction's and fusion's
+    settings."""
+    source = {"scans_used": built.scans_used, "local_segments": built.local_segments}
+    if not selection.whole:
+        source["scans_selected"] = f"{selected.size} ({selection.options_text()})"
+    source |= {"dropped_segments": int(built.dropped.shape[0])}
+    source |= {"dropped_seen_through": int(built.dropped_seen_through.sum())}
+    return source | {"extract": asdict(config.extract), "fuse": asdict(config.fuse)}
 
 
 def _dropped_note(built, fuse) -> str:
@@ -138,8 +234,11 @@ def _dropped_note(built, fuse) -> str:
     return notes
 
 
-def _write_build_view(mcap_path: Path, log, built, metadata: dict[str, str]) -> None:
-    """The built map over its scans, each at its surveyed pose, as a Foxglove view."""
+def _write_build_view(
+    mcap_path: Path, log, built, metadata: dict[str, str], placed: str
+) -> None:  # fmt: skip
+    """The built map over its scans, each at its pose (``placed`` says which, in words), as a
+    Foxglove view."""
     from segloc_cli.io.runview import RunViewWriter
     from segloc_cli.progress import Progress
 
@@ -149,7 +248,7 @@ def _write_build_view(mcap_path: Path, log, built, metadata: dict[str, str]) -> 
         Progress("writing the view", built.scans_used, "scan") as shown,
     ):
         for i, pose, local in parts:
-            text = f"scan {i + 1}: {counted(local.shape[0], 'local segment')} at the surveyed pose"
+            text = f"scan {i + 1}: {counted(local.shape[0], 'local segment')} {placed}"
             view.add(log.scans[i], local, pose, status="surveyed", text=text)
             shown.advance()
     info(f"{mcap_path}: the map over its {counted(built.scans_used, 'scan')}, to open in Foxglove")

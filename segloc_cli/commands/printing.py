@@ -6,10 +6,16 @@ warnings; ``--jobs`` capped at the cores there are). Each line starts with ``seg
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import click
 
 from segloc_cli.wording import counted, said
+
+if TYPE_CHECKING:
+    import numpy as np
+
+    from segloc_cli.estimates import PoseTable
 
 
 def warn(message: str) -> None:
@@ -46,3 +52,18 @@ def load_log(path: Path):
     for warning in log.warnings:
         warn(warning)
     return log
+
+
+def write_pose_file(
+    survey_out: Path, table: PoseTable, original_times_s: np.ndarray, what: str
+) -> None:
+    """Write ``table`` to ``survey_out``: a TUM trajectory for a name ending in .tum, else a
+    survey CSV with the poses' original times (s) in an ``original_time_s`` column; then
+    say how many poses (``what``: "reference pose") it holds."""
+    from segloc_cli.io.tables import write_pose_table, write_pose_table_tum
+
+    if survey_out.suffix.lower() == ".tum":
+        write_pose_table_tum(survey_out, table)  # TUM has no column for original times
+    else:
+        write_pose_table(survey_out, table, {"original_time_s": original_times_s})
+    info(f"{survey_out}: {counted(len(table), what)}")

@@ -453,10 +453,7 @@ def build_map(
     and, unless ``config.fuse.seen_through`` is "keep", not seen through from more survey
     rows than saw them (``maps.carving``); the extraction (scans), polishing (rounds), fusion
     (segments compared) and carving (one pass) report to ``progress``."""
-    from segloc_cli.maps.carving import free_length, mostly_free
-    from segloc_cli.maps.fusion import observed_map, polish_poses
     from segloc_cli.method.extract import extract_segments
-    from segloc_cli.method.freespace import SHORTEN_M
 
     times = log.scan_times_s
     selected = np.arange(times.size) if selected is None else selected
@@ -483,18 +480,99 @@ def build_map(
             local_maps.append(extract_segments(log.scans[i], config.extract))
             shown.advance()
     poses = [Pose2(*survey.poses[rows[i]]) for i in used]
+    return fused_map(log, log_path, used, poses, local_maps, config, progress, rows[used])
+
+
+def slam_map(
+    log: Log,
+    log_path: Path,
+    config: Config,
+    progress: ProgressFactory = silent,
+    selected: np.ndarray | None = None,
+    initial: Pose2 | None = None,
+):
+    """``map build`` without a survey: the poses of the scans ``selected`` (None: every scan)
+    by segment SLAM (``maps.slam``) from their odometry (none: scan to map alone), the first
+    at ``initial`` (world frame; None: the origin), then the map of every scan's local map
+    at its pose (``fused_map``): a keyframe's solved, another's fitted from its keyframe's.
+    Returns the ``BuiltMap`` and the ``SlamResult``."""
+    from segloc_cli.maps.slam import WORLD_ORIGIN, odometry_at, run_slam
+    from segloc_cli.method.extract import extract_segments
+
+    selected = np.arange(len(log.scans)) if selected is None else selected
+    if selected.size < 2:
+        raise InputError(
+            f"a map built without --survey needs at least two scans, the log gives "
+            f"{selected.size}; give a longer log, or the scans' poses with --survey",
+            path=log_path,
+        )
+    scans = [log.scans[i] for i in selected]
+    times = log.scan_times_s[selected]
+    odometry = None
+    if log.has_odometry:
+        odometry = odometry_at(times, log.odom_times_s, log.odom_poses)
+    with progress("mapping", selected.size, "scan") as shown:
+
+        def advance(done: int, keyframes: int, loops: int) -> None:
+            shown.advance(done - shown.done)
+
+        result = run_slam(
+            scans, odometry, config.slam, initial=initial or WORLD_ORIGIN,
+            extract_params=config.extract,
+            refine_params=config.localize.refine, fuse_params=config.fuse, advance=advance,
+        )  # fmt: skip
+    # Every scan's local map at its pose, keyframes' and the others' alike, so that the
+    # poses written (--poses-out) given back as a survey build this same map.
+    local_maps = [np.zeros((0, 4))] * selected.size
+    for k, i in enumerate(result.keyframes):
+        local_maps[i] = result.local_maps[k]
+    others = np.setdiff1d(np.arange(selected.size), result.keyframes)
+    with progress("extracting segments", others.size, "scan") as shown:
+        for i in others:
+            local_maps[i] = extract_segments(scans[i], config.extract)
+            shown.advance()
+    poses = [Pose2(*pose) for pose in result.poses]
+    built = fused_map(
+        log, log_path, selected, poses, local_maps, config, progress,
+        placed_by="the scans' poses",
+    )  # fmt: skip
+    return built, result
+
+
+def fused_map(
+    log: Log,
+    log_path: Path,
+    used: np.ndarray,
+    poses: list[Pose2],
+    local_maps: list[np.ndarray],
+    config: Config,
+    progress: ProgressFactory = silent,
+    viewpoints: np.ndarray | None = None,
+    placed_by: str = "surveyed poses",
+) -> BuiltMap:
+    """The map of the local maps (robot frame) of the scans ``used`` (indices in log order)
+    at ``poses`` (world frame), polished, fused, counted and carved as ``build_map`` says;
+    ``viewpoints`` labels the scans seen from one place alike (None: each its own);
+    ``placed_by`` names the poses in errors."""
+    from segloc_cli.maps.carving import free_length, mostly_free
+    from segloc_cli.maps.fusion import observed_map, polish_poses
+    from segloc_cli.method.freespace import SHORTEN_M
+
+    labels = np.arange(used.size) if viewpoints is None else viewpoints
     carve = config.fuse.seen_through == "drop"
     points = [log.scans[i].points() for i in used] if config.fuse.polish_rounds or carve else []
     if config.fuse.polish_rounds:
         with progress("polishing poses", config.fuse.polish_rounds, "round") as shown:
             poses = polish_poses(local_maps, points, poses, config.fuse, shown)
-    segments, seen = observed_map(local_maps, poses, config.fuse, progress, rows[used])
+    segments, seen = observed_map(local_maps, poses, config.fuse, progress, labels)
     if segments.shape[0] == 0:
-        raise InputError("no segments could be extracted from the surveyed scans", path=log_path)
+        raise InputError(
+            f"no segments could be extracted from the scans at {placed_by}", path=log_path
+        )
     kept = seen >= config.fuse.min_observations
     if not kept.any():
         raise InputError(
-            f"no segment was seen from {config.fuse.min_observations} surveyed poses; lower "
+            f"no segment was seen from {config.fuse.min_observations} {placed_by}; lower "
             "--min-observations",
             path=log_path,
         )
@@ -502,13 +580,13 @@ def build_map(
     if carve:
         with progress("carving free space", None, "pass") as shown:
             margin_m = config.fuse.offset_m
-            free_m = free_length(segments, seen, points, poses, rows[used], margin_m, SHORTEN_M)
+            free_m = free_length(segments, seen, points, poses, labels, margin_m, SHORTEN_M)
             through = kept & mostly_free(segments, free_m, margin_m)
             shown.advance()
     if not (kept & ~through).any():
         raise InputError(
-            "every segment is seen through from more surveyed poses than saw it; check the "
-            "survey's poses, or keep them with --seen-through keep",
+            f"every segment is seen through from more {placed_by} than saw it; check the "
+            "poses, or keep them with --seen-through keep",
             path=log_path,
         )
     return BuiltMap(

@@ -1,0 +1,373 @@
+"""Segment SLAM: every scan's pose and the map from a log's scans and odometry, no survey.
+
+Front end: each scan that moved far enough from the last keyframe (``SlamParams.keyframe_m``,
+``keyframe_deg``) is fitted (``refine_pose``) to the local map of the keyframes of the last
+few metres of travel, from the pose the odometry predicts; the fit is the edge from the last
+keyframe, with the information the fit's normal equations give (``fit_information``). The
+other scans are placed by the odometry from the keyframe before them.
+
+Submaps: the keyframes of each stretch of travel (``submap_m``), their local maps fused in
+the frame of the submap's first keyframe (its anchor).
+
+Loop closure: every keyframe is searched for in the finished submaps whose anchor lies
+within its pose uncertainty (a radius growing with the travel since the last loop), with
+the localizer's own search and verdict; a loop is accepted only when the verdict says ``ok``
+and any runner-up is a distinct place. Every candidate is recorded (``LoopCandidate``).
+
+Back end: a pose graph over the keyframes (gtsam's ``Pose2`` factors: the front end's edges,
+and the loops' under a Cauchy loss), updated incrementally (iSAM2) as keyframes and loops
+arrive and solved once more at the end (Levenberg–Marquardt).
+
+Poses are (x_m, y_m, theta_rad) in the world frame of the first scan's pose (``initial``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from segloc_cli.config import LocalizeParams, RefineParams, SearchParams, SlamParams
+from segloc_cli.geometry import Pose2, relative_motion, transform_segments, wrap_angle
+from segloc_cli.method.extract import extract_segments
+from segloc_cli.method.refine import nearest_segments, refine_pose
+from segloc_cli.scan import Scan
+
+WORLD_ORIGIN = Pose2(0.0, 0.0, 0.0)
+"""Where the first scan is placed unless told otherwise."""
+
+
+@dataclass(frozen=True)
+class LoopCandidate:
+    """A search of keyframe ``keyframe`` in submap ``submap``: what the verdict said, the
+    correction it implied (m, °) and whether it was accepted."""
+
+    keyframe: int
+    submap: int
+    status: str
+    inlier_ratio: float
+    correction_m: float
+    correction_deg: float
+    accepted: bool
+
+
+@dataclass
+class SlamResult:
+    """What a SLAM run found: every scan's pose (S, 3), which scans are keyframes (K,), the
+    keyframes' local maps (robot frame) and solved poses (K, 3), the odometry at the scans
+    (S, 3, in the world frame of ``initial``), and every loop candidate."""
+
+    poses: np.ndarray
+    keyframes: np.ndarray
+    local_maps: list[np.ndarray]
+    keyframe_poses: np.ndarray
+    odometry: np.ndarray
+    loops: list[LoopCandidate] = field(default_factory=list)
+
+    @property
+    def loops_accepted(self) -> int:
+        return sum(loop.accepted for loop in self.loops)
+
+
+def odometry_at(
+    times_s: np.ndarray, odom_times_s: np.ndarray, odom_poses: np.ndarray
+) -> np.ndarray:
+    """The odometry (K, 3) interpolated to ``times_s`` (S,): (S, 3), headings unwrapped
+    between samples; times outside the odometry's span take its nearest end."""
+    order = np.argsort(odom_times_s, kind="stable")
+    t, poses = odom_times_s[order], odom_poses[order]
+    theta = np.unwrap(poses[:, 2])
+    out = np.column_stack(
+        [np.interp(times_s, t, poses[:, 0]), np.interp(times_s, t, poses[:, 1]),
+         np.interp(times_s, t, theta)]
+    )  # fmt: skip
+    out[:, 2] = wrap_angle(out[:, 2])
+    return out
+
+
+def compose(pose: np.ndarray, motion: np.ndarray) -> np.ndarray:
+    """``pose ⊕ motion`` (3,) ⊕ (3,) → (3,)."""
+    c, s = np.cos(pose[2]), np.sin(pose[2])
+    return np.array(
+        [pose[0] + c * motion[0] - s * motion[1], pose[1] + s * motion[0] + c * motion[1],
+         float(wrap_angle(pose[2] + motion[2]))]
+    )  # fmt: skip
+
+
+def fit_information(
+    points_robot: np.ndarray, segments_world: np.ndarray, pose: np.ndarray, gate_m: float,
+    sigma_m: float,
+) -> np.ndarray:  # fmt: skip
+    """Information (3, 3) of a pose fitted by putting the points (P, 2, robot frame) on the
+    segments (M, 4, world frame): Σ JᵀJ / σ² over the points within ``gate_m`` of a segment,
+    J = ∂(point-to-line distance)/∂(x, y, θ) taken in the robot's frame (the tangent space
+    gtsam's ``Pose2`` uses), σ = ``sigma_m``."""
+    c, s = np.cos(pose[2]), np.sin(pose[2])
+    px, py = points_robot[:, 0], points_robot[:, 1]
+    world = np.column_stack([c * px - s * py + pose[0], s * px + c * py + pose[1]])
+    index, _ = nearest_segments(world, segments_world, within_m=gate_m)
+    near = index >= 0
+    seg = segments_world[index[near]]
+    d = seg[:, 2:] - seg[:, :2]
+    length = np.hypot(d[:, 0], d[:, 1])
+    length[length == 0] = 1.0
+    normal_world = np.column_stack([-d[:, 1], d[:, 0]]) / length[:, None]
+    # A body-frame step (dx, dy, dθ) moves a point by R·(dx, dy) + R·(−py, px)·dθ.
+    nb = np.column_stack(
+        [c * normal_world[:, 0] + s * normal_world[:, 1],
+         -s * normal_world[:, 0] + c * normal_world[:, 1]]
+    )  # fmt: skip
+    jac = np.column_stack([nb[:, 0], nb[:, 1], -nb[:, 0] * py[near] + nb[:, 1] * px[near]])
+    return jac.T @ jac / sigma_m**2
+
+
+def _odometry_information(motion: np.ndarray, params: SlamParams) -> np.ndarray:
+    travel = float(np.hypot(motion[0], motion[1]))
+    sigma_m = params.odom_sigma_m * max(travel, 0.1)
+    sigma_rad = np.deg2rad(params.odom_sigma_deg * max(travel, 0.1)) + 0.1 * abs(motion[2])
+    return np.diag([sigma_m**-2, sigma_m**-2, sigma_rad**-2])
+
+
+class _Graph:
+    """The keyframes' pose graph in gtsam (imported here: only the SLAM needs it)."""
+
+    def __init__(self, first: np.ndarray):
+        import gtsam
+
+        self.gtsam = gtsam
+        self.isam = gtsam.ISAM2()
+        self.graph = gtsam.NonlinearFactorGraph()
+        self.values = gtsam.Values()
+        prior = gtsam.noiseModel.Diagonal.Sigmas(np.array([1e-3, 1e-3, 1e-4]))
+        self._add(gtsam.PriorFactorPose2(0, gtsam.Pose2(*first), prior), 0, first)
+
+    def _add(self, factor, key: int | None, guess: np.ndarray | None) -> None:
+        graph, values = self.gtsam.NonlinearFactorGraph(), self.gtsam.Values()
+        graph.add(factor)
+        self.graph.add(factor)
+        if key is not None:
+            values.insert(key, self.gtsam.Pose2(*guess))
+            self.values.insert(key, self.gtsam.Pose2(*guess))
+        self.isam.update(graph, values)
+
+    def _noise(self, information: np.ndarray, cauchy: float | None):
+        gtsam = self.gtsam
+        information = information + np.diag([1e-6, 1e-6, 1e-6])
+        model = gtsam.noiseModel.Gaussian.Information(information)
+        if cauchy is None:
+            return model
+        loss = gtsam.noiseModel.mEstimator.Cauchy.Create(cauchy)
+        return gtsam.noiseModel.Robust.Create(loss, model)
+
+    def add_edge(
+        self, a: int, b: int, motion: np.ndarray, information: np.ndarray,
+        guess: np.ndarray | None = None, cauchy: float | None = None,
+    ) -> None:  # fmt: skip
+        """An edge from keyframe ``a`` to ``b`` (``motion`` in ``a``'s frame); ``guess``
+        introduces ``b``."""
+        factor = self.gtsam.BetweenFactorPose2(
+            a, b, self.gtsam.Pose2(*motion), self._noise(information, cauchy)
+        )
+        self._add(factor, b if guess is not None else None, guess)
+
+    def pose(self, key: int) -> np.ndarray:
+        p = self.isam.calculateEstimatePose2(key)
+        return np.array([p.x(), p.y(), p.theta()])
+
+    def poses(self, n: int) -> np.ndarray:
+        estimate = self.isam.calculateEstimate()
+        return np.array([[*_xyt(estimate.atPose2(k))] for k in range(n)])
+
+    def solved(self, n: int) -> np.ndarray:
+        """Every keyframe's pose after a batch Levenberg–Marquardt solve from iSAM2's."""
+        gtsam = self.gtsam
+        start = self.isam.calculateEstimate()
+        result = gtsam.LevenbergMarquardtOptimizer(
+            self.graph, start, gtsam.LevenbergMarquardtParams()
+        ).optimize()
+        return np.array([[*_xyt(result.atPose2(k))] for k in range(n)])
+
+
+def _xyt(p) -> tuple[float, float, float]:
+    return p.x(), p.y(), p.theta()
+
+
+@dataclass
+class _Submap:
+    """Keyframes ``first`` to ``last`` (inclusive), their segments fused in the frame of
+    ``first`` (the anchor), and a localizer on them, made on the first search."""
+
+    first: int
+    last: int
+    segments: np.ndarray
+    localizer: object | None = None
+
+
+def run_slam(
+    scans: list[Scan],
+    odometry: np.ndarray | None,
+    params: SlamParams | None = None,
+    *,
+    initial: Pose2 = WORLD_ORIGIN,
+    extract_params=None,
+    refine_params: RefineParams | None = None,
+    fuse_params=None,
+    advance: Callable[[int, int, int], None] | None = None,
+) -> SlamResult:
+    """Every scan's pose and the keyframes' local maps, from the ``scans`` (S) and the
+    ``odometry`` (S, 3) at their times (any world frame: only its motions count; None: no
+    odometry, each scan guessed to move as the one before did); the first scan is placed
+    at ``initial``. ``advance(scans_done, keyframes, loops_accepted)`` is called after
+    every scan."""
+    from segloc_cli.maps.fusion import fuse_segments
+
+    p = params or SlamParams()
+    refine = refine_params or RefineParams()
+    n = len(scans)
+    blind = odometry is None
+    odometry = np.zeros((n, 3)) if blind else np.asarray(odometry, dtype=float)
+    start = initial.as_array()
+    steps = np.vstack([np.zeros((1, 3)), relative_motion(odometry[:-1], odometry[1:])])
+    odom_world = np.array([start] * n)
+    for i in range(1, n):
+        odom_world[i] = compose(odom_world[i - 1], steps[i])
+    graph = _Graph(start)
+    keyframes, kf_pose, kf_travel = [0], [start], [0.0]
+    local_maps = [extract_segments(scans[0], extract_params)]
+    owner, offset = np.zeros(n, dtype=np.int64), np.zeros((n, 3))
+    submaps: list[_Submap] = []
+    submap_first = 0
+    loops: list[LoopCandidate] = []
+    travel_since_loop = 0.0
+    previous = start
+    local_world = transform_segments(local_maps[0], initial)
+    for i in range(1, n):
+        guess = compose(previous, steps[i])
+        before = previous
+        points = scans[i].points()
+        fit = refine_pose(points, local_world, Pose2(*guess), refine)
+        fitted = fit.inlier_ratio >= p.min_inlier_ratio
+        previous = fit.pose.as_array() if fitted else guess
+        if not fitted:  # too far for the fit: the localizer's search, around the guess
+            found = _searched(
+                local_world, extract_segments(scans[i], extract_params), guess, points
+            )
+            fitted = found is not None
+            previous = guess if found is None else found
+        if blind:  # no odometry: the next scan is guessed to move as this one did
+            steps[i + 1 : i + 2] = relative_motion(before, previous)
+        motion = relative_motion(kf_pose[-1], previous)[0]
+        moved = float(np.hypot(motion[0], motion[1]))
+        if moved < p.keyframe_m and abs(np.rad2deg(motion[2])) < p.keyframe_deg:
+            owner[i], offset[i] = len(keyframes) - 1, motion
+            if advance:
+                advance(i + 1, len(keyframes), sum(loop.accepted for loop in loops))
+            continue
+        k = len(keyframes)
+        if fitted:
+            information = fit_information(
+                points, local_world, previous, refine.final_gate_m, p.point_sigma_m
+            )
+        else:
+            information = _odometry_information(motion, p)
+        graph.add_edge(k - 1, k, motion, information, guess=previous)
+        owner[i] = k
+        keyframes.append(i)
+        local_maps.append(extract_segments(scans[i], extract_params))
+        kf_pose.append(previous)
+        kf_travel.append(kf_travel[-1] + moved)
+        travel_since_loop += moved
+        if kf_travel[-1] - kf_travel[submap_first] >= p.submap_m:
+            submap = _submap(submap_first, k, local_maps, kf_pose, fuse_params, fuse_segments)
+            submaps.append(submap)
+            submap_first = k
+        if k % p.loop_every == 0:
+            closed = _close_loops(
+                graph, k, points, local_maps[k], kf_pose, kf_travel, submaps, p,
+                travel_since_loop, loops,
+            )  # fmt: skip
+            if closed:
+                travel_since_loop = 0.0
+                kf_pose = list(graph.poses(k + 1))
+                previous = kf_pose[k]
+        recent = [j for j in range(k + 1) if kf_travel[-1] - kf_travel[j] <= p.local_map_m]
+        local_world = np.concatenate(
+            [transform_segments(local_maps[j], Pose2(*kf_pose[j])) for j in recent]
+        )
+        if advance:
+            advance(i + 1, len(keyframes), sum(loop.accepted for loop in loops))
+    solved = graph.solved(len(keyframes))
+    poses = np.array([compose(solved[o], d) for o, d in zip(owner, offset, strict=True)])
+    return SlamResult(poses, np.array(keyframes), local_maps, solved, odom_world, loops)
+
+
+def _searched(
+    segments_world: np.ndarray, local_map: np.ndarray, guess: np.ndarray, points: np.ndarray
+) -> np.ndarray | None:
+    """The pose (3,) at which the localizer places a scan (its local map (N, 4) and points
+    (P, 2), robot frame) on ``segments_world`` around ``guess`` (its default search window),
+    when its verdict is ``ok``; else None."""
+    from segloc_cli.estimates import STATUS_OK
+    from segloc_cli.method.localize import Localizer
+
+    est = Localizer.on_map(segments_world).localize(local_map, Pose2(*guess), points)
+    return est.pose.as_array() if est.status == STATUS_OK else None
+
+
+def _submap(first, last, local_maps, kf_pose, fuse_params, fuse_segments) -> _Submap:
+    anchor = Pose2(*kf_pose[first]).inverse()
+    placed = [
+        transform_segments(transform_segments(local_maps[j], Pose2(*kf_pose[j])), anchor)
+        for j in range(first, last + 1)
+    ]
+    return _Submap(first, last, fuse_segments(np.concatenate(placed), fuse_params))
+
+
+def _close_loops(
+    graph: _Graph, k: int, points: np.ndarray, local_map: np.ndarray, kf_pose: list,
+    kf_travel: list, submaps: list[_Submap], p: SlamParams, travel_since_loop: float,
+    loops: list[LoopCandidate],
+) -> bool:  # fmt: skip
+    """Search keyframe ``k`` in the submaps near its pose; add the loops accepted."""
+    from segloc_cli.estimates import STATUS_OK
+    from segloc_cli.method.localize import Localizer
+
+    radius = min(p.loop_radius_m + p.loop_radius_per_m * travel_since_loop, p.loop_max_radius_m)
+    here = kf_pose[k]
+    closed = False
+    for index, sub in enumerate(submaps):
+        if kf_travel[k] - kf_travel[sub.last] < p.loop_min_travel_m:
+            continue
+        anchor = kf_pose[sub.first]
+        if np.hypot(*(here[:2] - anchor[:2])) > radius + p.submap_m:
+            continue
+        guess = relative_motion(anchor, here)[0]
+        params = LocalizeParams(search=SearchParams(half_width_m=radius))
+        if sub.localizer is None:
+            sub.localizer = Localizer.on_map(sub.segments, params)
+        localizer = sub.localizer.with_params(params)
+        est = localizer.localize(local_map, Pose2(*guess), points)
+        found = est.pose.as_array()
+        correction = relative_motion(guess, found)[0]  # NaN where nothing was found
+        # The verdict's ``ok``, at a place inside the square searched.
+        accepted = est.status == STATUS_OK and bool(
+            np.hypot(correction[0], correction[1]) <= radius * np.sqrt(2.0)
+        )
+        loops.append(
+            LoopCandidate(
+                k,
+                index,
+                est.status,
+                float(est.inlier_ratio),
+                float(np.hypot(correction[0], correction[1])),
+                float(np.rad2deg(abs(correction[2]))),
+                accepted,
+            )
+        )
+        if not accepted:
+            continue
+        information = fit_information(points, sub.segments, found, 0.05, p.point_sigma_m)
+        graph.add_edge(sub.first, k, found, information, cauchy=p.loop_cauchy)
+        closed = True
+    return closed

@@ -1,0 +1,171 @@
+"""Segment SLAM (``maps/slam.py``) and ``map build`` without a survey.
+
+A hand-made building: a ring corridor 2 m wide around a 8 m × 4 m block, with alcoves
+and pillars so that no stretch of it is a bare corridor. The robot goes round it twice,
+its odometry drifting (a heading bias and noise growing with the distance travelled),
+so that only the scans can keep the poses, and only a loop can close the ring.
+"""
+
+from __future__ import annotations
+
+import subprocess
+
+import numpy as np
+import pandas as pd
+import pytest
+from conftest import HALL, SEGLOC
+
+from segloc_cli.geometry import Pose2, point_segment_distances, relative_motion, wrap_angle
+from segloc_cli.maps.slam import fit_information, odometry_at, run_slam
+from segloc_cli.sim import SensorModel, simulate_scan
+from segloc_cli.world import World
+
+STEP_M = 0.2
+SENSOR = SensorModel(readings=361, clutter_clusters=0.0, dropout_prob=0.0)
+
+
+def _box(x0, y0, x1, y1):
+    return [[x0, y0, x1, y0], [x1, y0, x1, y1], [x1, y1, x0, y1], [x0, y1, x0, y0]]
+
+
+def ring_building() -> World:
+    """Outer walls 12 m × 8 m, the inner block from (2, 2) to (10, 6), pillars and an
+    alcove breaking up the corridors."""
+    walls = _box(0.0, 0.0, 12.0, 8.0) + _box(2.0, 2.0, 10.0, 6.0)
+    walls += _box(4.0, 0.0, 4.4, 0.4) + _box(7.5, 7.6, 8.1, 8.0) + _box(11.6, 3.0, 12.0, 3.3)
+    walls += _box(0.0, 5.0, 0.3, 5.6) + _box(6.0, 1.7, 6.8, 2.0) + _box(2.0, 6.0, 2.5, 6.4)
+    return World(np.array(walls, dtype=float), name="ring")
+
+
+def ring_path(laps: int = 2) -> np.ndarray:
+    """Poses (N, 3) round the corridor's centre line, ``STEP_M`` apart, turning in place."""
+    corners = [(1.0, 1.0), (11.0, 1.0), (11.0, 7.0), (1.0, 7.0)]
+    poses = []
+    for _ in range(laps):
+        for (x0, y0), (x1, y1) in zip(corners, corners[1:] + corners[:1], strict=True):
+            heading = np.arctan2(y1 - y0, x1 - x0)
+            steps = round(np.hypot(x1 - x0, y1 - y0) / STEP_M)
+            poses += [(x0 + (x1 - x0) * t, y0 + (y1 - y0) * t, heading)
+                      for t in np.arange(steps) / steps]  # fmt: skip
+    return np.array(poses)
+
+
+def drifting_odometry(truth: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """The motions of ``truth`` with a heading bias of 2° per metre and noise."""
+    motions = relative_motion(truth[:-1], truth[1:])
+    travel = np.hypot(motions[:, 0], motions[:, 1])
+    motions[:, :2] += rng.normal(0.0, 0.01, motions[:, :2].shape) * travel[:, None]
+    motions[:, 2] += np.deg2rad(2.0) * travel + rng.normal(0.0, np.deg2rad(0.3), travel.size)
+    odometry = [truth[0]]
+    for m in motions:
+        c, s = np.cos(odometry[-1][2]), np.sin(odometry[-1][2])
+        x, y, t = odometry[-1]
+        odometry.append((x + c * m[0] - s * m[1], y + s * m[0] + c * m[1], wrap_angle(t + m[2])))
+    return np.array(odometry)
+
+
+@pytest.fixture(scope="module")
+def ring_run():
+    rng = np.random.default_rng(44)
+    world = ring_building()
+    truth = ring_path()
+    scans = [simulate_scan(world, Pose2(*p), SENSOR, rng, 0.1 * i) for i, p in enumerate(truth)]
+    odometry = drifting_odometry(truth, rng)
+    return world, truth, run_slam(scans, odometry, initial=Pose2(*truth[0]))
+
+
+def _errors(poses: np.ndarray, truth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    return (
+        np.hypot(*(poses[:, :2] - truth[:, :2]).T),
+        np.rad2deg(np.abs(wrap_angle(poses[:, 2] - truth[:, 2]))),
+    )
+
+
+def test_slam_keeps_every_pose_where_the_odometry_drifts_away(ring_run):
+    _, truth, result = ring_run
+    odom_m, _ = _errors(result.odometry, truth)
+    slam_m, slam_deg = _errors(result.poses, truth)
+    assert odom_m.max() > 1.0  # the odometry alone is metres off by the second lap
+    assert slam_m.max() < 0.1 and slam_deg.max() < 1.0, (slam_m.max(), slam_deg.max())
+    assert result.loops_accepted >= 1
+    assert all(loop.correction_m < 0.5 for loop in result.loops if loop.accepted)
+    assert 0 < result.keyframes.size < truth.shape[0]
+
+
+def test_the_map_of_the_solved_poses_lies_on_the_walls(ring_run):
+    from segloc_cli.maps.fusion import build_global_map
+
+    world, _, result = ring_run
+    poses = [Pose2(*result.keyframe_poses[k]) for k in range(result.keyframes.size)]
+    segments = build_global_map(result.local_maps, poses)
+    ends = segments.reshape(-1, 2)
+    assert point_segment_distances(ends, world.segments).min(axis=1).max() < 0.05
+
+
+def test_the_fits_information_weighs_what_the_walls_pin():
+    """Points on one wall along x pin y only: no information along x; on two walls at
+    right angles, both. The heading is pinned by points spread along a wall."""
+    wall_x = np.array([[-5.0, 1.0, 5.0, 1.0]])
+    points = np.column_stack([np.linspace(-3, 3, 61), np.full(61, 1.0)])
+    info = fit_information(points, wall_x, np.zeros(3), 0.05, 0.02)
+    assert info[0, 0] == pytest.approx(0.0, abs=1e-9)
+    assert info[1, 1] == pytest.approx(61 / 0.02**2)
+    assert info[2, 2] > 0
+    corner = np.vstack([wall_x, [[1.0, -5.0, 1.0, 5.0]]])
+    both = np.vstack([points, np.column_stack([np.full(61, 1.0), np.linspace(-3, 3, 61)])])
+    info = fit_information(both, corner, np.zeros(3), 0.05, 0.02)
+    assert np.linalg.eigvalsh(info[:2, :2]).min() > 10 / 0.02**2
+
+
+def test_odometry_is_interpolated_to_the_scans_across_the_wrap():
+    times = np.array([0.0, 1.0])
+    poses = np.array([[0.0, 0.0, np.deg2rad(179.0)], [1.0, 2.0, np.deg2rad(-179.0)]])
+    at = odometry_at(np.array([0.5, -1.0, 3.0]), times, poses)
+    np.testing.assert_allclose(at[:, :2], [[0.5, 1.0], [0.0, 0.0], [1.0, 2.0]])
+    np.testing.assert_allclose(np.abs(np.rad2deg(at[0, 2])), 180.0)
+
+
+def _segloc(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([str(SEGLOC), *map(str, args)], capture_output=True, text=True)
+
+
+def test_map_build_without_survey_writes_the_poses_that_rebuild_its_map(tmp_path):
+    """The hall's mapping run, its scans' poses found from the scans alone (it has no
+    odometry); the poses given back as a survey fuse the same map."""
+    log = HALL / "mapping" / "log.mcap"
+    first = _segloc(
+        "map", "build", log, "--scans", "13", "--initial", "1.5,3,0",
+        "--out", tmp_path / "slam.json", "--poses-out", tmp_path / "poses.csv",
+    )  # fmt: skip
+    assert first.returncode == 0, first.stderr
+    assert "no odometry" in first.stderr
+    found = pd.read_csv(tmp_path / "poses.csv")
+    survey = pd.read_csv(HALL / "mapping" / "survey.csv").set_index("pose_id")
+    truth = survey.loc[found.pose_id]
+    assert np.hypot(found.x_m - truth.x_m.values, found.y_m - truth.y_m.values).max() < 0.05
+    again = _segloc(
+        "map", "build", log, "--scans", "13", "--survey", tmp_path / "poses.csv",
+        "--out", tmp_path / "again.json",
+    )  # fmt: skip
+    assert again.returncode == 0, again.stderr
+    maps = [
+        pd.read_json(tmp_path / name, typ="series")["segments"]
+        for name in ("slam.json", "again.json")
+    ]
+    np.testing.assert_allclose(np.array(maps[0]), np.array(maps[1]), atol=1e-5)
+
+
+@pytest.mark.parametrize(
+    ("args", "said"),
+    [
+        (["--survey", HALL / "mapping" / "survey.csv", "--initial", "0,0,0"], "--initial is for"),
+        (["--scans", "1"], "at least two scans"),
+    ],
+)
+def test_map_build_without_survey_refuses_what_it_cannot_do(tmp_path, args, said):
+    run = _segloc(
+        "map", "build", HALL / "mapping" / "log.mcap", *args, "--out", tmp_path / "m.json"
+    )
+    assert run.returncode == 2
+    assert said in run.stderr
+    assert len(run.stderr.strip().splitlines()) == 1, run.stderr
