@@ -293,6 +293,11 @@ class SlamParams:
     point_sigma_m: float = 0.05
     """Spread of a point about its wall in the fit's information (wider than the range
     noise: the points of one scan do not err independently)."""
+    edge_floor_m: float = 0.01
+    """Added to the spread of every edge's position (per axis): what a fit's own figures
+    leave out (segments fused to about a centimetre, points that err together)..."""
+    edge_floor_deg: float = 0.2
+    """...and to the spread of its heading."""
     odom_sigma_m: float = 0.05
     """Spread of an odometry edge per metre travelled (position, per axis)..."""
     odom_sigma_deg: float = 2.0

@@ -229,6 +229,7 @@ PAGES: dict[str, list[Expect]] = {
     ],
     "docs/maps.md": [
         Expect(RUN, "segloc map build datasets/hall/mapping/log.mcap"),
+        Expect(REAL, "segloc import rosbag ../shared/datasets/fr079/fr079.orig.bag"),
         Expect(RUN, "segloc map export"),
     ],
     "docs/refusals.md": [],

@@ -169,3 +169,16 @@ def test_map_build_without_survey_refuses_what_it_cannot_do(tmp_path, args, said
     assert run.returncode == 2
     assert said in run.stderr
     assert len(run.stderr.strip().splitlines()) == 1, run.stderr
+
+
+def test_map_build_keeps_an_existing_poses_file_without_force(tmp_path):
+    taken = tmp_path / "poses.csv"
+    taken.write_text("kept\n")
+    run = _segloc(
+        "map", "build", HALL / "mapping" / "log.mcap", "--out", tmp_path / "m.json",
+        "--poses-out", taken,
+    )  # fmt: skip
+    assert run.returncode == 2
+    assert "--poses-out" in run.stderr and "--force" in run.stderr, run.stderr
+    assert taken.read_text() == "kept\n"
+    assert not (tmp_path / "m.json").exists()

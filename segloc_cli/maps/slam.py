@@ -40,11 +40,15 @@ WORLD_ORIGIN = Pose2(0.0, 0.0, 0.0)
 
 @dataclass(frozen=True)
 class LoopCandidate:
-    """A search of keyframe ``keyframe`` in submap ``submap``: what the verdict said, the
-    correction it implied (m, °) and whether it was accepted."""
+    """A search of keyframe ``keyframe`` in submap ``submap`` (whose first keyframe is
+    ``anchor``): what the verdict said, where it put the keyframe in the anchor's frame
+    (``motion``: x m, y m, θ rad; NaN where nothing was found), the correction that implied
+    (m, °) and whether it was accepted."""
 
     keyframe: int
     submap: int
+    anchor: int
+    motion: tuple[float, float, float]
     status: str
     inlier_ratio: float
     correction_m: float
@@ -122,7 +126,11 @@ def fit_information(
     return jac.T @ jac / sigma_m**2
 
 
-def _odometry_information(motion: np.ndarray, params: SlamParams) -> np.ndarray:
+def _odometry_information(motion: np.ndarray | None, params: SlamParams) -> np.ndarray:
+    """Information (3, 3) of the odometry's ``motion`` (x m, y m, θ rad) between two
+    keyframes; None, a log with no odometry: a guess of a metre and 30° either way."""
+    if motion is None:
+        return np.diag([1.0, 1.0, np.deg2rad(30.0) ** -2])
     travel = float(np.hypot(motion[0], motion[1]))
     sigma_m = params.odom_sigma_m * max(travel, 0.1)
     sigma_rad = np.deg2rad(params.odom_sigma_deg * max(travel, 0.1)) + 0.1 * abs(motion[2])
@@ -132,8 +140,11 @@ def _odometry_information(motion: np.ndarray, params: SlamParams) -> np.ndarray:
 class _Graph:
     """The keyframes' pose graph in gtsam (imported here: only the SLAM needs it)."""
 
-    def __init__(self, first: np.ndarray):
+    def __init__(self, first: np.ndarray, floor_m: float, floor_deg: float):
         import gtsam
+
+        self.floor = np.diag([floor_m**2, floor_m**2, np.deg2rad(floor_deg) ** 2])
+        """Added to every edge's covariance (``SlamParams.edge_floor_*``)."""
 
         self.gtsam = gtsam
         self.isam = gtsam.ISAM2()
@@ -153,8 +164,8 @@ class _Graph:
 
     def _noise(self, information: np.ndarray, cauchy: float | None):
         gtsam = self.gtsam
-        information = information + np.diag([1e-6, 1e-6, 1e-6])
-        model = gtsam.noiseModel.Gaussian.Information(information)
+        covariance = np.linalg.inv(information + np.diag([1e-6, 1e-6, 1e-6])) + self.floor
+        model = gtsam.noiseModel.Gaussian.Covariance(covariance)
         if cauchy is None:
             return model
         loss = gtsam.noiseModel.mEstimator.Cauchy.Create(cauchy)
@@ -202,6 +213,8 @@ class _Submap:
     last: int
     segments: np.ndarray
     localizer: object | None = None
+    pending: tuple[int, np.ndarray] | None = None
+    """The last keyframe found in it with an ok verdict, and where that put the anchor."""
 
 
 def run_slam(
@@ -232,7 +245,7 @@ def run_slam(
     odom_world = np.array([start] * n)
     for i in range(1, n):
         odom_world[i] = compose(odom_world[i - 1], steps[i])
-    graph = _Graph(start)
+    graph = _Graph(start, p.edge_floor_m, p.edge_floor_deg)
     keyframes, kf_pose, kf_travel = [0], [start], [0.0]
     local_maps = [extract_segments(scans[0], extract_params)]
     owner, offset = np.zeros(n, dtype=np.int64), np.zeros((n, 3))
@@ -249,7 +262,7 @@ def run_slam(
         fit = refine_pose(points, local_world, Pose2(*guess), refine)
         fitted = fit.inlier_ratio >= p.min_inlier_ratio
         previous = fit.pose.as_array() if fitted else guess
-        if not fitted:  # too far for the fit: the localizer's search, around the guess
+        if blind and not fitted:  # too far for the fit: the localizer's search, around the guess
             found = _searched(
                 local_world, extract_segments(scans[i], extract_params), guess, points
             )
@@ -265,12 +278,13 @@ def run_slam(
                 advance(i + 1, len(keyframes), sum(loop.accepted for loop in loops))
             continue
         k = len(keyframes)
+        # The odometry bounds what the fit leaves free (along a corridor, all of it).
+        travelled = None if blind else relative_motion(odometry[keyframes[-1]], odometry[i])[0]
+        information = _odometry_information(travelled, p)
         if fitted:
-            information = fit_information(
+            information = information + fit_information(
                 points, local_world, previous, refine.final_gate_m, p.point_sigma_m
             )
-        else:
-            information = _odometry_information(motion, p)
         graph.add_edge(k - 1, k, motion, information, guess=previous)
         owner[i] = k
         keyframes.append(i)
@@ -315,6 +329,16 @@ def _searched(
     return est.pose.as_array() if est.status == STATUS_OK else None
 
 
+def _same_place(a: np.ndarray, b: np.ndarray) -> bool:
+    """Whether two poses (3,) are one answer by the search's own measure (``SearchParams``:
+    ``distinct_m``, ``distinct_deg``)."""
+    near = SearchParams()
+    return bool(
+        np.hypot(a[0] - b[0], a[1] - b[1]) <= near.distinct_m
+        and np.rad2deg(abs(wrap_angle(a[2] - b[2]))) <= near.distinct_deg
+    )
+
+
 def _submap(first, last, local_maps, kf_pose, fuse_params, fuse_segments) -> _Submap:
     anchor = Pose2(*kf_pose[first]).inverse()
     placed = [
@@ -350,14 +374,22 @@ def _close_loops(
         est = localizer.localize(local_map, Pose2(*guess), points)
         found = est.pose.as_array()
         correction = relative_motion(guess, found)[0]  # NaN where nothing was found
-        # The verdict's ``ok``, at a place inside the square searched.
-        accepted = est.status == STATUS_OK and bool(
+        # The verdict's ``ok``, at a place inside the square searched, that the last such
+        # find in this submap agrees with: both put the anchor at one place.
+        plausible = est.status == STATUS_OK and bool(
             np.hypot(correction[0], correction[1]) <= radius * np.sqrt(2.0)
         )
+        accepted = False
+        if plausible:
+            anchor_found = compose(here, relative_motion(found, np.zeros(3))[0])
+            earlier, sub.pending = sub.pending, (k, anchor_found)
+            accepted = earlier is not None and _same_place(earlier[1], anchor_found)
         loops.append(
             LoopCandidate(
                 k,
                 index,
+                sub.first,
+                (float(found[0]), float(found[1]), float(found[2])),
                 est.status,
                 float(est.inlier_ratio),
                 float(np.hypot(correction[0], correction[1])),
