@@ -289,7 +289,13 @@ class SlamParams:
     """The keyframes within this much travel before a scan make the map it is fitted to."""
     min_inlier_ratio: float = 0.3
     """A fit with fewer of the scan's points on the local map is not taken: the odometry
-    places the keyframe, with its own spread (``odom_sigma_*``)."""
+    places the keyframe, with its own spread (``odom_sigma_*``)..."""
+    max_correction_m: float = 0.3
+    """...nor, in a log with odometry, a fit that moves the scan farther than this from
+    where the odometry put it since the scan before (odometry does not err so much in a
+    fraction of a second)..."""
+    max_correction_deg: float = 10.0
+    """...or turns it more than this."""
     point_sigma_m: float = 0.05
     """Spread of a point about its wall in the fit's information (wider than the range
     noise: the points of one scan do not err independently)."""
@@ -311,6 +317,10 @@ class SlamParams:
     loop_radius_per_m: float = 0.05
     """...growing by this much per metre travelled since, up to ``loop_max_radius_m``."""
     loop_max_radius_m: float = 6.0
+    loop_window_deg: float = 20.0
+    """Heading uncertainty just after a loop (the search's window either side)..."""
+    loop_window_per_m: float = 0.2
+    """...growing by this much (°) per metre travelled since, up to 180°."""
     loop_every: int = 3
     """Every this-many-th keyframe is searched for in older submaps."""
     loop_cauchy: float = 1.0

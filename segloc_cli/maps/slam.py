@@ -260,7 +260,12 @@ def run_slam(
         before = previous
         points = scans[i].points()
         fit = refine_pose(points, local_world, Pose2(*guess), refine)
-        fitted = fit.inlier_ratio >= p.min_inlier_ratio
+        correction = relative_motion(guess, fit.pose.as_array())[0]
+        plausible = blind or (
+            np.hypot(correction[0], correction[1]) <= p.max_correction_m
+            and np.rad2deg(abs(correction[2])) <= p.max_correction_deg
+        )
+        fitted = bool(fit.inlier_ratio >= p.min_inlier_ratio and plausible)
         previous = fit.pose.as_array() if fitted else guess
         if blind and not fitted:  # too far for the fit: the localizer's search, around the guess
             found = _searched(
@@ -367,7 +372,8 @@ def _close_loops(
         if np.hypot(*(here[:2] - anchor[:2])) > radius + p.submap_m:
             continue
         guess = relative_motion(anchor, here)[0]
-        params = LocalizeParams(search=SearchParams(half_width_m=radius))
+        window_deg = min(p.loop_window_deg + p.loop_window_per_m * travel_since_loop, 180.0)
+        params = LocalizeParams(window_deg=window_deg, search=SearchParams(half_width_m=radius))
         if sub.localizer is None:
             sub.localizer = Localizer.on_map(sub.segments, params)
         localizer = sub.localizer.with_params(params)
