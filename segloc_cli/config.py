@@ -304,6 +304,11 @@ class SlamParams:
     leave out (segments fused to about a centimetre, points that err together)..."""
     edge_floor_deg: float = 0.2
     """...and to the spread of its heading."""
+    odom_jump_m: float = 2.0
+    """Odometry that moves this far between two scans has jumped (a robot carried off, a
+    reset): that scan is placed by the scans alone..."""
+    odom_jump_deg: float = 135.0
+    """...as is one it turns this much."""
     odom_sigma_m: float = 0.05
     """Spread of an odometry edge per metre travelled (position, per axis)..."""
     odom_sigma_deg: float = 2.0

@@ -8,6 +8,7 @@ so that only the scans can keep the poses, and only a loop can close the ring.
 
 from __future__ import annotations
 
+import itertools
 import subprocess
 
 import numpy as np
@@ -182,3 +183,75 @@ def test_map_build_keeps_an_existing_poses_file_without_force(tmp_path):
     assert "--poses-out" in run.stderr and "--force" in run.stderr, run.stderr
     assert taken.read_text() == "kept\n"
     assert not (tmp_path / "m.json").exists()
+
+
+def test_a_jump_of_the_odometry_is_placed_by_the_scans(ring_run):
+    """The odometry of the ring run reset to the origin halfway: the scans after it are
+    still placed where they were taken, and the jump is reported."""
+    world, truth, _ = ring_run
+    rng = np.random.default_rng(45)
+    scans = [simulate_scan(world, Pose2(*p), SENSOR, rng, 0.1 * i) for i, p in enumerate(truth)]
+    odometry = drifting_odometry(truth, rng)
+    half = truth.shape[0] // 2
+    odometry[half:] = [
+        *relative_motion(
+            np.repeat(odometry[half : half + 1], truth.shape[0] - half, 0), odometry[half:]
+        )
+    ]
+    jumped = run_slam(scans, odometry, initial=Pose2(*truth[0]))
+    assert jumped.odometry_jumps == [half]
+    slam_m, slam_deg = _errors(jumped.poses, truth)
+    assert slam_m.max() < 0.1 and slam_deg.max() < 1.0, (slam_m.max(), slam_deg.max())
+
+
+def twin_rooms() -> World:
+    """Two rooms alike, 6 m square with the same pillars, 8 m apart, a corridor between
+    their doorways (each room has one on either side, the outer one closed by a niche)."""
+    walls = []
+    for dx in (0.0, 8.0):
+        walls += [[dx, 0, dx + 6, 0], [dx + 6, 6, dx, 6]]  # south and north walls
+        for x in (dx, dx + 6):  # west and east walls, with a doorway from y 2.5 to 3.5
+            walls += [[x, 0, x, 2.5], [x, 3.5, x, 6]]
+        walls += _box(dx + 1.8, 1.8, dx + 2.2, 2.2) + _box(dx + 3.5, 4.0, dx + 4.1, 4.3)
+    walls += [[6, 2.5, 8, 2.5], [6, 3.5, 8, 3.5]]  # the corridor
+    walls += [[-1, 2.5, 0, 2.5], [-1, 2.5, -1, 3.5], [-1, 3.5, 0, 3.5]]  # west niche
+    walls += [[14, 2.5, 15, 2.5], [15, 2.5, 15, 3.5], [14, 3.5, 15, 3.5]]  # east niche
+    return World(np.array(walls, dtype=float), name="twins")
+
+
+def _walk(points: list[tuple[float, float]]) -> np.ndarray:
+    """Poses ``STEP_M`` apart along the polyline ``points``, turning in place at corners."""
+    poses = []
+    for (x0, y0), (x1, y1) in itertools.pairwise(points):
+        heading = np.arctan2(y1 - y0, x1 - x0)
+        steps = round(np.hypot(x1 - x0, y1 - y0) / STEP_M)
+        poses += [(x0 + (x1 - x0) * t, y0 + (y1 - y0) * t, heading)
+                  for t in np.arange(steps) / steps]  # fmt: skip
+    return np.array(poses)
+
+
+def test_a_room_like_one_seen_before_closes_no_loop():
+    """Twice round the first room, along the corridor, and twice round its twin: the scans
+    in the twin look like those of the first room, but the odometry puts them 8 m away,
+    beyond where a keyframe is searched for: every loop taken joins true places (the first
+    room's submaps see down the corridor, so some loops from it are true)."""
+    rng = np.random.default_rng(46)
+    world = twin_rooms()
+    square = [(1.2, 1.2), (4.8, 1.2), (4.8, 4.8), (1.2, 4.8)]
+    route = square * 2 + [(1.2, 3.0), (9.2, 3.0)]
+    route += [(x + 8.0, y) for x, y in square * 2 + [(1.2, 1.2)]]
+    truth = _walk(route)
+    scans = [simulate_scan(world, Pose2(*p), SENSOR, rng, 0.1 * i) for i, p in enumerate(truth)]
+    result = run_slam(scans, drifting_odometry(truth, rng), initial=Pose2(*truth[0]))
+    at = truth[result.keyframes]
+    in_twin = [
+        loop for loop in result.loops if at[loop.keyframe, 0] > 8.0 and at[loop.anchor, 0] < 6.0
+    ]
+    assert in_twin, "the twin's keyframes were never searched for in the first room"
+    # Every loop taken joins the places where the scans were truly taken.
+    for loop in (loop for loop in result.loops if loop.accepted):
+        true = relative_motion(at[loop.anchor], at[loop.keyframe])[0]
+        off = relative_motion(true, np.array(loop.motion))[0]
+        assert np.hypot(off[0], off[1]) < 0.1 and abs(off[2]) < np.deg2rad(1.0), loop
+    slam_m, _ = _errors(result.poses, truth)
+    assert slam_m.max() < 0.1

@@ -8,6 +8,7 @@ from dataclasses import asdict
 from pathlib import Path
 
 import click
+import numpy as np
 
 from segloc_cli.commands.configfile import config_option
 from segloc_cli.commands.invocation import Invocation
@@ -172,6 +173,7 @@ def _map_without_survey(run, log_path, out_path, mcap_path, poses_out, initial) 
             "and loops rest on the scans alone"
         )
     built, slam = slam_map(log, log_path, run.config, Progress, selected, initial)
+    _say_jumps(log, selected, slam)
     problem = bounds_problem(built.segments)
     if problem is not None:
         raise InputError(f"the map built would be refused when read: {problem}", path=log_path)
@@ -199,6 +201,29 @@ def _map_without_survey(run, log_path, out_path, mcap_path, poses_out, initial) 
         f"{counted(accepted, 'loop')} accepted of "
         f"{counted(len(slam.loops), 'candidate')}{largest}"
         f"{_dropped_note(built, run.config.fuse)}"
+    )
+
+
+def _say_jumps(log, selected, slam, shown: int = 3) -> None:
+    """One line on the scans to which the odometry jumped (``SlamResult.odometry_jumps``),
+    naming the first ``shown``."""
+    from segloc_cli.geometry import relative_motion
+
+    if not slam.odometry_jumps:
+        return
+    numbers, times = log.scan_numbers[selected], log.scan_times_s[selected]
+    places = []
+    for i in slam.odometry_jumps[:shown]:
+        step = relative_motion(slam.odometry[i - 1], slam.odometry[i])[0]
+        places.append(
+            f"scan {numbers[i]} (t {times[i]:.3f} s: {np.hypot(step[0], step[1]):.2f} m, "
+            f"{np.rad2deg(abs(step[2])):.0f}°)"
+        )
+    more = len(slam.odometry_jumps) - len(places)
+    info(
+        f"the odometry jumps at {counted(len(slam.odometry_jumps), 'scan')}: "
+        f"{', '.join(places)}{f' and {more} more' if more else ''}; those scans were placed "
+        "by the scans alone"
     )
 
 

@@ -68,6 +68,9 @@ class SlamResult:
     keyframe_poses: np.ndarray
     odometry: np.ndarray
     loops: list[LoopCandidate] = field(default_factory=list)
+    odometry_jumps: list[int] = field(default_factory=list)
+    """The scans (indices) to which the odometry jumped (``SlamParams.odom_jump_*``): placed
+    by the scans alone."""
 
     @property
     def loops_accepted(self) -> int:
@@ -242,6 +245,9 @@ def run_slam(
     odometry = np.zeros((n, 3)) if blind else np.asarray(odometry, dtype=float)
     start = initial.as_array()
     steps = np.vstack([np.zeros((1, 3)), relative_motion(odometry[:-1], odometry[1:])])
+    jumped = (np.hypot(steps[:, 0], steps[:, 1]) > p.odom_jump_m) | (
+        np.rad2deg(np.abs(steps[:, 2])) > p.odom_jump_deg
+    )
     odom_world = np.array([start] * n)
     for i in range(1, n):
         odom_world[i] = compose(odom_world[i - 1], steps[i])
@@ -256,7 +262,9 @@ def run_slam(
     previous = start
     local_world = transform_segments(local_maps[0], initial)
     for i in range(1, n):
-        guess = compose(previous, steps[i])
+        # Where the odometry jumps (a robot carried off, a reset), the scan is placed by the
+        # scans, from the pose of the one before.
+        guess = previous if jumped[i] else compose(previous, steps[i])
         before = previous
         points = scans[i].points()
         fit = refine_pose(points, local_world, Pose2(*guess), refine)
@@ -265,12 +273,12 @@ def run_slam(
             np.hypot(correction[0], correction[1]) <= p.max_correction_m
             and np.rad2deg(abs(correction[2])) <= p.max_correction_deg
         )
-        fitted = bool(fit.inlier_ratio >= p.min_inlier_ratio and plausible)
+        # After a jump the heading may be anything: the search decides, not the fit.
+        fitted = bool(fit.inlier_ratio >= p.min_inlier_ratio and plausible and not jumped[i])
         previous = fit.pose.as_array() if fitted else guess
-        if blind and not fitted:  # too far for the fit: the localizer's search, around the guess
-            found = _searched(
-                local_world, extract_segments(scans[i], extract_params), guess, points
-            )
+        if (blind or jumped[i]) and not fitted:  # the localizer's search, around the guess
+            local_map = extract_segments(scans[i], extract_params)
+            found = _searched(local_world, local_map, guess, points, any_heading=jumped[i])
             fitted = found is not None
             previous = guess if found is None else found
         if blind:  # no odometry: the next scan is guessed to move as this one did
@@ -284,7 +292,9 @@ def run_slam(
             continue
         k = len(keyframes)
         # The odometry bounds what the fit leaves free (along a corridor, all of it).
-        travelled = None if blind else relative_motion(odometry[keyframes[-1]], odometry[i])[0]
+        travelled = None
+        if not (blind or jumped[keyframes[-1] + 1 : i + 1].any()):
+            travelled = relative_motion(odometry[keyframes[-1]], odometry[i])[0]
         information = _odometry_information(travelled, p)
         if fitted:
             information = information + fit_information(
@@ -318,19 +328,23 @@ def run_slam(
             advance(i + 1, len(keyframes), sum(loop.accepted for loop in loops))
     solved = graph.solved(len(keyframes))
     poses = np.array([compose(solved[o], d) for o, d in zip(owner, offset, strict=True)])
-    return SlamResult(poses, np.array(keyframes), local_maps, solved, odom_world, loops)
+    jumps = [int(i) for i in np.flatnonzero(jumped)]
+    return SlamResult(poses, np.array(keyframes), local_maps, solved, odom_world, loops, jumps)
 
 
 def _searched(
-    segments_world: np.ndarray, local_map: np.ndarray, guess: np.ndarray, points: np.ndarray
-) -> np.ndarray | None:
+    segments_world: np.ndarray, local_map: np.ndarray, guess: np.ndarray, points: np.ndarray,
+    any_heading: bool,
+) -> np.ndarray | None:  # fmt: skip
     """The pose (3,) at which the localizer places a scan (its local map (N, 4) and points
-    (P, 2), robot frame) on ``segments_world`` around ``guess`` (its default search window),
-    when its verdict is ``ok``; else None."""
+    (P, 2), robot frame) on ``segments_world`` around ``guess`` (its default search window;
+    with ``any_heading``, at every heading), when its verdict is ``ok``; else None."""
     from segloc_cli.estimates import STATUS_OK
     from segloc_cli.method.localize import Localizer
 
-    est = Localizer.on_map(segments_world).localize(local_map, Pose2(*guess), points)
+    params = LocalizeParams(window_deg=None) if any_heading else None
+    localizer = Localizer.on_map(segments_world, params)
+    est = localizer.localize(local_map, Pose2(*guess), points)
     return est.pose.as_array() if est.status == STATUS_OK else None
 
 
