@@ -26,7 +26,23 @@ def test_a_map_prepared_for_other_settings_shares_what_they_leave_unchanged():
     assert finer.search is first.search
     wider = first.for_params(LocalizeParams(search=SearchParams(half_width_m=3.0)))
     assert wider.search is not first.search and wider.search.params.half_width_m == 3.0
+    assert wider.search.pyramid is first.search.pyramid  # the square searched is no raster
     assert wider.rtable is first.rtable
+    coarser = first.for_params(LocalizeParams(search=SearchParams(cell_m=0.1)))
+    assert coarser.search.pyramid is not first.search.pyramid
+
+
+def test_a_wider_square_finds_what_a_search_built_for_it_finds():
+    rng = np.random.default_rng(12)
+    true = Pose2(*random_free_poses(ROOM, 1, rng)[0])
+    points = simulate_scan(ROOM, true, NOISE_FREE, rng, 0.0).points()
+    guess = Pose2(true.x + 2.3, true.y - 0.4, true.theta + 0.05)  # beyond the default 2 m
+    wide = LocalizeParams(search=SearchParams(half_width_m=2.5))
+    shared = prepare_map(ROOM.segments).for_params(wide).search
+    built = prepare_map(ROOM.segments, wide).search
+    found = shared.around(points, guess, 10.0)
+    assert found == built.around(points, guess, 10.0)
+    assert np.hypot(found[0].pose.x - true.x, found[0].pose.y - true.y) < 0.1
 
 
 def test_the_search_is_built_only_where_the_settings_run_it():

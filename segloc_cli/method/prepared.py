@@ -11,6 +11,8 @@ settings, building again only what those settings change.
 
 from __future__ import annotations
 
+import copy
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -100,8 +102,26 @@ def _prepared(
         rtable = RTable.build(segments, params.bin_deg)
     if shared is not None and shared._search_fits(params):
         search = shared.search
-    elif search_needed(params, global_search):
-        search = HypothesisSearch(segments, params.search)
-    else:
+    elif not search_needed(params, global_search):
         search = None
+    elif shared is not None and _same_raster(shared.search, params.search or SearchParams()):
+        search = _resized(shared.search, (params.search or SearchParams()).half_width_m)
+    else:
+        search = HypothesisSearch(segments, params.search)
     return PreparedMap(segments, index, near_index, rtable, search)
+
+
+def _same_raster(search: HypothesisSearch | None, params: SearchParams) -> bool:
+    """Whether a search at ``params`` builds the raster and pyramid ``search`` has: the
+    settings differ at most in the square a guided search covers (``half_width_m``)."""
+    if search is None:
+        return False
+    return dataclasses.replace(params, half_width_m=search.params.half_width_m) == search.params
+
+
+def _resized(search: HypothesisSearch, half_width_m: float) -> HypothesisSearch:
+    """``search`` covering another square around a guess, sharing its raster and pyramid
+    (building them costs far more than a guided search in them)."""
+    other = copy.copy(search)
+    other.params = dataclasses.replace(search.params, half_width_m=half_width_m)
+    return other
