@@ -1,18 +1,22 @@
 """Segment SLAM: every scan's pose and the map from a log's scans and odometry, no survey.
 
-Front end: each scan that moved far enough from the last keyframe (``SlamParams.keyframe_m``,
-``keyframe_deg``) is fitted (``refine_pose``) to the local map of the keyframes of the last
-few metres of travel, from the pose the odometry predicts; the fit is the edge from the last
-keyframe, with the information the fit's normal equations give (``fit_information``). The
-other scans are placed by the odometry from the keyframe before them.
+Front end: every scan is fitted (``refine_pose``) to the local map of the keyframes of the
+last few metres of travel, from where the odometry moves the scan before it (without
+odometry: as that scan moved); a fit that puts too few points on the map, or strays too far
+from the odometry's guess, is not taken, and the guess stands. A scan that moved far enough
+from the last keyframe (``SlamParams.keyframe_m``, ``keyframe_deg``) becomes one, joined to
+it by an edge weighted by what the fit's points pin (``fit_information``) and what the
+odometry adds; any other scan keeps its place relative to its keyframe.
 
 Submaps: the keyframes of each stretch of travel (``submap_m``), their local maps fused in
 the frame of the submap's first keyframe (its anchor).
 
-Loop closure: every keyframe is searched for in the finished submaps whose anchor lies
-within its pose uncertainty (a radius growing with the travel since the last loop), with
-the localizer's own search and verdict; a loop is accepted only when the verdict says ``ok``
-and any runner-up is a distinct place. Every candidate is recorded (``LoopCandidate``).
+Loop closure: every few keyframes, a keyframe is searched for in the finished submaps whose
+anchor lies within its pose uncertainty (a square and a heading window growing with the
+travel since the last loop), with the localizer's own search and verdict; a find is taken
+as a loop when the verdict says ``ok``, it lies in the square searched, and the find before
+it in that submap put the anchor at the same place. Every candidate is recorded
+(``LoopCandidate``).
 
 Back end: a pose graph over the keyframes (gtsam's ``Pose2`` factors: the front end's edges,
 and the loops' under a Cauchy loss), updated incrementally (iSAM2) as keyframes and loops
@@ -236,100 +240,140 @@ def run_slam(
     odometry, each scan guessed to move as the one before did); the first scan is placed
     at ``initial``. ``advance(scans_done, keyframes, loops_accepted)`` is called after
     every scan."""
-    from segloc_cli.maps.fusion import fuse_segments
+    mapping = _Mapping(scans, odometry, params or SlamParams(), initial, extract_params,
+                       refine_params or RefineParams(), fuse_params)  # fmt: skip
+    for i in range(1, len(scans)):
+        mapping.add_scan(i)
+        if advance:
+            advance(i + 1, len(mapping.keyframes), sum(loop.accepted for loop in mapping.loops))
+    return mapping.result()
 
-    p = params or SlamParams()
-    refine = refine_params or RefineParams()
-    n = len(scans)
-    blind = odometry is None
-    odometry = np.zeros((n, 3)) if blind else np.asarray(odometry, dtype=float)
-    start = initial.as_array()
-    steps = np.vstack([np.zeros((1, 3)), relative_motion(odometry[:-1], odometry[1:])])
-    jumped = (np.hypot(steps[:, 0], steps[:, 1]) > p.odom_jump_m) | (
-        np.rad2deg(np.abs(steps[:, 2])) > p.odom_jump_deg
-    )
-    odom_world = np.array([start] * n)
-    for i in range(1, n):
-        odom_world[i] = compose(odom_world[i - 1], steps[i])
-    graph = _Graph(start, p.edge_floor_m, p.edge_floor_deg)
-    keyframes, kf_pose, kf_travel = [0], [start], [0.0]
-    local_maps = [extract_segments(scans[0], extract_params)]
-    owner, offset = np.zeros(n, dtype=np.int64), np.zeros((n, 3))
-    submaps: list[_Submap] = []
-    submap_first = 0
-    loops: list[LoopCandidate] = []
-    travel_since_loop = 0.0
-    previous = start
-    local_world = transform_segments(local_maps[0], initial)
-    for i in range(1, n):
+
+class _Mapping:
+    """The state of a SLAM run as its scans are added one by one (``run_slam``)."""
+
+    def __init__(self, scans, odometry, p, initial, extract_params, refine, fuse_params):
+        from segloc_cli.maps.fusion import fuse_segments
+
+        self.scans, self.p, self.refine = scans, p, refine
+        self.extract_params, self.fuse_segments, self.fuse_params = (
+            extract_params, fuse_segments, fuse_params
+        )  # fmt: skip
+        n = len(scans)
+        self.blind = odometry is None
+        self.odometry = np.zeros((n, 3)) if self.blind else np.asarray(odometry, dtype=float)
+        start = initial.as_array()
+        self.steps = np.vstack(
+            [np.zeros((1, 3)), relative_motion(self.odometry[:-1], self.odometry[1:])]
+        )
+        self.jumped = (np.hypot(self.steps[:, 0], self.steps[:, 1]) > p.odom_jump_m) | (
+            np.rad2deg(np.abs(self.steps[:, 2])) > p.odom_jump_deg
+        )
+        self.odom_world = np.array([start] * n)
+        for i in range(1, n):
+            self.odom_world[i] = compose(self.odom_world[i - 1], self.steps[i])
+        self.graph = _Graph(start, p.edge_floor_m, p.edge_floor_deg)
+        self.keyframes, self.kf_pose, self.kf_travel = [0], [start], [0.0]
+        self.local_maps = [extract_segments(scans[0], extract_params)]
+        self.owner, self.offset = np.zeros(n, dtype=np.int64), np.zeros((n, 3))
+        self.submaps: list[_Submap] = []
+        self.submap_first = 0
+        self.loops: list[LoopCandidate] = []
+        self.travel_since_loop = 0.0
+        self.previous = start
+        self.local_world = transform_segments(self.local_maps[0], initial)
+
+    def add_scan(self, i: int) -> None:
+        """Place scan ``i``; make it a keyframe if it moved far enough from the last one."""
+        p = self.p
+        before = self.previous
+        points = self.scans[i].points()
+        self.previous, fitted = self._placed(i, points)
+        if self.blind:  # no odometry: the next scan is guessed to move as this one did
+            self.steps[i + 1 : i + 2] = relative_motion(before, self.previous)
+        motion = relative_motion(self.kf_pose[-1], self.previous)[0]
+        if np.hypot(motion[0], motion[1]) < p.keyframe_m and (
+            abs(np.rad2deg(motion[2])) < p.keyframe_deg
+        ):
+            self.owner[i], self.offset[i] = len(self.keyframes) - 1, motion
+            return
+        self._add_keyframe(i, motion, fitted, points)
+
+    def _placed(self, i: int, points: np.ndarray) -> tuple[np.ndarray, bool]:
+        """Where scan ``i`` (its points (P, 2), robot frame) goes, and whether the scans (a
+        fit or a search) placed it rather than the guess."""
+        p = self.p
+        jumped = bool(self.jumped[i])
         # Where the odometry jumps (a robot carried off, a reset), the scan is placed by the
         # scans, from the pose of the one before.
-        guess = previous if jumped[i] else compose(previous, steps[i])
-        before = previous
-        points = scans[i].points()
-        fit = refine_pose(points, local_world, Pose2(*guess), refine)
+        guess = self.previous if jumped else compose(self.previous, self.steps[i])
+        fit = refine_pose(points, self.local_world, Pose2(*guess), self.refine)
         correction = relative_motion(guess, fit.pose.as_array())[0]
-        plausible = blind or (
+        plausible = self.blind or (
             np.hypot(correction[0], correction[1]) <= p.max_correction_m
             and np.rad2deg(abs(correction[2])) <= p.max_correction_deg
         )
         # After a jump the heading may be anything: the search decides, not the fit.
-        fitted = bool(fit.inlier_ratio >= p.min_inlier_ratio and plausible and not jumped[i])
-        previous = fit.pose.as_array() if fitted else guess
-        if (blind or jumped[i]) and not fitted:  # the localizer's search, around the guess
-            local_map = extract_segments(scans[i], extract_params)
-            found = _searched(local_world, local_map, guess, points, any_heading=jumped[i])
-            fitted = found is not None
-            previous = guess if found is None else found
-        if blind:  # no odometry: the next scan is guessed to move as this one did
-            steps[i + 1 : i + 2] = relative_motion(before, previous)
-        motion = relative_motion(kf_pose[-1], previous)[0]
-        moved = float(np.hypot(motion[0], motion[1]))
-        if moved < p.keyframe_m and abs(np.rad2deg(motion[2])) < p.keyframe_deg:
-            owner[i], offset[i] = len(keyframes) - 1, motion
-            if advance:
-                advance(i + 1, len(keyframes), sum(loop.accepted for loop in loops))
-            continue
-        k = len(keyframes)
+        if fit.inlier_ratio >= p.min_inlier_ratio and plausible and not jumped:
+            return fit.pose.as_array(), True
+        if not (self.blind or jumped):
+            return guess, False
+        local_map = extract_segments(self.scans[i], self.extract_params)
+        found = _searched(self.local_world, local_map, guess, points, any_heading=jumped)
+        return (guess, False) if found is None else (found, True)
+
+    def _add_keyframe(self, i: int, motion: np.ndarray, fitted: bool, points: np.ndarray):
+        """Scan ``i`` as the next keyframe, ``motion`` from the last; its edge, its submap,
+        the loops it closes, and the local map the next scans are fitted to."""
+        p, k = self.p, len(self.keyframes)
         # The odometry bounds what the fit leaves free (along a corridor, all of it).
         travelled = None
-        if not (blind or jumped[keyframes[-1] + 1 : i + 1].any()):
-            travelled = relative_motion(odometry[keyframes[-1]], odometry[i])[0]
+        if not (self.blind or self.jumped[self.keyframes[-1] + 1 : i + 1].any()):
+            travelled = relative_motion(self.odometry[self.keyframes[-1]], self.odometry[i])[0]
         information = _odometry_information(travelled, p)
         if fitted:
             information = information + fit_information(
-                points, local_world, previous, refine.final_gate_m, p.point_sigma_m
-            )
-        graph.add_edge(k - 1, k, motion, information, guess=previous)
-        owner[i] = k
-        keyframes.append(i)
-        local_maps.append(extract_segments(scans[i], extract_params))
-        kf_pose.append(previous)
-        kf_travel.append(kf_travel[-1] + moved)
-        travel_since_loop += moved
-        if kf_travel[-1] - kf_travel[submap_first] >= p.submap_m:
-            submap = _submap(submap_first, k, local_maps, kf_pose, fuse_params, fuse_segments)
-            submaps.append(submap)
-            submap_first = k
-        if k % p.loop_every == 0:
-            closed = _close_loops(
-                graph, k, points, local_maps[k], kf_pose, kf_travel, submaps, p,
-                travel_since_loop, loops,
+                points, self.local_world, self.previous, self.refine.final_gate_m,
+                p.point_sigma_m,
             )  # fmt: skip
-            if closed:
-                travel_since_loop = 0.0
-                kf_pose = list(graph.poses(k + 1))
-                previous = kf_pose[k]
-        recent = [j for j in range(k + 1) if kf_travel[-1] - kf_travel[j] <= p.local_map_m]
-        local_world = np.concatenate(
-            [transform_segments(local_maps[j], Pose2(*kf_pose[j])) for j in recent]
+        self.graph.add_edge(k - 1, k, motion, information, guess=self.previous)
+        moved = float(np.hypot(motion[0], motion[1]))
+        self.owner[i] = k
+        self.keyframes.append(i)
+        self.local_maps.append(extract_segments(self.scans[i], self.extract_params))
+        self.kf_pose.append(self.previous)
+        self.kf_travel.append(self.kf_travel[-1] + moved)
+        self.travel_since_loop += moved
+        if self.kf_travel[-1] - self.kf_travel[self.submap_first] >= p.submap_m:
+            self.submaps.append(
+                _submap(self.submap_first, k, self.local_maps, self.kf_pose, self.fuse_params,
+                        self.fuse_segments)
+            )  # fmt: skip
+            self.submap_first = k
+        if k % p.loop_every == 0 and _close_loops(
+            self.graph, k, points, self.local_maps[k], self.kf_pose, self.kf_travel,
+            self.submaps, p, self.travel_since_loop, self.loops,
+        ):  # fmt: skip
+            self.travel_since_loop = 0.0
+            self.kf_pose = list(self.graph.poses(k + 1))
+            self.previous = self.kf_pose[k]
+        first = int(np.searchsorted(self.kf_travel, self.kf_travel[-1] - p.local_map_m))
+        self.local_world = np.concatenate(
+            [transform_segments(self.local_maps[j], Pose2(*self.kf_pose[j]))
+             for j in range(first, k + 1)]
+        )  # fmt: skip
+
+    def result(self) -> SlamResult:
+        """Every scan's pose once the graph is solved, and what the run found."""
+        solved = self.graph.solved(len(self.keyframes))
+        poses = np.array(
+            [compose(solved[o], d) for o, d in zip(self.owner, self.offset, strict=True)]
         )
-        if advance:
-            advance(i + 1, len(keyframes), sum(loop.accepted for loop in loops))
-    solved = graph.solved(len(keyframes))
-    poses = np.array([compose(solved[o], d) for o, d in zip(owner, offset, strict=True)])
-    jumps = [int(i) for i in np.flatnonzero(jumped)]
-    return SlamResult(poses, np.array(keyframes), local_maps, solved, odom_world, loops, jumps)
+        jumps = [int(i) for i in np.flatnonzero(self.jumped)]
+        return SlamResult(
+            poses, np.array(self.keyframes), self.local_maps, solved, self.odom_world,
+            self.loops, jumps,
+        )  # fmt: skip
 
 
 def _searched(
