@@ -8,7 +8,7 @@ DEMO_OUT := out/demo
 HALL := datasets/hall
 CI_OUT := out/ci
 
-.PHONY: setup demo ci-example test kernels browser fuzz bench bench-real bench-sweep bench-peers calibrate figures lint hall readme-real clean
+.PHONY: setup demo ci-example test kernels browser fuzz bench bench-real bench-sweep bench-slam bench-peers calibrate figures lint hall readme-real clean
 
 # Setup installs segloc (editable), compiles the kernels a first run uses, then adds the extras
 # of the tests, lint and benchmarks (dev), of --method icp|correlative (peers) and of segloc
@@ -109,6 +109,11 @@ readme-real: kernels
 # segloc sweep on the real logs' held-out scans (3 search windows × 2 seeds), on 1 and 2 workers.
 bench-sweep: kernels
 	$(BIN)/python benchmarks/sweep_real.py --datasets $(DATASETS) --out benchmarks/results-sweep.md
+
+# map build with no survey (segment SLAM) on each raw log, its poses scored on every relation
+# beside Cartographer's and Graph Mapping's published rows: benchmarks/results-slam.md.
+bench-slam: kernels
+	$(BIN)/python benchmarks/slam_real.py --datasets $(DATASETS) --out benchmarks/results-slam.md
 
 # Fit the verdict's confidence model on simulated rooms and the real logs' calibration splits
 # (scans the benchmarks do not score): segloc_cli/method/confidence_model.json and
