@@ -13,6 +13,7 @@ Poses are in the world frame: metres, and radians in a ``PoseTable``; an estimat
 
 from __future__ import annotations
 
+import argparse
 import itertools
 import os
 import subprocess
@@ -83,6 +84,27 @@ DATASETS = {
     "fr079": ("fr079-corrected.log.gz", "fr079.orig.bag", "fr079.relations"),
     "mit-csail": ("mit-csail-corrected.log.gz", "mit-csail.clf", "mit-csail.relations"),
 }
+
+
+def log_arguments(doc: str, work: str, out: str) -> argparse.ArgumentParser:
+    """A benchmark's command line over the real logs: ``--datasets`` (their folder),
+    ``--only`` (names, comma-separated), ``--work`` (default ``work``) and ``--out``
+    (default ``out``), described by ``doc``'s first line; ``chosen_logs`` checks ``--only``."""
+    parser = argparse.ArgumentParser(description=doc.splitlines()[0])
+    parser.add_argument("--datasets", type=Path, default=DATASETS_DIR)
+    parser.add_argument("--only", default=",".join(DATASETS))
+    parser.add_argument("--work", type=Path, default=Path(work))
+    parser.add_argument("--out", type=Path, default=Path(out))
+    return parser
+
+
+def chosen_logs(only: str) -> list[str]:
+    """The datasets ``--only`` names; the script ends naming one it does not know."""
+    names = [name for name in only.split(",") if name]
+    unknown = [n for n in names if n not in DATASETS]
+    if unknown:
+        raise SystemExit(f"unknown dataset {unknown[0]!r}; expected some of {', '.join(DATASETS)}")
+    return names
 
 
 # --- running segloc -------------------------------------------------------------

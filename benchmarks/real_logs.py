@@ -26,7 +26,6 @@ Usage: python benchmarks/real_logs.py [--datasets DIR] [--only intel,aces] [--wo
 
 from __future__ import annotations
 
-import argparse
 import json
 import time
 from pathlib import Path
@@ -36,7 +35,6 @@ import pandas as pd
 from precision import ImportedLogs, precision, precision_section
 from protocol import (
     DATASETS,
-    DATASETS_DIR,
     HELD_OUT_ALONE,
     HOLD_OUT_EVERY,
     OWN_SCAN_ONLY,
@@ -49,11 +47,13 @@ from protocol import (
     SUCCESS_M,
     HeldOutSplit,
     RawLog,
+    chosen_logs,
     commands_section,
     distances,
     errors_against_truth,
     is_right,
     is_right_place,
+    log_arguments,
     mean_sd,
     percent,
     perturbed_guesses,
@@ -906,15 +906,11 @@ def report(results: dict, commands: dict, trials: pd.DataFrame | None = None) ->
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--datasets", type=Path, default=DATASETS_DIR)
-    parser.add_argument("--only", default=",".join(DATASETS))
-    parser.add_argument("--work", type=Path, default=Path("out/real"))
-    parser.add_argument("--out", type=Path, default=Path("benchmarks/results-real.md"))
+    parser = log_arguments(__doc__, "out/real", "benchmarks/results-real.md")
     parser.add_argument("--no-tracking", action="store_true")
     args = parser.parse_args()
     results, commands, trials = {}, {}, []
-    for name in args.only.split(","):
+    for name in chosen_logs(args.only):
         work = args.work / name
         work.mkdir(parents=True, exist_ok=True)
         log: list[str] = []

@@ -15,15 +15,15 @@ Usage: python benchmarks/slam_real.py [--datasets DIR] [--only aces,fr079] [--wo
 
 from __future__ import annotations
 
-import argparse
 import re
 from pathlib import Path
 
 import numpy as np
 from protocol import (
     DATASETS,
-    DATASETS_DIR,
+    chosen_logs,
     commands_section,
+    log_arguments,
     mean_sd,
     prepare_raw_log,
     run_segloc_measured,
@@ -109,13 +109,8 @@ def report(rows: list[list[str]], commands: dict[str, list[str]]) -> str:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--datasets", type=Path, default=DATASETS_DIR)
-    parser.add_argument("--only", default=",".join(DATASETS))
-    parser.add_argument("--work", type=Path, default=Path("out/slam"))
-    parser.add_argument("--out", type=Path, default=Path("benchmarks/results-slam.md"))
-    args = parser.parse_args()
-    names = [name for name in args.only.split(",") if name]
+    args = log_arguments(__doc__, "out/slam", "benchmarks/results-slam.md").parse_args()
+    names = chosen_logs(args.only)
     missing = [n for n in names if not (args.datasets / n / DATASETS[n][1]).is_file()]
     if missing:
         raise SystemExit(f"no raw log of {', '.join(missing)} under {args.datasets}")

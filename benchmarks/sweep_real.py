@@ -16,7 +16,6 @@ Usage: python benchmarks/sweep_real.py [--datasets DIR] [--only intel,fr079] [--
 
 from __future__ import annotations
 
-import argparse
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -24,8 +23,6 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 from protocol import (
-    DATASETS,
-    DATASETS_DIR,
     HOLD_OUT_EVERY,
     OWN_SCAN_ONLY,
     PERTURB_THETA_DEG,
@@ -34,7 +31,9 @@ from protocol import (
     SUCCESS_M,
     HeldOutSplit,
     MeasuredRun,
+    chosen_logs,
     commands_section,
+    log_arguments,
     percent,
     prepare_held_out,
     run_segloc_measured,
@@ -321,16 +320,8 @@ def report(
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--datasets", type=Path, default=DATASETS_DIR)
-    parser.add_argument("--only", default=",".join(DATASETS))
-    parser.add_argument("--work", type=Path, default=Path("out/sweep"))
-    parser.add_argument("--out", type=Path, default=Path("benchmarks/results-sweep.md"))
-    args = parser.parse_args()
-    names = args.only.split(",")
-    unknown = [n for n in names if n not in DATASETS]
-    if unknown:
-        raise SystemExit(f"unknown dataset {unknown[0]!r}; expected some of {', '.join(DATASETS)}")
+    args = log_arguments(__doc__, "out/sweep", "benchmarks/results-sweep.md").parse_args()
+    names = chosen_logs(args.only)
     splits, commands = {}, {}
     for name in names:
         work = args.work / name
