@@ -9,6 +9,7 @@ so that only the scans can keep the poses, and only a loop can close the ring.
 from __future__ import annotations
 
 import itertools
+import re
 import subprocess
 
 import numpy as np
@@ -255,3 +256,33 @@ def test_a_room_like_one_seen_before_closes_no_loop():
         assert np.hypot(off[0], off[1]) < 0.1 and abs(off[2]) < np.deg2rad(1.0), loop
     slam_m, _ = _errors(result.poses, truth)
     assert slam_m.max() < 0.1
+
+
+def test_a_log_with_odometry_maps_with_its_loops_in_the_view(tmp_path):
+    """The ring run written as a segloc log with its drifting odometry: map build with no
+    survey finds its poses, and its Foxglove view draws the loops and, as each scan's
+    guess, where the odometry alone put it."""
+    from test_foxglove import validated_messages
+
+    from segloc_cli.io.mcap_log import write_log
+
+    rng = np.random.default_rng(44)
+    world, truth = ring_building(), ring_path()
+    scans = [simulate_scan(world, Pose2(*p), SENSOR, rng, 0.1 * i) for i, p in enumerate(truth)]
+    odometry = drifting_odometry(truth, rng)
+    log = tmp_path / "ring.mcap"
+    write_log(log, scans, [(s.time_s, Pose2(*o)) for s, o in zip(scans, odometry, strict=True)])
+    run = _segloc(
+        "map", "build", log, "--initial", "1,1,0", "--out", tmp_path / "map.json",
+        "--poses-out", tmp_path / "poses.csv", "--mcap", tmp_path / "view.mcap",
+    )  # fmt: skip
+    assert run.returncode == 0, run.stderr
+    found = pd.read_csv(tmp_path / "poses.csv")
+    assert np.hypot(found.x_m - truth[:, 0], found.y_m - truth[:, 1]).max() < 0.1
+    accepted = int(re.search(r"(\d+) loops? accepted", run.stderr).group(1))
+    assert accepted >= 1
+    shown = validated_messages(tmp_path / "view.mcap")
+    ((_, loops),) = shown["/loops"]
+    assert len(loops.entities[0].lines[0].points) == 2 * accepted
+    guesses = [(g.pose.position.x, g.pose.position.y) for _, g in shown["/guess"]]
+    np.testing.assert_allclose(guesses, odometry[:, :2], atol=1e-6)

@@ -145,7 +145,7 @@ def map_build(
     run.write_run_file(out_path)
     if mcap_path is not None:
         metadata = {"command": "map build", "log": str(log_path), "survey": str(survey_path)}
-        _write_build_view(mcap_path, log, built, metadata, "at the surveyed pose")
+        _write_build_view(mcap_path, log, built, metadata, "at the surveyed pose", "surveyed")
     unsurveyed = selected.size - built.scans_used
     which = "scan" if selection.whole else "selected scan"
     info(
@@ -191,7 +191,14 @@ def _map_without_survey(run, log_path, out_path, mcap_path, poses_out, initial) 
         write_pose_file(poses_out, table, log.original_times_s[selected], "scan pose")
     if mcap_path is not None:
         metadata = {"command": "map build", "log": str(log_path), "poses": source["poses"]}
-        _write_build_view(mcap_path, log, built, metadata, "at the pose found")
+        odometry = [Pose2(*pose) for pose in slam.odometry]
+        solved = slam.keyframe_poses
+        loops = [(*solved[loop.anchor, :2], *solved[loop.keyframe, :2])
+                 for loop in slam.loops if loop.accepted]  # fmt: skip
+        _write_build_view(
+            mcap_path, log, built, metadata, "at the pose found", "mapped", odometry,
+            np.array(loops).reshape(-1, 4),
+        )  # fmt: skip
     corrections = [loop.correction_m for loop in slam.loops if loop.accepted]
     largest = f", the largest correcting {max(corrections):.2f} m" if corrections else ""
     info(
@@ -260,20 +267,25 @@ def _dropped_note(built, fuse) -> str:
 
 
 def _write_build_view(
-    mcap_path: Path, log, built, metadata: dict[str, str], placed: str
+    mcap_path: Path, log, built, metadata: dict[str, str], placed: str, status: str,
+    guesses: list[Pose2] | None = None, loops: np.ndarray | None = None,
 ) -> None:  # fmt: skip
-    """The built map over its scans, each at its pose (``placed`` says which, in words), as a
-    Foxglove view."""
+    """The built map over its scans, each at its pose (``placed`` says which, in words) with
+    ``status``, as a Foxglove view; with no survey, each scan's odometry pose as its guess
+    (``guesses``, one per scan used) and the loops as lines (K, 4) in the map's frame."""
     from segloc_cli.io.runview import RunViewWriter
     from segloc_cli.progress import Progress
 
-    parts = zip(built.scan_index, built.poses, built.local_maps, strict=True)
+    guesses = guesses or [None] * built.scans_used
+    parts = zip(built.scan_index, built.poses, built.local_maps, guesses, strict=True)
     with (
         RunViewWriter(mcap_path, built.segments, metadata) as view,
         Progress("writing the view", built.scans_used, "scan") as shown,
     ):
-        for i, pose, local in parts:
+        for i, pose, local, guess in parts:
             text = f"scan {i + 1}: {counted(local.shape[0], 'local segment')} {placed}"
-            view.add(log.scans[i], local, pose, status="surveyed", text=text)
+            view.add(log.scans[i], local, pose, guess=guess, status=status, text=text)
             shown.advance()
+        if loops is not None and loops.shape[0]:
+            view.add_loops(loops, log.scans[built.scan_index[-1]].time_s)
     info(f"{mcap_path}: the map over its {counted(built.scans_used, 'scan')}, to open in Foxglove")

@@ -20,6 +20,9 @@ schema (the schema travels in the file) and the file is chunked, indexed and com
   above the robot. Each scan's entity replaces the last.
 - ``/status``: ``foxglove.Log``, one line per scan at the level the caller gives (a run:
   info when the estimate is accepted, warning when ambiguous, error otherwise).
+- ``/loops`` (a map built with no survey): ``foxglove.SceneUpdate``, one entity ``loops`` of
+  lines in ``world``, each joining two keyframes a loop joined; ``/guess`` there is where the
+  odometry alone put each scan.
 
 Every message's log time is its scan's time (ns). Metadata record ``segloc.run`` says what
 the file shows (the caller's words: command, logs, map...), and ``segloc.view``, written when
@@ -76,9 +79,16 @@ CHUNK_BYTES = 4 * 2**20
 FLUSH_INTERVAL_S = 0.5
 """Longest time (s) the scans added stay in memory before they go to disk as a chunk: what
 a killed run can lose of its view (a chunk per scan would make the file half as large again)."""
-LINE_WIDTH_PX = {"map": 2.0, "local_segments": 3.0}
+LINE_WIDTH_PX = {"map": 2.0, "local_segments": 3.0, "loops": 2.0}
 """Line thickness (screen pixels, so that it stays readable at any zoom)."""
-RGBA = {"map": (0.85, 0.85, 0.85, 1.0), "local_segments": (1.0, 0.55, 0.0, 1.0)}
+RGBA = {
+    "map": (0.85, 0.85, 0.85, 1.0),
+    "local_segments": (1.0, 0.55, 0.0, 1.0),
+    "loops": (0.2, 0.8, 0.3, 1.0),
+}
+LOOPS_TOPIC = "/loops"
+"""A map built with no survey: its loops, each a line from the keyframe of the submap it was
+found in to the keyframe found (``RunViewWriter.add_loops``)."""
 TEXT_HEIGHT_M = 0.4
 FRAME_ORIGIN = Pose2(0.0, 0.0, 0.0)
 """The pose of a scan or a primitive drawn in its own frame."""
@@ -241,6 +251,20 @@ class RunViewWriter:
             level=status_level(row["status"]),
             text=row_text(log_path, row),
         )
+
+    def add_loops(self, lines: np.ndarray, time_s: float) -> None:
+        """The loops of a map built with no survey, as lines (K, 4) ``x1 y1 x2 y2`` metres in
+        ``world``, on ``LOOPS_TOPIC`` (a channel of its own, made on the first call) at
+        ``time_s``."""
+        from foxglove import channels
+
+        if LOOPS_TOPIC not in self._channels:
+            self._channels[LOOPS_TOPIC] = channels.SceneUpdateChannel(
+                LOOPS_TOPIC, context=self._context
+            )
+        time_ns = _time_ns(time_s)
+        entity = _lines_entity(_timestamp(time_ns), "loops", WORLD_FRAME, lines, None)
+        self._log(LOOPS_TOPIC, _scene_update(entity), time_ns)
 
     def close(self) -> None:
         """Finish the file (with the map even if no scan came): what was drawn, the summary.
