@@ -178,9 +178,10 @@ def _map_without_survey(run, log_path, out_path, mcap_path, poses_out, initial) 
     if problem is not None:
         raise InputError(f"the map built would be refused when read: {problem}", path=log_path)
     accepted = slam.loops_accepted
-    source = {"log": str(log_path), "poses": "segment SLAM on the log's scans and odometry"}
+    placed = "segment SLAM on the log's scans and odometry"
     if not log.has_odometry:
-        source["poses"] = "segment SLAM on the log's scans (no odometry)"
+        placed = "segment SLAM on the log's scans (no odometry)"
+    source: dict[str, object] = {"log": str(log_path), "poses": placed}
     source |= _built_source(built, selection, selected, run.config)
     source |= {"keyframes": int(slam.keyframes.size), "loops_accepted": accepted}
     source |= {"loops_rejected": len(slam.loops) - accepted, "slam": asdict(run.config.slam)}
@@ -190,7 +191,7 @@ def _map_without_survey(run, log_path, out_path, mcap_path, poses_out, initial) 
         table = PoseTable(log.scan_numbers[selected], log.scan_times_s[selected], slam.poses)
         write_pose_file(poses_out, table, log.original_times_s[selected], "scan pose")
     if mcap_path is not None:
-        metadata = {"command": "map build", "log": str(log_path), "poses": source["poses"]}
+        metadata = {"command": "map build", "log": str(log_path), "poses": placed}
         odometry = [Pose2(*pose) for pose in slam.odometry]
         solved = slam.keyframe_poses
         loops = [(*solved[loop.anchor, :2], *solved[loop.keyframe, :2])
@@ -276,8 +277,8 @@ def _write_build_view(
     from segloc_cli.io.runview import RunViewWriter
     from segloc_cli.progress import Progress
 
-    guesses = guesses or [None] * built.scans_used
-    parts = zip(built.scan_index, built.poses, built.local_maps, guesses, strict=True)
+    odometry: list[Pose2 | None] = list(guesses) if guesses else [None] * built.scans_used
+    parts = zip(built.scan_index, built.poses, built.local_maps, odometry, strict=True)
     with (
         RunViewWriter(mcap_path, built.segments, metadata) as view,
         Progress("writing the view", built.scans_used, "scan") as shown,

@@ -29,14 +29,25 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from segloc_cli.config import LocalizeParams, RefineParams, SearchParams, SlamParams
+from segloc_cli.config import (
+    ExtractParams,
+    FuseParams,
+    LocalizeParams,
+    RefineParams,
+    SearchParams,
+    SlamParams,
+)
 from segloc_cli.geometry import Pose2, relative_motion, transform_segments, wrap_angle
 from segloc_cli.method.extract import extract_segments
 from segloc_cli.method.refine import nearest_segments, refine_pose
 from segloc_cli.scan import Scan
+
+if TYPE_CHECKING:
+    from segloc_cli.method.localize import Localizer
 
 WORLD_ORIGIN = Pose2(0.0, 0.0, 0.0)
 """Where the first scan is placed unless told otherwise."""
@@ -161,10 +172,11 @@ class _Graph:
         self._add(gtsam.PriorFactorPose2(0, gtsam.Pose2(*first), prior), 0, first)
 
     def _add(self, factor, key: int | None, guess: np.ndarray | None) -> None:
+        """``factor``, and with ``key`` a new keyframe's pose, first ``guess``."""
         graph, values = self.gtsam.NonlinearFactorGraph(), self.gtsam.Values()
         graph.add(factor)
         self.graph.add(factor)
-        if key is not None:
+        if key is not None and guess is not None:
             values.insert(key, self.gtsam.Pose2(*guess))
             self.values.insert(key, self.gtsam.Pose2(*guess))
         self.isam.update(graph, values)
@@ -219,7 +231,7 @@ class _Submap:
     first: int
     last: int
     segments: np.ndarray
-    localizer: object | None = None
+    localizer: Localizer | None = None
     pending: tuple[int, np.ndarray] | None = None
     """The last keyframe found in it with an ok verdict, and where that put the anchor."""
 
@@ -230,9 +242,9 @@ def run_slam(
     params: SlamParams | None = None,
     *,
     initial: Pose2 = WORLD_ORIGIN,
-    extract_params=None,
+    extract_params: ExtractParams | None = None,
     refine_params: RefineParams | None = None,
-    fuse_params=None,
+    fuse_params: FuseParams | None = None,
     advance: Callable[[int, int, int], None] | None = None,
 ) -> SlamResult:
     """Every scan's pose and the keyframes' local maps, from the ``scans`` (S) and the
@@ -252,7 +264,11 @@ def run_slam(
 class _Mapping:
     """The state of a SLAM run as its scans are added one by one (``run_slam``)."""
 
-    def __init__(self, scans, odometry, p, initial, extract_params, refine, fuse_params):
+    def __init__(
+        self, scans: list[Scan], odometry: np.ndarray | None, p: SlamParams, initial: Pose2,
+        extract_params: ExtractParams | None, refine: RefineParams,
+        fuse_params: FuseParams | None,
+    ) -> None:  # fmt: skip
         from segloc_cli.maps.fusion import fuse_segments
 
         self.scans, self.p, self.refine = scans, p, refine

@@ -100,22 +100,21 @@ def _prepared(
         rtable = shared.rtable
     else:
         rtable = RTable.build(segments, params.bin_deg)
+    wanted = params.search or SearchParams()
     if shared is not None and shared._search_fits(params):
         search = shared.search
     elif not search_needed(params, global_search):
         search = None
-    elif shared is not None and _same_raster(shared.search, params.search or SearchParams()):
-        search = _resized(shared.search, (params.search or SearchParams()).half_width_m)
+    elif shared is not None and shared.search is not None and _same_raster(shared.search, wanted):
+        search = _resized(shared.search, wanted.half_width_m)
     else:
         search = HypothesisSearch(segments, params.search)
     return PreparedMap(segments, index, near_index, rtable, search)
 
 
-def _same_raster(search: HypothesisSearch | None, params: SearchParams) -> bool:
+def _same_raster(search: HypothesisSearch, params: SearchParams) -> bool:
     """Whether a search at ``params`` builds the raster and pyramid ``search`` has: the
     settings differ at most in the square a guided search covers (``half_width_m``)."""
-    if search is None:
-        return False
     return dataclasses.replace(params, half_width_m=search.params.half_width_m) == search.params
 
 
