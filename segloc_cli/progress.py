@@ -95,6 +95,12 @@ class Progress:
         self._show_tallies()
         return self
 
+    def count(self, counts: Mapping[str, int]) -> None:
+        """Show ``counts`` (name → how many) beside the rate in place of the outcomes'
+        tallies: what a step can make more than one of, or none (keyframes, loops)."""
+        self.tallies = dict(counts)
+        self._show_tallies()
+
     def advance(self, steps: int = 1, outcome: str | None = None) -> None:
         """``steps`` more steps are done, ending in ``outcome`` (counted if ``tally`` named
         it)."""
@@ -205,6 +211,9 @@ class _Silent(Progress):
 
     def tally(self, outcomes: Sequence[str]) -> Progress:
         return self
+
+    def count(self, counts: Mapping[str, int]) -> None:
+        pass
 
     def close(self, stopped: bool = False) -> None:
         pass

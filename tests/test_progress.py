@@ -332,3 +332,14 @@ def test_the_tracking_progress_counts_lost_and_recovered_scans(capsys, tmp_path,
         assert line.startswith(f"segloc: tracking: {k}/{len(statuses)} scans ("), line
         assert line.endswith(f"; {so_far['lost']} lost, {so_far['recovered']} recovered"), line
     assert {"lost", "recovered"} <= set(statuses), "the hall's track should show both"
+
+
+def test_counts_that_are_no_outcomes_are_shown_as_they_are_given(monkeypatch):
+    monkeypatch.setattr(progress_module, "SHOW_AFTER_S", 0.0)
+    monkeypatch.setattr(progress_module, "PLAIN_EVERY_S", 0.0)
+    stream = io.StringIO()
+    with Progress("mapping", 4, "scan", stream=stream, terminal=False) as shown:
+        for done in range(1, 5):
+            shown.count({"keyframes": done // 2, "loops closed": done // 4})
+            shown.advance()
+    assert stream.getvalue().splitlines()[-1].endswith("; 2 keyframes, 1 loops closed")

@@ -514,6 +514,7 @@ def slam_map(
     with progress("mapping", selected.size, "scan") as shown:
 
         def advance(done: int, keyframes: int, loops: int) -> None:
+            shown.count({"keyframes": keyframes, "loops closed": loops})
             shown.advance(done - shown.done)
 
         result = run_slam(
