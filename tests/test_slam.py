@@ -90,7 +90,7 @@ def test_slam_keeps_every_pose_where_the_odometry_drifts_away(ring_run):
     assert odom_m.max() > 1.0  # the odometry alone is metres off by the second lap
     assert slam_m.max() < 0.1 and slam_deg.max() < 1.0, (slam_m.max(), slam_deg.max())
     assert result.loops_accepted >= 1
-    assert all(loop.correction_m < 0.5 for loop in result.loops if loop.accepted)
+    assert all(loop.correction_m < 0.5 for loop in result.accepted_loops)
     assert 0 < result.keyframes.size < truth.shape[0]
 
 
@@ -250,7 +250,7 @@ def test_a_room_like_one_seen_before_closes_no_loop():
     ]
     assert in_twin, "the twin's keyframes were never searched for in the first room"
     # Every loop taken joins the places where the scans were truly taken.
-    for loop in (loop for loop in result.loops if loop.accepted):
+    for loop in result.accepted_loops:
         true = relative_motion(at[loop.anchor], at[loop.keyframe])[0]
         off = relative_motion(true, np.array(loop.motion))[0]
         assert np.hypot(off[0], off[1]) < 0.1 and abs(off[2]) < np.deg2rad(1.0), loop

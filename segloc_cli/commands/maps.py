@@ -195,12 +195,12 @@ def _map_without_survey(run, log_path, out_path, mcap_path, poses_out, initial) 
         odometry = [Pose2(*pose) for pose in slam.odometry]
         solved = slam.keyframe_poses
         loops = [(*solved[loop.anchor, :2], *solved[loop.keyframe, :2])
-                 for loop in slam.loops if loop.accepted]  # fmt: skip
+                 for loop in slam.accepted_loops]  # fmt: skip
         _write_build_view(
             mcap_path, log, built, metadata, "at the pose found", "mapped", odometry,
             np.array(loops).reshape(-1, 4),
         )  # fmt: skip
-    corrections = [loop.correction_m for loop in slam.loops if loop.accepted]
+    corrections = [loop.correction_m for loop in slam.accepted_loops]
     largest = f", the largest correcting {max(corrections):.2f} m" if corrections else ""
     info(
         f"{out_path}: {counted(built.segments.shape[0], 'segment')} fused from "

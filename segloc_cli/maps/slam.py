@@ -41,9 +41,17 @@ from segloc_cli.config import (
     SearchParams,
     SlamParams,
 )
-from segloc_cli.geometry import Pose2, relative_motion, transform_segments, wrap_angle
+from segloc_cli.geometry import (
+    Pose2,
+    relative_motion,
+    transform_points,
+    transform_segments,
+    wrap_angle,
+)
+from segloc_cli.maps.fusion import fuse_segments
 from segloc_cli.method.extract import extract_segments
 from segloc_cli.method.refine import nearest_segments, refine_pose
+from segloc_cli.method.search import distinct
 from segloc_cli.scan import Scan
 
 if TYPE_CHECKING:
@@ -88,8 +96,13 @@ class SlamResult:
     by the scans alone."""
 
     @property
+    def accepted_loops(self) -> list[LoopCandidate]:
+        """The candidates taken as loops, in the order they were found."""
+        return [loop for loop in self.loops if loop.accepted]
+
+    @property
     def loops_accepted(self) -> int:
-        return sum(loop.accepted for loop in self.loops)
+        return len(self.accepted_loops)
 
 
 def odometry_at(
@@ -109,12 +122,8 @@ def odometry_at(
 
 
 def compose(pose: np.ndarray, motion: np.ndarray) -> np.ndarray:
-    """``pose ⊕ motion`` (3,) ⊕ (3,) → (3,)."""
-    c, s = np.cos(pose[2]), np.sin(pose[2])
-    return np.array(
-        [pose[0] + c * motion[0] - s * motion[1], pose[1] + s * motion[0] + c * motion[1],
-         float(wrap_angle(pose[2] + motion[2]))]
-    )  # fmt: skip
+    """``pose ⊕ motion`` (3,) ⊕ (3,) → (3,), as ``Pose2.compose`` on arrays."""
+    return Pose2(*pose).compose(Pose2(*motion)).as_array()
 
 
 def fit_information(
@@ -127,7 +136,7 @@ def fit_information(
     gtsam's ``Pose2`` uses), σ = ``sigma_m``."""
     c, s = np.cos(pose[2]), np.sin(pose[2])
     px, py = points_robot[:, 0], points_robot[:, 1]
-    world = np.column_stack([c * px - s * py + pose[0], s * px + c * py + pose[1]])
+    world = transform_points(points_robot, Pose2(*pose))
     index, _ = nearest_segments(world, segments_world, within_m=gate_m)
     near = index >= 0
     seg = segments_world[index[near]]
@@ -167,7 +176,6 @@ class _Graph:
         self.gtsam = gtsam
         self.isam = gtsam.ISAM2()
         self.graph = gtsam.NonlinearFactorGraph()
-        self.values = gtsam.Values()
         prior = gtsam.noiseModel.Diagonal.Sigmas(np.array([1e-3, 1e-3, 1e-4]))
         self._add(gtsam.PriorFactorPose2(0, gtsam.Pose2(*first), prior), 0, first)
 
@@ -178,7 +186,6 @@ class _Graph:
         self.graph.add(factor)
         if key is not None and guess is not None:
             values.insert(key, self.gtsam.Pose2(*guess))
-            self.values.insert(key, self.gtsam.Pose2(*guess))
         self.isam.update(graph, values)
 
     def _noise(self, information: np.ndarray, cauchy: float | None):
@@ -200,10 +207,6 @@ class _Graph:
             a, b, self.gtsam.Pose2(*motion), self._noise(information, cauchy)
         )
         self._add(factor, b if guess is not None else None, guess)
-
-    def pose(self, key: int) -> np.ndarray:
-        p = self.isam.calculateEstimatePose2(key)
-        return np.array([p.x(), p.y(), p.theta()])
 
     def poses(self, n: int) -> np.ndarray:
         estimate = self.isam.calculateEstimate()
@@ -257,7 +260,7 @@ def run_slam(
     for i in range(1, len(scans)):
         mapping.add_scan(i)
         if advance:
-            advance(i + 1, len(mapping.keyframes), sum(loop.accepted for loop in mapping.loops))
+            advance(i + 1, len(mapping.keyframes), mapping.loops_closed)
     return mapping.result()
 
 
@@ -269,12 +272,8 @@ class _Mapping:
         extract_params: ExtractParams | None, refine: RefineParams,
         fuse_params: FuseParams | None,
     ) -> None:  # fmt: skip
-        from segloc_cli.maps.fusion import fuse_segments
-
         self.scans, self.p, self.refine = scans, p, refine
-        self.extract_params, self.fuse_segments, self.fuse_params = (
-            extract_params, fuse_segments, fuse_params
-        )  # fmt: skip
+        self.extract_params, self.fuse_params = extract_params, fuse_params
         n = len(scans)
         self.blind = odometry is None
         self.odometry = np.zeros((n, 3)) if self.blind else np.asarray(odometry, dtype=float)
@@ -295,6 +294,7 @@ class _Mapping:
         self.submaps: list[_Submap] = []
         self.submap_first = 0
         self.loops: list[LoopCandidate] = []
+        self.loops_closed = 0
         self.travel_since_loop = 0.0
         self.previous = start
         self.local_world = transform_segments(self.local_maps[0], initial)
@@ -362,14 +362,17 @@ class _Mapping:
         self.travel_since_loop += moved
         if self.kf_travel[-1] - self.kf_travel[self.submap_first] >= p.submap_m:
             self.submaps.append(
-                _submap(self.submap_first, k, self.local_maps, self.kf_pose, self.fuse_params,
-                        self.fuse_segments)
+                _submap(self.submap_first, k, self.local_maps, self.kf_pose, self.fuse_params)
             )  # fmt: skip
             self.submap_first = k
-        if k % p.loop_every == 0 and _close_loops(
-            self.graph, k, points, self.local_maps[k], self.kf_pose, self.kf_travel,
-            self.submaps, p, self.travel_since_loop, self.loops,
-        ):  # fmt: skip
+        closed = 0
+        if k % p.loop_every == 0:
+            closed = _close_loops(
+                self.graph, k, points, self.local_maps[k], self.kf_pose, self.kf_travel,
+                self.submaps, p, self.travel_since_loop, self.loops, self.refine.final_gate_m,
+            )  # fmt: skip
+        if closed:
+            self.loops_closed += closed
             self.travel_since_loop = 0.0
             self.kf_pose = list(self.graph.poses(k + 1))
             self.previous = self.kf_pose[k]
@@ -412,13 +415,10 @@ def _same_place(a: np.ndarray, b: np.ndarray) -> bool:
     """Whether two poses (3,) are one answer by the search's own measure (``SearchParams``:
     ``distinct_m``, ``distinct_deg``)."""
     near = SearchParams()
-    return bool(
-        np.hypot(a[0] - b[0], a[1] - b[1]) <= near.distinct_m
-        and np.rad2deg(abs(wrap_angle(a[2] - b[2]))) <= near.distinct_deg
-    )
+    return not distinct([Pose2(*a)], Pose2(*b), near.distinct_m, near.distinct_deg)
 
 
-def _submap(first, last, local_maps, kf_pose, fuse_params, fuse_segments) -> _Submap:
+def _submap(first, last, local_maps, kf_pose, fuse_params) -> _Submap:
     anchor = Pose2(*kf_pose[first]).inverse()
     placed = [
         transform_segments(transform_segments(local_maps[j], Pose2(*kf_pose[j])), anchor)
@@ -430,15 +430,16 @@ def _submap(first, last, local_maps, kf_pose, fuse_params, fuse_segments) -> _Su
 def _close_loops(
     graph: _Graph, k: int, points: np.ndarray, local_map: np.ndarray, kf_pose: list,
     kf_travel: list, submaps: list[_Submap], p: SlamParams, travel_since_loop: float,
-    loops: list[LoopCandidate],
-) -> bool:  # fmt: skip
-    """Search keyframe ``k`` in the submaps near its pose; add the loops accepted."""
+    loops: list[LoopCandidate], gate_m: float,
+) -> int:  # fmt: skip
+    """Search keyframe ``k`` in the submaps near its pose; add the loops accepted (their
+    information from the points within ``gate_m`` of the submap) and say how many."""
     from segloc_cli.estimates import STATUS_OK
     from segloc_cli.method.localize import Localizer
 
     radius = min(p.loop_radius_m + p.loop_radius_per_m * travel_since_loop, p.loop_max_radius_m)
     here = kf_pose[k]
-    closed = False
+    closed = 0
     for index, sub in enumerate(submaps):
         if kf_travel[k] - kf_travel[sub.last] < p.loop_min_travel_m:
             continue
@@ -461,7 +462,7 @@ def _close_loops(
         )
         accepted = False
         if plausible:
-            anchor_found = compose(here, relative_motion(found, np.zeros(3))[0])
+            anchor_found = compose(here, Pose2(*found).inverse().as_array())
             earlier, sub.pending = sub.pending, (k, anchor_found)
             accepted = earlier is not None and _same_place(earlier[1], anchor_found)
         loops.append(
@@ -479,7 +480,7 @@ def _close_loops(
         )
         if not accepted:
             continue
-        information = fit_information(points, sub.segments, found, 0.05, p.point_sigma_m)
+        information = fit_information(points, sub.segments, found, gate_m, p.point_sigma_m)
         graph.add_edge(sub.first, k, found, information, cauchy=p.loop_cauchy)
-        closed = True
+        closed += 1
     return closed
