@@ -162,6 +162,7 @@ def test_map_build_without_survey_writes_the_poses_that_rebuild_its_map(tmp_path
     [
         (["--survey", HALL / "mapping" / "survey.csv", "--initial", "0,0,0"], "--initial is for"),
         (["--scans", "1"], "at least two scans"),
+        (["--initial", "0,nan,0"], "finite"),
     ],
 )
 def test_map_build_without_survey_refuses_what_it_cannot_do(tmp_path, args, said):

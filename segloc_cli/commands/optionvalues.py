@@ -54,7 +54,8 @@ def parse_planar_pose(value: str, option: str, limit_m: float, example: str) -> 
     """``X_M,Y_M,THETA_DEG`` text as (x m, y m, heading degrees), each finite, x and y within
     ±``limit_m``; else ``click.BadParameter`` naming ``option`` and giving ``example``."""
     x, y, theta_deg = _numbers(value, 3)
-    if not (max(abs(x), abs(y)) <= limit_m and math.isfinite(theta_deg)):
+    # Each number finite first: max() of a NaN and a number can be the number.
+    if not (all(map(math.isfinite, (x, y, theta_deg))) and max(abs(x), abs(y)) <= limit_m):
         raise click.BadParameter(
             f"{_quoted(value, 3)}; use X_M,Y_M,THETA_DEG, finite and within ±{limit_m:g} m "
             f"(e.g. {example})",
