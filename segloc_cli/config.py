@@ -305,10 +305,15 @@ class SlamParams:
     edge_floor_deg: float = 0.2
     """...and to the spread of its heading."""
     odom_jump_m: float = 2.0
-    """Odometry that moves this far between two scans has jumped (a robot carried off, a
-    reset): that scan is placed by the scans alone..."""
+    """Odometry that moves this far between two scans, and faster than ``odom_jump_m_per_s``,
+    has jumped (a robot carried off, a reset): that scan is placed by the scans alone..."""
     odom_jump_deg: float = 135.0
-    """...as is one it turns this much."""
+    """...as is one it turns this much, faster than ``odom_jump_deg_per_s``."""
+    odom_jump_m_per_s: float = 3.0
+    """Faster than a mobile robot drives: a step longer than ``odom_jump_m`` over a gap
+    between scans long enough for the robot to drive it is no jump..."""
+    odom_jump_deg_per_s: float = 360.0
+    """...nor a turn that a robot turning this fast makes in the gap."""
     odom_sigma_m: float = 0.05
     """Spread of an odometry edge per metre travelled (position, per axis)..."""
     odom_sigma_deg: float = 2.0

@@ -27,6 +27,7 @@ from segloc_cli.geometry import (
     Pose2,
     as_segments,
     point_segment_distances,
+    relative_motion,
     rotation,
     wrap_angle,
 )
@@ -389,6 +390,76 @@ def initial_guesses(true_poses: np.ndarray, errors: np.ndarray) -> np.ndarray:
     guesses = true_poses - errors
     guesses[:, 2] = wrap_angle(guesses[:, 2])
     return guesses
+
+
+@dataclass(frozen=True)
+class OdometryDrift:
+    """How far simulated wheel odometry strays on each step between two scans: its motion
+    is off by a uniform draw within ±``distance_pct`` % of the step's length along each
+    axis, and its turn by ±(``turn_pct`` % of the turn + ``deg_per_m`` degrees per metre of
+    the step). The defaults are those of a differential-drive base never calibrated."""
+
+    distance_pct: float = 2.0
+    turn_pct: float = 2.0
+    deg_per_m: float = 0.5
+
+    @property
+    def text(self) -> str:
+        """The ``--odometry`` value that gives this drift (``parse_odometry``)."""
+        return f"drift:{self.distance_pct:g},{self.turn_pct:g},{self.deg_per_m:g}"
+
+
+_DRIFT_LIMITS = (100.0, 100.0, 45.0)
+
+
+def parse_odometry(value: str) -> OdometryDrift:
+    """``--odometry`` text → its drift: 'drift' (the defaults) or
+    'drift:DISTANCE_PCT,TURN_PCT,DEG_PER_M'. Raises ValueError saying what is accepted."""
+    if value == "drift":
+        return OdometryDrift()
+    if value.startswith("drift:"):
+        try:
+            numbers = [float(v) for v in value[len("drift:") :].split(",")]
+        except ValueError:
+            numbers = []
+        if len(numbers) == 3 and all(
+            0 <= n <= limit for n, limit in zip(numbers, _DRIFT_LIMITS, strict=True)
+        ):
+            return OdometryDrift(*numbers)
+    default = OdometryDrift().text
+    raise ValueError(
+        f"{value!r}; use 'drift' ({default}) or 'drift:DISTANCE_PCT,TURN_PCT,DEG_PER_M' with "
+        "the percentages in 0..100 and DEG_PER_M in 0..45"
+    )
+
+
+def drifting_odometry(
+    true_poses: np.ndarray, drift: OdometryDrift, rng: np.random.Generator
+) -> np.ndarray:
+    """Wheel odometry (n, 3: x m, y m, theta rad) of a robot at ``true_poses`` (n, 3, world
+    frame), in its own frame: the first pose at the origin, each step the true motion with
+    ``drift``'s error added, so the error grows with the distance and the turns travelled.
+
+    Draws 3 numbers per pose from ``rng`` (the first pose's go unused), as
+    ``uniform_initial_errors`` does: a seed's scans are the same whichever of the two a log
+    holds on /odom."""
+    n = len(true_poses)
+    unit_xy = rng.uniform(-1.0, 1.0, size=(n, 2))[1:]
+    unit_turn = rng.uniform(-1.0, 1.0, size=n)[1:]
+    motions = relative_motion(true_poses[:-1], true_poses[1:])
+    length = np.hypot(motions[:, 0], motions[:, 1])
+    motions[:, :2] += unit_xy * (drift.distance_pct / 100.0) * length[:, None]
+    turn_bound = (
+        drift.turn_pct / 100.0 * np.abs(motions[:, 2]) + np.deg2rad(drift.deg_per_m) * length
+    )
+    motions[:, 2] += unit_turn * turn_bound
+    headings = np.concatenate([[0.0], np.cumsum(motions[:, 2])])
+    c, s = np.cos(headings[:-1]), np.sin(headings[:-1])
+    steps = np.column_stack(
+        [c * motions[:, 0] - s * motions[:, 1], s * motions[:, 0] + c * motions[:, 1]]
+    )
+    xy = np.vstack([[0.0, 0.0], np.cumsum(steps, axis=0)])
+    return np.column_stack([xy, wrap_angle(headings)])
 
 
 # --- procedural worlds -----------------------------------------------------------------------

@@ -519,6 +519,19 @@ BAD_OPTION_CASES = {
         ],
         "--init-errors",
     ),
+    "odometry": (
+        lambda s, out: [
+            "simulate", HALL_WORLD, "--poses", s.poses, "--out", out, "--odometry", "drift:1,2"
+        ],
+        "--odometry",
+    ),
+    "odometry-and-init-errors": (
+        lambda s, out: [
+            "simulate", HALL_WORLD, "--poses", s.poses, "--out", out, "--odometry", "drift",
+            "--init-errors", "paper",
+        ],
+        "--odometry",
+    ),
     "format": (
         lambda s, out: [
             "evaluate", s.estimates, "--survey", s.survey, "--out", out, "--format", "xml"

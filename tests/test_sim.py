@@ -9,17 +9,20 @@ import numpy as np
 import pytest
 from conftest import HALL
 
-from segloc_cli.geometry import Pose2, point_segment_distances, wrap_angle
+from segloc_cli.geometry import Pose2, point_segment_distances, relative_motion, wrap_angle
 from segloc_cli.io.maps import read_map
 from segloc_cli.io.mcap_log import read_log
 from segloc_cli.io.tables import read_pose_table
 from segloc_cli.sim import (
+    OdometryDrift,
     SensorModel,
     beam_angles,
     cast_rays,
+    drifting_odometry,
     free_space_mask,
     initial_guesses,
     paper_initial_errors,
+    parse_odometry,
     random_free_poses,
     random_world,
     repeating_corridor,
@@ -364,6 +367,41 @@ def test_initial_guess_is_truth_minus_error_with_heading_wrapped():
     # "surveyed minus guess" gives the error back
     np.testing.assert_allclose(true_poses[:, :2] - guesses[:, :2], errors[:, :2])
     np.testing.assert_allclose(wrap_angle(true_poses[:, 2] - guesses[:, 2]), errors[:, 2])
+
+
+def test_drifting_odometry_starts_at_its_origin_and_errs_within_its_bounds():
+    """Odometry of a square walk: no drift gives the true motions from the origin; with
+    drift, every step's error stays within its share of the step and the error grows."""
+    legs = [(x, 0.0, 0.0) for x in np.arange(0.0, 4.0, 0.5)]
+    legs += [(4.0, y, np.pi / 2) for y in np.arange(0.0, 4.0, 0.5)]
+    truth = np.array([(x + 2.0, y - 1.0, t) for x, y, t in legs])
+    still = drifting_odometry(truth, OdometryDrift(0.0, 0.0, 0.0), np.random.default_rng(1))
+    np.testing.assert_allclose(still, relative_motion(truth[:1].repeat(len(truth), 0), truth),
+                               atol=1e-12)  # fmt: skip
+    drift = OdometryDrift(5.0, 10.0, 2.0)
+    odometry = drifting_odometry(truth, drift, np.random.default_rng(1))
+    np.testing.assert_array_equal(odometry[0], [0.0, 0.0, 0.0])
+    true_steps = relative_motion(truth[:-1], truth[1:])
+    steps = relative_motion(odometry[:-1], odometry[1:])
+    length = np.hypot(*true_steps[:, :2].T)
+    off = steps - true_steps
+    assert np.all(np.abs(off[:, :2]) <= 0.05 * length[:, None] + 1e-12)
+    turn_bound = 0.1 * np.abs(true_steps[:, 2]) + np.deg2rad(2.0) * length
+    assert np.all(np.abs(wrap_angle(off[:, 2])) <= turn_bound + 1e-12)
+    assert np.hypot(*(odometry[-1, :2] - still[-1, :2])) > 0.01  # it does drift
+    # It draws what uniform guesses draw: what the generator gives next is the same.
+    a, b = np.random.default_rng(7), np.random.default_rng(7)
+    drifting_odometry(truth, drift, a)
+    uniform_initial_errors(len(truth), 0.0, 0.0, b)
+    assert a.random() == b.random()
+
+
+@pytest.mark.parametrize("text", ["drift:1", "drift:-1,2,0.5", "drift:2,2,46", "odometry"])
+def test_odometry_drift_text_is_refused_saying_what_is_taken(text):
+    assert parse_odometry("drift") == OdometryDrift()
+    assert parse_odometry(OdometryDrift(3, 4, 1).text) == OdometryDrift(3.0, 4.0, 1.0)
+    with pytest.raises(ValueError, match="DISTANCE_PCT,TURN_PCT,DEG_PER_M"):
+        parse_odometry(text)
 
 
 # --- random worlds ---------------------------------------------------------------------------

@@ -8,7 +8,7 @@ BIN=../../.venv/bin
 $BIN/python make_world.py
 # The 10 test scans, localized by `make demo` from the paper's initial errors.
 $BIN/segloc simulate world.json --poses poses.csv --out . --readings 1024 --noise-cm 1.2 --seed 2000 --init-errors paper --force
-# The mapping run: its own path, noise and seed; /odom holds the true poses.
+# The mapping run: its own path, noise and seed; /odom holds its wheel odometry, drifting.
 $BIN/python make_mapping_poses.py
-$BIN/segloc simulate world.json --poses mapping_poses.csv --out mapping --readings 1024 --noise-cm 1.5 --seed 1000 --init-errors uniform:0,0 --force
+$BIN/segloc simulate world.json --poses mapping_poses.csv --out mapping --readings 1024 --noise-cm 1.5 --seed 1000 --odometry drift --force
 $BIN/segloc map build mapping/log.mcap --survey mapping/survey.csv --out map.json --force

@@ -25,7 +25,7 @@ from segloc_cli.errors import InputError
 from segloc_cli.io.log import SIMULATED_GUESSES_KEY
 from segloc_cli.runs.runfile import run_file_path
 from segloc_cli.scan import AT_ROBOT_ORIGIN, MAX_READINGS
-from segloc_cli.sim import SensorModel
+from segloc_cli.sim import OdometryDrift, SensorModel
 from segloc_cli.wording import counted
 
 
@@ -113,10 +113,19 @@ SIMULATE_OPTIONS = (
     ),
     click.option(
         "--init-errors",
-        default="paper",
-        show_default=True,
-        help="Initial-guess errors written to /odom: 'paper' (Table 1 of the paper, exactly) "
-        "or 'uniform:XY_M,THETA_DEG' (uniform in ±XY_M per axis and ±THETA_DEG).",
+        default=None,
+        help="Initial-guess errors written to /odom: 'paper' (Table 1 of the paper, exactly; "
+        "the default) or 'uniform:XY_M,THETA_DEG' (uniform in ±XY_M per axis and "
+        "±THETA_DEG).",
+    ),
+    click.option(
+        "--odometry",
+        default=None,
+        help="Write wheel odometry to /odom instead of initial guesses, starting at the "
+        "origin of its own frame and drifting: 'drift' "
+        f"({OdometryDrift().text}) or 'drift:DISTANCE_PCT,TURN_PCT,DEG_PER_M', each step "
+        "off by up to DISTANCE_PCT % of its length and its turn by up to TURN_PCT % of "
+        "the turn plus DEG_PER_M per metre. A log to map without a survey (segloc map build).",
     ),
     config_option,
     force_option,
@@ -138,12 +147,14 @@ def simulate(
     seed,
     material,
     init_errors,
+    odometry,
     force,
 ):
     """Simulate a laser log of a world (or a map) at given poses.
 
     Writes OUT/log.mcap (/scan as foxglove.LaserScan, /odom as
-    foxglove.PoseInFrame carrying the initial guesses), OUT/survey.csv (the
+    foxglove.PoseInFrame carrying the initial guesses, or the wheel odometry
+    of --odometry), OUT/survey.csv (the
     true poses, as ground truth) and OUT/log.run.toml (the run file, with the
     sensor as simulated). The sensor is modelled on the paper's Explorer (360°,
     1024 readings): Gaussian range noise, 1 mm resolution, dropouts, short
@@ -158,9 +169,14 @@ def simulate(
     from segloc_cli.io.maps import read_world
     from segloc_cli.io.tables import read_pose_table, write_pose_table
     from segloc_cli.runs import pipeline
-    from segloc_cli.sim import parse_init_errors, sensor_model
+    from segloc_cli.sim import parse_init_errors, parse_odometry, sensor_model
 
-    errors = parsed(parse_init_errors, init_errors, "--init-errors")
+    if odometry is not None and init_errors is not None:
+        raise click.UsageError(
+            "--init-errors and --odometry both say what /odom holds; give one of them"
+        )
+    errors = parsed(parse_init_errors, init_errors or "paper", "--init-errors")
+    drift = None if odometry is None else parsed(parse_odometry, odometry, "--odometry")
     if out_dir.exists() and not out_dir.is_dir():
         raise InputError("is a file; --out takes a folder", path=out_dir)
     log_path, survey_path = out_dir / "log.mcap", out_dir / "survey.csv"
@@ -180,12 +196,15 @@ def simulate(
     given |= {"clutter": clutter, "glass": glass}
     sensor = sensor_model(world.sensor | {k: v for k, v in given.items() if v is not None})
     settings = sensor_settings(sensor) | {"seed": str(seed), "world": world.name}
-    settings[SIMULATED_GUESSES_KEY] = init_errors
+    if drift is None:
+        settings[SIMULATED_GUESSES_KEY] = init_errors or "paper"
+    else:
+        settings["odometry"] = drift.text
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise InputError(f"cannot create the folder ({exc.strerror})", path=out_dir) from None
-    pipeline.simulate_log(log_path, world, truth, errors, sensor, seed, settings)
+    pipeline.simulate_log(log_path, world, truth, errors, sensor, seed, settings, drift)
     write_pose_table(survey_path, truth)
     invocation = Invocation.current()
     as_simulated = {k.replace("_", "-"): v for k, v in sensor.choices.items()}

@@ -281,8 +281,11 @@ class _Mapping:
         self.steps = np.vstack(
             [np.zeros((1, 3)), relative_motion(self.odometry[:-1], self.odometry[1:])]
         )
-        self.jumped = (np.hypot(self.steps[:, 0], self.steps[:, 1]) > p.odom_jump_m) | (
-            np.rad2deg(np.abs(self.steps[:, 2])) > p.odom_jump_deg
+        gaps_s = np.diff([scan.time_s for scan in scans], prepend=scans[0].time_s)
+        step_m = np.hypot(self.steps[:, 0], self.steps[:, 1])
+        turn_deg = np.rad2deg(np.abs(self.steps[:, 2]))
+        self.jumped = (step_m > np.maximum(p.odom_jump_m, p.odom_jump_m_per_s * gaps_s)) | (
+            turn_deg > np.maximum(p.odom_jump_deg, p.odom_jump_deg_per_s * gaps_s)
         )
         self.odom_world = np.array([start] * n)
         for i in range(1, n):

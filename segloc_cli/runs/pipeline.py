@@ -655,16 +655,21 @@ def simulate_log(
     sensor,
     seed: int,
     settings: dict[str, str],
+    odometry=None,
 ) -> None:
     """Write a simulated log of ``world``: a scan at each true pose of ``truth`` (its times
     increasing) and, as /odom, an initial guess off by ``init_errors`` ("paper": the
-    paper's Table 1 errors; "uniform", XY_M, THETA_DEG: uniform within those)."""
+    paper's Table 1 errors; "uniform", XY_M, THETA_DEG: uniform within those), or, given an
+    ``odometry`` drift (``sim.OdometryDrift``), wheel odometry in its own frame."""
     from segloc_cli.io.files import atomic_path
     from segloc_cli.io.mcap_log import LogWriter
-    from segloc_cli.sim import initial_errors, initial_guesses, simulate_scan
+    from segloc_cli.sim import drifting_odometry, initial_errors, initial_guesses, simulate_scan
 
     rng = np.random.default_rng(seed)
-    guesses = initial_guesses(truth.poses, initial_errors(len(truth), init_errors, rng))
+    if odometry is None:
+        guesses = initial_guesses(truth.poses, initial_errors(len(truth), init_errors, rng))
+    else:
+        guesses = drifting_odometry(truth.poses, odometry, rng)
     with atomic_path(log_path) as partial, LogWriter(partial, settings) as log:
         for t, pose, guess in zip(truth.time_s, truth.poses, guesses, strict=True):
             log.add_odom(float(t), Pose2(*guess))
