@@ -164,6 +164,7 @@ def test_map_build_without_survey_writes_the_poses_that_rebuild_its_map(tmp_path
     ("args", "said"),
     [
         (["--survey", HALL / "mapping" / "survey.csv", "--initial", "0,0,0"], "--initial is for"),
+        (["--survey", HALL / "mapping" / "survey.csv", "--loops-out", "l.csv"], "--loops-out is"),
         (["--scans", "1"], "at least two scans"),
         (["--initial", "0,nan,0"], "finite"),
     ],
@@ -279,12 +280,21 @@ def test_a_log_with_odometry_maps_with_its_loops_in_the_view(tmp_path):
     run = _segloc(
         "map", "build", log, "--initial", "1,1,0", "--out", tmp_path / "map.json",
         "--poses-out", tmp_path / "poses.csv", "--mcap", tmp_path / "view.mcap",
+        "--loops-out", tmp_path / "loops.csv",
     )  # fmt: skip
     assert run.returncode == 0, run.stderr
     found = pd.read_csv(tmp_path / "poses.csv")
     assert np.hypot(found.x_m - truth[:, 0], found.y_m - truth[:, 1]).max() < 0.1
     accepted = int(re.search(r"(\d+) loops? accepted", run.stderr).group(1))
     assert accepted >= 1
+    # Every loop accepted joins two scans where they truly lie, and the solution holds it.
+    loops = pd.read_csv(tmp_path / "loops.csv")
+    taken = loops[loops.accepted]
+    assert len(taken) == accepted and set(loops.status) <= {"ok", "ambiguous", "lost"}
+    at = truth[taken.anchor_pose_id - 1], truth[taken.pose_id - 1]
+    true = relative_motion(*at)
+    np.testing.assert_allclose(taken[["x_m", "y_m"]], true[:, :2], atol=0.1)
+    assert (taken.solved_off_m < 0.1).all() and (taken.solved_off_deg < 1.0).all()
     shown = validated_messages(tmp_path / "view.mcap")
     ((_, loops),) = shown["/loops"]
     assert len(loops.entities[0].lines[0].points) == 2 * accepted

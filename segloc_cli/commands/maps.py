@@ -65,6 +65,14 @@ BUILD_OPTIONS = (
         "reads back.",
     ),
     path_option(
+        "--loops-out",
+        "loops_out",
+        help="Without --survey: also write every loop candidate (CSV): the keyframe searched "
+        "for and the submap's first keyframe (pose ids), where the search put the one in "
+        "the other's frame, its verdict and inlier ratio, the correction it implied, whether "
+        "it was accepted, and how far the solved poses end up from it.",
+    ),
+    path_option(
         "--mcap",
         "mcap_path",
         help="Also write a view to open in Foxglove: the built map over the scans that made "
@@ -85,7 +93,7 @@ BUILD_OPTIONS = (
 @click.argument("log_path", metavar="LOG.mcap", type=click.Path(path_type=Path))
 @with_options(*BUILD_OPTIONS)
 def map_build(
-    log_path, survey_path, out_path, mcap_path, initial_text, poses_out, force, **_
+    log_path, survey_path, out_path, mcap_path, initial_text, poses_out, loops_out, force, **_
 ):  # fmt: skip
     """Build a global segment map from the scans of a log at surveyed poses, or, without
     --survey, at the poses the log's own scans and odometry give.
@@ -113,7 +121,9 @@ def map_build(
     later = SEEN_THROUGH_KERNELS if run.config.fuse.seen_through == "drop" else None
     click.get_current_context().with_resource(watching_compiles(later=later))
     if survey_path is not None:
-        for option, value in (("--initial", initial_text), ("--poses-out", poses_out)):
+        for option, value in (
+            ("--initial", initial_text), ("--poses-out", poses_out), ("--loops-out", loops_out)
+        ):  # fmt: skip
             if value is not None:
                 raise click.UsageError(
                     f"{option} is for a map built without --survey (the survey gives every "
@@ -125,10 +135,11 @@ def map_build(
             *parse_planar_pose(initial_text, "--initial", MAX_COORDINATE_M, "2.5,1.0,90")
         )
     outputs = {"--out": out_path, "--mcap": mcap_path, "--poses-out": poses_out}
-    outputs["--out (run file)"] = run_file_path(out_path)
+    outputs |= {"--loops-out": loops_out, "--out (run file)": run_file_path(out_path)}
     check_outputs(outputs, [log_path, survey_path], force)
     if survey_path is None:
-        _map_without_survey(run, log_path, out_path, mcap_path, poses_out, initial)
+        extra = {"poses": poses_out, "loops": loops_out, "view": mcap_path}
+        _map_without_survey(run, log_path, out_path, extra, initial)
         return
     refuse_map(survey_path, "--survey", "the surveyed poses of the scans")
     log = load_log(log_path)
@@ -156,9 +167,10 @@ def map_build(
     )
 
 
-def _map_without_survey(run, log_path, out_path, mcap_path, poses_out, initial) -> None:
+def _map_without_survey(run, log_path, out_path, extra: dict, initial) -> None:
     """``map build`` without ``--survey``: segment SLAM (``runs.pipeline.slam_map``), the
-    map, its run file, and with ``poses_out`` every scan's pose."""
+    map, its run file, and the ``extra`` outputs asked for (None where not): every scan's
+    pose (``poses``), every loop candidate (``loops``), the Foxglove view (``view``)."""
     from segloc_cli.estimates import PoseTable
     from segloc_cli.io.maps import bounds_problem, write_map
     from segloc_cli.progress import Progress
@@ -187,9 +199,12 @@ def _map_without_survey(run, log_path, out_path, mcap_path, poses_out, initial) 
     source |= {"loops_rejected": len(slam.loops) - accepted, "slam": asdict(run.config.slam)}
     write_map(out_path, built.segments, source=source)
     run.write_run_file(out_path)
+    poses_out, mcap_path = extra["poses"], extra["view"]
     if poses_out is not None:
         table = PoseTable(log.scan_numbers[selected], log.scan_times_s[selected], slam.poses)
         write_pose_file(poses_out, table, log.original_times_s[selected], "scan pose")
+    if extra["loops"] is not None:
+        _write_loops(extra["loops"], slam, log.scan_numbers[selected])
     if mcap_path is not None:
         metadata = {"command": "map build", "log": str(log_path), "poses": placed}
         odometry = [Pose2(*pose) for pose in slam.odometry]
@@ -210,6 +225,39 @@ def _map_without_survey(run, log_path, out_path, mcap_path, poses_out, initial) 
         f"{counted(len(slam.loops), 'candidate')}{largest}"
         f"{_dropped_note(built, run.config.fuse)}"
     )
+
+
+def _write_loops(path: Path, slam, numbers: np.ndarray) -> None:
+    """Every loop candidate of ``slam`` (a ``SlamResult``) as a CSV at ``path``, keyframes
+    named by their scans' pose ids (``numbers``, one per scan mapped)."""
+    import pandas as pd
+
+    from segloc_cli.io.files import atomic_path
+
+    loops = slam.loops
+    scan_of = numbers[slam.keyframes]
+    motion = np.array([loop.motion for loop in loops]).reshape(-1, 3)
+    offsets = slam.loop_offsets()
+    frame = pd.DataFrame(
+        {
+            "pose_id": [scan_of[loop.keyframe] for loop in loops],
+            "anchor_pose_id": [scan_of[loop.anchor] for loop in loops],
+            "submap": [loop.submap for loop in loops],
+            "x_m": motion[:, 0],
+            "y_m": motion[:, 1],
+            "theta_deg": np.rad2deg(motion[:, 2]),
+            "status": [loop.status for loop in loops],
+            "inlier_ratio": [loop.inlier_ratio for loop in loops],
+            "correction_m": [loop.correction_m for loop in loops],
+            "correction_deg": [loop.correction_deg for loop in loops],
+            "accepted": [loop.accepted for loop in loops],
+            "solved_off_m": offsets[:, 0],
+            "solved_off_deg": offsets[:, 1],
+        }
+    )
+    with atomic_path(path) as partial:
+        frame.to_csv(partial, index=False, float_format="%.6g")
+    info(f"{path}: {counted(len(loops), 'loop candidate')} ({slam.loops_accepted} accepted)")
 
 
 def _say_jumps(log, selected, slam, shown: int = 3) -> None:

@@ -15,8 +15,9 @@ Loop closure: every few keyframes, a keyframe is searched for in the finished su
 anchor lies within its pose uncertainty (a square and a heading window growing with the
 travel since the last loop), with the localizer's own search and verdict; a find is taken
 as a loop when the verdict says ``ok``, it lies in the square searched, and the find before
-it in that submap put the anchor at the same place. Every candidate is recorded
-(``LoopCandidate``).
+it in that submap put the anchor at the same place. The loop's edge joins the keyframe to
+the submap's keyframe nearest the find, so that a submap bent by corrections made after it
+was fused bends the loop least. Every candidate is recorded (``LoopCandidate``).
 
 Back end: a pose graph over the keyframes (gtsam's ``Pose2`` factors: the front end's edges,
 and the loops' under a Cauchy loss), updated incrementally (iSAM2) as keyframes and loops
@@ -63,10 +64,10 @@ WORLD_ORIGIN = Pose2(0.0, 0.0, 0.0)
 
 @dataclass(frozen=True)
 class LoopCandidate:
-    """A search of keyframe ``keyframe`` in submap ``submap`` (whose first keyframe is
-    ``anchor``): what the verdict said, where it put the keyframe in the anchor's frame
-    (``motion``: x m, y m, θ rad; NaN where nothing was found), the correction that implied
-    (m, °) and whether it was accepted."""
+    """A search of keyframe ``keyframe`` in submap ``submap``: what the verdict said,
+    where it put the keyframe in the frame of ``anchor``, the submap's keyframe nearest
+    the find (its first where nothing was found) (``motion``: x m, y m, θ rad; NaN where
+    nothing was found), the correction that implied (m, °) and whether it was accepted."""
 
     keyframe: int
     submap: int
@@ -103,6 +104,19 @@ class SlamResult:
     @property
     def loops_accepted(self) -> int:
         return len(self.accepted_loops)
+
+    def loop_offsets(self) -> np.ndarray:
+        """How far the solved poses place each candidate's keyframe from where its search
+        found it in its anchor's frame (L, 2: m, °); NaN where nothing was found. Small
+        for a loop the solution holds."""
+        offsets = np.full((len(self.loops), 2), np.nan)
+        for row, loop in enumerate(self.loops):
+            solved = relative_motion(
+                self.keyframe_poses[loop.anchor], self.keyframe_poses[loop.keyframe]
+            )
+            off = relative_motion(solved, np.array(loop.motion))[0]
+            offsets[row] = np.hypot(off[0], off[1]), np.rad2deg(abs(off[2]))
+        return offsets
 
 
 def odometry_at(
@@ -234,6 +248,8 @@ class _Submap:
     first: int
     last: int
     segments: np.ndarray
+    members: np.ndarray
+    """The poses (n, 3) of keyframes ``first`` to ``last`` in the anchor's frame, as fused."""
     localizer: Localizer | None = None
     pending: tuple[int, np.ndarray] | None = None
     """The last keyframe found in it with an ok verdict, and where that put the anchor."""
@@ -422,12 +438,12 @@ def _same_place(a: np.ndarray, b: np.ndarray) -> bool:
 
 
 def _submap(first, last, local_maps, kf_pose, fuse_params) -> _Submap:
-    anchor = Pose2(*kf_pose[first]).inverse()
+    members = relative_motion(np.array([kf_pose[first]]), np.array(kf_pose[first : last + 1]))
     placed = [
-        transform_segments(transform_segments(local_maps[j], Pose2(*kf_pose[j])), anchor)
+        transform_segments(local_maps[j], Pose2(*members[j - first]))
         for j in range(first, last + 1)
     ]
-    return _Submap(first, last, fuse_segments(np.concatenate(placed), fuse_params))
+    return _Submap(first, last, fuse_segments(np.concatenate(placed), fuse_params), members)
 
 
 def _close_loops(
@@ -468,12 +484,16 @@ def _close_loops(
             anchor_found = compose(here, Pose2(*found).inverse().as_array())
             earlier, sub.pending = sub.pending, (k, anchor_found)
             accepted = earlier is not None and _same_place(earlier[1], anchor_found)
+        # The loop joins the submap's keyframe nearest the find: what bends a submap after
+        # it was fused bends the loop least there.
+        nearest = int(np.argmin(np.hypot(*(sub.members[:, :2] - found[:2]).T))) if plausible else 0
+        motion = relative_motion(sub.members[nearest], found)[0]
         loops.append(
             LoopCandidate(
                 k,
                 index,
-                sub.first,
-                (float(found[0]), float(found[1]), float(found[2])),
+                sub.first + nearest,
+                (float(motion[0]), float(motion[1]), float(motion[2])),
                 est.status,
                 float(est.inlier_ratio),
                 float(np.hypot(correction[0], correction[1])),
@@ -484,6 +504,6 @@ def _close_loops(
         if not accepted:
             continue
         information = fit_information(points, sub.segments, found, gate_m, p.point_sigma_m)
-        graph.add_edge(sub.first, k, found, information, cauchy=p.loop_cauchy)
+        graph.add_edge(sub.first + nearest, k, motion, information, cauchy=p.loop_cauchy)
         closed += 1
     return closed
