@@ -7,7 +7,13 @@ of the dataset's relations (the relative-pose error of Kümmerle et al. 2009: me
 deviation, translation and rotation), beside Cartographer's published means (Hess et al.
 2016, Table II), Graph Mapping's (``scoring.relations.PUBLISHED``) and the odometry alone,
 scored the same way. The wall time and the peak memory are the map build's, keyframes and
-loops as it reports them. Nothing is tuned per log: one set of settings for all.
+loops as it reports them; loop precision is Cartographer's (Hess et al. 2016, Table IV): the
+share of the loops accepted that the final poses violate by at most 20 cm and 1°
+(``--loops-out``). Figures: the trajectory over the map, coloured by relation error, and
+the errors over time (``segloc evaluate --plots``), into ``benchmarks/figures/slam/LOG/``.
+Then the tracking protocol of ``make bench-real`` in segloc's own map: the raw log tracked
+(``localize --track``) from the first scan's pose, scored on the same relations. Nothing is
+tuned per log: one set of settings for all.
 
 Usage: python benchmarks/slam_real.py [--datasets DIR] [--only aces,fr079] [--work DIR]
        [--out FILE]
@@ -15,17 +21,21 @@ Usage: python benchmarks/slam_real.py [--datasets DIR] [--only aces,fr079] [--wo
 
 from __future__ import annotations
 
+import json
 import re
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 from protocol import (
     DATASETS,
     chosen_logs,
     commands_section,
     log_arguments,
     mean_sd,
+    percent,
     prepare_raw_log,
+    run_segloc,
     run_segloc_measured,
 )
 
@@ -44,6 +54,13 @@ CARTOGRAPHER = {
 """Cartographer's mean relation errors (m, °): Hess et al., "Real-Time Loop Closure in 2D
 LIDAR SLAM", ICRA 2016, Table II."""
 
+FIGURES = Path("benchmarks/figures/slam")
+"""Where each log's figures go (a folder per log)."""
+
+LOOP_HELD_M, LOOP_HELD_DEG = 0.2, 1.0
+"""A loop accepted is a true positive when the final poses violate it by at most this much
+(Hess et al. 2016, Table IV)."""
+
 SUMMARY = re.compile(r"\((\d+) keyframes?\); (\d+) loops? accepted of (\d+) candidates?")
 """What map build's summary line says of its keyframes and loops."""
 
@@ -57,27 +74,50 @@ def scored(times_s: np.ndarray, poses: np.ndarray, relations) -> tuple[str, str]
     )
 
 
-def run_log(name: str, datasets: Path, work: Path, commands: list[str]) -> list[str]:
-    """Map dataset ``name`` with no survey; its table row."""
+def loop_precision(loops_path: Path) -> str:
+    """The share of the accepted loops that the final poses hold (``LOOP_HELD_*``), and of
+    how many."""
+    loops = pd.read_csv(loops_path)
+    taken = loops[loops.accepted]
+    if taken.empty:
+        return "no loop"
+    held = (taken.solved_off_m <= LOOP_HELD_M) & (taken.solved_off_deg <= LOOP_HELD_DEG)
+    return f"{percent(held.mean())} of {len(taken)}"
+
+
+def run_log(name: str, datasets: Path, work: Path, commands: list[str]) -> tuple[list, list]:
+    """Map dataset ``name`` with no survey, then track its raw log in that map; the two
+    tables' rows."""
     folder = work / name
     folder.mkdir(parents=True, exist_ok=True)
     raw = prepare_raw_log(name, datasets, folder, commands)
-    poses_path = folder / "poses.tum"
+    poses_path, map_path, loops_path = (
+        folder / "poses.tum",
+        folder / "map.json",
+        folder / "loops.csv",
+    )
     built = run_segloc_measured(
-        commands, "map", "build", raw.log_path, "--out", folder / "map.json",
-        "--poses-out", poses_path,
+        commands, "map", "build", raw.log_path, "--out", map_path,
+        "--poses-out", poses_path, "--loops-out", loops_path,
     )  # fmt: skip
     said = SUMMARY.search(built.stderr)
     keyframes, accepted, candidates = said.groups() if said else ("?", "?", "?")
-    relations = read_relations(datasets / name / DATASETS[name][2])
+    relations_path = datasets / name / DATASETS[name][2]
+    relations = read_relations(relations_path)
     found = read_pose_table(poses_path)
     slam = scored(found.time_s, found.poses, relations)
+    run_segloc(
+        commands, "evaluate", poses_path, "--relations", relations_path, "--map", map_path,
+        "--plots", FIGURES / name,
+    )  # fmt: skip
+    for pdf in (FIGURES / name).glob("*.pdf"):  # the PNGs say the same in a fifth of the bytes
+        pdf.unlink()
     log = read_log(raw.log_path)
     times = log.scan_times_s
     odometry = scored(times, odometry_at(times, log.odom_times_s, log.odom_poses), relations)
     graph = PUBLISHED[name]["GraphMapping"]
     carto_m, carto_deg = CARTOGRAPHER[name]
-    return [
+    mapped = [
         name,
         f"{slam[0]} m, {slam[1]}°",
         f"{carto_m:.4f} m, {carto_deg:.3f}°",
@@ -85,27 +125,70 @@ def run_log(name: str, datasets: Path, work: Path, commands: list[str]) -> list[
         f"{odometry[0]} m, {odometry[1]}°",
         f"{keyframes} of {raw.scans}",
         f"{accepted} of {candidates}",
+        loop_precision(loops_path),
         f"{built.wall_s:.0f} s",
         f"{built.peak_rss_mib / 1024:.2f} GiB",
     ]
+    return mapped, tracked(name, raw, map_path, relations_path, folder, commands)
 
 
-def report(rows: list[list[str]], commands: dict[str, list[str]]) -> str:
+def tracked(name, raw, map_path: Path, relations_path: Path, folder: Path, commands) -> list:
+    """The raw log tracked in segloc's own map of it from the first scan's pose; its row."""
+    track = folder / "track.csv"
+    run_segloc(
+        commands, "localize", raw.log_path, "--map", map_path, "--track", "--initial",
+        raw.first_pose_path, "--out", track,
+    )  # fmt: skip
+    shown = run_segloc(
+        commands, "evaluate", track, "--relations", relations_path, "--published", name,
+        "--format", "json",
+    )  # fmt: skip
+    metric = json.loads(shown.stdout)
+    summary = metric["summary"]
+    statuses = pd.read_csv(track)["status"].value_counts()
+    return [
+        name,
+        f"{mean_sd((summary['trans_m']['mean'], summary['trans_m']['std']), 3)} m, "
+        f"{mean_sd((summary['rot_deg']['mean'], summary['rot_deg']['std']), 2)}°",
+        f"{statuses.get('ok', 0)} of {statuses.sum()}",
+        "yes" if metric.get("published_note") else "no",
+    ]
+
+
+def report(rows: list[list[str]], tracks: list[list[str]], commands: dict[str, list[str]]) -> str:
     head = ["log", "segloc, no survey", "Cartographer", "Graph Mapping", "odometry",
-            "keyframes", "loops accepted", "wall", "peak memory"]  # fmt: skip
+            "keyframes", "loops accepted", "loop precision", "wall", "peak memory"]  # fmt: skip
+    track_head = ["log", "tracked in its own map", "scans ok", "'not like for like' note"]
     lines = [
         "# Segment SLAM on the public logs (`make bench-slam`)",
         "",
         "Relation error of every relation (mean ± standard deviation; the published rows are "
-        "means), `segloc map build` with no survey on the raw log, one set of settings.",
+        "means), `segloc map build` with no survey on the raw log, one set of settings. Loop "
+        f"precision: the share of the loops accepted that the final poses hold within "
+        f"{LOOP_HELD_M * 100:.0f} cm and {LOOP_HELD_DEG:g}° (Cartographer's measure).",
         "",
-        "| " + " | ".join(head) + " |",
-        "|" + "|".join([":---"] + ["---:"] * (len(head) - 1)) + "|",
-        *("| " + " | ".join(row) + " |" for row in rows),
+        *_table(head, rows),
+        "",
+        "The raw log tracked (`localize --track`) in that map from the first scan's pose, "
+        "scored on the same relations, and whether `evaluate --published` says it is not "
+        "like for like with the published rows (it does only for a map built from given poses).",
+        "",
+        *_table(track_head, tracks),
+        "",
+        f"Figures: `{FIGURES}/LOG/trajectory.png` (the poses over the map, coloured by "
+        "relation error) and `relation_errors_over_time.png`.",
         "",
         *commands_section(commands),
     ]
     return "\n".join(lines) + "\n"
+
+
+def _table(head: list[str], rows: list[list[str]]) -> list[str]:
+    return [
+        "| " + " | ".join(head) + " |",
+        "|" + "|".join([":---"] + ["---:"] * (len(head) - 1)) + "|",
+        *("| " + " | ".join(row) + " |" for row in rows),
+    ]
 
 
 def main() -> None:
@@ -115,11 +198,13 @@ def main() -> None:
     if missing:
         raise SystemExit(f"no raw log of {', '.join(missing)} under {args.datasets}")
     commands: dict[str, list[str]] = {}
-    rows = []
+    rows, tracks = [], []
     for name in names:
-        rows.append(run_log(name, args.datasets, args.work, commands.setdefault(name, [])))
-        print(" | ".join(rows[-1]), flush=True)
-    args.out.write_text(report(rows, commands), encoding="utf-8")
+        mapped, track = run_log(name, args.datasets, args.work, commands.setdefault(name, []))
+        rows.append(mapped)
+        tracks.append(track)
+        print(" | ".join(mapped), "|", " | ".join(track[1:]), flush=True)
+    args.out.write_text(report(rows, tracks, commands), encoding="utf-8")
     print(f"{args.out}: {len(rows)} logs")
 
 

@@ -957,26 +957,39 @@ def test_the_relations_table_names_the_estimates_file(tmp_path, capsys):
 
 
 def test_published_rows_say_where_they_are_not_like_for_like(tmp_path, capsys):
-    """Beside a dataset whose maps segloc builds from its SLAM-corrected log, the table says
-    under it that segloc's row is not like for like with the published ones; beside one it
-    has no such log of, nothing is claimed."""
+    """Beside a dataset whose maps segloc builds from its SLAM-corrected log, estimates
+    localized in a map built at given poses (their run file names it) get a line under the
+    table saying they are not like for like with the published ones; estimates localized in
+    a map segment SLAM built from the log, or with no segloc map known, and a dataset with
+    no such log, get none."""
+    from segloc_cli.io.maps import write_map
+
     est = _estimates_csv(tmp_path / "est.csv", [(0, 0, 0, 90), (1, 1, 0, 90), (2, 2, 0, 90)])
     rel = write_text(tmp_path / "ref.relations", "0 1 0 -1 0 0 0 0\n1 2 0 -1.1 0 0 0 0\n")
-    for dataset in ("intel", "fr079", "mit-killian-court"):
+    wall = np.array([[0.0, 0.0, 1.0, 0.0]])
+    write_map(tmp_path / "surveyed.json", wall, {"log": "x.mcap", "survey": "ref.csv"})
+    write_map(tmp_path / "slam.json", wall, {"log": "x.mcap", "poses": "segment SLAM"})
+
+    def caveats(dataset, map_name):
+        run_file = tmp_path / "est.run.toml"
+        run_file.unlink(missing_ok=True)
+        if map_name:
+            write_text(run_file, f'[localize]\nmap = "{map_name}"\n')
         shown = run_cli(capsys, "evaluate", est, "--relations", rel, "--published", dataset)
         assert shown.code == 0, shown.err
         rows, note = shown.out.split("\n\n", 1)
         assert "GraphMapping (published)" in rows.splitlines()[-1]
-        caveat = [line for line in note.splitlines() if line.startswith("Not like for like")]
         as_json = run_cli(capsys, "evaluate", est, "--relations", rel, "--published", dataset,
                           "--format", "json")  # fmt: skip
-        document = json.loads(as_json.out)
-        if dataset == "mit-killian-court":
-            assert not caveat and "published_note" not in document, shown.out
-            continue
-        (line,) = caveat
+        lines = [line for line in note.splitlines() if line.startswith("Not like for like")]
+        assert json.loads(as_json.out).get("published_note") == (lines[0] if lines else None)
+        return lines
+
+    for dataset in ("intel", "fr079"):
+        (line,) = caveats(dataset, "surveyed.json")
         assert f"built from {dataset}'s SLAM-corrected log ({dataset}-corrected.log.gz)" in line
-        assert document["published_note"] == line
+        assert caveats(dataset, "slam.json") == caveats(dataset, None) == []
+    assert caveats("mit-killian-court", "surveyed.json") == []
     plain = run_cli(capsys, "evaluate", est, "--relations", rel)
     assert "like for like" not in plain.out
 

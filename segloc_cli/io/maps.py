@@ -100,6 +100,14 @@ def read_map(path: str | Path) -> np.ndarray:
     return segments
 
 
+def read_map_source(path: str | Path) -> dict:
+    """The ``source`` record of a map file (how it was built; {} where it says nothing)."""
+    document = _read_json(path)
+    _check_header(path, document, (MAP_FORMAT, WORLD_FORMAT))
+    source = document.get("source", {})
+    return source if isinstance(source, dict) else {}
+
+
 def segloc_kind(path: str | Path) -> str | None:
     """ "map" or "world" when ``path`` is a segloc map or world file (a JSON object whose
     ``format`` says so), else None, also for a file that cannot be read (its own reader says

@@ -600,6 +600,29 @@ class RelationRun:
     relations: Relations
 
 
+def localized_in(options: EvaluateOptions) -> dict | None:
+    """The ``source`` record of the map the estimates were localized in: ``--map``'s, else
+    that of the map their run file names (``localize``'s, beside the estimates); None where
+    neither says, or the map cannot be read."""
+    from segloc_cli.io.maps import read_map_source
+    from segloc_cli.runs.runfile import load_toml, run_file_path
+
+    map_path = options.map_path
+    run_file = run_file_path(options.estimates_path)
+    if map_path is None and run_file.is_file():
+        try:
+            named = load_toml(run_file).get("localize", {}).get("map")
+        except (InputError, AttributeError):
+            named = None
+        map_path = run_file.parent / named if isinstance(named, str) else None
+    if map_path is None:
+        return None
+    try:
+        return read_map_source(map_path)
+    except InputError:
+        return None
+
+
 def relation_scores(
     estimates: pd.DataFrame, options: EvaluateOptions
 ) -> tuple[Scores, RelationRun]:
@@ -635,7 +658,9 @@ def relation_scores(
             path=options.relations_path,
         )
     reference = None if options.published is None else PUBLISHED.get(options.published)
-    caveat = None if options.published is None else published_note(options.published)
+    caveat = None
+    if options.published is not None:
+        caveat = published_note(options.published, localized_in(options))
     within = f"within {options.tolerance_ms:g} ms"
     outcomes = relation_outcomes(
         100.0 * errors.trans_m, errors.rot_deg, options.gates, len(relations), within

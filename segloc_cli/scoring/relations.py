@@ -76,10 +76,14 @@ built: segloc localizes in a map that already holds a solution of the very run t
 graph mapping had to solve, so its row and the published ones are not like for like."""
 
 
-def published_note(dataset: str) -> str | None:
+def published_note(dataset: str, map_source: dict | None) -> str | None:
     """The line under a table of relation errors with ``dataset``'s published rows that says
-    how far they compare with segloc's (None where there is nothing to say)."""
-    if dataset not in MAPS_FROM_CORRECTED_LOGS:
+    how far they compare with segloc's: not like for like where the poses were localized in
+    a map built at given poses (``map_source``, the map's ``source`` record, names a
+    survey: for these datasets, their corrected log). None where there is nothing to say:
+    a map segloc built from the log itself (segment SLAM), or no segloc map known (the
+    poses of ``map build --poses-out``, or of another localizer)."""
+    if dataset not in MAPS_FROM_CORRECTED_LOGS or not map_source or "survey" not in map_source:
         return None
     return (
         f"Not like for like: segloc localized in a map built from {dataset}'s SLAM-corrected "
