@@ -145,6 +145,9 @@ class SearchParams:
     """Spacing of the headings tried: across the prior window, or the whole circle without one."""
     keep_fraction: float = 0.8
     """Poses scoring under this share of the best are not kept: the search prunes below it."""
+    min_score: float = 0.0
+    """A search whose best pose scores under this (the mean score of the scan's points, 0 to
+    1) finds nothing, and prunes below it from the start (0: the best is always kept)."""
     max_depth: int = 7
     """Levels of the bound pyramid above the fine raster, squares of up to 2^max_depth cells
     (6.4 m at 5 cm), fewer for a smaller region: the branch and bound starts from squares of
@@ -331,6 +334,11 @@ class SlamParams:
     """Heading uncertainty just after a loop (the search's window either side)..."""
     loop_window_per_m: float = 0.2
     """...growing by this much (°) per metre travelled since, up to 180°."""
+    loop_min_score: float = 0.4
+    """A loop search is not followed through where the best pose puts under this share of
+    the scan's points on the submap (the search's ``min_score``): a loop this weakly
+    supported would not be taken, and the searches of submaps the keyframe does not see end
+    early."""
     loop_every: int = 3
     """Every this-many-th keyframe is searched for in older submaps."""
     loop_cauchy: float = 1.0
@@ -558,6 +566,7 @@ _TUNING_BOUNDS: dict[str, tuple[float, float, bool]] = {
     "fuse.polish_min_inlier_ratio": (0.0, 1.0, False),
     "localize.min_spread_m": (0.0, 1e4, False),
     "localize.search.keep_fraction": (0.0, 1.0, True),
+    "localize.search.min_score": (0.0, 1.0, False),
     "localize.search.max_depth": (0, 12, False),
     "localize.search.heading_step_deg": (0.0, 360.0, True),
     "localize.search.distinct_m": (0.0, 1e4, False),

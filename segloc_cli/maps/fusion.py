@@ -225,18 +225,77 @@ def _matches(
     Only pairs whose gap is at most ``gap_m`` are returned. Each segment compared with its
     neighbours is a step of ``progress``.
     """
-    s = np.asarray(segments, dtype=float).reshape(-1, 4)
-    margin_m = max(params.offset_m, params.gap_m)
-    found = []
-    for i, j, done in _nearby_pair_stretches(s, margin_m, np.deg2rad(params.angle_deg)):
-        on_i, gap_i = _lies_on(s[i], s[j], params)
-        on_j, gap_j = _lies_on(s[j], s[i], params)
-        gap = np.maximum(gap_i, gap_j)
-        keep = on_i & on_j & (gap <= params.gap_m)
-        found.append((i[keep], j[keep], gap[keep]))
-        progress.advance(done)
+    found = list(_match_stretches(segments, params, progress))
     i, j, gap = (np.concatenate(parts) for parts in zip(*found, strict=True))
     return i, j, gap
+
+
+def _match_stretches(
+    segments: np.ndarray, params: FuseParams, progress: Progress = SILENT
+) -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """``_matches`` a stretch of grid columns at a time (``_nearby_pair_stretches``), so that
+    no more than one stretch's candidate pairs are held at once."""
+    s = np.asarray(segments, dtype=float).reshape(-1, 4)
+    margin_m = max(params.offset_m, params.gap_m)
+    for i, j, done in _nearby_pair_stretches(s, margin_m, np.deg2rad(params.angle_deg)):
+        keep, gap = _mergeable(s, i, j, params)
+        yield i[keep], j[keep], gap[keep]
+        progress.advance(done)
+
+
+def _mergeable(
+    s: np.ndarray, i: np.ndarray, j: np.ndarray, params: FuseParams
+) -> tuple[np.ndarray, np.ndarray]:
+    """Which pairs (i, j) of segments ``s`` are mergeable (each lies on the other's line,
+    their gap at most ``gap_m``), and the larger of their two gaps (m)."""
+    on_i, gap_i = _lies_on(s[i], s[j], params)
+    on_j, gap_j = _lies_on(s[j], s[i], params)
+    gap = np.maximum(gap_i, gap_j)
+    return on_i & on_j & (gap <= params.gap_m), gap
+
+
+JOIN_PAIRS = 1 << 16
+"""Candidate pairs tested at once by ``_mergeable_groups``, between joins."""
+
+
+def _mergeable_groups(
+    segments: np.ndarray, params: FuseParams, progress: Progress = SILENT
+) -> np.ndarray | None:
+    """The group (M,) of each segment: the smallest index of those joined to it by a chain
+    of ``mergeable_pairs``; None where no pair is mergeable. The candidate pairs are tested
+    ``JOIN_PAIRS`` at a time and joined as they are found, those already in one group left
+    untested: a wall seen from hundreds of poses makes tens of thousands of pairs, nearly all
+    of them joined by the first few."""
+    s = np.asarray(segments, dtype=float).reshape(-1, 4)
+    labels = np.arange(s.shape[0])
+    joined = False
+    margin_m = max(params.offset_m, params.gap_m)
+    for i, j, done in _nearby_pair_stretches(s, margin_m, np.deg2rad(params.angle_deg)):
+        for start in range(0, i.size, JOIN_PAIRS):
+            a, b = i[start : start + JOIN_PAIRS], j[start : start + JOIN_PAIRS]
+            apart = labels[a] != labels[b]
+            a, b = a[apart], b[apart]
+            keep, _ = _mergeable(s, a, b, params)
+            joined |= bool(keep.any())
+            _join(labels, a[keep], b[keep])
+        progress.advance(done)
+    return labels if joined else None
+
+
+def _join(labels: np.ndarray, i: np.ndarray, j: np.ndarray) -> None:
+    """Join the groups of the pairs (i, j) in ``labels`` (each node's group: the smallest
+    node of it so far; a group's smallest node is its own), in place."""
+    while True:
+        a, b = labels[i], labels[j]
+        differ = a != b
+        if not differ.any():
+            return
+        np.minimum.at(labels, np.maximum(a, b)[differ], np.minimum(a, b)[differ])
+        while True:  # every node to its group's smallest node
+            up = labels[labels]
+            if np.array_equal(up, labels):
+                break
+            labels[:] = up
 
 
 def mergeable_pairs(
@@ -306,19 +365,6 @@ def _gaps(start, direction, length, p, q) -> np.ndarray:
     return np.maximum(np.minimum(tp, tq) - length, -np.maximum(tp, tq))
 
 
-def _components(n: int, i: np.ndarray, j: np.ndarray) -> np.ndarray:
-    """Connected-component label (n,) of each node of the graph with edges (i, j)."""
-    labels = np.arange(n)
-    while True:
-        updated = labels.copy()
-        np.minimum.at(updated, i, labels[j])
-        np.minimum.at(updated, j, labels[i])
-        updated = updated[updated]
-        if np.array_equal(updated, labels):
-            return labels
-        labels = updated
-
-
 def _fuse_groups(
     segments: np.ndarray, labels: np.ndarray, params: FuseParams
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -385,11 +431,11 @@ def fuse_traced(
     segments = segments[kept]
     with progress("fusing segments", segments.shape[0], "segment") as shown:
         while segments.shape[0] > 1:
-            i, j = mergeable_pairs(segments, params, shown)
+            groups = _mergeable_groups(segments, params, shown)
             shown = SILENT
-            if i.size == 0:
+            if groups is None:
                 break
-            fused, went = _fuse_groups(segments, _components(segments.shape[0], i, j), params)
+            fused, went = _fuse_groups(segments, groups, params)
             if fused.shape[0] == segments.shape[0]:
                 break  # cannot happen (see above); guards against an endless loop
             segments = fused

@@ -467,7 +467,8 @@ def _close_loops(
             continue
         guess = relative_motion(anchor, here)[0]
         window_deg = min(p.loop_window_deg + p.loop_window_per_m * travel_since_loop, 180.0)
-        params = LocalizeParams(window_deg=window_deg, search=SearchParams(half_width_m=radius))
+        search = SearchParams(half_width_m=radius, min_score=p.loop_min_score)
+        params = LocalizeParams(window_deg=window_deg, search=search)
         if sub.localizer is None:
             sub.localizer = Localizer.on_map(sub.segments, params)
         localizer = sub.localizer.with_params(params)

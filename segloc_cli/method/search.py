@@ -772,6 +772,7 @@ def _branch_and_bound(
     top: np.ndarray,
     first_batch: int,
     threads: bool = False,
+    floor: float = 0.0,
 ) -> _Poses:
     """The ``pruning.k`` best distinct grid poses (``_Poses``: sums, heading indices, x, y),
     best first, of the fine sums over the ``grid``, by depth-first branch and bound over the
@@ -782,8 +783,10 @@ def _branch_and_bound(
     bounds the first in ``top`` first), and splits a square in four while its bound beats
     the threshold and it is not ``_shadowed``: the threshold is the k-th best distinct sum
     kept so far (0 until k are kept), and at least ``keep`` times the best, ``known`` being
-    a sum already found. The best sum is exact; the runner-ups are the best distinct sums
-    the pruning leaves (a better pose that is not distinct from one kept replaces it).
+    a sum already found; until a sum above ``floor`` is found, the threshold is ``floor``
+    (no pose at or below it is the best). The best sum is exact; the runner-ups are the
+    best distinct sums the pruning leaves (a better pose that is not distinct from one kept
+    replaces it).
     ``top`` (H, A, A), A = ⌈n_cells / 2^depth⌉, takes the top squares' bounds: of an
     integer type wide enough for their sums in 255ths, or float64 for a search without a
     pyramid (depth 0). The top squares are taken in batches of whole points' worth of
@@ -812,7 +815,8 @@ def _branch_and_bound(
     kept = _Poses(np.zeros(pruning.k + 1), hxy[0], hxy[1], hxy[2])
     divisor = float(unit)
     descent = _Descent(pyramid, grid, pruning, merged, flat, divisor, kept)
-    n_kept, threshold = 0, pruning.keep * known  # a sum already found is at most the best
+    # A sum already found is at most the best.
+    n_kept, threshold = 0, max(pruning.keep * known, floor)
     collect = _collect_parallel if threads else _collect
     for number, (low, high) in enumerate(_batches(counts.sum(axis=0), first_batch)):
         if high + 1 <= threshold:  # every bound left is below (high + 1) points' worth
@@ -999,7 +1003,8 @@ class HypothesisSearch:
         Every heading is combined with every position on the fine grid of the
         square (spacing ``cell_m``), and the score of a pose is the mean raster
         score of the points there. Branch and bound finds the best exactly; poses
-        under ``keep_fraction`` of its score are not kept. With
+        under ``keep_fraction`` of its score are not kept, nor a best under
+        ``min_score`` (nothing is found). With
         ``reach_m``, positions farther than that from every map segment are not
         searched (a scan seen from there could not reach the map). ``first_batch`` top
         squares are sorted and searched first (the answer does not depend on it). With
@@ -1038,6 +1043,7 @@ class HypothesisSearch:
             np.empty((headings.size, n_top, n_top), dtype=top_type),
             first_batch,
             threads=reach_m is not None if threads is None else threads,
+            floor=p.min_score * points.shape[0],
         )
         xy = start + cell * np.column_stack([found.x, found.y])
         return [
