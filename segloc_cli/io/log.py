@@ -163,8 +163,9 @@ class Log:
     @property
     def has_odometry(self) -> bool:
         """Whether ``/odom`` is odometry, the robot's motion from scan to scan: the log has
-        some, and it is not what ``segloc simulate`` writes there, an initial guess per scan
-        drawn apart from the others (its sensor settings record ``init_errors``)."""
+        some, and it is not what ``segloc simulate`` writes there without ``--odometry``, an
+        initial guess per scan drawn apart from the others (its sensor settings record
+        ``init_errors``)."""
         return self.odom_times_s.size > 0 and SIMULATED_GUESSES_KEY not in self.sensor
 
     @property

@@ -109,14 +109,12 @@ class SlamResult:
         """How far the solved poses place each candidate's keyframe from where its search
         found it in its anchor's frame (L, 2: m, °); NaN where nothing was found. Small
         for a loop the solution holds."""
-        offsets = np.full((len(self.loops), 2), np.nan)
-        for row, loop in enumerate(self.loops):
-            solved = relative_motion(
-                self.keyframe_poses[loop.anchor], self.keyframe_poses[loop.keyframe]
-            )
-            off = relative_motion(solved, np.array(loop.motion))[0]
-            offsets[row] = np.hypot(off[0], off[1]), np.rad2deg(abs(off[2]))
-        return offsets
+        solved = self.keyframe_poses
+        anchors = solved[[loop.anchor for loop in self.loops]]
+        keyframes = solved[[loop.keyframe for loop in self.loops]]
+        found = np.array([loop.motion for loop in self.loops]).reshape(-1, 3)
+        off = relative_motion(relative_motion(anchors, keyframes), found)
+        return np.column_stack([np.hypot(off[:, 0], off[:, 1]), np.rad2deg(np.abs(off[:, 2]))])
 
 
 def odometry_at(
