@@ -53,6 +53,7 @@ from segloc_cli.maps.fusion import fuse_segments
 from segloc_cli.method.extract import extract_segments
 from segloc_cli.method.refine import nearest_segments, refine_pose
 from segloc_cli.method.search import distinct
+from segloc_cli.method.spatial import NEAR_CELL_M, SegmentGrid
 from segloc_cli.scan import Scan
 
 if TYPE_CHECKING:
@@ -220,22 +221,18 @@ class _Graph:
         )
         self._add(factor, b if guess is not None else None, guess)
 
-    def poses(self, n: int) -> np.ndarray:
-        estimate = self.isam.calculateEstimate()
-        return np.array([[*_xyt(estimate.atPose2(k))] for k in range(n)])
+    def poses(self) -> np.ndarray:
+        """Every keyframe's pose (K, 3) as iSAM2 has it now."""
+        return self.gtsam.utilities.extractPose2(self.isam.calculateEstimate())
 
-    def solved(self, n: int) -> np.ndarray:
-        """Every keyframe's pose after a batch Levenberg–Marquardt solve from iSAM2's."""
+    def solved(self) -> np.ndarray:
+        """Every keyframe's pose (K, 3) after a batch Levenberg–Marquardt solve from iSAM2's."""
         gtsam = self.gtsam
         start = self.isam.calculateEstimate()
         result = gtsam.LevenbergMarquardtOptimizer(
             self.graph, start, gtsam.LevenbergMarquardtParams()
         ).optimize()
-        return np.array([[*_xyt(result.atPose2(k))] for k in range(n)])
-
-
-def _xyt(p) -> tuple[float, float, float]:
-    return p.x(), p.y(), p.theta()
+        return gtsam.utilities.extractPose2(result)
 
 
 @dataclass
@@ -315,6 +312,7 @@ class _Mapping:
         self.travel_since_loop = 0.0
         self.previous = start
         self.local_world = transform_segments(self.local_maps[0], initial)
+        self._index: tuple[np.ndarray, SegmentGrid] | None = None
 
     def add_scan(self, i: int) -> None:
         """Place scan ``i``; make it a keyframe if it moved far enough from the last one."""
@@ -340,7 +338,9 @@ class _Mapping:
         # Where the odometry jumps (a robot carried off, a reset), the scan is placed by the
         # scans, from the pose of the one before.
         guess = self.previous if jumped else compose(self.previous, self.steps[i])
-        fit = refine_pose(points, self.local_world, Pose2(*guess), self.refine)
+        fit = refine_pose(
+            points, self.local_world, Pose2(*guess), self.refine, index=self._local_index()
+        )
         correction = relative_motion(guess, fit.pose.as_array())[0]
         plausible = self.blind or (
             np.hypot(correction[0], correction[1]) <= p.max_correction_m
@@ -354,6 +354,13 @@ class _Mapping:
         local_map = extract_segments(self.scans[i], self.extract_params)
         found = _searched(self.local_world, local_map, guess, points, any_heading=jumped)
         return (guess, False) if found is None else (found, True)
+
+    def _local_index(self) -> SegmentGrid:
+        """The spatial index of the local map the scans are fitted to, built once for the
+        scans between two keyframes (the fit is the same without it, only slower)."""
+        if self._index is None or self._index[0] is not self.local_world:
+            self._index = (self.local_world, SegmentGrid(self.local_world, cell_m=NEAR_CELL_M))
+        return self._index[1]
 
     def _add_keyframe(self, i: int, motion: np.ndarray, fitted: bool, points: np.ndarray):
         """Scan ``i`` as the next keyframe, ``motion`` from the last; its edge, its submap,
@@ -391,7 +398,7 @@ class _Mapping:
         if closed:
             self.loops_closed += closed
             self.travel_since_loop = 0.0
-            self.kf_pose = list(self.graph.poses(k + 1))
+            self.kf_pose = list(self.graph.poses())
             self.previous = self.kf_pose[k]
         first = int(np.searchsorted(self.kf_travel, self.kf_travel[-1] - p.local_map_m))
         self.local_world = np.concatenate(
@@ -401,7 +408,7 @@ class _Mapping:
 
     def result(self) -> SlamResult:
         """Every scan's pose once the graph is solved, and what the run found."""
-        solved = self.graph.solved(len(self.keyframes))
+        solved = self.graph.solved()
         poses = np.array(
             [compose(solved[o], d) for o, d in zip(self.owner, self.offset, strict=True)]
         )
