@@ -610,8 +610,12 @@ def _get(message: dict, kind: str, *keys: str):
     return value
 
 
+_NUMBER_TYPES = {float, int}
+"""What JSON numbers decode to (``bool``, a subclass of ``int``, is not one)."""
+
+
 def _is_number(value: object) -> bool:
-    return type(value) is float or type(value) is int
+    return type(value) in _NUMBER_TYPES
 
 
 def _to_float(value: int | float) -> float:
@@ -651,7 +655,8 @@ def _stamp_ns(message: dict) -> int:
 
 def _number_list(value: object) -> np.ndarray | None:
     """A JSON array of numbers as floats (beyond the float range → ±inf), else None."""
-    if not isinstance(value, list) or not all(_is_number(v) for v in value):
+    # The types, not ``_is_number`` value by value: a scan's readings number thousands.
+    if not isinstance(value, list) or not set(map(type, value)) <= _NUMBER_TYPES:
         return None
     try:
         return np.array(value, dtype=float)
