@@ -259,19 +259,19 @@ def run_slam(
     extract_params: ExtractParams | None = None,
     refine_params: RefineParams | None = None,
     fuse_params: FuseParams | None = None,
-    advance: Callable[[int, int, int], None] | None = None,
+    advance: Callable[[int, dict[str, int]], None] | None = None,
 ) -> SlamResult:
     """Every scan's pose and the keyframes' local maps, from the ``scans`` (S) and the
     ``odometry`` (S, 3) at their times (any world frame: only its motions count; None: no
     odometry, each scan guessed to move as the one before did); the first scan is placed
-    at ``initial``. ``advance(scans_done, keyframes, loops_accepted)`` is called after
+    at ``initial``. ``advance(scans_done, counts)`` is called after
     every scan."""
     mapping = _Mapping(scans, odometry, params or SlamParams(), initial, extract_params,
                        refine_params or RefineParams(), fuse_params)  # fmt: skip
     for i in range(1, len(scans)):
         mapping.add_scan(i)
         if advance:
-            advance(i + 1, len(mapping.keyframes), mapping.loops_closed)
+            advance(i + 1, mapping.counts())
     return mapping.result()
 
 
@@ -313,6 +313,8 @@ class _Mapping:
         self.previous = start
         self.local_world = transform_segments(self.local_maps[0], initial)
         self._index: tuple[np.ndarray, SegmentGrid] | None = None
+        self._counted, self._found = 0, 0
+        """Loop candidates counted so far (``counts``), and how many the verdict said ok."""
 
     def add_scan(self, i: int) -> None:
         """Place scan ``i``; make it a keyframe if it moved far enough from the last one."""
@@ -405,6 +407,17 @@ class _Mapping:
             [transform_segments(self.local_maps[j], Pose2(*self.kf_pose[j]))
              for j in range(first, k + 1)]
         )  # fmt: skip
+
+    def counts(self) -> dict[str, int]:
+        """What the run has made so far, as its progress shows it."""
+        searched = sum(loop.status == "ok" for loop in self.loops[self._counted :])
+        self._counted, self._found = len(self.loops), self._found + searched
+        return {
+            "keyframes": len(self.keyframes),
+            "submaps": len(self.submaps),
+            "loops found": self._found,
+            "closed": self.loops_closed,
+        }
 
     def result(self) -> SlamResult:
         """Every scan's pose once the graph is solved, and what the run found."""

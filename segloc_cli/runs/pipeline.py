@@ -513,8 +513,8 @@ def slam_map(
         odometry = odometry_at(times, log.odom_times_s, log.odom_poses)
     with progress("mapping", selected.size, "scan") as shown:
 
-        def advance(done: int, keyframes: int, loops: int) -> None:
-            shown.count({"keyframes": keyframes, "loops closed": loops})
+        def advance(done: int, counts: dict[str, int]) -> None:
+            shown.count(counts)
             shown.advance(done - shown.done)
 
         result = run_slam(
