@@ -21,11 +21,13 @@ scan to the map the other half of the scans make, before fusing.
 from __future__ import annotations
 
 from collections.abc import Iterator
+from typing import NamedTuple
 
 import numpy as np
 
 from segloc_cli.config import FuseParams
 from segloc_cli.geometry import Pose2, segment_lengths, transform_segments
+from segloc_cli.jit import njit
 from segloc_cli.progress import SILENT, Progress, ProgressFactory, silent
 
 TOUCH_M = 1e-9
@@ -131,22 +133,29 @@ def _nearby_pairs(
     return np.concatenate([i for i, _ in found]), np.concatenate([j for _, j in found])
 
 
-def _nearby_pair_stretches(
-    segments: np.ndarray,
-    margin_m: float,
-    angle_rad: float = np.pi,
-    entries: int | None = None,
-) -> Iterator[tuple[np.ndarray, np.ndarray, int]]:
-    """``_nearby_pairs`` a stretch of grid columns at a time, west to east, each stretch of
-    about ``entries`` grid entries (default ``PAIRING_ENTRIES``; a column with more is a
-    stretch of its own): (i, j, done)
-    per stretch, ``done`` the count of segments whose last column it holds, whose pairs are
-    all out once it is (over all stretches, every segment). The pairs come in the order one
-    stretch of all columns would give them."""
+class _Entries(NamedTuple):
+    """The grid entries of ``_nearby_pair_stretches``, a segment per covered cell and
+    orientation bin, and the stretches of grid columns they fall in."""
+
+    owner: np.ndarray
+    key: np.ndarray
+    entry_bin: np.ndarray
+    cx: np.ndarray
+    cy: np.ndarray
+    c_lo: np.ndarray
+    bins: np.ndarray
+    by_stretch: np.ndarray
+    bounds: np.ndarray
+    done: np.ndarray
+
+
+def _grid_entries(
+    segments: np.ndarray, margin_m: float, angle_rad: float, entries: int | None = None
+) -> _Entries:
+    """Every segment filed in each grid cell its box (grown by the margin) covers, in its
+    own orientation bin and the next, and the stretches of columns of about ``entries``
+    entries each that ``_nearby_pair_stretches`` takes one at a time."""
     n = segments.shape[0]
-    if n < 2:
-        yield np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64), n
-        return
     bins, n_bins = _orientation_bins(segments, angle_rad)
     lo = np.minimum(segments[:, :2], segments[:, 2:]) - margin_m
     hi = np.maximum(segments[:, :2], segments[:, 2:]) + margin_m
@@ -173,20 +182,77 @@ def _nearby_pair_stretches(
     by_stretch = np.argsort(stretch, kind="stable")
     bounds = np.searchsorted(stretch[by_stretch], np.arange(n_stretches + 1))
     done = np.bincount(column_stretch[c_hi[:, 0] - cx.min()], minlength=n_stretches)
-    for s in range(n_stretches):
-        chosen = by_stretch[bounds[s] : bounds[s + 1]]
-        order = chosen[np.lexsort((owner[chosen], key[chosen]))]
-        first, second = _pairs_in_same_key(key[order])
+    return _Entries(owner, key, entry_bin, cx, cy, c_lo, bins, by_stretch, bounds, done)
+
+
+def _stretch_order(entries: _Entries, s: int) -> np.ndarray:
+    """The entries of stretch ``s``, by key, and of one key by segment."""
+    chosen = entries.by_stretch[entries.bounds[s] : entries.bounds[s + 1]]
+    return chosen[np.lexsort((entries.owner[chosen], entries.key[chosen]))]
+
+
+def _nearby_pair_stretches(
+    segments: np.ndarray,
+    margin_m: float,
+    angle_rad: float = np.pi,
+    entries: int | None = None,
+) -> Iterator[tuple[np.ndarray, np.ndarray, int]]:
+    """``_nearby_pairs`` a stretch of grid columns at a time, west to east, each stretch of
+    about ``entries`` grid entries (default ``PAIRING_ENTRIES``; a column with more is a
+    stretch of its own): (i, j, done)
+    per stretch, ``done`` the count of segments whose last column it holds, whose pairs are
+    all out once it is (over all stretches, every segment). The pairs come in the order one
+    stretch of all columns would give them."""
+    n = segments.shape[0]
+    if n < 2:
+        yield np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64), n
+        return
+    e = _grid_entries(segments, margin_m, angle_rad, entries)
+    for s in range(e.done.size):
+        order = _stretch_order(e, s)
+        first, second = _pairs_in_same_key(e.key[order])
         first, second = order[first], order[second]
-        i, j = owner[first], owner[second]
+        i, j = e.owner[first], e.owner[second]
         # Boxes that share cells share a rectangle of them, and segments in the same
         # bin share it and the next: keep each pair only in its lowest cell and bin.
         once = (
-            (cx[first] == np.maximum(c_lo[i, 0], c_lo[j, 0]))
-            & (cy[first] == np.maximum(c_lo[i, 1], c_lo[j, 1]))
-            & ((bins[i] != bins[j]) | (entry_bin[first] == bins[i]))
+            (e.cx[first] == np.maximum(e.c_lo[i, 0], e.c_lo[j, 0]))
+            & (e.cy[first] == np.maximum(e.c_lo[i, 1], e.c_lo[j, 1]))
+            & ((e.bins[i] != e.bins[j]) | (e.entry_bin[first] == e.bins[i]))
         )
-        yield i[once], j[once], int(done[s])
+        yield i[once], j[once], int(e.done[s])
+
+
+@njit(cache=True)
+def _open_pairs(key, owner, cx, cy, entry_bin, c_lo, bins, labels, state, out_i, out_j):
+    """The pairs of entries (indices into the stretch's sorted entries ``key``, ``owner``,
+    ``cx``, ``cy``, ``entry_bin``) that ``_nearby_pair_stretches`` gives, less those whose
+    segments ``labels`` already puts in one group, from where ``state`` (3,: entry a, entry
+    b, and 1 once the stretch is done) left off, into ``out_i``/``out_j`` until they are full;
+    returns how many, ``state`` updated."""
+    n, n_out = key.size, 0
+    a, b = state[0], state[1]
+    while a < n:
+        if b <= a:
+            b = a + 1
+        while b < n and key[b] == key[a]:
+            i, j = owner[a], owner[b]
+            if (
+                labels[i] != labels[j]
+                and cx[a] == max(c_lo[i, 0], c_lo[j, 0])
+                and cy[a] == max(c_lo[i, 1], c_lo[j, 1])
+                and (bins[i] != bins[j] or entry_bin[a] == bins[i])
+            ):
+                if n_out == out_i.size:
+                    state[0], state[1] = a, b
+                    return n_out
+                out_i[n_out], out_j[n_out] = i, j
+                n_out += 1
+            b += 1
+        a += 1
+        b = a + 1
+    state[0], state[1], state[2] = n, n, 1
+    return n_out
 
 
 def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -262,23 +328,32 @@ def _mergeable_groups(
     segments: np.ndarray, params: FuseParams, progress: Progress = SILENT
 ) -> np.ndarray | None:
     """The group (M,) of each segment: the smallest index of those joined to it by a chain
-    of ``mergeable_pairs``; None where no pair is mergeable. The candidate pairs are tested
-    ``JOIN_PAIRS`` at a time and joined as they are found, those already in one group left
-    untested: a wall seen from hundreds of poses makes tens of thousands of pairs, nearly all
-    of them joined by the first few."""
+    of ``mergeable_pairs``; None where no pair is mergeable. The candidate pairs of each
+    stretch of the grid are listed ``JOIN_PAIRS`` at a time (``_open_pairs``), tested and
+    joined, those already in one group left out: a wall seen from hundreds of poses makes
+    tens of thousands of pairs, nearly all of them joined by the first few."""
     s = np.asarray(segments, dtype=float).reshape(-1, 4)
     labels = np.arange(s.shape[0])
+    if s.shape[0] < 2:
+        progress.advance(s.shape[0])
+        return None
     joined = False
     margin_m = max(params.offset_m, params.gap_m)
-    for i, j, done in _nearby_pair_stretches(s, margin_m, np.deg2rad(params.angle_deg)):
-        for start in range(0, i.size, JOIN_PAIRS):
-            a, b = i[start : start + JOIN_PAIRS], j[start : start + JOIN_PAIRS]
-            apart = labels[a] != labels[b]
-            a, b = a[apart], b[apart]
+    e = _grid_entries(s, margin_m, np.deg2rad(params.angle_deg))
+    out_i, out_j = np.empty(JOIN_PAIRS, dtype=np.int64), np.empty(JOIN_PAIRS, dtype=np.int64)
+    for stretch in range(e.done.size):
+        order = _stretch_order(e, stretch)
+        sorted_entries = (e.key[order], e.owner[order], e.cx[order], e.cy[order])
+        state = np.zeros(3, dtype=np.int64)
+        while state[2] == 0:
+            n_out = _open_pairs(
+                *sorted_entries, e.entry_bin[order], e.c_lo, e.bins, labels, state, out_i, out_j
+            )
+            a, b = out_i[:n_out], out_j[:n_out]
             keep, _ = _mergeable(s, a, b, params)
             joined |= bool(keep.any())
             _join(labels, a[keep], b[keep])
-        progress.advance(done)
+        progress.advance(int(e.done[stretch]))
     return labels if joined else None
 
 
