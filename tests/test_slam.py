@@ -94,6 +94,24 @@ def test_slam_keeps_every_pose_where_the_odometry_drifts_away(ring_run):
     assert 0 < result.keyframes.size < truth.shape[0]
 
 
+def test_loop_searches_in_a_worker_process_give_the_same_poses(ring_run):
+    """The ring run with its loop searches in a worker process (as a long log's are): the
+    same loops and poses to the bit as searched in the mapping process."""
+    world, truth, here = ring_run
+    rng = np.random.default_rng(44)
+    scans = [simulate_scan(world, Pose2(*p), SENSOR, rng, 0.1 * i) for i, p in enumerate(truth)]
+    odometry = drifting_odometry(truth, rng)
+    beside = run_slam(scans, odometry, initial=Pose2(*truth[0]), parallel=True)
+
+    def said(result):
+        return [(loop.keyframe, loop.anchor, loop.status, loop.accepted) for loop in result.loops]
+
+    assert said(beside) == said(here) and beside.loops_accepted >= 1
+    motions = [np.array([loop.motion for loop in r.loops]) for r in (beside, here)]
+    np.testing.assert_array_equal(*motions)  # NaN where nothing was found, in both
+    np.testing.assert_array_equal(beside.poses, here.poses)
+
+
 def test_the_map_of_the_solved_poses_lies_on_the_walls(ring_run):
     from segloc_cli.maps.fusion import build_global_map
 

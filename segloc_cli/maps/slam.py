@@ -19,6 +19,10 @@ it in that submap put the anchor at the same place. The loop's edge joins the ke
 the submap's keyframe nearest the find, so that a submap bent by corrections made after it
 was fused bends the loop least. Every candidate is recorded (``LoopCandidate``).
 
+A keyframe's searches are handed to a ``LoopSearcher`` (``maps/loop_search.py``) and their
+finds taken in when the next keyframe is searched for: on a long log, in a worker process
+while the front end maps the keyframes between, with the same result.
+
 Back end: a pose graph over the keyframes (gtsam's ``Pose2`` factors: the front end's edges,
 and the loops' under a Cauchy loss), updated incrementally (iSAM2) as keyframes and loops
 arrive and solved once more at the end (Levenberg–Marquardt).
@@ -28,9 +32,9 @@ Poses are (x_m, y_m, theta_rad) in the world frame of the first scan's pose (``i
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -50,17 +54,19 @@ from segloc_cli.geometry import (
     wrap_angle,
 )
 from segloc_cli.maps.fusion import fuse_segments
+from segloc_cli.maps.loop_search import LoopFind, LoopQuery, LoopSearcher
 from segloc_cli.method.extract import extract_segments
 from segloc_cli.method.refine import nearest_segments, refine_pose
 from segloc_cli.method.search import distinct
 from segloc_cli.method.spatial import NEAR_CELL_M, SegmentGrid
 from segloc_cli.scan import Scan
 
-if TYPE_CHECKING:
-    from segloc_cli.method.localize import Localizer
-
 WORLD_ORIGIN = Pose2(0.0, 0.0, 0.0)
 """Where the first scan is placed unless told otherwise."""
+
+PARALLEL_SCANS = 2000
+"""Logs of this many scans or more have their loop searches run in a worker process: a
+worker takes a second or two to start."""
 
 
 @dataclass(frozen=True)
@@ -238,14 +244,13 @@ class _Graph:
 @dataclass
 class _Submap:
     """Keyframes ``first`` to ``last`` (inclusive), their segments fused in the frame of
-    ``first`` (the anchor), and a localizer on them, made on the first search."""
+    ``first`` (the anchor)."""
 
     first: int
     last: int
     segments: np.ndarray
     members: np.ndarray
     """The poses (n, 3) of keyframes ``first`` to ``last`` in the anchor's frame, as fused."""
-    localizer: Localizer | None = None
     pending: tuple[int, np.ndarray] | None = None
     """The last keyframe found in it with an ok verdict, and where that put the anchor."""
 
@@ -260,19 +265,27 @@ def run_slam(
     refine_params: RefineParams | None = None,
     fuse_params: FuseParams | None = None,
     advance: Callable[[int, dict[str, int]], None] | None = None,
+    parallel: bool | None = None,
 ) -> SlamResult:
     """Every scan's pose and the keyframes' local maps, from the ``scans`` (S) and the
     ``odometry`` (S, 3) at their times (any world frame: only its motions count; None: no
     odometry, each scan guessed to move as the one before did); the first scan is placed
-    at ``initial``. ``advance(scans_done, counts)`` is called after
-    every scan."""
+    at ``initial``. ``advance(scans_done, counts)`` is called after every scan. With
+    ``parallel`` (by default for ``PARALLEL_SCANS`` scans or more on a machine of more
+    than one core), the loop searches run in a worker process beside the mapping, with
+    the same result."""
+    if parallel is None:
+        parallel = len(scans) >= PARALLEL_SCANS and (os.cpu_count() or 1) > 1
     mapping = _Mapping(scans, odometry, params or SlamParams(), initial, extract_params,
-                       refine_params or RefineParams(), fuse_params)  # fmt: skip
-    for i in range(1, len(scans)):
-        mapping.add_scan(i)
-        if advance:
-            advance(i + 1, mapping.counts())
-    return mapping.result()
+                       refine_params or RefineParams(), fuse_params, parallel)  # fmt: skip
+    try:
+        for i in range(1, len(scans)):
+            mapping.add_scan(i)
+            if advance:
+                advance(i + 1, mapping.counts())
+        return mapping.result()
+    finally:
+        mapping.searcher.close()
 
 
 class _Mapping:
@@ -281,8 +294,9 @@ class _Mapping:
     def __init__(
         self, scans: list[Scan], odometry: np.ndarray | None, p: SlamParams, initial: Pose2,
         extract_params: ExtractParams | None, refine: RefineParams,
-        fuse_params: FuseParams | None,
+        fuse_params: FuseParams | None, parallel: bool,
     ) -> None:  # fmt: skip
+        self.searcher = LoopSearcher(parallel)
         self.scans, self.p, self.refine = scans, p, refine
         self.extract_params, self.fuse_params = extract_params, fuse_params
         n = len(scans)
@@ -313,6 +327,8 @@ class _Mapping:
         self.previous = start
         self.local_world = transform_segments(self.local_maps[0], initial)
         self._index: tuple[np.ndarray, SegmentGrid] | None = None
+        self.request: _LoopRequest | None = None
+        """The searches handed to ``searcher`` whose finds are not yet taken in."""
         self._counted, self._found = 0, 0
         """Loop candidates counted so far (``counts``), and how many the verdict said ok."""
 
@@ -390,23 +406,37 @@ class _Mapping:
             self.submaps.append(
                 _submap(self.submap_first, k, self.local_maps, self.kf_pose, self.fuse_params)
             )  # fmt: skip
+            self.searcher.add_submap(len(self.submaps) - 1, self.submaps[-1].segments)
             self.submap_first = k
-        closed = 0
         if k % p.loop_every == 0:
-            closed = _close_loops(
-                self.graph, k, points, self.local_maps[k], self.kf_pose, self.kf_travel,
-                self.submaps, p, self.travel_since_loop, self.loops, self.refine.final_gate_m,
-            )  # fmt: skip
-        if closed:
-            self.loops_closed += closed
-            self.travel_since_loop = 0.0
-            self.kf_pose = list(self.graph.poses())
-            self.previous = self.kf_pose[k]
+            # The finds of the keyframe searched for before, then this one's searches: in a
+            # worker, they run while the next keyframes are mapped.
+            self._take_loops()
+            self.request = _loop_request(
+                k, points, self.kf_pose, self.kf_travel, self.submaps, p, self.travel_since_loop
+            )
+            self.searcher.submit(self.local_maps[k], points, self.request.queries)
         first = int(np.searchsorted(self.kf_travel, self.kf_travel[-1] - p.local_map_m))
         self.local_world = np.concatenate(
             [transform_segments(self.local_maps[j], Pose2(*self.kf_pose[j]))
              for j in range(first, k + 1)]
         )  # fmt: skip
+
+    def _take_loops(self) -> None:
+        """Add the loops the last keyframe searched for closes, if any."""
+        if self.request is None:
+            return
+        finds = self.searcher.collect()
+        closed = _close_loops(
+            self.graph, self.request, finds, self.submaps, self.p, self.loops,
+            self.refine.final_gate_m,
+        )  # fmt: skip
+        self.request = None
+        if closed:
+            self.loops_closed += closed
+            self.travel_since_loop = 0.0
+            self.kf_pose = list(self.graph.poses())
+            self.previous = self.kf_pose[-1]
 
     def counts(self) -> dict[str, int]:
         """What the run has made so far, as its progress shows it."""
@@ -421,6 +451,7 @@ class _Mapping:
 
     def result(self) -> SlamResult:
         """Every scan's pose once the graph is solved, and what the run found."""
+        self._take_loops()
         solved = self.graph.solved()
         poses = np.array(
             [compose(solved[o], d) for o, d in zip(self.owner, self.offset, strict=True)]
@@ -464,38 +495,58 @@ def _submap(first, last, local_maps, kf_pose, fuse_params) -> _Submap:
     return _Submap(first, last, fuse_segments(np.concatenate(placed), fuse_params), members)
 
 
-def _close_loops(
-    graph: _Graph, k: int, points: np.ndarray, local_map: np.ndarray, kf_pose: list,
-    kf_travel: list, submaps: list[_Submap], p: SlamParams, travel_since_loop: float,
-    loops: list[LoopCandidate], gate_m: float,
-) -> int:  # fmt: skip
-    """Search keyframe ``k`` in the submaps near its pose; add the loops accepted (their
-    information from the points within ``gate_m`` of the submap) and say how many."""
-    from segloc_cli.estimates import STATUS_OK
-    from segloc_cli.method.localize import Localizer
+@dataclass
+class _LoopRequest:
+    """The searches of keyframe ``k`` handed to the ``LoopSearcher``: its pose when they
+    were asked for (``here``), its points (robot frame), the square searched (half side,
+    m) and the queries."""
 
+    k: int
+    here: np.ndarray
+    points: np.ndarray
+    radius: float
+    queries: list[LoopQuery]
+
+
+def _loop_request(
+    k: int, points: np.ndarray, kf_pose: list, kf_travel: list, submaps: list[_Submap],
+    p: SlamParams, travel_since_loop: float,
+) -> _LoopRequest:  # fmt: skip
+    """The searches of keyframe ``k`` in the submaps near its pose: a square and a heading
+    window that grow with the travel since the last loop."""
     radius = min(p.loop_radius_m + p.loop_radius_per_m * travel_since_loop, p.loop_max_radius_m)
+    window_deg = min(p.loop_window_deg + p.loop_window_per_m * travel_since_loop, 180.0)
+    search = SearchParams(half_width_m=radius, min_score=p.loop_min_score)
+    params = LocalizeParams(window_deg=window_deg, search=search)
     here = kf_pose[k]
-    closed = 0
+    queries = []
     for index, sub in enumerate(submaps):
         if kf_travel[k] - kf_travel[sub.last] < p.loop_min_travel_m:
             continue
         anchor = kf_pose[sub.first]
         if np.hypot(*(here[:2] - anchor[:2])) > radius + p.submap_m:
             continue
-        guess = relative_motion(anchor, here)[0]
-        window_deg = min(p.loop_window_deg + p.loop_window_per_m * travel_since_loop, 180.0)
-        search = SearchParams(half_width_m=radius, min_score=p.loop_min_score)
-        params = LocalizeParams(window_deg=window_deg, search=search)
-        if sub.localizer is None:
-            sub.localizer = Localizer.on_map(sub.segments, params)
-        localizer = sub.localizer.with_params(params)
-        est = localizer.localize(local_map, Pose2(*guess), points)
-        found = est.pose.as_array()
-        correction = relative_motion(guess, found)[0]  # NaN where nothing was found
+        queries.append(LoopQuery(index, relative_motion(anchor, here)[0], params))
+    return _LoopRequest(k, here, points, radius, queries)
+
+
+def _close_loops(
+    graph: _Graph, request: _LoopRequest, finds: list[LoopFind], submaps: list[_Submap],
+    p: SlamParams, loops: list[LoopCandidate], gate_m: float,
+) -> int:  # fmt: skip
+    """Record the ``finds`` of a ``request``'s searches as loop candidates; add the loops
+    accepted (their information from the points within ``gate_m`` of the submap) and say
+    how many."""
+    from segloc_cli.estimates import STATUS_OK
+
+    k, here, points, radius = request.k, request.here, request.points, request.radius
+    closed = 0
+    for query, find in zip(request.queries, finds, strict=True):
+        sub, found = submaps[query.submap], find.pose
+        correction = relative_motion(query.guess, found)[0]  # NaN where nothing was found
         # The verdict's ``ok``, at a place inside the square searched, that the last such
         # find in this submap agrees with: both put the anchor at one place.
-        plausible = est.status == STATUS_OK and bool(
+        plausible = find.status == STATUS_OK and bool(
             np.hypot(correction[0], correction[1]) <= radius * np.sqrt(2.0)
         )
         accepted = False
@@ -510,11 +561,11 @@ def _close_loops(
         loops.append(
             LoopCandidate(
                 k,
-                index,
+                query.submap,
                 sub.first + nearest,
                 (float(motion[0]), float(motion[1]), float(motion[2])),
-                est.status,
-                float(est.inlier_ratio),
+                find.status,
+                find.inlier_ratio,
                 float(np.hypot(correction[0], correction[1])),
                 float(np.rad2deg(abs(correction[2]))),
                 accepted,
