@@ -101,15 +101,6 @@ def _orientation_bins(segments: np.ndarray, angle_rad: float) -> tuple[np.ndarra
     return np.floor(theta / (np.pi / n_bins)).astype(np.int64) % n_bins, n_bins
 
 
-def _pairs_in_same_key(key: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Index pairs (a < b) of entries with equal ``key``; key must be sorted."""
-    group_end = np.searchsorted(key, key, side="right")
-    count = group_end - np.arange(key.size) - 1
-    first = np.repeat(np.arange(key.size), count)
-    second = first + 1 + np.arange(first.size) - np.repeat(np.cumsum(count) - count, count)
-    return first, second
-
-
 PAIRING_ENTRIES = 1 << 13
 """About how many grid entries (a segment in one cell and orientation bin) are paired at once:
 a large map's candidate pairs are found a stretch of grid columns at a time, which bounds
@@ -208,28 +199,37 @@ def _nearby_pair_stretches(
         yield np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64), n
         return
     e = _grid_entries(segments, margin_m, angle_rad, entries)
-    for s in range(e.done.size):
-        order = _stretch_order(e, s)
-        first, second = _pairs_in_same_key(e.key[order])
-        first, second = order[first], order[second]
-        i, j = e.owner[first], e.owner[second]
-        # Boxes that share cells share a rectangle of them, and segments in the same
-        # bin share it and the next: keep each pair only in its lowest cell and bin.
-        once = (
-            (e.cx[first] == np.maximum(e.c_lo[i, 0], e.c_lo[j, 0]))
-            & (e.cy[first] == np.maximum(e.c_lo[i, 1], e.c_lo[j, 1]))
-            & ((e.bins[i] != e.bins[j]) | (e.entry_bin[first] == e.bins[i]))
-        )
-        yield i[once], j[once], int(e.done[s])
+    apart = np.arange(n)  # every segment a group of its own: no pair is left out
+    out_i, out_j = np.empty(JOIN_PAIRS, dtype=np.int64), np.empty(JOIN_PAIRS, dtype=np.int64)
+    for stretch in range(e.done.size):
+        found_i, found_j = [], []
+        for n_out in _stretch_pairs(e, stretch, apart, out_i, out_j):
+            found_i.append(out_i[:n_out].copy())
+            found_j.append(out_j[:n_out].copy())
+        yield np.concatenate(found_i), np.concatenate(found_j), int(e.done[stretch])
+
+
+def _stretch_pairs(
+    e: _Entries, stretch: int, labels: np.ndarray, out_i: np.ndarray, out_j: np.ndarray
+) -> Iterator[int]:
+    """The candidate pairs of ``stretch`` not in one group of ``labels`` (``_open_pairs``),
+    a batch at a time into ``out_i`` and ``out_j``: how many each time (at least once)."""
+    order = _stretch_order(e, stretch)
+    entries = (e.key[order], e.owner[order], e.cx[order], e.cy[order], e.entry_bin[order])
+    state = np.zeros(3, dtype=np.int64)
+    while state[2] == 0:
+        yield _open_pairs(*entries, e.c_lo, e.bins, labels, state, out_i, out_j)
 
 
 @njit(cache=True)
 def _open_pairs(key, owner, cx, cy, entry_bin, c_lo, bins, labels, state, out_i, out_j):
-    """The pairs of entries (indices into the stretch's sorted entries ``key``, ``owner``,
-    ``cx``, ``cy``, ``entry_bin``) that ``_nearby_pair_stretches`` gives, less those whose
-    segments ``labels`` already puts in one group, from where ``state`` (3,: entry a, entry
-    b, and 1 once the stretch is done) left off, into ``out_i``/``out_j`` until they are full;
-    returns how many, ``state`` updated."""
+    """The segment pairs (i < j) of entries sharing a key (a cell and bin; the stretch's
+    entries sorted by key, then segment: ``key``, ``owner``, ``cx``, ``cy``, ``entry_bin``),
+    each once, less those whose segments ``labels`` already puts in one group, from where
+    ``state`` (3,: entry a, entry b, and 1 once the stretch is done) left off, into
+    ``out_i``/``out_j`` until they are full; returns how many, ``state`` updated. Boxes
+    that share cells share a rectangle of them, and segments in the same bin share it and
+    the next: a pair is taken only in its lowest cell and bin."""
     n, n_out = key.size, 0
     a, b = state[0], state[1]
     while a < n:
@@ -342,13 +342,7 @@ def _mergeable_groups(
     e = _grid_entries(s, margin_m, np.deg2rad(params.angle_deg))
     out_i, out_j = np.empty(JOIN_PAIRS, dtype=np.int64), np.empty(JOIN_PAIRS, dtype=np.int64)
     for stretch in range(e.done.size):
-        order = _stretch_order(e, stretch)
-        sorted_entries = (e.key[order], e.owner[order], e.cx[order], e.cy[order])
-        state = np.zeros(3, dtype=np.int64)
-        while state[2] == 0:
-            n_out = _open_pairs(
-                *sorted_entries, e.entry_bin[order], e.c_lo, e.bins, labels, state, out_i, out_j
-            )
+        for n_out in _stretch_pairs(e, stretch, labels, out_i, out_j):
             a, b = out_i[:n_out], out_j[:n_out]
             keep, _ = _mergeable(s, a, b, params)
             joined |= bool(keep.any())
