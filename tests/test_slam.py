@@ -112,6 +112,28 @@ def test_loop_searches_in_a_worker_process_give_the_same_poses(ring_run):
     np.testing.assert_array_equal(beside.poses, here.poses)
 
 
+def test_the_loop_worker_leaves_ctrl_c_to_the_mapping_process():
+    """Ctrl-C reaches the whole process group; the worker goes on (no traceback of its own)
+    until the mapping process, which handles it, stops it."""
+    import os
+    import signal
+
+    from segloc_cli.config import LocalizeParams
+    from segloc_cli.maps.loop_search import LoopQuery, LoopSearcher
+
+    searcher = LoopSearcher(parallel=True)
+    try:
+        searcher.add_submap(0, np.array(_box(0.0, 0.0, 4.0, 3.0), dtype=float))
+        os.kill(searcher._worker.pid, signal.SIGINT)
+        searcher.submit(np.zeros((0, 4)), np.zeros((0, 2)),
+                        [LoopQuery(0, np.array([2.0, 1.5, 0.0]), LocalizeParams())])  # fmt: skip
+        (find,) = searcher.collect()
+        assert find.status == "too_few_segments"
+    finally:
+        searcher.close()
+    assert not searcher._worker.is_alive()
+
+
 def test_the_map_of_the_solved_poses_lies_on_the_walls(ring_run):
     from segloc_cli.maps.fusion import build_global_map
 

@@ -11,6 +11,8 @@ in a submap's frame, that of its first keyframe.
 from __future__ import annotations
 
 import multiprocessing
+import signal
+import threading
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -74,7 +76,9 @@ class _Submaps:
 
 def _serve(connection) -> None:
     """The worker: takes submaps and searches from ``connection`` until told to stop,
-    answering each search with its finds (or the error that stopped it)."""
+    answering each search with its finds (or the error that stopped it). Ctrl-C reaches
+    the mapping process, which stops it: the worker itself ignores it."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     submaps = _Submaps()
     while True:
         kind, *message = connection.recv()
@@ -105,7 +109,14 @@ class LoopSearcher:
         context = multiprocessing.get_context("fork")
         self._connection, child = context.Pipe()
         self._worker = context.Process(target=_serve, args=(child,), daemon=True)
-        self._worker.start()
+        # Forked ignoring Ctrl-C, so that none can reach it before ``_serve`` ignores it.
+        main = threading.current_thread() is threading.main_thread()
+        previous = signal.signal(signal.SIGINT, signal.SIG_IGN) if main else None
+        try:
+            self._worker.start()
+        finally:
+            if main and previous is not None:
+                signal.signal(signal.SIGINT, previous)
         child.close()
 
     def add_submap(self, index: int, segments: np.ndarray) -> None:
