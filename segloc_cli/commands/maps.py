@@ -68,9 +68,9 @@ BUILD_OPTIONS = (
         "--loops-out",
         "loops_out",
         help="Without --survey: also write every loop candidate (CSV): the keyframe searched "
-        "for and the submap's first keyframe (pose ids), where the search put the one in "
-        "the other's frame, its verdict and inlier ratio, the correction it implied, whether "
-        "it was accepted, and how far the solved poses end up from it.",
+        "for and the submap keyframe nearest the find (pose ids), where the search put the "
+        "one in the other's frame, its verdict and inlier ratio, the correction it implied, "
+        "whether it was accepted, and how far the solved poses end up from it.",
     ),
     path_option(
         "--mcap",
