@@ -102,6 +102,22 @@ def relative_motion(from_poses: np.ndarray, to_poses: np.ndarray) -> np.ndarray:
     )
 
 
+def chained_motions(start: np.ndarray, motions: np.ndarray) -> np.ndarray:
+    """The poses (K + 1, 3) ``x_m, y_m, theta_rad`` from ``start`` (3,) on, each reached
+    from the one before by the next of ``motions`` (K, 3: ``dx_m, dy_m, dtheta_rad`` in the
+    frame of the pose before, as ``relative_motion`` gives them), headings wrapped to
+    [-pi, pi)."""
+    start = np.asarray(start, dtype=float).reshape(3)
+    motions = np.asarray(motions, dtype=float).reshape(-1, 3)
+    headings = start[2] + np.concatenate([[0.0], np.cumsum(motions[:, 2])])
+    c, s = np.cos(headings[:-1]), np.sin(headings[:-1])
+    steps = np.column_stack(
+        [c * motions[:, 0] - s * motions[:, 1], s * motions[:, 0] + c * motions[:, 1]]
+    )
+    xy = start[:2] + np.vstack([[0.0, 0.0], np.cumsum(steps, axis=0)])
+    return np.column_stack([xy, wrap_angle(headings)])
+
+
 def rotation(theta_rad: float) -> np.ndarray:
     """2×2 rotation matrix."""
     c, s = np.cos(theta_rad), np.sin(theta_rad)

@@ -26,6 +26,7 @@ from segloc_cli.geometry import (
     TWO_PI,
     Pose2,
     as_segments,
+    chained_motions,
     point_segment_distances,
     relative_motion,
     rotation,
@@ -453,13 +454,7 @@ def drifting_odometry(
         drift.turn_pct / 100.0 * np.abs(motions[:, 2]) + np.deg2rad(drift.deg_per_m) * length
     )
     motions[:, 2] += unit_turn * turn_bound
-    headings = np.concatenate([[0.0], np.cumsum(motions[:, 2])])
-    c, s = np.cos(headings[:-1]), np.sin(headings[:-1])
-    steps = np.column_stack(
-        [c * motions[:, 0] - s * motions[:, 1], s * motions[:, 0] + c * motions[:, 1]]
-    )
-    xy = np.vstack([[0.0, 0.0], np.cumsum(steps, axis=0)])
-    return np.column_stack([xy, wrap_angle(headings)])
+    return chained_motions(np.zeros(3), motions)
 
 
 # --- procedural worlds -----------------------------------------------------------------------

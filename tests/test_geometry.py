@@ -8,7 +8,9 @@ import pytest
 from segloc_cli.geometry import (
     Pose2,
     as_segments,
+    chained_motions,
     circular_mean,
+    relative_motion,
     rotation,
     segment_lengths,
     segment_orientations,
@@ -221,3 +223,12 @@ def test_as_segments_validates():
         as_segments([[1.0, 2.0, 3.0]])
     with pytest.raises(ValueError, match="non-finite"):
         as_segments([[0.0, 0.0, np.nan, 1.0]])
+
+
+def test_chained_motions_undo_relative_motion_across_the_wrap():
+    """Poses turning through ±180°: their motions chained from the first give them back."""
+    poses = np.array([[1.0, 2.0, 3.0], [1.5, 2.2, -3.0], [0.5, 3.0, 2.9], [0.0, 0.0, -1.0]])
+    again = chained_motions(poses[0], relative_motion(poses[:-1], poses[1:]))
+    np.testing.assert_allclose(again[:, :2], poses[:, :2], atol=1e-12)
+    np.testing.assert_allclose(wrap_angle(again[:, 2] - poses[:, 2]), 0.0, atol=1e-12)
+    np.testing.assert_array_equal(chained_motions(poses[0], np.zeros((0, 3))), poses[:1])

@@ -17,7 +17,13 @@ import pandas as pd
 import pytest
 from conftest import HALL, SEGLOC
 
-from segloc_cli.geometry import Pose2, point_segment_distances, relative_motion, wrap_angle
+from segloc_cli.geometry import (
+    Pose2,
+    chained_motions,
+    point_segment_distances,
+    relative_motion,
+    wrap_angle,
+)
 from segloc_cli.maps.slam import fit_information, odometry_at, run_slam
 from segloc_cli.sim import SensorModel, simulate_scan
 from segloc_cli.world import World
@@ -58,12 +64,7 @@ def drifting_odometry(truth: np.ndarray, rng: np.random.Generator) -> np.ndarray
     travel = np.hypot(motions[:, 0], motions[:, 1])
     motions[:, :2] += rng.normal(0.0, 0.01, motions[:, :2].shape) * travel[:, None]
     motions[:, 2] += np.deg2rad(2.0) * travel + rng.normal(0.0, np.deg2rad(0.3), travel.size)
-    odometry = [truth[0]]
-    for m in motions:
-        c, s = np.cos(odometry[-1][2]), np.sin(odometry[-1][2])
-        x, y, t = odometry[-1]
-        odometry.append((x + c * m[0] - s * m[1], y + s * m[0] + c * m[1], wrap_angle(t + m[2])))
-    return np.array(odometry)
+    return chained_motions(truth[0], motions)
 
 
 @pytest.fixture(scope="module")

@@ -48,6 +48,7 @@ from segloc_cli.config import (
 )
 from segloc_cli.geometry import (
     Pose2,
+    chained_motions,
     relative_motion,
     transform_points,
     transform_segments,
@@ -312,9 +313,7 @@ class _Mapping:
         self.jumped = (step_m > np.maximum(p.odom_jump_m, p.odom_jump_m_per_s * gaps_s)) | (
             turn_deg > np.maximum(p.odom_jump_deg, p.odom_jump_deg_per_s * gaps_s)
         )
-        self.odom_world = np.array([start] * n)
-        for i in range(1, n):
-            self.odom_world[i] = compose(self.odom_world[i - 1], self.steps[i])
+        self.odom_world = chained_motions(start, self.steps[1:])
         self.graph = _Graph(start, p.edge_floor_m, p.edge_floor_deg)
         self.keyframes, self.kf_pose, self.kf_travel = [0], [start], [0.0]
         self.local_maps = [extract_segments(scans[0], extract_params)]
