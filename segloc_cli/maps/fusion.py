@@ -291,22 +291,15 @@ def _matches(
     Only pairs whose gap is at most ``gap_m`` are returned. Each segment compared with its
     neighbours is a step of ``progress``.
     """
-    found = list(_match_stretches(segments, params, progress))
-    i, j, gap = (np.concatenate(parts) for parts in zip(*found, strict=True))
-    return i, j, gap
-
-
-def _match_stretches(
-    segments: np.ndarray, params: FuseParams, progress: Progress = SILENT
-) -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray]]:
-    """``_matches`` a stretch of grid columns at a time (``_nearby_pair_stretches``), so that
-    no more than one stretch's candidate pairs are held at once."""
     s = np.asarray(segments, dtype=float).reshape(-1, 4)
     margin_m = max(params.offset_m, params.gap_m)
+    found = []
     for i, j, done in _nearby_pair_stretches(s, margin_m, np.deg2rad(params.angle_deg)):
         keep, gap = _mergeable(s, i, j, params)
-        yield i[keep], j[keep], gap[keep]
+        found.append((i[keep], j[keep], gap[keep]))
         progress.advance(done)
+    i, j, gap = (np.concatenate(parts) for parts in zip(*found, strict=True))
+    return i, j, gap
 
 
 def _mergeable(
