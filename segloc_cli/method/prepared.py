@@ -12,7 +12,6 @@ settings, building again only what those settings change.
 from __future__ import annotations
 
 import copy
-import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -106,21 +105,25 @@ def _prepared(
     elif not search_needed(params, global_search):
         search = None
     elif shared is not None and shared.search is not None and _same_raster(shared.search, wanted):
-        search = _resized(shared.search, wanted.half_width_m)
+        search = _with_params(shared.search, wanted)
     else:
         search = HypothesisSearch(segments, params.search)
     return PreparedMap(segments, index, near_index, rtable, search)
 
 
+RASTER_SETTINGS = ("cell_m", "score_radius_m", "max_depth")
+"""The search settings its raster and bound pyramid are built from; the others (the square
+around a guess, the headings, the pruning, the floor, the region) only steer a search."""
+
+
 def _same_raster(search: HypothesisSearch, params: SearchParams) -> bool:
-    """Whether a search at ``params`` builds the raster and pyramid ``search`` has: the
-    settings differ at most in the square a guided search covers (``half_width_m``)."""
-    return dataclasses.replace(params, half_width_m=search.params.half_width_m) == search.params
+    """Whether a search at ``params`` builds the raster and pyramid ``search`` has."""
+    return all(getattr(params, f) == getattr(search.params, f) for f in RASTER_SETTINGS)
 
 
-def _resized(search: HypothesisSearch, half_width_m: float) -> HypothesisSearch:
-    """``search`` covering another square around a guess, sharing its raster and pyramid
-    (building them costs far more than a guided search in them)."""
+def _with_params(search: HypothesisSearch, params: SearchParams) -> HypothesisSearch:
+    """``search`` steered by ``params``, sharing its raster and pyramid (building them costs
+    far more than a guided search in them)."""
     other = copy.copy(search)
-    other.params = dataclasses.replace(search.params, half_width_m=half_width_m)
+    other.params = params
     return other
