@@ -326,14 +326,18 @@ class SlamParams:
     loop_min_travel_m: float = 15.0
     """A keyframe is searched for only in submaps ended at least this much travel before it."""
     loop_radius_m: float = 1.0
-    """Pose uncertainty just after a loop (position)..."""
+    """Uncertainty of a keyframe's pose relative to a submap it is searched for in (position),
+    where the two are joined by a loop..."""
     loop_radius_per_m: float = 0.05
-    """...growing by this much per metre travelled since, up to ``loop_max_radius_m``."""
+    """...growing by this much per metre of travel between them along the graph (loops closed
+    so far are short cuts), up to ``loop_max_radius_m``."""
     loop_max_radius_m: float = 6.0
     loop_window_deg: float = 20.0
-    """Heading uncertainty just after a loop (the search's window either side)..."""
+    """Heading uncertainty between a keyframe and a submap joined by a loop (the search's
+    window either side)..."""
     loop_window_per_m: float = 0.2
-    """...growing by this much (°) per metre travelled since, up to 180°."""
+    """...growing by this much (°) per metre of travel between them along the graph, up to
+    180°."""
     loop_min_score: float = 0.4
     """A loop search is not followed through where the best pose puts under this share of
     the scan's points on the submap (the search's ``min_score``): a loop this weakly
@@ -343,6 +347,11 @@ class SlamParams:
     """Every this-many-th keyframe is searched for in older submaps."""
     loop_cauchy: float = 1.0
     """Scale of the Cauchy loss on loop edges, in their standard deviations."""
+    loop_drop_chi2: float = 11.34
+    """A loop the final solution leaves off by more than this, as the squared Mahalanobis
+    distance of its residual under the loop's covariance, is dropped and the graph solved
+    again without it (up to three times): 11.34 is the 99th percentile of χ² with three
+    degrees of freedom, so a true loop is dropped once in a hundred."""
 
 
 @dataclass(frozen=True)

@@ -24,7 +24,14 @@ from segloc_cli.geometry import (
     relative_motion,
     wrap_angle,
 )
-from segloc_cli.maps.slam import fit_information, odometry_at, run_slam
+from segloc_cli.maps.slam import (
+    _Graph,
+    _graph_travel,
+    _Submap,
+    fit_information,
+    odometry_at,
+    run_slam,
+)
 from segloc_cli.sim import SensorModel, simulate_scan
 from segloc_cli.world import World
 
@@ -341,3 +348,35 @@ def test_a_log_with_odometry_maps_with_its_loops_in_the_view(tmp_path):
     assert len(loops.entities[0].lines[0].points) == 2 * accepted
     guesses = [(g.pose.position.x, g.pose.position.y) for _, g in shown["/guess"]]
     np.testing.assert_allclose(guesses, odometry[:, :2], atol=1e-6)
+
+
+def test_the_travel_between_a_keyframe_and_a_submap_takes_the_loops_as_short_cuts():
+    travel = list(np.arange(41.0))  # a keyframe every metre
+    submaps = [
+        _Submap(first, first + 8, np.zeros((0, 4)), np.zeros((9, 3))) for first in (0, 8, 16, 24)
+    ]
+    # Keyframe 40 ends the fifth submap, begun at keyframe 32: the anchors (the submaps'
+    # first keyframes) lie 40, 32, 24 and 16 m back.
+    np.testing.assert_array_equal(_graph_travel(travel, submaps, [], 40), [40, 32, 24, 16])
+    # A loop from the fifth submap into the first: its anchor is the two submaps' travel
+    # away, the second's three, the third's as far by either way.
+    np.testing.assert_array_equal(_graph_travel(travel, submaps, [(0, 4)], 40), [16, 24, 24, 16])
+    # A loop between the second and the fourth shortens the way to the first and second.
+    np.testing.assert_array_equal(_graph_travel(travel, submaps, [(1, 3)], 40), [32, 24, 24, 16])
+
+
+def test_the_final_solve_drops_a_loop_the_others_contradict():
+    # Four keyframes a metre apart along x, each edge pinned to a centimetre; a loop from
+    # the first to the last that agrees, and one that puts the last 2 m aside.
+    graph = _Graph(np.zeros(3), 0.01, 0.2)
+    tight = np.diag([1e4, 1e4, 1e4])
+    for k in range(1, 4):
+        graph.add_edge(k - 1, k, np.array([1.0, 0.0, 0.0]), tight, guess=np.array([k, 0.0, 0.0]))
+    graph.add_edge(0, 3, np.array([3.0, 0.01, 0.0]), tight, cauchy=1.0, loop=0)
+    graph.add_edge(0, 3, np.array([3.0, 2.0, 0.0]), tight, cauchy=1.0, loop=1)
+    poses, dropped = graph.solved(11.34)
+    assert dropped == {1}
+    # The loop that agreed stays: the last pose is where the edges and it put it.
+    np.testing.assert_allclose(poses[3], [3.0, 0.005, 0.0], atol=0.01)
+    # With no bound to fail, nothing is dropped.
+    assert graph.solved(np.inf)[1] == set()

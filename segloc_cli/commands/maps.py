@@ -196,7 +196,9 @@ def _map_without_survey(run, log_path, out_path, extra: dict, initial) -> None:
     source: dict[str, object] = {"log": str(log_path), "poses": placed}
     source |= _built_source(built, selection, selected, run.config)
     source |= {"keyframes": int(slam.keyframes.size), "loops_accepted": accepted}
-    source |= {"loops_rejected": len(slam.loops) - accepted, "slam": asdict(run.config.slam)}
+    dropped = sum(loop.dropped for loop in slam.loops)
+    source |= {"loops_rejected": len(slam.loops) - accepted - dropped, "loops_dropped": dropped}
+    source |= {"slam": asdict(run.config.slam)}
     write_map(out_path, built.segments, source=source)
     run.write_run_file(out_path)
     poses_out, mcap_path = extra["poses"], extra["view"]
@@ -222,7 +224,8 @@ def _map_without_survey(run, log_path, out_path, extra: dict, initial) -> None:
         f"{counted(built.local_segments, 'local segment')} of "
         f"{counted(built.scans_used, 'scan')} ({counted(slam.keyframes.size, 'keyframe')}); "
         f"{counted(accepted, 'loop')} accepted of "
-        f"{counted(len(slam.loops), 'candidate')}{largest}"
+        f"{counted(len(slam.loops), 'candidate')}"
+        f"{f' ({dropped} more dropped by the final solve)' if dropped else ''}{largest}"
         f"{_dropped_note(built, run.config.fuse)}"
     )
 
@@ -251,6 +254,7 @@ def _write_loops(path: Path, slam, numbers: np.ndarray) -> None:
             "correction_m": [loop.correction_m for loop in loops],
             "correction_deg": [loop.correction_deg for loop in loops],
             "accepted": [loop.accepted for loop in loops],
+            "dropped": [loop.dropped for loop in loops],
             "solved_off_m": offsets[:, 0],
             "solved_off_deg": offsets[:, 1],
         }

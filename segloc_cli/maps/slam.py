@@ -12,8 +12,9 @@ Submaps: the keyframes of each stretch of travel (``submap_m``), their local map
 the frame of the submap's first keyframe (its anchor).
 
 Loop closure: every few keyframes, a keyframe is searched for in the finished submaps whose
-anchor lies within its pose uncertainty (a square and a heading window growing with the
-travel since the last loop), with the localizer's own search and verdict; a find is taken
+anchor lies within its pose uncertainty relative to them (a square and a heading window
+growing with the travel between the two along the graph, where a loop closed earlier is a
+short cut: ``_graph_travel``), with the localizer's own search and verdict; a find is taken
 as a loop when the verdict says ``ok``, it lies in the square searched, and the find before
 it in that submap put the anchor at the same place. The loop's edge joins the keyframe to
 the submap's keyframe nearest the find, so that a submap bent by corrections made after it
@@ -32,9 +33,10 @@ Poses are (x_m, y_m, theta_rad) in the world frame of the first scan's pose (``i
 
 from __future__ import annotations
 
+import heapq
 import os
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -75,7 +77,9 @@ class LoopCandidate:
     """A search of keyframe ``keyframe`` in submap ``submap``: what the verdict said,
     where it put the keyframe in the frame of ``anchor``, the submap's keyframe nearest
     the find (its first where nothing was found) (``motion``: x m, y m, θ rad; NaN where
-    nothing was found), the correction that implied (m, °) and whether it was accepted."""
+    nothing was found), the correction that implied (m, °), whether it was accepted and
+    whether the final solve then dropped it (``SlamParams.loop_drop_chi2``: no longer
+    accepted)."""
 
     keyframe: int
     submap: int
@@ -86,6 +90,7 @@ class LoopCandidate:
     correction_m: float
     correction_deg: float
     accepted: bool
+    dropped: bool = False
 
 
 @dataclass
@@ -190,6 +195,10 @@ class _Graph:
     def __init__(self, first: np.ndarray, floor_m: float, floor_deg: float):
         import gtsam
 
+        self.loop_edges: list[tuple[int, int, int, int, np.ndarray, np.ndarray]] = []
+        """Each loop's edge: (the loop's number, its factor's index, keyframes a and b, the
+        motion (3,) and the inverse of its covariance (3, 3))."""
+
         self.floor = np.diag([floor_m**2, floor_m**2, np.deg2rad(floor_deg) ** 2])
         """Added to every edge's covariance (``SlamParams.edge_floor_*``)."""
 
@@ -208,10 +217,12 @@ class _Graph:
             values.insert(key, self.gtsam.Pose2(*guess))
         self.isam.update(graph, values)
 
+    def _covariance(self, information: np.ndarray) -> np.ndarray:
+        return np.linalg.inv(information + np.diag([1e-6, 1e-6, 1e-6])) + self.floor
+
     def _noise(self, information: np.ndarray, cauchy: float | None):
         gtsam = self.gtsam
-        covariance = np.linalg.inv(information + np.diag([1e-6, 1e-6, 1e-6])) + self.floor
-        model = gtsam.noiseModel.Gaussian.Covariance(covariance)
+        model = gtsam.noiseModel.Gaussian.Covariance(self._covariance(information))
         if cauchy is None:
             return model
         loss = gtsam.noiseModel.mEstimator.Cauchy.Create(cauchy)
@@ -219,27 +230,56 @@ class _Graph:
 
     def add_edge(
         self, a: int, b: int, motion: np.ndarray, information: np.ndarray,
-        guess: np.ndarray | None = None, cauchy: float | None = None,
+        guess: np.ndarray | None = None, cauchy: float | None = None, loop: int | None = None,
     ) -> None:  # fmt: skip
-        """An edge from keyframe ``a`` to ``b`` (``motion`` in ``a``'s frame); ``guess``
-        introduces ``b``."""
+        """An edge from keyframe ``a`` to ``b`` (``motion`` in ``a``'s frame), under a Cauchy
+        loss of scale ``cauchy`` if given; ``guess`` introduces ``b``; ``loop`` numbers a
+        loop's edge, which the final solve may drop (``loop_edges``)."""
         factor = self.gtsam.BetweenFactorPose2(
             a, b, self.gtsam.Pose2(*motion), self._noise(information, cauchy)
         )
+        if loop is not None:
+            weight = np.linalg.inv(self._covariance(information))
+            index = int(self.graph.size())
+            self.loop_edges.append((loop, index, a, b, np.asarray(motion), weight))
         self._add(factor, b if guess is not None else None, guess)
 
     def poses(self) -> np.ndarray:
         """Every keyframe's pose (K, 3) as iSAM2 has it now."""
         return self.gtsam.utilities.extractPose2(self.isam.calculateEstimate())
 
-    def solved(self) -> np.ndarray:
-        """Every keyframe's pose (K, 3) after a batch Levenberg–Marquardt solve from iSAM2's."""
+    def solved(self, drop_chi2: float, rounds: int = 3) -> tuple[np.ndarray, set[int]]:
+        """Every keyframe's pose (K, 3) after a batch Levenberg–Marquardt solve from iSAM2's,
+        and the numbers of the loops dropped: a loop whose residual at the solution, weighed
+        by its covariance, exceeds ``drop_chi2`` (squared Mahalanobis distance) is taken out
+        and the graph solved again, up to ``rounds`` times."""
         gtsam = self.gtsam
-        start = self.isam.calculateEstimate()
-        result = gtsam.LevenbergMarquardtOptimizer(
-            self.graph, start, gtsam.LevenbergMarquardtParams()
-        ).optimize()
-        return gtsam.utilities.extractPose2(result)
+        result = self.isam.calculateEstimate()
+        dropped: set[int] = set()
+        for _ in range(rounds + 1):
+            result = gtsam.LevenbergMarquardtOptimizer(
+                self.graph, result, gtsam.LevenbergMarquardtParams()
+            ).optimize()
+            live = [edge for edge in self.loop_edges if edge[0] not in dropped]
+            failing = _failing_loops(gtsam.utilities.extractPose2(result), live, drop_chi2)
+            if not failing:
+                break
+            for loop, index, *_ in live:
+                if loop in failing:
+                    self.graph.remove(index)
+            dropped |= failing
+        return gtsam.utilities.extractPose2(result), dropped
+
+
+def _failing_loops(poses: np.ndarray, edges: list[tuple], chi2: float) -> set[int]:
+    """The numbers of the loop ``edges`` (``_Graph.loop_edges``) that ``poses`` (K, 3) leave
+    off by more than ``chi2`` (squared Mahalanobis distance of the residual)."""
+    if not edges:
+        return set()
+    loop, _, a, b, motion, weight = zip(*edges, strict=True)
+    off = relative_motion(relative_motion(poses[list(a)], poses[list(b)]), np.array(motion))
+    distance = np.einsum("ni,nij,nj->n", off, np.array(weight), off)
+    return {number for number, d in zip(loop, distance, strict=True) if d > chi2}
 
 
 @dataclass
@@ -322,7 +362,8 @@ class _Mapping:
         self.submap_first = 0
         self.loops: list[LoopCandidate] = []
         self.loops_closed = 0
-        self.travel_since_loop = 0.0
+        self.links: list[tuple[int, int]] = []
+        """The submaps each closed loop joins: (the submap found, the keyframe's own)."""
         self.previous = start
         self.local_world = transform_segments(self.local_maps[0], initial)
         self._index: tuple[np.ndarray, SegmentGrid] | None = None
@@ -400,7 +441,6 @@ class _Mapping:
         self.local_maps.append(extract_segments(self.scans[i], self.extract_params))
         self.kf_pose.append(self.previous)
         self.kf_travel.append(self.kf_travel[-1] + moved)
-        self.travel_since_loop += moved
         if self.kf_travel[-1] - self.kf_travel[self.submap_first] >= p.submap_m:
             self.submaps.append(
                 _submap(self.submap_first, k, self.local_maps, self.kf_pose, self.fuse_params)
@@ -412,7 +452,7 @@ class _Mapping:
             # worker, they run while the next keyframes are mapped.
             self._take_loops()
             self.request = _loop_request(
-                k, points, self.kf_pose, self.kf_travel, self.submaps, p, self.travel_since_loop
+                k, points, self.kf_pose, self.kf_travel, self.submaps, p, self.links
             )
             self.searcher.submit(self.local_maps[k], points, self.request.queries)
         first = int(np.searchsorted(self.kf_travel, self.kf_travel[-1] - p.local_map_m))
@@ -426,14 +466,18 @@ class _Mapping:
         if self.request is None:
             return
         finds = self.searcher.collect()
+        before = len(self.loops)
         closed = _close_loops(
             self.graph, self.request, finds, self.submaps, self.p, self.loops,
             self.refine.final_gate_m,
         )  # fmt: skip
+        # The keyframe's own submap: the last begun at or before it (one not closed yet).
+        own = sum(sub.first <= self.request.k for sub in self.submaps)
+        own -= own > 0 and self.submaps[own - 1].last >= self.request.k
+        self.links += [(loop.submap, own) for loop in self.loops[before:] if loop.accepted]
         self.request = None
         if closed:
             self.loops_closed += closed
-            self.travel_since_loop = 0.0
             self.kf_pose = list(self.graph.poses())
             self.previous = self.kf_pose[-1]
 
@@ -451,7 +495,9 @@ class _Mapping:
     def result(self) -> SlamResult:
         """Every scan's pose once the graph is solved, and what the run found."""
         self._take_loops()
-        solved = self.graph.solved()
+        solved, dropped = self.graph.solved(self.p.loop_drop_chi2)
+        for number in dropped:
+            self.loops[number] = replace(self.loops[number], accepted=False, dropped=True)
         poses = np.array(
             [compose(solved[o], d) for o, d in zip(self.owner, self.offset, strict=True)]
         )
@@ -497,36 +543,73 @@ def _submap(first, last, local_maps, kf_pose, fuse_params) -> _Submap:
 @dataclass
 class _LoopRequest:
     """The searches of keyframe ``k`` handed to the ``LoopSearcher``: its pose when they
-    were asked for (``here``), its points (robot frame), the square searched (half side,
-    m) and the queries."""
+    were asked for (``here``), its points (robot frame) and the queries."""
 
     k: int
     here: np.ndarray
     points: np.ndarray
-    radius: float
     queries: list[LoopQuery]
+    radii: list[float]
+    """Each query's square's half side (m)."""
 
 
 def _loop_request(
     k: int, points: np.ndarray, kf_pose: list, kf_travel: list, submaps: list[_Submap],
-    p: SlamParams, travel_since_loop: float,
+    p: SlamParams, links: list[tuple[int, int]],
 ) -> _LoopRequest:  # fmt: skip
-    """The searches of keyframe ``k`` in the submaps near its pose: a square and a heading
-    window that grow with the travel since the last loop."""
-    radius = min(p.loop_radius_m + p.loop_radius_per_m * travel_since_loop, p.loop_max_radius_m)
-    window_deg = min(p.loop_window_deg + p.loop_window_per_m * travel_since_loop, 180.0)
-    search = SearchParams(half_width_m=radius, min_score=p.loop_min_score)
-    params = LocalizeParams(window_deg=window_deg, search=search)
+    """The searches of keyframe ``k`` in the submaps near its pose: for each, a square and a
+    heading window that grow with the travel between the two along the graph, loops closed
+    so far (``links``: the submaps each joins) counting as no travel."""
     here = kf_pose[k]
-    queries = []
+    apart = _graph_travel(kf_travel, submaps, links, k)
+    queries, radii = [], []
     for index, sub in enumerate(submaps):
         if kf_travel[k] - kf_travel[sub.last] < p.loop_min_travel_m:
             continue
+        radius = min(p.loop_radius_m + p.loop_radius_per_m * apart[index], p.loop_max_radius_m)
         anchor = kf_pose[sub.first]
         if np.hypot(*(here[:2] - anchor[:2])) > radius + p.submap_m:
             continue
+        window_deg = min(p.loop_window_deg + p.loop_window_per_m * apart[index], 180.0)
+        search = SearchParams(half_width_m=radius, min_score=p.loop_min_score)
+        params = LocalizeParams(window_deg=window_deg, search=search)
         queries.append(LoopQuery(index, relative_motion(anchor, here)[0], params))
-    return _LoopRequest(k, here, points, radius, queries)
+        radii.append(radius)
+    return _LoopRequest(k, here, points, queries, radii)
+
+
+def _graph_travel(
+    kf_travel: list, submaps: list[_Submap], links: list[tuple[int, int]], k: int
+) -> np.ndarray:
+    """The least travel (m) from keyframe ``k`` to the anchor of each submap (S,), along the
+    chain of submaps, a loop between two (``links``) costing none: how far the odometry may
+    have drifted between the two poses a search relates. ``k`` ends the submap after the
+    last (not closed yet); a path crosses each submap it passes through, a loop's too
+    (where in it the loop lands is left out: the longer way is taken)."""
+    n = len(submaps)
+    ends = [(kf_travel[sub.first], kf_travel[sub.last]) for sub in submaps]
+    ends.append((kf_travel[submaps[-1].last] if submaps else 0.0, kf_travel[k]))
+    span = [end - start for start, end in ends]
+    neighbours: list[list[tuple[int, float]]] = [[] for _ in range(n + 1)]
+    for a in range(n):
+        gap = ends[a + 1][0] - ends[a][1]
+        neighbours[a].append((a + 1, span[a] + gap))
+        neighbours[a + 1].append((a, span[a + 1] + gap))
+    for a, b in links:
+        neighbours[a].append((b, span[a]))
+        neighbours[b].append((a, span[b]))
+    best = np.full(n + 1, np.inf)
+    best[n] = 0.0
+    heap = [(0.0, n)]
+    while heap:  # Dijkstra from k's submap
+        cost, a = heapq.heappop(heap)
+        if cost > best[a]:
+            continue
+        for b, step in neighbours[a]:
+            if cost + step < best[b]:
+                best[b] = cost + step
+                heapq.heappush(heap, (best[b], b))
+    return best[:n] + np.array(span[:n])  # from the near end on to the anchor
 
 
 def _close_loops(
@@ -538,9 +621,9 @@ def _close_loops(
     how many."""
     from segloc_cli.estimates import STATUS_OK
 
-    k, here, points, radius = request.k, request.here, request.points, request.radius
+    k, here, points = request.k, request.here, request.points
     closed = 0
-    for query, find in zip(request.queries, finds, strict=True):
+    for query, find, radius in zip(request.queries, finds, request.radii, strict=True):
         sub, found = submaps[query.submap], find.pose
         correction = relative_motion(query.guess, found)[0]  # NaN where nothing was found
         # The verdict's ``ok``, at a place inside the square searched, that the last such
@@ -573,6 +656,8 @@ def _close_loops(
         if not accepted:
             continue
         information = fit_information(points, sub.segments, found, gate_m, p.point_sigma_m)
-        graph.add_edge(sub.first + nearest, k, motion, information, cauchy=p.loop_cauchy)
+        graph.add_edge(
+            sub.first + nearest, k, motion, information, cauchy=p.loop_cauchy, loop=len(loops) - 1
+        )
         closed += 1
     return closed
