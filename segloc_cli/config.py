@@ -323,6 +323,11 @@ class SlamParams:
     """...and of its heading per metre travelled (plus one tenth of the turn)."""
     submap_m: float = 8.0
     """Travel covered by one submap."""
+    submap_bend_m: float = 0.05
+    """A submap is fused again once loops have moved one of its keyframes this far relative
+    to its anchor since it was fused..."""
+    submap_bend_deg: float = 0.5
+    """...or turned one this much."""
     loop_min_travel_m: float = 15.0
     """A keyframe is searched for only in submaps ended at least this much travel before it."""
     loop_radius_m: float = 1.0

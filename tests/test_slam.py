@@ -17,6 +17,7 @@ import pandas as pd
 import pytest
 from conftest import HALL, SEGLOC
 
+from segloc_cli.config import LocalizeParams
 from segloc_cli.geometry import (
     Pose2,
     chained_motions,
@@ -24,6 +25,7 @@ from segloc_cli.geometry import (
     relative_motion,
     wrap_angle,
 )
+from segloc_cli.maps.loop_search import LoopQuery, LoopSearcher
 from segloc_cli.maps.slam import (
     _Graph,
     _graph_travel,
@@ -32,6 +34,7 @@ from segloc_cli.maps.slam import (
     odometry_at,
     run_slam,
 )
+from segloc_cli.method.extract import extract_segments
 from segloc_cli.sim import SensorModel, simulate_scan
 from segloc_cli.world import World
 
@@ -380,3 +383,26 @@ def test_the_final_solve_drops_a_loop_the_others_contradict():
     np.testing.assert_allclose(poses[3], [3.0, 0.005, 0.0], atol=0.01)
     # With no bound to fail, nothing is dropped.
     assert graph.solved(np.inf)[1] == set()
+
+
+@pytest.mark.parametrize("parallel", [False, True], ids=["here", "worker"])
+def test_a_submap_fused_again_is_searched_as_it_is_now(parallel):
+    world = ring_building()
+    truth = Pose2(1.0, 1.0, 0.3)
+    scan = simulate_scan(world, truth, SENSOR, np.random.default_rng(5), 0.0)
+    local_map = extract_segments(scan)
+    searcher = LoopSearcher(parallel)
+    try:
+        query = LoopQuery(0, truth.as_array(), LocalizeParams())
+        searcher.add_submap(0, world.segments)
+        searcher.submit(local_map, scan.points(), [query])
+        (first,) = searcher.collect()
+        # The submap fused again half a metre along x: the same search finds the scan there.
+        searcher.add_submap(0, world.segments + np.array([0.5, 0.0, 0.5, 0.0]))
+        searcher.submit(local_map, scan.points(), [query])
+        (again,) = searcher.collect()
+    finally:
+        searcher.close()
+    assert first.status == again.status == "ok"
+    np.testing.assert_allclose(first.pose, truth.as_array(), atol=0.02)
+    np.testing.assert_allclose(again.pose - first.pose, [0.5, 0.0, 0.0], atol=0.02)

@@ -55,7 +55,9 @@ class _Submaps:
         self.localizers: dict[int, Localizer] = {}
 
     def add(self, index: int, segments: np.ndarray) -> None:
+        """Submap ``index``'s segments, new or fused again (its search is then made anew)."""
         self.segments[index] = segments
+        self.localizers.pop(index, None)
 
     def search(
         self, local_map: np.ndarray, points: np.ndarray, queries: list[LoopQuery]

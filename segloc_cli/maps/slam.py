@@ -9,7 +9,8 @@ it by an edge weighted by what the fit's points pin (``fit_information``) and wh
 odometry adds; any other scan keeps its place relative to its keyframe.
 
 Submaps: the keyframes of each stretch of travel (``submap_m``), their local maps fused in
-the frame of the submap's first keyframe (its anchor).
+the frame of the submap's first keyframe (its anchor); fused again before it is searched
+once loops have bent it (moved a keyframe relative to the anchor: ``submap_bend_*``).
 
 Loop closure: every few keyframes, a keyframe is searched for in the finished submaps whose
 anchor lies within its pose uncertainty relative to them (a square and a heading window
@@ -294,6 +295,9 @@ class _Submap:
     """The poses (n, 3) of keyframes ``first`` to ``last`` in the anchor's frame, as fused."""
     pending: tuple[int, np.ndarray] | None = None
     """The last keyframe found in it with an ok verdict, and where that put the anchor."""
+    checked: int = 0
+    """How many loops had been closed when its keyframes' poses were last compared with
+    ``members``."""
 
 
 def run_slam(
@@ -451,6 +455,7 @@ class _Mapping:
             # The finds of the keyframe searched for before, then this one's searches: in a
             # worker, they run while the next keyframes are mapped.
             self._take_loops()
+            self._fuse_bent_submaps(self.kf_pose[k])
             self.request = _loop_request(
                 k, points, self.kf_pose, self.kf_travel, self.submaps, p, self.links
             )
@@ -480,6 +485,32 @@ class _Mapping:
             self.loops_closed += closed
             self.kf_pose = list(self.graph.poses())
             self.previous = self.kf_pose[-1]
+
+    def _fuse_bent_submaps(self, here: np.ndarray) -> None:
+        """Fuse again each submap within the loop search's reach of ``here`` (3,) whose
+        keyframes the graph has moved, relative to its anchor, by more than
+        ``SlamParams.submap_bend_m`` or ``submap_bend_deg`` since it was fused: loops found
+        in it then rest on where its walls are now."""
+        p = self.p
+        reach = p.loop_max_radius_m + p.submap_m
+        for index, sub in enumerate(self.submaps):
+            if sub.checked == self.loops_closed:  # no loop has moved a keyframe since
+                continue
+            anchor = self.kf_pose[sub.first]
+            if np.hypot(here[0] - anchor[0], here[1] - anchor[1]) > reach:
+                continue
+            sub.checked = self.loops_closed
+            now = relative_motion(anchor[None], np.array(self.kf_pose[sub.first : sub.last + 1]))
+            bend = relative_motion(sub.members, now)
+            if (
+                np.hypot(bend[:, 0], bend[:, 1]).max() <= p.submap_bend_m
+                and np.rad2deg(np.abs(bend[:, 2])).max() <= p.submap_bend_deg
+            ):
+                continue
+            fused = _submap(sub.first, sub.last, self.local_maps, self.kf_pose, self.fuse_params)
+            fused.pending, fused.checked = sub.pending, sub.checked
+            self.submaps[index] = fused
+            self.searcher.add_submap(index, fused.segments)
 
     def counts(self) -> dict[str, int]:
         """What the run has made so far, as its progress shows it."""
