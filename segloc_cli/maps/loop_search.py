@@ -131,7 +131,8 @@ def _serve(connection, claims: _Claims) -> None:
 
 class LoopSearcher:
     """Runs the searches of one keyframe at a time (``submit``), in a worker process when
-    ``parallel``, else here; ``collect`` gives the finds of the last one submitted."""
+    ``parallel`` (this one making those the worker has not begun when ``collect`` wants
+    them), else here; ``collect`` gives the finds of the last one submitted."""
 
     def __init__(self, parallel: bool) -> None:
         self._submaps = _Submaps()
