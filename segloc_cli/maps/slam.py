@@ -221,9 +221,9 @@ class _Graph:
     def _covariance(self, information: np.ndarray) -> np.ndarray:
         return np.linalg.inv(information + np.diag([1e-6, 1e-6, 1e-6])) + self.floor
 
-    def _noise(self, information: np.ndarray, cauchy: float | None):
+    def _noise(self, covariance: np.ndarray, cauchy: float | None):
         gtsam = self.gtsam
-        model = gtsam.noiseModel.Gaussian.Covariance(self._covariance(information))
+        model = gtsam.noiseModel.Gaussian.Covariance(covariance)
         if cauchy is None:
             return model
         loss = gtsam.noiseModel.mEstimator.Cauchy.Create(cauchy)
@@ -236,11 +236,12 @@ class _Graph:
         """An edge from keyframe ``a`` to ``b`` (``motion`` in ``a``'s frame), under a Cauchy
         loss of scale ``cauchy`` if given; ``guess`` introduces ``b``; ``loop`` numbers a
         loop's edge, which the final solve may drop (``loop_edges``)."""
+        covariance = self._covariance(information)
         factor = self.gtsam.BetweenFactorPose2(
-            a, b, self.gtsam.Pose2(*motion), self._noise(information, cauchy)
+            a, b, self.gtsam.Pose2(*motion), self._noise(covariance, cauchy)
         )
         if loop is not None:
-            weight = np.linalg.inv(self._covariance(information))
+            weight = np.linalg.inv(covariance)
             index = int(self.graph.size())
             self.loop_edges.append((loop, index, a, b, np.asarray(motion), weight))
         self._add(factor, b if guess is not None else None, guess)
@@ -257,10 +258,12 @@ class _Graph:
         gtsam = self.gtsam
         result = self.isam.calculateEstimate()
         dropped: set[int] = set()
-        for _ in range(rounds + 1):
+        for round_ in range(rounds + 1):
             result = gtsam.LevenbergMarquardtOptimizer(
                 self.graph, result, gtsam.LevenbergMarquardtParams()
             ).optimize()
+            if round_ == rounds:  # the solution of the last loops kept
+                break
             live = [edge for edge in self.loop_edges if edge[0] not in dropped]
             failing = _failing_loops(gtsam.utilities.extractPose2(result), live, drop_chi2)
             if not failing:
