@@ -368,21 +368,28 @@ def test_the_travel_between_a_keyframe_and_a_submap_takes_the_loops_as_short_cut
     np.testing.assert_array_equal(_graph_travel(travel, submaps, [(1, 3)], 40), [32, 24, 24, 16])
 
 
-def test_the_final_solve_drops_a_loop_the_others_contradict():
-    # Four keyframes a metre apart along x, each edge pinned to a centimetre; a loop from
-    # the first to the last that agrees, and one that puts the last 2 m aside.
+def _contradicted_graph() -> _Graph:
+    """Four keyframes a metre apart along x, each edge pinned to a centimetre; a loop from
+    the first to the last that agrees (0), and one that puts the last 2 m aside (1)."""
     graph = _Graph(np.zeros(3), 0.01, 0.2)
     tight = np.diag([1e4, 1e4, 1e4])
     for k in range(1, 4):
         graph.add_edge(k - 1, k, np.array([1.0, 0.0, 0.0]), tight, guess=np.array([k, 0.0, 0.0]))
     graph.add_edge(0, 3, np.array([3.0, 0.01, 0.0]), tight, cauchy=1.0, loop=0)
     graph.add_edge(0, 3, np.array([3.0, 2.0, 0.0]), tight, cauchy=1.0, loop=1)
+    return graph
+
+
+def test_the_final_solve_drops_a_loop_the_others_contradict():
+    graph = _contradicted_graph()
     poses, dropped = graph.solved(11.34)
     assert dropped == {1}
     # The loop that agreed stays: the last pose is where the edges and it put it.
     np.testing.assert_allclose(poses[3], [3.0, 0.005, 0.0], atol=0.01)
     # With no bound to fail, nothing is dropped.
     assert graph.solved(np.inf)[1] == set()
+    # With no solve left after it, no loop is dropped: a dropped loop is never in the poses.
+    assert _contradicted_graph().solved(11.34, rounds=0)[1] == set()
 
 
 @pytest.mark.parametrize("parallel", [False, True], ids=["here", "worker"])
