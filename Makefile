@@ -4,6 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 BASE := $(VENV)/.installed-base
 STAMP := $(VENV)/.installed
+WARMUP_RECORD := $(VENV)/warm-up
 DEMO_OUT := out/demo
 HALL := datasets/hall
 CI_OUT := out/ci
@@ -14,8 +15,9 @@ CI_OUT := out/ci
 # of the tests, lint and benchmarks (dev), of --method icp|correlative (peers) and of segloc
 # sweep (sweep); make demo needs the first two steps only ($(BASE)). pip installs quietly
 # without compiling the modules' bytecode (--no-compile), which compileall then does on every
-# core, segloc_cli's own included (COMPILE_BYTECODE: pip compiles one module at a time, over
-# half of its install time).
+# core, segloc_cli's own included and the installed packages' own test suites left out, as
+# nothing imports them (COMPILE_BYTECODE: pip compiles one module at a time, over half of its
+# install time).
 # The bytecode is not left to be written on first import: where PYTHONDONTWRITEBYTECODE is
 # set, as in many container images, nothing would write it, and every process would compile
 # each module it imports from source again (about 3 s of a segloc localize's 4.5 s). setuptools'
@@ -24,9 +26,10 @@ CI_OUT := out/ci
 # and of a first default localize into numba's cache, saying how many and showing its
 # progress, so that no first run waits for them; the other options' kernels (--global,
 # --seen-through drop) compile on their first use, which says so. A failure there only costs
-# that wait; tests/test_warmup.py catches it.
+# that wait; tests/test_warmup.py catches it, from the record the warm-up keeps of what it
+# compiled and said ($(WARMUP_RECORD)), so that the suite need not compile it all again.
 PIP_INSTALL := PYTHONWARNINGS='ignore:Editable installation:UserWarning' $(BIN)/python -m pip install --quiet --no-compile
-COMPILE_BYTECODE := $(BIN)/python -m compileall -q -j 0 $(VENV)/lib segloc_cli >/dev/null || \
+COMPILE_BYTECODE := $(BIN)/python -m compileall -q -j 0 -x 'site-packages/.+/tests?/' $(VENV)/lib segloc_cli >/dev/null || \
 	echo "warning: some modules' bytecode was not compiled ahead; Python compiles them when it imports them" >&2
 setup: $(STAMP)
 
@@ -36,7 +39,7 @@ $(BASE): pyproject.toml
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	$(PIP_INSTALL) -e .
 	$(COMPILE_BYTECODE)
-	$(BIN)/python -m segloc_cli.runs.warmup || echo "warning: warm-up failed" >&2
+	$(BIN)/python -m segloc_cli.runs.warmup --record $(WARMUP_RECORD) || echo "warning: warm-up failed" >&2
 	@touch $(BASE)
 
 $(STAMP): $(BASE)
@@ -77,8 +80,10 @@ browser:
 		echo "warning: chromium not installed; the HTML report's browser test is skipped" >&2; \
 	fi
 
-# Every reader's fuzz suite at FUZZ_EXAMPLES cases per test (make test runs a few dozen);
-# hypothesis prints how many cases each test ran and how long they took.
+# Every reader's fuzz suite at FUZZ_EXAMPLES cases per test (make test runs a few dozen), and
+# every kernel compiled with numba's bounds checks on hostile scans and maps (make test skips
+# it: the compiling alone takes over a minute); hypothesis prints how many cases each test ran
+# and how long they took.
 FUZZ_EXAMPLES ?= 10000
 fuzz: $(STAMP)
 	SEGLOC_FUZZ_EXAMPLES=$(FUZZ_EXAMPLES) $(BIN)/python -m pytest -q -p no:cacheprovider \

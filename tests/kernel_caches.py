@@ -1,26 +1,20 @@
-"""numba caches compiled from empty for the suite, each made once a session (``made_once``).
+"""numba caches for the warm-up tests, each made once a session (``made_once``).
 
-Compiling segloc's kernels from an empty cache takes about a minute of CPU, so the tests that
-need it share three caches made one from the other:
+``warm_cache`` holds the kernels of the warm-up ``make setup`` runs on an empty cache, with
+what it said and which process compiled which kernel: ``make setup`` keeps that record of
+its own warm-up (``segloc_cli.runs.warmup_record``, in ``.venv/warm-up``), and where the
+record no longer holds (a module edited since, or a warm-up that found kernels cached) the
+suite makes one the same way, into an empty folder. The others are made one from the other:
 
-- ``warm_cache``: what ``python -m segloc_cli.runs.warmup --late-stages`` then
-  ``python -m segloc_cli.runs.warmup`` compile (a first run's second process, then the
-  warm-up ``make setup`` runs);
 - ``later_cache``: a copy of it after a first ``localize --global`` and a first
   ``map build --seen-through drop``;
 - ``every_kernel_cache``: a copy of that after ``warmup --all``, which holds every kernel.
 
-They are compiled with numba's bounds checks on (``NUMBA_BOUNDSCHECK=1``), each in a folder
-of its own that no run outside the suite reads: which kernels a run compiles, and with which
-argument types, does not depend on the checks, and the hostile-input test
-(``test_kernels_bounds.py``) can then run every kernel with its checks on without compiling
-them all once more. numba keys a cached kernel on its signature and source, not on the
-checks, so a checked cache must never be the one a normal run loads.
+Each lies in a folder of its own (``NUMBA_CACHE_DIR``) that no run outside the suite reads.
 """
 
 from __future__ import annotations
 
-import json
 import os
 import shutil
 import subprocess
@@ -29,14 +23,35 @@ from pathlib import Path
 
 import pytest
 from conftest import HALL, SEGLOC, made_once
+from numba.core.caching import _CacheLocator
+
+from segloc_cli.runs.warmup_record import (
+    CACHE_FOLDER,
+    PACKAGE,
+    RECORD_FILE,
+    holding_record,
+)
 
 TIMEOUT_S = 600
 WARM_UP = [sys.executable, "-m", "segloc_cli.runs.warmup"]
+SETUP_RECORD = Path(sys.prefix) / "warm-up"
+"""Where ``make setup`` keeps the record of its warm-up (the Makefile's ``--record``)."""
 
 
-def checked_env(cache_dir: Path) -> dict[str, str]:
-    """This environment, with numba's bounds checks on and its cache in ``cache_dir``."""
-    return dict(os.environ, NUMBA_CACHE_DIR=str(cache_dir), NUMBA_BOUNDSCHECK="1")
+def cache_env(cache_dir: Path) -> dict[str, str]:
+    """This environment, with numba's cache in ``cache_dir``."""
+    return dict(os.environ, NUMBA_CACHE_DIR=str(cache_dir))
+
+
+def place_recorded_kernels(record: Path, cache_dir: Path) -> None:
+    """Copy the kernels a warm-up's record kept into ``cache_dir`` where numba looks for
+    them when ``NUMBA_CACHE_DIR`` names that folder (a folder per module folder)."""
+    kept = record / CACHE_FOLDER
+    for file in kept.rglob("*.nb[ic]"):
+        module_file = PACKAGE / file.parent.relative_to(kept) / "module.py"
+        into = cache_dir / _CacheLocator.get_suitable_cache_subpath(str(module_file))
+        into.mkdir(parents=True, exist_ok=True)
+        shutil.copy2(file, into / file.name)
 
 
 def cached(cache_dir: Path, suffix: str) -> set[str]:
@@ -69,24 +84,24 @@ def _build_hall_map(out: Path, env: dict[str, str], *options: str) -> subprocess
 
 
 @pytest.fixture(scope="session")
-def warm_cache(tmp_path_factory) -> tuple[Path, dict[str, str], dict[str, float], str, str]:
-    """The cache after ``--late-stages`` then the warm-up, the environment that points numba
-    at it, the compiled files the first wrote with their modification times, and what the
-    warm-up wrote on stdout and stderr."""
+def warm_cache(tmp_path_factory) -> tuple[Path, dict[str, str], dict]:
+    """The kernels of a warm-up on an empty cache, the environment that points numba at
+    them, and the warm-up's record (``warmup_record.write_record``): ``make setup``'s own
+    where it still holds, else one made here."""
 
     def make(folder: Path) -> None:
-        env = checked_env(folder / "numba")
-        run([*WARM_UP, "--late-stages"], env)
-        ahead = {path.name: path.stat().st_mtime for path in folder.rglob("*.nbc")}
-        done = run(WARM_UP, env)
-        (folder / "ahead.json").write_text(json.dumps(ahead), encoding="utf-8")
-        (folder / "stdout.txt").write_text(done.stdout, encoding="utf-8")
-        (folder / "stderr.txt").write_text(done.stderr, encoding="utf-8")
+        record = SETUP_RECORD
+        if holding_record(record) is None:
+            record = folder / "record"
+            run([*WARM_UP, "--record", str(record)], cache_env(folder / "empty"))
+            shutil.rmtree(folder / "empty")
+        place_recorded_kernels(record, folder / "numba")
+        shutil.copy2(record / RECORD_FILE, folder / RECORD_FILE)
 
     folder = made_once(tmp_path_factory, "warm-cache", make)
-    ahead = json.loads((folder / "ahead.json").read_text(encoding="utf-8"))
-    said = [(folder / name).read_text(encoding="utf-8") for name in ("stdout.txt", "stderr.txt")]
-    return folder / "numba", checked_env(folder / "numba"), ahead, *said
+    record = holding_record(folder)
+    assert record is not None, "the warm-up's record does not hold for these sources"
+    return folder / "numba", cache_env(folder / "numba"), record
 
 
 @pytest.fixture(scope="session")
@@ -111,7 +126,7 @@ def later_cache(warm_cache, demo_map, tmp_path_factory) -> tuple[Path, dict[str,
 
     def make(folder: Path) -> None:
         shutil.copytree(cache_dir, folder / "numba")
-        env = checked_env(folder / "numba")
+        env = cache_env(folder / "numba")
         searched = segloc(
             ["localize", str(HALL / "log.mcap"), "--map", str(demo_map), "--global",
              "--scans", "1", "--out", str(folder / "global.csv")],
@@ -122,7 +137,7 @@ def later_cache(warm_cache, demo_map, tmp_path_factory) -> tuple[Path, dict[str,
 
     folder = made_once(tmp_path_factory, "later-cache", make)
     err = (folder / "stderr.txt").read_text(encoding="utf-8")
-    return folder / "numba", checked_env(folder / "numba"), err
+    return folder / "numba", cache_env(folder / "numba"), err
 
 
 @pytest.fixture(scope="session")
@@ -132,7 +147,7 @@ def every_kernel_cache(later_cache, tmp_path_factory) -> tuple[Path, str]:
 
     def make(folder: Path) -> None:
         shutil.copytree(cache_dir, folder / "numba")
-        done = run([*WARM_UP, "--all"], checked_env(folder / "numba"))
+        done = run([*WARM_UP, "--all"], cache_env(folder / "numba"))
         (folder / "stdout.txt").write_text(done.stdout, encoding="utf-8")
 
     folder = made_once(tmp_path_factory, "every-kernel-cache", make)

@@ -24,7 +24,9 @@ a first ``--global`` or ``--seen-through drop`` compiles its kernels and says so
 ``--jobs`` (its workers are forked from a parent that has compiled already).
 
 ``--times [N]`` compiles in one process and lists the N kernels (10 by default) that took
-longest; ``--late-stages`` is what a first run's second process does (``jit.py``).
+longest; ``--late-stages`` is what a first run's second process does (``jit.py``);
+``--record FOLDER`` keeps the run's record there (``warmup_record``: ``make setup`` keeps
+one for the suite's warm-up tests).
 
 Numba drops a kernel's cache when its module's source file changes (for a kernel
 that calls others, only its own file counts: see ``kernels.py``). ``make setup``
@@ -227,12 +229,12 @@ def compile_times(kernels: list[Dispatcher]) -> list[tuple[float, str]]:
     return sorted(times, reverse=True)
 
 
-def main(every_path: bool = False, show_times: int = 0) -> None:
+def main(every_path: bool = False, show_times: int = 0, record: Path | None = None) -> None:
     """Warm the cache up, with ``every_path`` on every path of the command line: say when it
     starts compiling (how many kernels, about how long), count the kernels compiled as it
     goes, and end with one line on what was done (``warmup_lines``); with ``show_times``,
     compile in this process alone, quietly, and list that many kernels it compiled, longest
-    first."""
+    first; with ``record``, keep the run's record in that folder (``warmup_record``)."""
     from segloc_cli.jit import finish_ahead, start_ahead, watching_compiles
     from segloc_cli.runs.warmup_lines import CompileCount, closing_line
 
@@ -253,7 +255,12 @@ def main(every_path: bool = False, show_times: int = 0) -> None:
     if every_path:
         options = ", ".join(["guided", "--no-refine", *ran])
         runs = f"map build (and --seen-through drop) and localize ({options})"
-    print(closing_line(runs, time.perf_counter() - t0, count.partly))
+    closing = closing_line(runs, time.perf_counter() - t0, count.partly)
+    print(closing)
+    if record is not None:
+        from segloc_cli.runs.warmup_record import write_record
+
+        write_record(record, count.said, closing, count.partly)
     if show_times:
         kernels = [kernel for kernel in loaded_kernels() if kernel.overloads]
         for seconds, name in compile_times(kernels)[:show_times]:
@@ -279,6 +286,9 @@ def _arguments(argv: list[str]) -> argparse.Namespace:
     parser.add_argument("--all", action="store_true", help="every path, not the first run's")
     parser.add_argument("--times", nargs="?", type=int, const=10, default=0, metavar="N")
     parser.add_argument("--late-stages", action="store_true", help=argparse.SUPPRESS)
+    parser.add_argument(
+        "--record", type=Path, metavar="FOLDER", help="keep what this run compiled and said there"
+    )
     return parser.parse_args(argv)
 
 
@@ -287,4 +297,4 @@ if __name__ == "__main__":
     if arguments.late_stages:
         compile_late_stages(every_path=arguments.all)
     else:
-        main(every_path=arguments.all, show_times=arguments.times)
+        main(every_path=arguments.all, show_times=arguments.times, record=arguments.record)

@@ -46,6 +46,8 @@ class CompileCount:
         self.what, self.expected, self.about_s, self.quiet = what, expected, about_s, quiet
         self.partly = False
         """Whether some kernels were loaded from the cache before the first was compiled."""
+        self.said = ""
+        """The line said at the first kernel compiled ("" before, or when ``quiet``)."""
         self._progress: Progress | None = None
         self._lock = threading.Lock()
         self._stop = threading.Event()
@@ -61,14 +63,16 @@ class CompileCount:
             total = None if partly else self.expected
             self._progress = Progress("warm-up", total, "kernel")
         if partly:
-            return (
+            self.said = (
                 f"warm-up: compiling those of the {self.expected} kernels of {self.what} that "
                 "numba's cache does not hold yet"
             )
-        return (
-            f"warm-up: compiling the {self.expected} kernels of {self.what}, about "
-            f"{self.about_s} s on 2 cores"
-        )
+        else:
+            self.said = (
+                f"warm-up: compiling the {self.expected} kernels of {self.what}, about "
+                f"{self.about_s} s on 2 cores"
+            )
+        return self.said
 
     def __enter__(self) -> CompileCount:
         self._thread.start()

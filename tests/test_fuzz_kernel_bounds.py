@@ -5,21 +5,26 @@ outside an array (which, unchecked, corrupts memory and kills the process with
 no message). One subprocess runs the localizer's every path with
 ``NUMBA_BOUNDSCHECK=1`` over a corpus of bad scans and maps, hand-made and drawn
 at random; an out-of-bounds index there raises instead of corrupting memory, and
-fails. It starts from a copy of the suite's cache of every kernel compiled with
-the checks on (``kernel_caches.every_kernel_cache``, in a temporary folder, so the
-checked code never reaches the normal cache), and compiles what the corpus's
-argument types add.
+fails. It starts from every kernel compiled with the checks on by ``warmup --all``
+into an empty temporary folder (numba keys a cached kernel on its signature and
+source, not on the checks, so the checked code must never reach the cache a normal
+run loads), and compiles what the corpus's argument types add.
+
+Compiling every kernel takes about 80 s of CPU, the run itself a few: ``make fuzz``
+runs it (``SEGLOC_FUZZ_EXAMPLES`` set), ``make test`` skips it.
 """
 
 from __future__ import annotations
 
 import json
-import shutil
+import os
 import subprocess
 import sys
 import textwrap
+from pathlib import Path
 
-from kernel_caches import checked_env
+import pytest
+from kernel_caches import WARM_UP, cache_env, run
 
 from segloc_cli.estimates import (
     STATUS_AMBIGUOUS,
@@ -202,9 +207,18 @@ CORPUS = textwrap.dedent(
 )
 
 
-def test_every_path_on_hostile_input_stays_inside_its_arrays(every_kernel_cache, tmp_path):
-    shutil.copytree(every_kernel_cache[0], tmp_path / "numba")
+def checked_env(cache_dir: Path) -> dict[str, str]:
+    """This environment, with numba's bounds checks on and its cache in ``cache_dir``."""
+    return dict(cache_env(cache_dir), NUMBA_BOUNDSCHECK="1")
+
+
+@pytest.mark.skipif(
+    "SEGLOC_FUZZ_EXAMPLES" not in os.environ,
+    reason="compiles every kernel with bounds checks (about 80 s of CPU): make fuzz runs it",
+)
+def test_every_path_on_hostile_input_stays_inside_its_arrays(tmp_path):
     env = checked_env(tmp_path / "numba")
+    run([*WARM_UP, "--all"], env)
     script = tmp_path / "corpus.py"
     script.write_text(CORPUS)
     done = subprocess.run(

@@ -1,0 +1,91 @@
+"""The record a warm-up keeps of itself (``python -m segloc_cli.runs.warmup --record FOLDER``):
+what it said, which kernels it and the process compiling ahead compiled, and a copy of every
+kernel it left in numba's cache.
+
+``make setup`` has its warm-up, the one a newcomer's first run depends on, keep one in
+``.venv/warm-up``. The suite's warm-up tests (``tests/kernel_caches.py``) check that record,
+and run the demo on a copy of its kernels, instead of compiling every kernel from an empty
+cache a second time. A record speaks for the sources it was made from: it holds only while
+segloc's modules, Python and numba are those it names (``sources_digest``), and only if the
+warm-up started from an empty cache (``holding_record``); otherwise the tests make their own.
+"""
+
+from __future__ import annotations
+
+import glob
+import hashlib
+import json
+import shutil
+import sys
+from pathlib import Path
+from typing import Any
+
+import numba
+
+from segloc_cli.jit import compiled_ahead, kernel_name, loaded_kernels
+from segloc_cli.runs.warmup_lines import compiled_here
+
+PACKAGE = Path(__file__).resolve().parents[1]
+RECORD_FILE = "record.json"
+CACHE_FOLDER = "cache"
+"""Under a record's folder: the kernels' index and data files, in folders named after their
+modules' folders within segloc_cli (``method/search._descend-835.py311.nbi``)."""
+
+
+def sources_digest() -> str:
+    """A digest of what a compiled kernel depends on: every module of segloc_cli (its path
+    and bytes), Python's version and numba's."""
+    digest = hashlib.sha256(f"{sys.version}\n{numba.__version__}\n".encode())
+    for path in sorted(PACKAGE.rglob("*.py")):
+        digest.update(path.relative_to(PACKAGE).as_posix().encode() + b"\0")
+        digest.update(path.read_bytes())
+    return digest.hexdigest()
+
+
+def write_record(folder: Path, notice: str, closing: str, partly: bool) -> None:
+    """Keep in ``folder`` (replacing what it held) the record of the warm-up that has just
+    run in this process: the line it said when it started compiling (``notice``, "" if it
+    compiled nothing), its closing line, whether some kernels were cached before it started
+    (``partly``), and a copy of the cache files of each kernel it used or that the process
+    compiling ahead compiled."""
+    shutil.rmtree(folder, ignore_errors=True)
+    ahead = compiled_ahead()
+    kept = []
+    for kernel in loaded_kernels():
+        name = kernel_name(kernel)
+        if not kernel.overloads and name not in ahead:
+            continue  # not a kernel of this run: any cache file of it is another run's
+        index = Path(kernel._cache._cache_file._index_path)  # numba has no public name for it
+        if not index.is_file():
+            continue
+        module_folder = Path(kernel.py_func.__code__.co_filename).resolve().parent
+        into = folder / CACHE_FOLDER / module_folder.relative_to(PACKAGE)
+        into.mkdir(parents=True, exist_ok=True)
+        stem = glob.escape(index.name.removesuffix(".nbi"))
+        for file in index.parent.glob(f"{stem}.*"):
+            shutil.copy2(file, into / file.name)
+        kept.append(name)
+    record = {
+        "sources": sources_digest(),
+        "notice": notice,
+        "closing": closing,
+        "partly": partly,
+        "compiled_here": sorted(compiled_here()),
+        "compiled_ahead": sorted(ahead),
+        "kernels": sorted(kept),
+    }
+    (folder / RECORD_FILE).write_text(json.dumps(record, indent=1) + "\n", encoding="utf-8")
+
+
+def holding_record(folder: Path) -> dict[str, Any] | None:
+    """The record kept in ``folder``, if there is one, made from the sources as they are
+    now, by a warm-up that started from an empty cache; None otherwise."""
+    try:
+        record = json.loads((folder / RECORD_FILE).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    if record.get("sources") != sources_digest() or record.get("partly", True):
+        return None
+    if not record.get("compiled_here") and not record.get("compiled_ahead"):
+        return None
+    return record
