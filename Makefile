@@ -65,7 +65,7 @@ ci-example: $(STAMP)
 # (--global, --seen-through drop...), so that the processes of the tests and benchmarks load
 # them instead of each compiling its own; a few seconds when they are all cached already.
 kernels: $(STAMP)
-	$(BIN)/python -m segloc_cli.runs.warmup --all || echo "warning: warm-up failed" >&2
+	$(BIN)/python -m segloc_cli.runs.warmup --all --record $(WARMUP_RECORD)-all || echo "warning: warm-up failed" >&2
 
 # On every core (pytest-xdist), once every kernel is compiled, the 30 slowest tests listed at
 # the end. The HTML report's test opens it in Debian's headless Chromium; as root (CI) it is

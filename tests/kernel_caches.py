@@ -4,11 +4,10 @@
 what it said and which process compiled which kernel: ``make setup`` keeps that record of
 its own warm-up (``segloc_cli.runs.warmup_record``, in ``.venv/warm-up``), and where the
 record no longer holds (a module edited since, or a warm-up that found kernels cached) the
-suite makes one the same way, into an empty folder. The others are made one from the other:
-
-- ``later_cache``: a copy of it after a first ``localize --global`` and a first
-  ``map build --seen-through drop``;
-- ``every_kernel_cache``: a copy of that after ``warmup --all``, which holds every kernel.
+suite makes one the same way, into an empty folder. ``later_cache`` is a copy of it after a
+first ``localize --global`` and a first ``map build --seen-through drop``; ``every_path_record``
+is the record ``make kernels`` keeps of ``warmup --all`` (or one made here on a copy of
+``warm_cache``).
 
 Each lies in a folder of its own (``NUMBA_CACHE_DIR``) that no run outside the suite reads.
 """
@@ -36,6 +35,8 @@ TIMEOUT_S = 600
 WARM_UP = [sys.executable, "-m", "segloc_cli.runs.warmup"]
 SETUP_RECORD = Path(sys.prefix) / "warm-up"
 """Where ``make setup`` keeps the record of its warm-up (the Makefile's ``--record``)."""
+EVERY_PATH_RECORD = Path(sys.prefix) / "warm-up-all"
+"""Where ``make kernels`` keeps the record of ``warmup --all``."""
 
 
 def cache_env(cache_dir: Path) -> dict[str, str]:
@@ -141,14 +142,19 @@ def later_cache(warm_cache, demo_map, tmp_path_factory) -> tuple[Path, dict[str,
 
 
 @pytest.fixture(scope="session")
-def every_kernel_cache(later_cache, tmp_path_factory) -> tuple[Path, str]:
-    """A copy of the later cache after ``warmup --all``, and what that wrote on stdout."""
-    cache_dir, *_ = later_cache
+def every_path_record(warm_cache, tmp_path_factory) -> dict:
+    """The record of ``warmup --all`` (``warmup_record.write_record``): ``make kernels``'s
+    where it still holds, else one made here on a copy of the warm cache."""
+    record = holding_record(EVERY_PATH_RECORD, from_empty=False)
+    if record is not None:
+        return record
+    cache_dir, *_ = warm_cache
 
     def make(folder: Path) -> None:
         shutil.copytree(cache_dir, folder / "numba")
-        done = run([*WARM_UP, "--all"], cache_env(folder / "numba"))
-        (folder / "stdout.txt").write_text(done.stdout, encoding="utf-8")
+        run([*WARM_UP, "--all", "--record", str(folder / "record")], cache_env(folder / "numba"))
 
-    folder = made_once(tmp_path_factory, "every-kernel-cache", make)
-    return folder / "numba", (folder / "stdout.txt").read_text(encoding="utf-8")
+    folder = made_once(tmp_path_factory, "every-path-record", make)
+    record = holding_record(folder / "record", from_empty=False)
+    assert record is not None, "the record of warmup --all does not hold for these sources"
+    return record

@@ -25,6 +25,7 @@ them a second time.
 from __future__ import annotations
 
 import ast
+import json
 from pathlib import Path
 
 import pytest
@@ -117,14 +118,13 @@ def test_a_first_global_or_seen_through_says_it_compiles_its_kernels_once(later_
     ], err
 
 
-def test_every_kernel_is_compiled_by_the_warm_up_of_every_path(every_kernel_cache):
-    cache_dir, out = every_kernel_cache
-    assert out.startswith("segloc warm-up: map build (and --seen-through drop)")
-    indexed = cached(cache_dir, ".nbi")
+def test_every_kernel_is_compiled_by_the_warm_up_of_every_path(every_path_record):
+    assert every_path_record["closing"].startswith(
+        "segloc warm-up: map build (and --seen-through drop)"
+    )
+    cached = {".".join(name.split(".")[-2:]) for name in every_path_record["kernels"]}
     missing = [
-        f"{stem}.{name}"
-        for stem, name in njit_functions()
-        if not any(index.startswith(f"{stem}.{name}-") for index in indexed)
+        f"{stem}.{name}" for stem, name in njit_functions() if f"{stem}.{name}" not in cached
     ]
     assert not missing, f"not compiled by segloc_cli.runs.warmup --all: {missing}"
 
@@ -151,3 +151,22 @@ def test_the_warm_ups_lines_say_what_it_compiles_and_who_compiled_it(monkeypatch
     )
     monkeypatch.setattr(warmup_lines, "compiled_here", set)
     assert warmup_lines.closing_line("it", 2.0, True).endswith("; all were cached")
+
+
+def test_a_record_holds_only_for_the_sources_it_was_made_from(tmp_path):
+    from segloc_cli.runs.warmup_record import RECORD_FILE, holding_record, sources_digest
+
+    def kept(**fields) -> Path:
+        folder = tmp_path / str(len(list(tmp_path.iterdir())))
+        folder.mkdir()
+        record = {"sources": sources_digest(), "partly": False, "compiled_here": ["k"]}
+        (folder / RECORD_FILE).write_text(json.dumps(record | fields), encoding="utf-8")
+        return folder
+
+    assert holding_record(kept())["compiled_here"] == ["k"]
+    assert holding_record(kept(sources="0" * 64)) is None  # a module edited since
+    assert holding_record(tmp_path / "none") is None
+    # A warm-up that found kernels cached, or compiled none, started from no empty cache.
+    assert holding_record(kept(partly=True)) is None
+    assert holding_record(kept(compiled_here=[])) is None
+    assert holding_record(kept(partly=True), from_empty=False) is not None

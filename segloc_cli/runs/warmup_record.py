@@ -3,11 +3,12 @@ what it said, which kernels it and the process compiling ahead compiled, and a c
 kernel it left in numba's cache.
 
 ``make setup`` has its warm-up, the one a newcomer's first run depends on, keep one in
-``.venv/warm-up``. The suite's warm-up tests (``tests/kernel_caches.py``) check that record,
-and run the demo on a copy of its kernels, instead of compiling every kernel from an empty
-cache a second time. A record speaks for the sources it was made from: it holds only while
-segloc's modules, Python and numba are those it names (``sources_digest``), and only if the
-warm-up started from an empty cache (``holding_record``); otherwise the tests make their own.
+``.venv/warm-up``, and ``make kernels`` its warm-up of every path in ``.venv/warm-up-all``.
+The suite's warm-up tests (``tests/kernel_caches.py``) check those records, and run the demo
+on a copy of the first one's kernels, instead of compiling every kernel a second time. A
+record speaks for the sources it was made from: it holds only while segloc's modules, Python
+and numba are those it names (``sources_digest``), and for the first, only if the warm-up
+started from an empty cache (``holding_record``); otherwise the tests make their own.
 """
 
 from __future__ import annotations
@@ -46,18 +47,18 @@ def write_record(folder: Path, notice: str, closing: str, partly: bool) -> None:
     """Keep in ``folder`` (replacing what it held) the record of the warm-up that has just
     run in this process: the line it said when it started compiling (``notice``, "" if it
     compiled nothing), its closing line, whether some kernels were cached before it started
-    (``partly``), and a copy of the cache files of each kernel it used or that the process
-    compiling ahead compiled."""
+    (``partly``), and a copy of the cache files of its kernels. From an empty cache those
+    are the kernels it or the process compiling ahead compiled; otherwise every kernel the
+    cache holds, as a kernel loaded from the cache does not say which kernels it calls."""
     shutil.rmtree(folder, ignore_errors=True)
     ahead = compiled_ahead()
+    from_empty = not partly and bool(compiled_here() | ahead)
     kept = []
     for kernel in loaded_kernels():
         name = kernel_name(kernel)
-        if not kernel.overloads and name not in ahead:
-            continue  # not a kernel of this run: any cache file of it is another run's
         index = Path(kernel._cache._cache_file._index_path)  # numba has no public name for it
-        if not index.is_file():
-            continue
+        if not index.is_file() or (from_empty and not (kernel.overloads or name in ahead)):
+            continue  # on an empty cache, a file of a kernel this run did not use is stale
         module_folder = Path(kernel.py_func.__code__.co_filename).resolve().parent
         into = folder / CACHE_FOLDER / module_folder.relative_to(PACKAGE)
         into.mkdir(parents=True, exist_ok=True)
@@ -77,15 +78,17 @@ def write_record(folder: Path, notice: str, closing: str, partly: bool) -> None:
     (folder / RECORD_FILE).write_text(json.dumps(record, indent=1) + "\n", encoding="utf-8")
 
 
-def holding_record(folder: Path) -> dict[str, Any] | None:
+def holding_record(folder: Path, from_empty: bool = True) -> dict[str, Any] | None:
     """The record kept in ``folder``, if there is one, made from the sources as they are
-    now, by a warm-up that started from an empty cache; None otherwise."""
+    now (with ``from_empty``, by a warm-up that started from an empty cache); None
+    otherwise."""
     try:
         record = json.loads((folder / RECORD_FILE).read_text(encoding="utf-8"))
     except (OSError, ValueError):
         return None
-    if record.get("sources") != sources_digest() or record.get("partly", True):
+    if record.get("sources") != sources_digest():
         return None
-    if not record.get("compiled_here") and not record.get("compiled_ahead"):
+    compiled = record.get("compiled_here") or record.get("compiled_ahead")
+    if from_empty and (record.get("partly", True) or not compiled):
         return None
     return record
