@@ -57,7 +57,7 @@ def write_record(folder: Path, notice: str, closing: str, partly: bool) -> None:
     for kernel in loaded_kernels():
         name = kernel_name(kernel)
         # numba has no public name for a kernel's index file
-        index = Path(getattr(kernel, "_cache")._cache_file._index_path)
+        index = Path(kernel._cache._cache_file._index_path)  # type: ignore[attr-defined]
         if not index.is_file() or (from_empty and not (kernel.overloads or name in ahead)):
             continue  # on an empty cache, a file of a kernel this run did not use is stale
         module_folder = Path(kernel.py_func.__code__.co_filename).resolve().parent
