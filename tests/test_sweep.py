@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
-from conftest import HALL, SEGLOC
+from conftest import HALL, SEGLOC, made_once
 from test_cli import assert_one_line_error, run_cli
 
 from segloc_cli.estimates import STATUS_TASK_FAILED
@@ -67,14 +67,25 @@ def _without_times(table: pd.DataFrame) -> pd.DataFrame:
 
 @pytest.fixture(scope="module")
 def hall_sweep(tmp_path_factory):
-    """The example spec run on a local cluster of 2 workers: (spec, results, in-process rows)."""
-    folder = tmp_path_factory.mktemp("sweep")
-    spec = _spec(folder)
-    out = folder / "results.parquet"
-    done = _sweep(spec, "--out", out, "--jobs", "2")
-    assert done.returncode == 0, done.stderr
-    in_process = pd.concat([run_task(t) for t in read_spec(spec).tasks], ignore_index=True)
-    return spec, out, in_process, done
+    """The example spec run on a local cluster of 2 workers, once a session, in a copy of
+    this worker's own: (spec, results, in-process rows, what the sweep said)."""
+
+    def make(folder: Path) -> None:
+        spec = _spec(folder)
+        done = _sweep(spec, "--out", folder / "results.parquet", "--jobs", "2")
+        assert done.returncode == 0, done.stderr
+        (folder / "stdout.txt").write_text(done.stdout, encoding="utf-8")
+        (folder / "stderr.txt").write_text(done.stderr, encoding="utf-8")
+        tasks = read_spec(spec).tasks
+        in_process = pd.concat([run_task(t) for t in tasks], ignore_index=True)
+        in_process.to_parquet(folder / "in-process.parquet", index=False)
+
+    folder = tmp_path_factory.mktemp("sweep") / "copy"
+    shutil.copytree(made_once(tmp_path_factory, "hall-sweep", make), folder)
+    said = [(folder / name).read_text(encoding="utf-8") for name in ("stdout.txt", "stderr.txt")]
+    done = subprocess.CompletedProcess([], 0, *said)
+    in_process = pd.read_parquet(folder / "in-process.parquet")
+    return folder / "sweep.toml", folder / "results.parquet", in_process, done
 
 
 def test_a_local_cluster_gives_the_rows_of_an_in_process_run(hall_sweep):
