@@ -30,6 +30,9 @@ from segloc_cli.io.mcap_log import LogWriter, read_log
 from segloc_cli.io.tables import read_pose_table
 from segloc_cli.scan import Scan
 
+pytestmark = pytest.mark.xdist_group("cli")
+"""On one worker, so that its module fixtures (the pipelines run once) are made once."""
+
 HALL_POSES = HALL / "poses.csv"
 SEED = 2000
 

@@ -46,6 +46,9 @@ from segloc_cli.scoring.plots import (
     surveyed_scans,
 )
 
+pytestmark = pytest.mark.xdist_group("plots")
+"""On one worker, so that its module fixtures (the hall localized once) are made once."""
+
 MAP = HALL / "map.json"
 LOG = HALL / "log.mcap"
 SURVEY = HALL / "survey.csv"

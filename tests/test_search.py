@@ -305,6 +305,12 @@ def test_quarters_checked_part_way_are_dropped_only_when_none_can_beat_the_thres
     assert 0 < dropped < checked
 
 
+NO_PYRAMID = pytest.mark.xdist_group("no-pyramid")
+"""The tests of a search without a pyramid, on one worker: its kernels take float64 bounds,
+which no command compiles, so the first such test compiles them for the others."""
+
+
+@NO_PYRAMID
 @pytest.mark.parametrize("max_depth", [0, 1, 2])
 def test_a_search_on_threads_of_few_levels_finds_what_it_finds_on_one(max_depth):
     """With no pyramid, or one whose top squares' quarters are single shifts or squares of
@@ -498,6 +504,7 @@ def test_pyramid_of_a_huge_raster_gets_fewer_levels_not_more_memory():
     assert pyramid_depth((100, 100), 0) == 0
 
 
+@NO_PYRAMID
 def test_search_with_no_pyramid_is_brute_force_and_finds_the_same_best():
     rng = np.random.default_rng(8200)
     world = random_world(rng)
