@@ -69,9 +69,10 @@ kernels: $(STAMP)
 
 # On a worker more than there are cores (pytest-xdist), as some tests wait on serial lines,
 # clusters and subprocesses, once every kernel is compiled; the 30 slowest tests listed at the
-# end. A test module whose fixtures are costly runs on one worker (xdist_group), so that they
-# are made once. The HTML report's test opens it in Debian's headless Chromium; as root (CI) it is
-# installed when missing, elsewhere that one test is skipped and says why.
+# end. Tests marked with an xdist_group run on one worker (--dist loadgroup): those sharing
+# kernels that only they compile. The HTML report's test opens it in Debian's headless
+# Chromium; as root (CI) it is installed when missing, elsewhere that one test is skipped and
+# says why.
 TEST_WORKERS ?= $(shell echo $$(( $$(nproc 2>/dev/null || getconf _NPROCESSORS_ONLN 2>/dev/null || echo 1) + 1 )))
 test: kernels browser
 	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadgroup --durations=30

@@ -21,7 +21,7 @@ from typing import NamedTuple
 
 import numpy as np
 import pytest
-from conftest import HALL, HALL_WORLD, SEGLOC
+from conftest import HALL, HALL_WORLD, SEGLOC, made_once
 from mcap.writer import Writer
 
 from segloc_cli.cli import main
@@ -29,9 +29,6 @@ from segloc_cli.geometry import Pose2
 from segloc_cli.io.mcap_log import LogWriter, read_log
 from segloc_cli.io.tables import read_pose_table
 from segloc_cli.scan import Scan
-
-pytestmark = pytest.mark.xdist_group("cli")
-"""On one worker, so that its module fixtures (the pipelines run once) are made once."""
 
 HALL_POSES = HALL / "poses.csv"
 SEED = 2000
@@ -695,18 +692,28 @@ class Pipeline:
 
 @pytest.fixture(scope="module")
 def hall(tmp_path_factory) -> Pipeline:
-    """simulate → map build → localize on the hall, through the installed console script."""
-    root = tmp_path_factory.mktemp("hall")
+    """simulate → map build → localize on the hall, through the installed console script,
+    once a session (``made_once``): the tests read its folder and write nothing there."""
     log, survey = Path("sim") / "log.mcap", Path("sim") / "survey.csv"
-    steps = {
-        "simulate": run_script(
-            "simulate", HALL_WORLD, "--poses", HALL_POSES, "--out", "sim", "--seed", SEED, cwd=root
-        ),
-        "map build": run_script(
-            "map", "build", log, "--survey", survey, "--out", "map.json", cwd=root
-        ),
-        "localize": run_script("localize", log, "--map", "map.json", "--out", "est.csv", cwd=root),
-    }
+
+    def make(root: Path) -> None:
+        steps = {
+            "simulate": run_script(
+                "simulate", HALL_WORLD, "--poses", HALL_POSES, "--out", "sim", "--seed", SEED,
+                cwd=root,
+            ),
+            "map build": run_script(
+                "map", "build", log, "--survey", survey, "--out", "map.json", cwd=root
+            ),
+            "localize": run_script(
+                "localize", log, "--map", "map.json", "--out", "est.csv", cwd=root
+            ),
+        }  # fmt: skip
+        (root / "steps.json").write_text(json.dumps(steps), encoding="utf-8")
+
+    root = made_once(tmp_path_factory, "cli-hall", make)
+    said = json.loads((root / "steps.json").read_text(encoding="utf-8"))
+    steps = {name: Result(*result) for name, result in said.items()}
     return Pipeline(root, steps, root / log, root / survey, root / "map.json", root / "est.csv")
 
 

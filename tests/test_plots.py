@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
-from conftest import HALL
+from conftest import HALL, made_once
 from matplotlib.image import imread
 from test_cli import run_cli, run_script
 from test_trend_plots import legend_texts, overlapping_tick_labels
@@ -46,9 +46,6 @@ from segloc_cli.scoring.plots import (
     surveyed_scans,
 )
 
-pytestmark = pytest.mark.xdist_group("plots")
-"""On one worker, so that its module fixtures (the hall localized once) are made once."""
-
 MAP = HALL / "map.json"
 LOG = HALL / "log.mcap"
 SURVEY = HALL / "survey.csv"
@@ -64,11 +61,14 @@ class HallRun:
 
 @pytest.fixture(scope="module")
 def hall(tmp_path_factory) -> HallRun:
-    """The hall localized against its shipped map by ``segloc localize`` with the defaults."""
-    root = tmp_path_factory.mktemp("plots")
-    estimates_csv = root / "estimates.csv"
-    result = run_script("localize", LOG, "--map", MAP, "--out", estimates_csv, cwd=root)
-    assert result.code == 0, result.err
+    """The hall localized against its shipped map by ``segloc localize`` with the defaults,
+    once a session (``made_once``)."""
+
+    def make(root: Path) -> None:
+        result = run_script("localize", LOG, "--map", MAP, "--out", "estimates.csv", cwd=root)
+        assert result.code == 0, result.err
+
+    estimates_csv = made_once(tmp_path_factory, "plots-hall", make) / "estimates.csv"
     estimates = read_estimates(estimates_csv)
     survey = read_pose_table(SURVEY)
     items = surveyed_scans(estimates, survey, read_log(LOG).scans)
