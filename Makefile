@@ -67,15 +67,13 @@ ci-example: $(STAMP)
 kernels: $(STAMP)
 	$(BIN)/python -m segloc_cli.runs.warmup --all --record $(WARMUP_RECORD)-all || echo "warning: warm-up failed" >&2
 
-# On a worker more than there are cores (pytest-xdist), as some tests wait on serial lines,
-# clusters and subprocesses, once every kernel is compiled; the 30 slowest tests listed at the
-# end. Tests marked with an xdist_group run on one worker (--dist loadgroup): those sharing
+# On every core (pytest-xdist), once every kernel is compiled, the 30 slowest tests listed at
+# the end. Tests marked with an xdist_group run on one worker (--dist loadgroup): those sharing
 # kernels that only they compile. The HTML report's test opens it in Debian's headless
 # Chromium; as root (CI) it is installed when missing, elsewhere that one test is skipped and
 # says why.
-TEST_WORKERS ?= $(shell echo $$(( $$(nproc 2>/dev/null || getconf _NPROCESSORS_ONLN 2>/dev/null || echo 1) + 1 )))
 test: kernels browser
-	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadgroup --durations=30
+	$(BIN)/python -m pytest -q -n auto --dist loadgroup --durations=30
 
 browser:
 	@if ! command -v chromium >/dev/null 2>&1 && [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
