@@ -277,7 +277,7 @@ def test_a_failing_task_is_kept_with_its_error_and_the_sweep_goes_on(tmp_path):
     (tmp_path / "broken.mcap").write_bytes(b"\x89MCAP0\r\n" + b"\0" * 64)
     out = tmp_path / "results.parquet"
     curves = tmp_path / "curves"
-    done = _sweep(spec, "--out", out, "--jobs", "2", "--convergence", curves)
+    done = _sweep(spec, "--out", out, "--jobs", "1", "--convergence", curves)
     assert done.returncode == 1, done.stderr
     assert "Traceback" not in done.stderr
     # Curves of a sweep with failed tasks would be of part of it: none until the rerun.
@@ -291,7 +291,7 @@ def test_a_failing_task_is_kept_with_its_error_and_the_sweep_goes_on(tmp_path):
     assert "4 tasks failed" in done.stderr
     # Mended, only the failed tasks run again.
     shutil.copy(HALL / "log.mcap", tmp_path / "broken.mcap")
-    again = _sweep(spec, "--out", out, "--jobs", "2", "--convergence", curves)
+    again = _sweep(spec, "--out", out, "--jobs", "1", "--convergence", curves)
     assert again.returncode == 0, again.stderr
     assert "8 tasks, 4 done before; running 4" in again.stderr
     assert len(pd.read_parquet(out)) == 8 * SCANS
