@@ -142,13 +142,14 @@ def later_cache(warm_cache, demo_map, tmp_path_factory) -> tuple[Path, dict[str,
 
 
 @pytest.fixture(scope="session")
-def every_path_record(warm_cache, tmp_path_factory) -> dict:
+def every_path_record(request, tmp_path_factory) -> dict:
     """The record of ``warmup --all`` (``warmup_record.write_record``): ``make kernels``'s
-    where it still holds, else one made here on a copy of the warm cache."""
+    where it still holds, else one made here on a copy of the warm cache (asked for only
+    then)."""
     record = holding_record(EVERY_PATH_RECORD, from_empty=False)
     if record is not None:
         return record
-    cache_dir, *_ = warm_cache
+    cache_dir, *_ = request.getfixturevalue("warm_cache")
 
     def make(folder: Path) -> None:
         shutil.copytree(cache_dir, folder / "numba")

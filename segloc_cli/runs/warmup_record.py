@@ -51,8 +51,8 @@ def write_record(folder: Path, notice: str, closing: str, partly: bool) -> None:
     are the kernels it or the process compiling ahead compiled; otherwise every kernel the
     cache holds, as a kernel loaded from the cache does not say which kernels it calls."""
     shutil.rmtree(folder, ignore_errors=True)
-    ahead = compiled_ahead()
-    from_empty = not partly and bool(compiled_here() | ahead)
+    here, ahead = compiled_here(), compiled_ahead()
+    from_empty = not partly and bool(here | ahead)
     kept = []
     for kernel in loaded_kernels():
         name = kernel_name(kernel)
@@ -72,7 +72,7 @@ def write_record(folder: Path, notice: str, closing: str, partly: bool) -> None:
         "notice": notice,
         "closing": closing,
         "partly": partly,
-        "compiled_here": sorted(compiled_here()),
+        "compiled_here": sorted(here),
         "compiled_ahead": sorted(ahead),
         "kernels": sorted(kept),
     }
