@@ -5,8 +5,10 @@ reader would.
 they appear, and says how each is checked. Each page runs on its own, top to bottom, in a
 temporary copy of the repository's layout (its ``datasets/`` and the files the page shows,
 such as ``sweep.toml``), with ``segloc`` on PATH from this test's environment, each block
-reading what the blocks before it on that page wrote. A command block runs with ``sh -e`` and
-must exit with the status its page gives (0 unless it says otherwise). A block a page prints
+reading what the blocks before it on that page wrote. A command block runs as ``sh -e`` runs
+it (through ``segloc``'s entry point in this process where it is plain ``segloc`` commands
+that start no process of their own: ``run_block``) and must exit with the status its page
+gives (0 unless it says otherwise). A block a page prints
 as a command's output must be printed by the block before it; a TOML block must be the file
 it says it is, or be accepted by the commands its tables name; a synopsis must name every
 command, each with options it has. Blocks that need a serial scanner carry a
@@ -21,6 +23,7 @@ skipped with a reason.
 
 from __future__ import annotations
 
+import io
 import os
 import re
 import shutil
@@ -30,6 +33,7 @@ import sys
 import tempfile
 import tomllib
 from collections.abc import Callable, Iterator
+from contextlib import chdir, redirect_stderr, redirect_stdout
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -39,7 +43,7 @@ from conftest import SEGLOC, start_emulator, stop_emulator
 from junitparser import JUnitXml
 from test_cli import Result
 
-from segloc_cli.cli import cli
+from segloc_cli.cli import cli, main
 from segloc_cli.io.maps import read_world
 from segloc_cli.io.mcap_log import read_log
 
@@ -141,6 +145,57 @@ def run_shell(script: str, cwd: Path, env: dict[str, str]) -> Result:
         return Result(
             code, out.read().decode(errors="replace"), err.read().decode(errors="replace")
         )
+
+
+IN_PROCESS_COMMANDS = ("localize", "evaluate", "map", "info", "simulate", "import")
+"""Commands that start no process, open no device and install no signal handler of their
+own past their run: a block of them alone runs through ``segloc``'s entry point in this
+process (``run_block``)."""
+SHELL_SYNTAX = re.compile(r"[|&;<>$`(){}*?~\\\"'=]")
+
+
+def segloc_commands(script: str) -> list[list[str]] | None:
+    """The argument lists of a block made of ``IN_PROCESS_COMMANDS`` alone, one a line (with
+    ``\\`` continuations and ``#`` comments as ``sh`` reads them) and no other shell syntax;
+    None for any other block."""
+    commands = []
+    for line in script.replace("\\\n", " ").splitlines():
+        words = re.sub(r"(^|\s)#.*", "", line).split()
+        if not words:
+            continue
+        if words[0] != "segloc" or len(words) < 2 or words[1] not in IN_PROCESS_COMMANDS:
+            return None
+        if any(SHELL_SYNTAX.search(word) for word in words):
+            return None
+        commands.append(words[1:])
+    return commands or None
+
+
+def run_block(script: str, cwd: Path, env: dict[str, str]) -> Result:
+    """``script`` as ``sh -e`` runs it in ``cwd`` with ``env``: in this process through
+    ``segloc``'s entry point where it is ``segloc`` commands alone (``segloc_commands``),
+    which saves each its start-up (a second or more: numba's, pandas'), else by ``sh``.
+    Either way the block stops at its first command that fails, with that status."""
+    commands = segloc_commands(script)
+    if commands is None:
+        return run_shell(script, cwd, env)
+    out, err, code = io.StringIO(), io.StringIO(), 0
+    environ = dict(os.environ)
+    os.environ.clear()
+    os.environ.update(env)
+    try:
+        with chdir(cwd), redirect_stdout(out), redirect_stderr(err):
+            for argv in commands:
+                try:
+                    main(argv)
+                except SystemExit as exc:
+                    code = exc.code if isinstance(exc.code, int) else int(exc.code is not None)
+                if code != 0:
+                    break
+    finally:
+        os.environ.clear()
+        os.environ.update(environ)
+    return Result(code, out.getvalue(), err.getvalue())
 
 
 # ------------------------------------------------------------------- what blocks wrote
@@ -472,7 +527,7 @@ def run_page(page: str, work: Path, datasets: Path | None) -> list[str]:
             if expect.kind == HARDWARE:
                 printed = run_on_emulators(block, expect, repo, env)
             else:
-                printed = run_shell(block.text, repo, env)
+                printed = run_block(block.text, repo, env)
             if printed.code != expect.status:
                 failures.append(
                     failure(page, block, f"exit {printed.code}, not {expect.status}", printed)
@@ -494,8 +549,8 @@ def run_page(page: str, work: Path, datasets: Path | None) -> list[str]:
         elif expect.kind == CONFIG:
             (repo / CONFIG_NAME).write_text(block.text, encoding="utf-8")
             for command in command_tables(tomllib.loads(block.text)):
-                script = f"segloc {' '.join(command)} --config {CONFIG_NAME} --help >/dev/null"
-                result = run_shell(script, repo, env)
+                script = f"segloc {' '.join(command)} --config {CONFIG_NAME} --help"
+                result = run_block(script, repo, env)
                 if result.code != 0:
                     failures.append(failure(page, block, f"refused by `{script}`", result))
         elif expect.kind == SYNOPSIS:
