@@ -10,11 +10,13 @@ point); the end-to-end pipeline and ``--help`` run the installed console script.
 from __future__ import annotations
 
 import csv
+import io
 import json
 import math
 import os
 import re
 import subprocess
+from contextlib import chdir, redirect_stderr, redirect_stdout
 from dataclasses import dataclass
 from pathlib import Path
 from typing import NamedTuple
@@ -91,6 +93,29 @@ def run_cli(capsys, *args) -> Result:
         )
     captured = capsys.readouterr()
     return Result(code, captured.out, captured.err)
+
+
+def run_in_process(*args, cwd: Path | None = None, env: dict[str, str] | None = None) -> Result:
+    """``segloc ARGS`` through the console script's entry point in this process, in ``cwd``
+    with ``env`` as its environment (this process's where not given): what the installed
+    script gives, less its start-up (a second or more: numba's registries, pandas)."""
+    argv = [str(a) for a in args]
+    out, err, environ = io.StringIO(), io.StringIO(), dict(os.environ)
+    if env is not None:
+        os.environ.clear()
+        os.environ.update(env)
+    try:
+        with chdir(cwd or Path.cwd()), redirect_stdout(out), redirect_stderr(err):
+            try:
+                main(argv)
+                code = 0
+            except SystemExit as exc:
+                code = _exit_code(exc)
+    finally:
+        if env is not None:
+            os.environ.clear()
+            os.environ.update(environ)
+    return Result(code, out.getvalue(), err.getvalue())
 
 
 def run_script(*args, cwd: Path) -> Result:

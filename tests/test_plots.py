@@ -11,7 +11,7 @@ import pandas as pd
 import pytest
 from conftest import HALL, made_once
 from matplotlib.image import imread
-from test_cli import run_cli, run_script
+from test_cli import run_cli, run_in_process
 from test_trend_plots import legend_texts, overlapping_tick_labels
 
 from segloc_cli.geometry import Pose2, wrap_angle
@@ -65,7 +65,7 @@ def hall(tmp_path_factory) -> HallRun:
     once a session (``made_once``)."""
 
     def make(root: Path) -> None:
-        result = run_script("localize", LOG, "--map", MAP, "--out", "estimates.csv", cwd=root)
+        result = run_in_process("localize", LOG, "--map", MAP, "--out", "estimates.csv", cwd=root)
         assert result.code == 0, result.err
 
     estimates_csv = made_once(tmp_path_factory, "plots-hall", make) / "estimates.csv"
@@ -277,7 +277,7 @@ def figure_files(names) -> set[str]:
 
 def test_evaluate_plots_writes_every_figure(hall, tmp_path):
     plots = tmp_path / "figures" / "hall"
-    result = run_script(
+    result = run_in_process(
         "evaluate", hall.estimates_csv, "--survey", SURVEY,
         "--plots", plots, "--map", MAP, "--log", LOG,
         cwd=tmp_path,
@@ -298,7 +298,7 @@ def test_evaluate_plots_writes_every_figure(hall, tmp_path):
 
 def test_evaluate_plots_without_map_and_log_draws_the_errors_only(hall, tmp_path):
     plots = tmp_path / "plots"
-    result = run_script(
+    result = run_in_process(
         "evaluate", hall.estimates_csv, "--survey", SURVEY, "--plots", plots, cwd=tmp_path
     )
     assert result.code == 0, result.err
@@ -328,7 +328,7 @@ def test_evaluate_plots_with_relations_draws_the_relation_figures(hall, tmp_path
     lines = [f"{t[k]:.6f} {t[k + 1]:.6f} 0.1 0 0 0 0 0" for k in range(len(t) - 1)]
     relations.write_text("\n".join(lines) + "\n", encoding="utf-8")
     plots = tmp_path / "p"
-    result = run_script(
+    result = run_in_process(
         "evaluate", hall.estimates_csv, "--relations", relations, "--plots", plots,
         "--map", MAP, cwd=tmp_path,
     )  # fmt: skip
@@ -339,7 +339,7 @@ def test_evaluate_plots_with_relations_draws_the_relation_figures(hall, tmp_path
 def test_evaluate_plots_with_a_missing_log_fails_before_writing(hall, tmp_path):
     plots = tmp_path / "plots"
     missing = tmp_path / "nope.mcap"
-    result = run_script(
+    result = run_in_process(
         "evaluate", hall.estimates_csv, "--survey", SURVEY,
         "--plots", plots, "--map", MAP, "--log", missing,
         cwd=tmp_path,

@@ -23,7 +23,6 @@ skipped with a reason.
 
 from __future__ import annotations
 
-import io
 import os
 import re
 import shutil
@@ -33,7 +32,6 @@ import sys
 import tempfile
 import tomllib
 from collections.abc import Callable, Iterator
-from contextlib import chdir, redirect_stderr, redirect_stdout
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -41,9 +39,9 @@ import click
 import pytest
 from conftest import SEGLOC, start_emulator, stop_emulator
 from junitparser import JUnitXml
-from test_cli import Result
+from test_cli import Result, run_in_process
 
-from segloc_cli.cli import cli, main
+from segloc_cli.cli import cli
 from segloc_cli.io.maps import read_world
 from segloc_cli.io.mcap_log import read_log
 
@@ -174,28 +172,17 @@ def segloc_commands(script: str) -> list[list[str]] | None:
 def run_block(script: str, cwd: Path, env: dict[str, str]) -> Result:
     """``script`` as ``sh -e`` runs it in ``cwd`` with ``env``: in this process through
     ``segloc``'s entry point where it is ``segloc`` commands alone (``segloc_commands``),
-    which saves each its start-up (a second or more: numba's, pandas'), else by ``sh``.
-    Either way the block stops at its first command that fails, with that status."""
+    which saves each its start-up, else by ``sh``. Either way the block stops at its first
+    command that fails, with that status."""
     commands = segloc_commands(script)
     if commands is None:
         return run_shell(script, cwd, env)
-    out, err, code = io.StringIO(), io.StringIO(), 0
-    environ = dict(os.environ)
-    os.environ.clear()
-    os.environ.update(env)
-    try:
-        with chdir(cwd), redirect_stdout(out), redirect_stderr(err):
-            for argv in commands:
-                try:
-                    main(argv)
-                except SystemExit as exc:
-                    code = exc.code if isinstance(exc.code, int) else int(exc.code is not None)
-                if code != 0:
-                    break
-    finally:
-        os.environ.clear()
-        os.environ.update(environ)
-    return Result(code, out.getvalue(), err.getvalue())
+    said = []
+    for argv in commands:
+        said.append(run_in_process(*argv, cwd=cwd, env=env))
+        if said[-1].code != 0:
+            break
+    return Result(said[-1].code, "".join(r.out for r in said), "".join(r.err for r in said))
 
 
 # ------------------------------------------------------------------- what blocks wrote

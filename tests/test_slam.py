@@ -10,12 +10,12 @@ from __future__ import annotations
 
 import itertools
 import re
-import subprocess
 
 import numpy as np
 import pandas as pd
 import pytest
-from conftest import HALL, SEGLOC
+from conftest import HALL
+from test_cli import Result, run_in_process
 
 from segloc_cli.config import LocalizeParams
 from segloc_cli.geometry import (
@@ -178,8 +178,8 @@ def test_odometry_is_interpolated_to_the_scans_across_the_wrap():
     np.testing.assert_allclose(np.abs(np.rad2deg(at[0, 2])), 180.0)
 
 
-def _segloc(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([str(SEGLOC), *map(str, args)], capture_output=True, text=True)
+def _segloc(*args: object) -> Result:
+    return run_in_process(*args)
 
 
 def test_map_build_without_survey_writes_the_poses_that_rebuild_its_map(tmp_path):
@@ -194,8 +194,8 @@ def test_map_build_without_survey_writes_the_poses_that_rebuild_its_map(tmp_path
         "map", "build", log, "--initial", "1.5,3,0",
         "--out", tmp_path / "slam.json", "--poses-out", tmp_path / "poses.csv",
     )  # fmt: skip
-    assert first.returncode == 0, first.stderr
-    assert "no odometry" in first.stderr
+    assert first.code == 0, first.err
+    assert "no odometry" in first.err
     found = pd.read_csv(tmp_path / "poses.csv")
     survey = pd.read_csv(HALL / "mapping" / "survey.csv").set_index("pose_id")
     truth = survey.loc[found.pose_id]
@@ -203,7 +203,7 @@ def test_map_build_without_survey_writes_the_poses_that_rebuild_its_map(tmp_path
     again = _segloc(
         "map", "build", log, "--survey", tmp_path / "poses.csv", "--out", tmp_path / "again.json"
     )
-    assert again.returncode == 0, again.stderr
+    assert again.code == 0, again.err
     maps = [
         pd.read_json(tmp_path / name, typ="series")["segments"]
         for name in ("slam.json", "again.json")
@@ -224,9 +224,9 @@ def test_map_build_without_survey_refuses_what_it_cannot_do(tmp_path, args, said
     run = _segloc(
         "map", "build", HALL / "mapping" / "log.mcap", *args, "--out", tmp_path / "m.json"
     )
-    assert run.returncode == 2
-    assert said in run.stderr
-    assert len(run.stderr.strip().splitlines()) == 1, run.stderr
+    assert run.code == 2
+    assert said in run.err
+    assert len(run.err.strip().splitlines()) == 1, run.err
 
 
 def test_map_build_keeps_an_existing_poses_file_without_force(tmp_path):
@@ -236,8 +236,8 @@ def test_map_build_keeps_an_existing_poses_file_without_force(tmp_path):
         "map", "build", HALL / "mapping" / "log.mcap", "--out", tmp_path / "m.json",
         "--poses-out", taken,
     )  # fmt: skip
-    assert run.returncode == 2
-    assert "--poses-out" in run.stderr and "--force" in run.stderr, run.stderr
+    assert run.code == 2
+    assert "--poses-out" in run.err and "--force" in run.err, run.err
     assert taken.read_text() == "kept\n"
     assert not (tmp_path / "m.json").exists()
 
@@ -333,10 +333,10 @@ def test_a_log_with_odometry_maps_with_its_loops_in_the_view(tmp_path):
         "--poses-out", tmp_path / "poses.csv", "--mcap", tmp_path / "view.mcap",
         "--loops-out", tmp_path / "loops.csv",
     )  # fmt: skip
-    assert run.returncode == 0, run.stderr
+    assert run.code == 0, run.err
     found = pd.read_csv(tmp_path / "poses.csv")
     assert np.hypot(found.x_m - truth[:, 0], found.y_m - truth[:, 1]).max() < 0.1
-    accepted = int(re.search(r"(\d+) loops? accepted", run.stderr).group(1))
+    accepted = int(re.search(r"(\d+) loops? accepted", run.err).group(1))
     assert accepted >= 1
     # Every loop accepted joins two scans where they truly lie, and the solution holds it.
     loops = pd.read_csv(tmp_path / "loops.csv")

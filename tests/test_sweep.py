@@ -16,7 +16,7 @@ import numpy as np
 import pandas as pd
 import pytest
 from conftest import HALL, SEGLOC, made_once
-from test_cli import assert_one_line_error, run_cli
+from test_cli import Result, assert_one_line_error, run_cli, run_in_process
 
 from segloc_cli.estimates import STATUS_TASK_FAILED
 from segloc_cli.io.tables import read_pose_table
@@ -59,6 +59,12 @@ def _sweep(*args: object, timeout: float = 300) -> subprocess.CompletedProcess:
         check=False,
         env={**os.environ, "PYTHONIOENCODING": "utf-8"},
     )
+
+
+def _sweep_here(*args: object) -> Result:
+    """``segloc sweep ARGS`` in this process (``run_in_process``); its Dask workers are
+    processes of their own all the same."""
+    return run_in_process("sweep", *args)
 
 
 def _without_times(table: pd.DataFrame) -> pd.DataFrame:
@@ -132,10 +138,10 @@ def test_the_summary_has_a_row_per_combination(hall_sweep, tmp_path):
     spec, out, _, done = hall_sweep
     lines = [line for line in done.stdout.splitlines() if line.startswith("| ")]
     assert len(lines) == 1 + 4  # header and one row per combination
-    again = _sweep(spec, "--out", out, "--format", "json")
-    assert again.returncode == 0, again.stderr
-    assert "nothing to run" in again.stderr
-    rows = json.loads(again.stdout)
+    again = _sweep_here(spec, "--out", out, "--format", "json")
+    assert again.code == 0, again.err
+    assert "nothing to run" in again.err
+    rows = json.loads(again.out)
     assert [(r["iterations"], r["grid-m"], r["poses"], r["tasks"]) for r in rows] == [
         (6, 1.0, 20, 2), (6, 1.5, 20, 2), (8, 1.0, 20, 2), (8, 1.5, 20, 2)
     ]  # fmt: skip
@@ -196,9 +202,9 @@ def test_a_rerun_runs_only_the_tasks_missing(hall_sweep, tmp_path):
     partial = tmp_path / "results.parquet"
     keys = list(dict.fromkeys(full["task"]))
     full[~full["task"].isin(keys[2:5])].to_parquet(partial, index=False)
-    done = _sweep(spec, "--out", partial, "--jobs", "1")
-    assert done.returncode == 0, done.stderr
-    assert "8 tasks, 5 done before; running 3" in done.stderr
+    done = _sweep_here(spec, "--out", partial, "--jobs", "1")
+    assert done.code == 0, done.err
+    assert "8 tasks, 5 done before; running 3" in done.err
     again = pd.read_parquet(partial)
     pd.testing.assert_frame_equal(_without_times(again), _without_times(full))
     kept = again["task"].isin(set(keys) - set(keys[2:5]))
@@ -209,12 +215,12 @@ def test_results_of_another_spec_are_not_mixed_in(hall_sweep, tmp_path):
     spec, out, _, _ = hall_sweep
     other = _spec(spec.parent, SPEC.replace("seeds = [1, 2]", "seeds = [3]"))
     try:
-        done = _sweep(other, "--out", out)
+        done = _sweep_here(other, "--out", out)
     finally:
         _spec(spec.parent)
-    assert done.returncode == 2
-    assert "holds 8 tasks this spec does not plan" in done.stderr
-    assert "--force" in done.stderr
+    assert done.code == 2
+    assert "holds 8 tasks this spec does not plan" in done.err
+    assert "--force" in done.err
 
 
 GLOBAL_SPEC = (
@@ -262,10 +268,10 @@ def test_a_stopped_sweep_keeps_every_finished_task(tmp_path, how):
         assert not out.exists()
         held = len(list(parts.glob("*.parquet")))
         assert 1 <= held < GLOBAL_TASKS
-    done = _sweep(spec, "--out", out, "--jobs", "1")
-    assert done.returncode == 0, done.stderr
+    done = _sweep_here(spec, "--out", out, "--jobs", "1")
+    assert done.code == 0, done.err
     left = GLOBAL_TASKS - held
-    assert f"{GLOBAL_TASKS} tasks, {held} done before; running {left}" in done.stderr
+    assert f"{GLOBAL_TASKS} tasks, {held} done before; running {left}" in done.err
     table = pd.read_parquet(out)
     assert len(table) == GLOBAL_TASKS * SCANS and (table["status"] != STATUS_TASK_FAILED).all()
     assert list(dict.fromkeys(table["task"])) == [t.key for t in read_spec(spec).tasks]
@@ -277,23 +283,23 @@ def test_a_failing_task_is_kept_with_its_error_and_the_sweep_goes_on(tmp_path):
     (tmp_path / "broken.mcap").write_bytes(b"\x89MCAP0\r\n" + b"\0" * 64)
     out = tmp_path / "results.parquet"
     curves = tmp_path / "curves"
-    done = _sweep(spec, "--out", out, "--jobs", "1", "--convergence", curves)
-    assert done.returncode == 1, done.stderr
-    assert "Traceback" not in done.stderr
+    done = _sweep_here(spec, "--out", out, "--jobs", "1", "--convergence", curves)
+    assert done.code == 1, done.err
+    assert "Traceback" not in done.err
     # Curves of a sweep with failed tasks would be of part of it: none until the rerun.
-    assert "no convergence curves of a sweep with failed tasks" in done.stderr
+    assert "no convergence curves of a sweep with failed tasks" in done.err
     assert not list(tmp_path.glob("curves.*"))
     table = pd.read_parquet(out)
     failed = table[table["status"] == STATUS_TASK_FAILED]
     assert len(failed) == 4 and set(failed["log"]) == {"broken.mcap"}
     assert failed["error"].str.contains("broken.mcap").all()
     assert (table.loc[table["log"] == "hall/log.mcap", "status"] == "ok").sum() == 4 * SCANS
-    assert "4 tasks failed" in done.stderr
+    assert "4 tasks failed" in done.err
     # Mended, only the failed tasks run again.
     shutil.copy(HALL / "log.mcap", tmp_path / "broken.mcap")
-    again = _sweep(spec, "--out", out, "--jobs", "1", "--convergence", curves)
-    assert again.returncode == 0, again.stderr
-    assert "8 tasks, 4 done before; running 4" in again.stderr
+    again = _sweep_here(spec, "--out", out, "--jobs", "1", "--convergence", curves)
+    assert again.code == 0, again.err
+    assert "8 tasks, 4 done before; running 4" in again.err
     assert len(pd.read_parquet(out)) == 8 * SCANS
     assert sorted(p.name for p in tmp_path.glob("curves.*")) == ["curves.md", "curves.pdf",
                                                                  "curves.png"]  # fmt: skip
