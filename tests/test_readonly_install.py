@@ -90,16 +90,27 @@ def test_a_read_only_install_runs_uncached_with_the_same_results(tmp_path):
     assert (locked / "table.txt").read_text() == (free / "table.txt").read_text()
 
 
-NO_KERNEL_COMMANDS = """
+UNLOADED_BY = """
 import sys
 from segloc_cli.cli import main
-for argv in sys.argv[1:]:
+for argv in sys.argv[2:]:
     try:
         main(argv.split("|"))
     except SystemExit as exc:
         assert not exc.code, (argv, exc.code)
-assert "numba" not in sys.modules, sorted(m for m in sys.modules if "segloc_cli" in m)
+loaded = [name for name in sys.argv[1].split(",") if name in sys.modules]
+assert not loaded, (loaded, sorted(m for m in sys.modules if "segloc_cli" in m))
 """
+"""Runs each command (its arguments joined by ``|``) of ``argv[2:]`` in one process, then
+fails if a package of ``argv[1]`` (comma-separated) was imported."""
+
+
+def _unloaded_by(packages: str, commands: list[str], cwd: Path) -> None:
+    run = subprocess.run(
+        [str(Path(SEGLOC).parent / "python"), "-c", UNLOADED_BY, packages, *commands],
+        capture_output=True, text=True, check=False, cwd=cwd,
+    )  # fmt: skip
+    assert run.returncode == 0, run.stderr
 
 
 def test_commands_that_need_no_kernel_load_none(tmp_path):
@@ -116,8 +127,17 @@ def test_commands_that_need_no_kernel_load_none(tmp_path):
         f"import|carmen|{carmen}|--out|{tmp_path / 'two.mcap'}",
         f"map|export|{HALL / 'map.json'}|--out|{tmp_path / 'map.yaml'}",
     ]
-    run = subprocess.run(
-        [str(Path(SEGLOC).parent / "python"), "-c", NO_KERNEL_COMMANDS, *commands],
-        capture_output=True, text=True, check=False, cwd=tmp_path,
-    )  # fmt: skip
-    assert run.returncode == 0, run.stderr
+    _unloaded_by("numba", commands, tmp_path)
+
+
+def test_building_a_map_and_localizing_load_no_pandas(tmp_path):
+    """Nor do ``map build`` and ``localize`` import pandas (a third of a second), which only
+    reading estimates and scoring need."""
+    commands = [
+        f"map|build|{HALL / 'mapping/log.mcap'}|--survey|{HALL / 'mapping/survey.csv'}"
+        f"|--out|{tmp_path / 'map.json'}|--end|20",
+        f"localize|{HALL / 'log.mcap'}|--map|{tmp_path / 'map.json'}|--scans|2"
+        f"|--initial|{HALL / 'survey.csv'}|--out|{tmp_path / 'estimates.csv'}"
+        f"|--tum|{tmp_path / 'estimates.tum'}",
+    ]
+    _unloaded_by("pandas", commands, tmp_path)

@@ -21,10 +21,9 @@ import os
 import time
 from collections.abc import Mapping
 from pathlib import Path
-from typing import IO, Any, Self
+from typing import IO, TYPE_CHECKING, Any, Self
 
 import numpy as np
-import pandas as pd
 
 from segloc_cli.errors import InputError
 from segloc_cli.estimates import (
@@ -45,6 +44,9 @@ from segloc_cli.geometry import heading_to_quaternion, quaternion_to_heading
 from segloc_cli.io.files import atomic_write, reading, writing_error
 from segloc_cli.io.numbers import number_text, unit_of
 from segloc_cli.limits import MAX_ABS_ID, MAX_COORDINATE_M
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 STREAM_FSYNC_INTERVAL_S = 1.0
 """Streamed tables are flushed after every row and synced to disk at most this often (s)."""
@@ -365,7 +367,7 @@ def estimate_cells(row: Mapping[str, Any]) -> list[str]:
     cells = []
     for c in ESTIMATE_COLUMNS:
         value = row.get(c, UNSAID_COUNT if c in ESTIMATE_LATER_COUNTS else None)
-        absent = value is None or bool(pd.isna(value))
+        absent = _absent(value)
         if absent and (c in ESTIMATE_INT_COLUMNS or c in ESTIMATE_REQUIRED_FLOAT_COLUMNS):
             raise ValueError(f"estimates column {c} must have a value in every row")
         if absent:
@@ -377,6 +379,21 @@ def estimate_cells(row: Mapping[str, Any]) -> list[str]:
         else:
             cells.append(number_text(value, unit_of(c)))
     return cells
+
+
+def _absent(value: object) -> bool:
+    """Whether a cell has no value: None, NaN, or a frame's missing value (pandas' NA, NaT;
+    pandas is imported only for a value of its own, so that a run streaming its rows
+    starts without it)."""
+    if value is None:
+        return True
+    if isinstance(value, float | np.floating):
+        return math.isnan(value)
+    if type(value).__module__.partition(".")[0] == "pandas":
+        import pandas as pd
+
+        return bool(pd.isna(value))
+    return False
 
 
 def write_estimates(path: str | Path, frame: pd.DataFrame) -> None:
@@ -498,6 +515,8 @@ def read_estimates(path: str | Path) -> pd.DataFrame:
     ``InputError`` naming the file and 1-based data row on a missing column or
     a bad value (a position beyond ±``MAX_COORDINATE_M`` among them).
     """
+    import pandas as pd
+
     path = Path(path)
     header, data = _read_csv_rows(path, _read_text(path))
     header = _current_names(header)
@@ -559,7 +578,7 @@ def _tum_lines(numbers: np.ndarray) -> list[str]:
 def _tum_numbers(rows: Mapping[str, Any] | pd.DataFrame) -> np.ndarray:
     """``time_s, x_m, y_m, theta_deg`` of the rows whose four values are all finite, (K, 4)."""
     columns = ["time_s", "x_m", "y_m", "theta_deg"]
-    if isinstance(rows, pd.DataFrame):
+    if not isinstance(rows, Mapping):  # a frame
         numbers = rows[columns].to_numpy(dtype=float)
     else:
         numbers = np.array(
