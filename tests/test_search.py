@@ -310,6 +310,7 @@ NO_PYRAMID = pytest.mark.xdist_group("no-pyramid")
 which no command compiles, so the first such test compiles them for the others."""
 
 
+@pytest.mark.long
 @NO_PYRAMID
 @pytest.mark.parametrize("max_depth", [0, 1, 2])
 def test_a_search_on_threads_of_few_levels_finds_what_it_finds_on_one(max_depth):
