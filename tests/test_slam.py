@@ -15,7 +15,7 @@ import numpy as np
 import pandas as pd
 import pytest
 from conftest import HALL
-from test_cli import Result, run_in_process
+from test_cli import run_in_process
 
 from segloc_cli.config import LocalizeParams
 from segloc_cli.geometry import (
@@ -178,10 +178,6 @@ def test_odometry_is_interpolated_to_the_scans_across_the_wrap():
     np.testing.assert_allclose(np.abs(np.rad2deg(at[0, 2])), 180.0)
 
 
-def _segloc(*args: object) -> Result:
-    return run_in_process(*args)
-
-
 @pytest.mark.long
 def test_map_build_without_survey_writes_the_poses_that_rebuild_its_map(tmp_path):
     """The first 13 scans of the hall's mapping run, written without its odometry: their
@@ -191,7 +187,7 @@ def test_map_build_without_survey_writes_the_poses_that_rebuild_its_map(tmp_path
 
     log = tmp_path / "scans.mcap"
     write_log(log, read_log(HALL / "mapping" / "log.mcap").scans[:13], [])
-    first = _segloc(
+    first = run_in_process(
         "map", "build", log, "--initial", "1.5,3,0",
         "--out", tmp_path / "slam.json", "--poses-out", tmp_path / "poses.csv",
     )  # fmt: skip
@@ -201,7 +197,7 @@ def test_map_build_without_survey_writes_the_poses_that_rebuild_its_map(tmp_path
     survey = pd.read_csv(HALL / "mapping" / "survey.csv").set_index("pose_id")
     truth = survey.loc[found.pose_id]
     assert np.hypot(found.x_m - truth.x_m.values, found.y_m - truth.y_m.values).max() < 0.05
-    again = _segloc(
+    again = run_in_process(
         "map", "build", log, "--survey", tmp_path / "poses.csv", "--out", tmp_path / "again.json"
     )
     assert again.code == 0, again.err
@@ -222,7 +218,7 @@ def test_map_build_without_survey_writes_the_poses_that_rebuild_its_map(tmp_path
     ],
 )
 def test_map_build_without_survey_refuses_what_it_cannot_do(tmp_path, args, said):
-    run = _segloc(
+    run = run_in_process(
         "map", "build", HALL / "mapping" / "log.mcap", *args, "--out", tmp_path / "m.json"
     )
     assert run.code == 2
@@ -233,7 +229,7 @@ def test_map_build_without_survey_refuses_what_it_cannot_do(tmp_path, args, said
 def test_map_build_keeps_an_existing_poses_file_without_force(tmp_path):
     taken = tmp_path / "poses.csv"
     taken.write_text("kept\n")
-    run = _segloc(
+    run = run_in_process(
         "map", "build", HALL / "mapping" / "log.mcap", "--out", tmp_path / "m.json",
         "--poses-out", taken,
     )  # fmt: skip
@@ -330,7 +326,7 @@ def test_a_log_with_odometry_maps_with_its_loops_in_the_view(tmp_path):
     odometry = drifting_odometry(truth, rng)
     log = tmp_path / "ring.mcap"
     write_log(log, scans, [(s.time_s, Pose2(*o)) for s, o in zip(scans, odometry, strict=True)])
-    run = _segloc(
+    run = run_in_process(
         "map", "build", log, "--initial", "1,1,0", "--out", tmp_path / "map.json",
         "--poses-out", tmp_path / "poses.csv", "--mcap", tmp_path / "view.mcap",
         "--loops-out", tmp_path / "loops.csv",
