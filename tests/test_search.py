@@ -307,7 +307,8 @@ def test_quarters_checked_part_way_are_dropped_only_when_none_can_beat_the_thres
 
 NO_PYRAMID = pytest.mark.xdist_group("no-pyramid")
 """The tests of a search without a pyramid, on one worker: its kernels take float64 bounds,
-which no command compiles, so the first such test compiles them for the others."""
+which only ``warmup --all`` (``make kernels``) compiles ahead; where that cache does not hold
+them (an edited module), the first such test compiles them for the others."""
 
 
 @pytest.mark.long

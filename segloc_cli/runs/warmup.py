@@ -16,7 +16,8 @@ segloc's) use no other kernel.
 
 ``--all`` runs every other path too: ``map build --seen-through drop`` (the free-space
 carving), ``localize --global`` (its parallel bounds, and the later batches a small room
-does not reach), ``--track``, the peers where their packages are installed, and a library
+does not reach), a search without a bound pyramid (``localize.search.max_depth`` 0),
+``--track``, the peers where their packages are installed, and a library
 call without a grid of the map. ``make kernels`` runs it before the tests and benchmarks,
 so that their processes load every kernel instead of each compiling its own. Without it,
 a first ``--global`` or ``--seen-through drop`` compiles its kernels and says so
@@ -182,8 +183,8 @@ def compile_late_stages(seed: int = SEED, every_path: bool = False) -> None:
     on an empty cache has a second process do (``jit.watching_compiles``) while it extracts
     segments and runs the two stages. No extraction is needed: the walls, placed in the
     robot's frame, are the local map. With ``every_path`` (the second process of ``--all``),
-    then the free-space carving of ``map build --seen-through drop``, while the first
-    compiles the global search. Each kernel compiled is named on standard output
+    then the free-space carving of ``map build --seen-through drop`` and a search without a
+    bound pyramid, while the first compiles the global search. Each kernel compiled is named on standard output
     (``jit.reporting_compiles``)."""
     from segloc_cli.geometry import transform_segments
     from segloc_cli.jit import reporting_compiles, say_ahead_ready
@@ -208,6 +209,20 @@ def compile_late_stages(seed: int = SEED, every_path: bool = False) -> None:
         localizer.localize(local_map, guess, points)
         if every_path:
             _carve(*simulated_run(seed))
+            _no_pyramid_search(world.segments, points, guess)
+
+
+def _no_pyramid_search(segments: np.ndarray, points: np.ndarray, guess: Pose2) -> None:
+    """What a search without a bound pyramid (``localize.search.max_depth`` 0, its bounds
+    exact sums) compiles, on one thread and on several: a few headings over a small square
+    around ``guess`` (world frame), of the map ``segments`` (M, 4) and ``points`` (N, 2)."""
+    from segloc_cli.config import SearchParams
+    from segloc_cli.method.search import HypothesisSearch
+
+    search = HypothesisSearch(segments, SearchParams(max_depth=0))
+    headings = guess.theta + np.deg2rad(np.arange(-2.0, 3.0, 1.0))
+    for threads in (False, True):
+        search.search(points, headings, np.array([guess.x, guess.y]), 0.2, 30.0, threads=threads)
 
 
 def _drain(rows: Iterator) -> None:
