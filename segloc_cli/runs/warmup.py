@@ -184,8 +184,8 @@ def compile_late_stages(seed: int = SEED, every_path: bool = False) -> None:
     segments and runs the two stages. No extraction is needed: the walls, placed in the
     robot's frame, are the local map. With ``every_path`` (the second process of ``--all``),
     then the free-space carving of ``map build --seen-through drop`` and a search without a
-    bound pyramid, while the first compiles the global search. Each kernel compiled is named on standard output
-    (``jit.reporting_compiles``)."""
+    bound pyramid, while the first compiles the global search. Each kernel compiled is named
+    on standard output (``jit.reporting_compiles``)."""
     from segloc_cli.geometry import transform_segments
     from segloc_cli.jit import reporting_compiles, say_ahead_ready
     from segloc_cli.method.refine import refine_pose
