@@ -8,15 +8,15 @@ such as ``sweep.toml``), with ``segloc`` on PATH from this test's environment, e
 reading what the blocks before it on that page wrote. A command block runs as ``sh -e`` runs
 it (through ``segloc``'s entry point in this process where it is plain ``segloc`` commands
 that start no process of their own: ``run_block``) and must exit with the status its page
-gives (0 unless it says otherwise). A block a page prints
-as a command's output must be printed by the block before it; a TOML block must be the file
-it says it is, or be accepted by the commands its tables name; a synopsis must name every
-command, each with options it has. Blocks that need a serial scanner carry a
-``# needs a scanner`` comment and run against ``segloc emulate``'s ptys instead; a ``make``
-block runs as written, in a copy that also holds the Makefile, ``pyproject.toml`` and
-``examples/``, with a ``.venv`` that stands for ``make setup``'s (this test's environment);
-blocks on the public logs (``../shared/datasets``) run under ``make readme-real``, which runs
-each page that has them top to bottom beside those logs. A page, or a block on a page,
+gives (0 unless it says otherwise). A block a page prints as a command's output must be
+printed by the block before it; a TOML block must be the file it says it is, or be accepted
+by the commands its tables name; a synopsis must name every command, each with options it
+has. Blocks that need a serial scanner carry a ``# needs a scanner`` comment and run against
+``segloc emulate``'s ptys instead; a ``make`` block runs as written, in a copy that also
+holds the Makefile, ``pyproject.toml`` and ``examples/``, with a ``.venv`` that stands for
+``make setup``'s (this test's environment); blocks on the public logs
+(``../shared/datasets``) run under ``make readme-real``, which runs each page that has them
+top to bottom beside those logs. A page, or a block on a page,
 without an entry here fails ``test_every_block_is_classified``: every block is either run or
 skipped with a reason.
 """
