@@ -343,8 +343,8 @@ def _chromium() -> str:
 
 def _not_blank(region: Image.Image) -> tuple[int, float]:
     """Distinct colours of ``region`` and its share of pixels that are not near white."""
-    pixels = np.asarray(region.convert("RGB"), dtype=np.int16).reshape(-1, 3)
-    n_colours = len(np.unique(pixels, axis=0))
+    pixels = np.asarray(region.convert("RGB"), dtype=np.int32).reshape(-1, 3)
+    n_colours = len(np.unique(pixels @ np.array([1 << 16, 1 << 8, 1])))  # one int a colour
     return n_colours, float(np.mean(pixels.min(axis=1) < 230))
 
 
