@@ -171,9 +171,13 @@ def _scheduler(folder: Path) -> tuple[str, list[subprocess.Popen]]:
     )  # fmt: skip
     processes = [workers, scheduler]
     deadline = time.monotonic() + 60
-    while not file.exists() and time.monotonic() < deadline:
-        time.sleep(0.2)
-    address = json.loads(file.read_text())["address"]
+    address = None
+    while address is None and time.monotonic() < deadline:
+        try:  # the scheduler writes the file in place: it may be there but not whole yet
+            address = json.loads(file.read_text())["address"]
+        except (FileNotFoundError, json.JSONDecodeError, KeyError):
+            time.sleep(0.2)
+    assert address is not None, f"no scheduler address in {file} after 60 s"
     from distributed import Client
 
     with Client(address, timeout="30s") as client:
