@@ -69,7 +69,7 @@ kernels: $(STAMP)
 
 # On every core (pytest-xdist), once every kernel is compiled, the 30 slowest tests listed at
 # the end. Tests marked with an xdist_group run on one worker (--dist loadgroup): those sharing
-# kernels that only they compile; those marked long are handed out first (tests/conftest.py). The HTML report's test opens it in Debian's headless
+# kernels that only they compile. The HTML report's test opens it in Debian's headless
 # Chromium; as root (CI) it is installed when missing, elsewhere that one test is skipped and
 # says why.
 test: kernels browser

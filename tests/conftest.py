@@ -35,13 +35,6 @@ START_TIMEOUT_S = 20.0
 pytest_plugins = ["kernel_caches"]
 
 
-def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    """The tests marked ``long`` first, the order otherwise kept: pytest-xdist hands the
-    tests out in this order, so the short ones fill in around the long ones instead of a
-    worker being left with a long one at the end while the others wait."""
-    items.sort(key=lambda item: item.get_closest_marker("long") is None)
-
-
 @pytest.fixture(autouse=True)
 def _no_step_summary(monkeypatch: pytest.MonkeyPatch) -> None:
     """Runs of the suite inside a GitHub job keep its step summary out of the tests."""

@@ -147,7 +147,6 @@ def test_junit_names_stay_and_failures_agree_with_the_exit_status(runs, tmp_path
             assert not re.search(r"\(\d+ of \d+", case.name), case.name
 
 
-@pytest.mark.long
 def test_the_page_gives_the_verdict_and_gates_on_its_first_screen(runs, tmp_path, capsys):
     from PIL import Image
     from test_html_report import assert_images_drawn, browse

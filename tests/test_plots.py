@@ -275,7 +275,6 @@ def figure_files(names) -> set[str]:
     return {f"{name}.{ext}" for name in names for ext in ("png", "pdf")}
 
 
-@pytest.mark.long
 def test_evaluate_plots_writes_every_figure(hall, tmp_path):
     plots = tmp_path / "figures" / "hall"
     result = run_in_process(

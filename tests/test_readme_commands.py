@@ -588,7 +588,6 @@ def test_blocks_make_test_leaves_out(page, expect):
     pytest.skip("reads the public logs in ../shared/datasets: make readme-real runs it")
 
 
-@pytest.mark.long
 @pytest.mark.parametrize("page", pages_with(*SHELL_KINDS, OUTPUT, FILE, CONFIG, SYNOPSIS))
 def test_every_block_runs_as_written_on_the_shipped_data(tmp_path, page):
     failures = run_page(page, tmp_path, datasets=None)

@@ -67,7 +67,6 @@ def _commands(out: Path, estimates: Path) -> str:
     )
 
 
-@pytest.mark.long
 @pytest.mark.skipif(not _can_unshare(), reason="no private mount namespace (unshare -rm)")
 def test_a_read_only_install_runs_uncached_with_the_same_results(tmp_path):
     home, locked, free = tmp_path / "home", tmp_path / "locked", tmp_path / "free"

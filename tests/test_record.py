@@ -29,8 +29,6 @@ from segloc_cli.estimates import PoseTable
 from segloc_cli.io.mcap_log import read_log
 from segloc_cli.io.tables import write_pose_table
 
-pytestmark = pytest.mark.long  # every test records from an emulated scanner in real time
-
 PROGRESS = re.compile(r"recorded (\d+) scans")
 WAIT_S = 30.0
 

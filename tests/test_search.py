@@ -311,7 +311,6 @@ which only ``warmup --all`` (``make kernels``) compiles ahead; where that cache 
 them (an edited module), the first such test compiles them for the others."""
 
 
-@pytest.mark.long
 @NO_PYRAMID
 @pytest.mark.parametrize("max_depth", [0, 1, 2])
 def test_a_search_on_threads_of_few_levels_finds_what_it_finds_on_one(max_depth):

@@ -178,7 +178,6 @@ def test_odometry_is_interpolated_to_the_scans_across_the_wrap():
     np.testing.assert_allclose(np.abs(np.rad2deg(at[0, 2])), 180.0)
 
 
-@pytest.mark.long
 def test_map_build_without_survey_writes_the_poses_that_rebuild_its_map(tmp_path):
     """The first 13 scans of the hall's mapping run, written without its odometry: their
     poses found from the scans alone; the poses given back as a survey fuse the same map.
@@ -311,7 +310,6 @@ def test_a_room_like_one_seen_before_closes_no_loop():
     assert slam_m.max() < 0.1
 
 
-@pytest.mark.long
 def test_a_log_with_odometry_maps_with_its_loops_in_the_view(tmp_path):
     """The ring run written as a segloc log with its drifting odometry: map build with no
     survey finds its poses, and its Foxglove view draws the loops and, as each scan's

@@ -23,8 +23,6 @@ from segloc_cli.io.tables import read_pose_table
 from segloc_cli.runs.sweep import ResultStore, Task, connect, run_task, run_tasks, summary
 from segloc_cli.runs.sweepspec import read_spec
 
-pytestmark = pytest.mark.long  # most tests start Dask workers, or a whole sweep
-
 SPEC = """\
 map = "hall/map.json"
 logs = ["hall/log.mcap"]

@@ -94,7 +94,6 @@ def test_the_warm_up_compiles_the_first_runs_kernels_and_says_how_many(warm_cach
     assert record["notice"].startswith(f"warm-up: compiling the {FIRST_RUN_KERNELS} kernels")
 
 
-@pytest.mark.long
 @pytest.mark.parametrize(
     "options", [[], ["--track"], ["--no-refine"], ["--method", "icp"]], ids=" ".join
 )
@@ -109,7 +108,6 @@ def test_the_demo_and_a_first_localize_after_the_warm_up_compile_nothing(
     assert not compiling_lines(done.stderr), done.stderr
 
 
-@pytest.mark.long
 def test_a_first_global_or_seen_through_says_it_compiles_its_kernels_once(later_cache):
     _, _, err = later_cache
     said = compiling_lines(err)
