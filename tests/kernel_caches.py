@@ -4,10 +4,10 @@
 what it said and which process compiled which kernel: ``make setup`` keeps that record of
 its own warm-up (``segloc_cli.runs.warmup_record``, in ``.venv/warm-up``), and where the
 record no longer holds (a module edited since, or a warm-up that found kernels cached) the
-suite makes one the same way, into an empty folder. ``later_cache`` is a copy of it after a
-first ``localize --global`` and a first ``map build --seen-through drop``; ``every_path_record``
-is the record ``make kernels`` keeps of ``warmup --all`` (or one made here on a copy of
-``warm_cache``).
+suite makes one the same way, into an empty folder. ``every_path_record`` is the record
+``make kernels`` keeps of ``warmup --all`` (or one made here on a copy of ``warm_cache``);
+``later_cache`` holds its kernels less one of ``--global``'s and one of ``--seen-through
+drop``'s, after a ``localize --global`` and a ``map build --seen-through drop``.
 
 Each lies in a folder of its own (``NUMBA_CACHE_DIR``) that no run outside the suite reads.
 """
@@ -119,14 +119,29 @@ def demo_map(warm_cache, tmp_path_factory) -> Path:
     return made_once(tmp_path_factory, "demo-map", make) / "map.json"
 
 
+FIRST_OF_LATER = {
+    "--global": "search._collect_parallel",
+    "--seen-through": "freespace._seen_through",
+}
+"""A kernel only ``localize --global``, and one only ``map build --seen-through drop``, uses,
+each called from Python (a kernel called only by others is compiled into them): ``later_cache``
+leaves them out."""
+
+
 @pytest.fixture(scope="session")
-def later_cache(warm_cache, demo_map, tmp_path_factory) -> tuple[Path, dict[str, str], str]:
-    """A copy of the warm cache after a first ``localize --global`` (one scan) and a first
-    ``map build --seen-through drop``, with what they wrote on stderr."""
-    cache_dir, *_ = warm_cache
+def later_cache(every_path_folder, demo_map, tmp_path_factory) -> tuple[Path, dict[str, str], str]:
+    """Every path's kernels but ``FIRST_OF_LATER``, after a ``localize --global`` (one scan)
+    and a ``map build --seen-through drop`` on them, with what they wrote on stderr: each
+    compiles what it lacks, as a first one after the warm-up compiles all of its own (in a
+    third of the time)."""
 
     def make(folder: Path) -> None:
-        shutil.copytree(cache_dir, folder / "numba")
+        place_recorded_kernels(every_path_folder, folder / "numba")
+        for kernel in FIRST_OF_LATER.values():
+            left_out = list((folder / "numba").rglob(f"{kernel}-*.nb[ic]"))
+            assert left_out, f"no cache files of {kernel}: FIRST_OF_LATER names no kernel"
+            for file in left_out:
+                file.unlink()
         env = cache_env(folder / "numba")
         searched = segloc(
             ["localize", str(HALL / "log.mcap"), "--map", str(demo_map), "--global",
@@ -142,20 +157,28 @@ def later_cache(warm_cache, demo_map, tmp_path_factory) -> tuple[Path, dict[str,
 
 
 @pytest.fixture(scope="session")
-def every_path_record(request, tmp_path_factory) -> dict:
-    """The record of ``warmup --all`` (``warmup_record.write_record``): ``make kernels``'s
-    where it still holds, else one made here on a copy of the warm cache (asked for only
-    then)."""
-    record = holding_record(EVERY_PATH_RECORD, from_empty=False)
-    if record is not None:
-        return record
+def every_path_folder(request, tmp_path_factory) -> Path:
+    """The folder of the record of ``warmup --all`` (``warmup_record.write_record``):
+    ``make kernels``'s where it still holds, else one made here on a copy of the warm cache
+    (asked for only then). It found the first run's kernels cached, so it keeps them all."""
+    if holding_record(EVERY_PATH_RECORD, from_empty=False) is not None:
+        return EVERY_PATH_RECORD
     cache_dir, *_ = request.getfixturevalue("warm_cache")
 
     def make(folder: Path) -> None:
         shutil.copytree(cache_dir, folder / "numba")
         run([*WARM_UP, "--all", "--record", str(folder / "record")], cache_env(folder / "numba"))
 
-    folder = made_once(tmp_path_factory, "every-path-record", make)
-    record = holding_record(folder / "record", from_empty=False)
-    assert record is not None, "the record of warmup --all does not hold for these sources"
+    folder = made_once(tmp_path_factory, "every-path-record", make) / "record"
+    assert holding_record(folder, from_empty=False) is not None, (
+        "the record of warmup --all does not hold for these sources"
+    )
+    return folder
+
+
+@pytest.fixture(scope="session")
+def every_path_record(every_path_folder) -> dict:
+    """The record of ``warmup --all`` (``every_path_folder``)."""
+    record = holding_record(every_path_folder, from_empty=False)
+    assert record is not None
     return record
