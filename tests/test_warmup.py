@@ -12,10 +12,11 @@ compiled code: had the warm-up called a kernel with other argument types (anothe
 layout or integer width), or left one out, the first real run would compile it.
 
 A first ``--global`` or ``--seen-through drop`` after it compiles the kernels of its own,
-says so in one line and finishes (checked on a cache that lacks one kernel of each). ``--all`` then compiles whatever is left: every ``@njit``
-function of segloc_cli must have its index file in the cache. A new kernel that fails that
-test sits on a path the warm-up does not run: run that path in ``segloc_cli.runs.warmup``
-(in ``warm_up`` itself when a default localize or the demo reaches it).
+says so in one line and finishes (checked on a cache that lacks one kernel of each).
+``--all`` then compiles whatever is left: every ``@njit`` function of segloc_cli must have
+its index file in the cache. A new kernel that fails that test sits on a path the warm-up
+does not run: run that path in ``segloc_cli.runs.warmup`` (in ``warm_up`` itself when a
+default localize or the demo reaches it).
 
 On an empty cache the warm-up has a second process compile the hypothesis search's and
 refinement's kernels ahead, and no extraction; the warm-up loads those instead of compiling
