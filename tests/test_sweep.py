@@ -153,7 +153,7 @@ def test_the_summary_has_a_row_per_combination(hall_sweep, tmp_path):
 
 
 def _scheduler(folder: Path) -> tuple[str, list[subprocess.Popen]]:
-    """A Dask scheduler and one `dask worker` command of two worker processes, as a user
+    """A Dask scheduler and one `dask worker` command of one worker process, as a user
     starts them; (the scheduler's address, the processes)."""
     dask = SEGLOC.parent / "dask"
     file = folder / "scheduler.json"
@@ -163,7 +163,7 @@ def _scheduler(folder: Path) -> tuple[str, list[subprocess.Popen]]:
         **common,
     )
     workers = subprocess.Popen(
-        [dask, "worker", "--scheduler-file", file, "--nworkers", "2", "--nthreads", "1",
+        [dask, "worker", "--scheduler-file", file, "--nworkers", "1", "--nthreads", "1",
          "--dashboard-address", ":0"],
         **common,
     )  # fmt: skip
@@ -179,7 +179,7 @@ def _scheduler(folder: Path) -> tuple[str, list[subprocess.Popen]]:
     from distributed import Client
 
     with Client(address, timeout="30s") as client:
-        client.wait_for_workers(2, timeout=60)
+        client.wait_for_workers(1, timeout=60)
     return address, processes
 
 
