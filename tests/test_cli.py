@@ -78,27 +78,17 @@ def _exit_code(exc: SystemExit) -> int:
 
 
 def run_cli(capsys, *args) -> Result:
-    """Run ``segloc ARGS`` in-process through the console entry point."""
-    argv = [str(a) for a in args]
+    """Run ``segloc ARGS`` in-process through the console entry point (``run_in_process``),
+    whatever the test printed before left out."""
     capsys.readouterr()
-    try:
-        main(argv)
-        code = 0
-    except SystemExit as exc:
-        code = _exit_code(exc)
-    except Exception as exc:
-        pytest.fail(
-            f"`segloc {' '.join(argv)}` raised {type(exc).__name__}: {exc}; the user would "
-            "see a traceback instead of one 'segloc: error:' line and exit status 2"
-        )
-    captured = capsys.readouterr()
-    return Result(code, captured.out, captured.err)
+    return run_in_process(*args)
 
 
 def run_in_process(*args, cwd: Path | None = None, env: dict[str, str] | None = None) -> Result:
     """``segloc ARGS`` through the console script's entry point in this process, in ``cwd``
     with ``env`` as its environment (this process's where not given): what the installed
-    script gives, less its start-up (a second or more: numba's registries, pandas)."""
+    script gives, less its start-up (a second or more: numba's registries, pandas). An
+    exception out of it fails the test: the user would see a traceback."""
     argv = [str(a) for a in args]
     out, err, environ = io.StringIO(), io.StringIO(), dict(os.environ)
     if env is not None:
@@ -111,6 +101,12 @@ def run_in_process(*args, cwd: Path | None = None, env: dict[str, str] | None = 
                 code = 0
             except SystemExit as exc:
                 code = _exit_code(exc)
+            except Exception as exc:
+                pytest.fail(
+                    f"`segloc {' '.join(argv)}` raised {type(exc).__name__}: {exc}; the user "
+                    "would see a traceback instead of one 'segloc: error:' line and exit "
+                    "status 2"
+                )
     finally:
         if env is not None:
             os.environ.clear()
