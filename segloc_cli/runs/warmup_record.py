@@ -52,7 +52,7 @@ def write_record(folder: Path, notice: str, closing: str, partly: bool) -> None:
     cache holds, as a kernel loaded from the cache does not say which kernels it calls."""
     shutil.rmtree(folder, ignore_errors=True)
     here, ahead = compiled_here(), compiled_ahead()
-    from_empty = not partly and bool(here | ahead)
+    from_empty = _from_empty(partly, here | ahead)
     kept = []
     for kernel in loaded_kernels():
         name = kernel_name(kernel)
@@ -89,7 +89,13 @@ def holding_record(folder: Path, from_empty: bool = True) -> dict[str, Any] | No
         return None
     if record.get("sources") != sources_digest():
         return None
-    compiled = record.get("compiled_here") or record.get("compiled_ahead")
-    if from_empty and (record.get("partly", True) or not compiled):
+    compiled = {*record.get("compiled_here", ()), *record.get("compiled_ahead", ())}
+    if from_empty and not _from_empty(record.get("partly", True), compiled):
         return None
     return record
+
+
+def _from_empty(partly: bool, compiled: set[str]) -> bool:
+    """Whether a warm-up started from an empty cache: it found no kernel cached before its
+    first compile (``partly``) and compiled some (``compiled``, in either process)."""
+    return not partly and bool(compiled)
