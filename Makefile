@@ -67,13 +67,17 @@ ci-example: $(STAMP)
 kernels: $(STAMP)
 	$(BIN)/python -m segloc_cli.runs.warmup --all --record $(WARMUP_RECORD)-all || echo "warning: warm-up failed" >&2
 
-# On every core (pytest-xdist), once every kernel is compiled, the 30 slowest tests listed at
-# the end. Tests marked with an xdist_group run on one worker (--dist loadgroup): those sharing
+# On one worker more than there are cores (pytest-xdist), once every kernel is compiled, the 30
+# slowest tests listed at the end: a fifth of the suite's time goes on waiting (for serial
+# lines, signals, processes starting and stopping), which the extra worker fills with tests.
+# Tests marked with an xdist_group run on one worker (--dist loadgroup): those sharing
 # kernels that only they compile. The HTML report's test opens it in Debian's headless
 # Chromium; as root (CI) it is installed when missing, elsewhere that one test is skipped and
 # says why.
+CORES := import os; print(len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count())
+TEST_WORKERS ?= $$(( $$($(BIN)/python -c '$(CORES)') + 1 ))
 test: kernels browser
-	$(BIN)/python -m pytest -q -n auto --dist loadgroup --durations=30
+	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadgroup --durations=30
 
 browser:
 	@if ! command -v chromium >/dev/null 2>&1 && [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \

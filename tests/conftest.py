@@ -62,6 +62,19 @@ def made_once(
     return folder
 
 
+@pytest.fixture(scope="session")
+def dask_scheduler() -> Iterator[str]:
+    """The address of a local Dask cluster of one single-threaded worker process, started
+    once a session on each pytest worker. The sweeps that check what becomes of their tasks
+    (resumed, failed, kept) run on it with ``--scheduler``, as on a user's cluster, instead
+    of each starting and stopping workers of its own (seconds each); the local clusters a
+    sweep starts are checked on their own in ``test_sweep.py``."""
+    from segloc_cli.runs.sweep import connect
+
+    with connect(None, 1) as client:
+        yield client.scheduler.address
+
+
 class SilentDevice(EmulatedDevice):
     """A device that never says anything."""
 

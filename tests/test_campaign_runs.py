@@ -335,14 +335,17 @@ def write_spec(folder: Path, text: str = SPEC, name: str = "sweep.toml") -> Path
     return path
 
 
-def sweep(capsys, spec: Path, out: Path, *extra: object) -> Result:
-    return run_cli(capsys, "sweep", spec, "--out", out, "--jobs", "1", *extra)
+def sweep(capsys, spec: Path, out: Path, *extra: object, on: str | None = None) -> Result:
+    """``segloc sweep SPEC --out OUT EXTRA`` in this process, on one local worker or, where
+    the tasks run, on the cluster at the scheduler ``on`` (``dask_scheduler``)."""
+    where = ("--jobs", "1") if on is None else ("--scheduler", on)
+    return run_cli(capsys, "sweep", spec, "--out", out, *where, *extra)
 
 
-def test_an_empty_grid_is_one_combination(capsys, spec_dir):
+def test_an_empty_grid_is_one_combination(capsys, spec_dir, dask_scheduler):
     spec = write_spec(spec_dir, SPEC + "\n[grid]\n")
     out = spec_dir / "results.parquet"
-    done = sweep(capsys, spec, out)
+    done = sweep(capsys, spec, out, on=dask_scheduler)
     assert done.code == 0, done.err
     table = pd.read_parquet(out)
     assert len(table) == 2 * 3 and set(table["combination"]) == {0}
@@ -547,7 +550,9 @@ def _finished_parts(spec: Path, out: Path, keep: slice) -> tuple[list[str], pd.D
 
 
 @pytest.mark.parametrize("kept", ["first", "last", "both-of-three"])
-def test_a_killed_sweep_resumes_with_no_task_lost_or_run_twice(capsys, spec_dir, kept):
+def test_a_killed_sweep_resumes_with_no_task_lost_or_run_twice(
+    capsys, spec_dir, dask_scheduler, kept
+):
     text = SPEC.replace("seeds = [1, 2]", "seeds = [1, 2, 3]")
     spec, out = write_spec(spec_dir, text), spec_dir / "results.parquet"
     keep = {"first": slice(0, 1), "last": slice(2, 3), "both-of-three": slice(0, 2)}[kept]
@@ -555,7 +560,7 @@ def test_a_killed_sweep_resumes_with_no_task_lost_or_run_twice(capsys, spec_dir,
     if kept == "both-of-three":  # a part cut short counts as not done
         parts = out.with_name("results.parquet.parts")
         (parts / f"{keys[1]}.parquet").write_bytes(b"PAR1\x00cut")
-    done = sweep(capsys, spec, out)
+    done = sweep(capsys, spec, out, on=dask_scheduler)
     assert done.code == 0, done.err
     n_before = before["task"].nunique() - (kept == "both-of-three")
     assert f"3 tasks, {n_before} done before; running {3 - n_before}" in done.err

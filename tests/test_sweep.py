@@ -200,13 +200,13 @@ def test_a_scheduler_started_from_the_command_line_gives_the_same_rows(hall_swee
     pd.testing.assert_frame_equal(_without_times(cluster), _without_times(local))
 
 
-def test_a_rerun_runs_only_the_tasks_missing(hall_sweep, tmp_path):
+def test_a_rerun_runs_only_the_tasks_missing(hall_sweep, dask_scheduler, tmp_path):
     spec, out, _, _ = hall_sweep
     full = pd.read_parquet(out)
     partial = tmp_path / "results.parquet"
     keys = list(dict.fromkeys(full["task"]))
     full[~full["task"].isin(keys[2:5])].to_parquet(partial, index=False)
-    done = _sweep_here(spec, "--out", partial, "--jobs", "1")
+    done = _sweep_here(spec, "--out", partial, "--scheduler", dask_scheduler)
     assert done.code == 0, done.err
     assert "8 tasks, 5 done before; running 3" in done.err
     again = pd.read_parquet(partial)
@@ -237,7 +237,7 @@ GLOBAL_TASKS = 2
 
 
 @pytest.mark.parametrize("how", [signal.SIGTERM, signal.SIGKILL], ids=["SIGTERM", "SIGKILL"])
-def test_a_stopped_sweep_keeps_every_finished_task(tmp_path, how):
+def test_a_stopped_sweep_keeps_every_finished_task(dask_scheduler, tmp_path, how):
     spec = _spec(tmp_path, GLOBAL_SPEC)
     out = tmp_path / "results.parquet"
     parts = tmp_path / "results.parquet.parts"
@@ -272,7 +272,7 @@ def test_a_stopped_sweep_keeps_every_finished_task(tmp_path, how):
         assert not out.exists()
         held = len(list(parts.glob("*.parquet")))
         assert 1 <= held < GLOBAL_TASKS
-    done = _sweep_here(spec, "--out", out, "--jobs", "1")
+    done = _sweep_here(spec, "--out", out, "--scheduler", dask_scheduler)
     assert done.code == 0, done.err
     left = GLOBAL_TASKS - held
     assert f"{GLOBAL_TASKS} tasks, {held} done before; running {left}" in done.err
@@ -281,13 +281,13 @@ def test_a_stopped_sweep_keeps_every_finished_task(tmp_path, how):
     assert list(dict.fromkeys(table["task"])) == [t.key for t in read_spec(spec).tasks]
 
 
-def test_a_failing_task_is_kept_with_its_error_and_the_sweep_goes_on(tmp_path):
+def test_a_failing_task_is_kept_with_its_error_and_the_sweep_goes_on(dask_scheduler, tmp_path):
     text = SPEC.replace('logs = ["hall/log.mcap"]', 'logs = ["hall/log.mcap", "broken.mcap"]')
     spec = _spec(tmp_path, text.replace("grid-m = [1.0, 1.5]\n", ""))  # 2 × 2 tasks a log
     (tmp_path / "broken.mcap").write_bytes(b"\x89MCAP0\r\n" + b"\0" * 64)
     out = tmp_path / "results.parquet"
     curves = tmp_path / "curves"
-    done = _sweep_here(spec, "--out", out, "--jobs", "1", "--convergence", curves)
+    done = _sweep_here(spec, "--out", out, "--scheduler", dask_scheduler, "--convergence", curves)
     assert done.code == 1, done.err
     assert "Traceback" not in done.err
     # Curves of a sweep with failed tasks would be of part of it: none until the rerun.
@@ -301,7 +301,7 @@ def test_a_failing_task_is_kept_with_its_error_and_the_sweep_goes_on(tmp_path):
     assert "4 tasks failed" in done.err
     # Mended, only the failed tasks run again.
     shutil.copy(HALL / "log.mcap", tmp_path / "broken.mcap")
-    again = _sweep_here(spec, "--out", out, "--jobs", "1", "--convergence", curves)
+    again = _sweep_here(spec, "--out", out, "--scheduler", dask_scheduler, "--convergence", curves)
     assert again.code == 0, again.err
     assert "8 tasks, 4 done before; running 4" in again.err
     assert len(pd.read_parquet(out)) == 8 * SCANS
@@ -309,12 +309,12 @@ def test_a_failing_task_is_kept_with_its_error_and_the_sweep_goes_on(tmp_path):
                                                                  "curves.png"]  # fmt: skip
 
 
-def test_a_failed_task_is_tried_once_more_then_recorded(tmp_path):
+def test_a_failed_task_is_tried_once_more_then_recorded(dask_scheduler, tmp_path):
     tasks = read_spec(_spec(tmp_path)).tasks[:2]  # seeds 1 and 2 of one combination
     counters = [tmp_path / f"attempts-{t.seed}" for t in tasks]
     runs = [replace(t, log_path=c) for t, c in zip(tasks, counters, strict=True)]
     store = ResultStore(tmp_path / "results.parquet")
-    with connect(None, 1) as client:
+    with connect(dask_scheduler, 1) as client:
         work = _flaky(tmp_path / "hall" / "log.mcap")
         run_tasks(client, runs, store, lambda: None, lambda: False, work=work)
     table = store.finish([t.key for t in tasks])
