@@ -25,6 +25,7 @@ import functools
 import inspect
 import itertools
 import math
+import sys
 from collections.abc import Callable
 from dataclasses import dataclass, field, fields, replace
 from typing import Any
@@ -552,22 +553,29 @@ def _replaced(holder: Any, path: tuple[str, ...], value: Any) -> Any:
 
 
 @functools.cache
-def _field_docs(cls: type) -> dict[str, str]:
-    """Docstrings written under the fields of a dataclass, by field name."""
-    definition = ast.parse(inspect.getsource(cls)).body[0]
-    assert isinstance(definition, ast.ClassDef)
-    docs: dict[str, str] = {}
-    for node, after in itertools.pairwise(definition.body):
-        if not (isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name)):
+def _field_docs(module: str) -> dict[str, dict[str, str]]:
+    """Docstrings written under the fields of the classes defined at the top of ``module``, by
+    class and field name. Each module's source is parsed once: every command builds its
+    tuning options' help from here when it starts (``inspect.getsource`` of each class
+    would parse its whole module again)."""
+    tree = ast.parse(inspect.getsource(sys.modules[module]))
+    docs: dict[str, dict[str, str]] = {}
+    for definition in tree.body:
+        if not isinstance(definition, ast.ClassDef):
             continue
-        if isinstance(after, ast.Expr) and isinstance(after.value, ast.Constant):
-            docs[node.target.id] = inspect.cleandoc(str(after.value.value))
+        fields_docs = docs.setdefault(definition.name, {})
+        for node, after in itertools.pairwise(definition.body):
+            if not (isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name)):
+                continue
+            if isinstance(after, ast.Expr) and isinstance(after.value, ast.Constant):
+                fields_docs[node.target.id] = inspect.cleandoc(str(after.value.value))
     return docs
 
 
 def field_doc(cls: type, name: str) -> str:
     """The docstring of field ``name`` of ``cls``, as one paragraph ("" if none)."""
-    return " ".join(_field_docs(cls).get(name, "").split("\n\n")[0].split())
+    doc = _field_docs(cls.__module__).get(cls.__qualname__, {}).get(name, "")
+    return " ".join(doc.split("\n\n")[0].split())
 
 
 _TUNING_BOUNDS: dict[str, tuple[float, float, bool]] = {

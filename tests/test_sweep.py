@@ -188,13 +188,13 @@ def test_a_scheduler_started_from_the_command_line_gives_the_same_rows(hall_swee
     address, processes = _scheduler(tmp_path)
     try:
         remote = tmp_path / "remote.parquet"
-        done = _sweep(spec, "--out", remote, "--scheduler", address)
+        done = _sweep_here(spec, "--out", remote, "--scheduler", address)
     finally:
         for proc in processes:
             os.killpg(proc.pid, signal.SIGTERM)
             proc.wait(timeout=30)
-    assert done.returncode == 0, done.stderr
-    assert f"running 8 on the cluster at {address}" in done.stderr
+    assert done.code == 0, done.err
+    assert f"running 8 on the cluster at {address}" in done.err
     local, cluster = pd.read_parquet(out), pd.read_parquet(remote)
     assert len(cluster) == 80
     pd.testing.assert_frame_equal(_without_times(cluster), _without_times(local))
