@@ -27,11 +27,11 @@ from __future__ import annotations
 
 import ast
 import json
+import sys
 from pathlib import Path
 
-import pytest
 from conftest import HALL
-from kernel_caches import cached, compiling_lines, segloc
+from kernel_caches import cached, compiling_lines, run
 
 from segloc_cli.jit import GLOBAL_KERNELS, SEEN_THROUGH_KERNELS
 from segloc_cli.runs.warmup import FIRST_RUN_KERNELS
@@ -95,18 +95,45 @@ def test_the_warm_up_compiles_the_first_runs_kernels_and_says_how_many(warm_cach
     assert record["notice"].startswith(f"warm-up: compiling the {FIRST_RUN_KERNELS} kernels")
 
 
-@pytest.mark.parametrize(
-    "options", [[], ["--track"], ["--no-refine"], ["--method", "icp"]], ids=" ".join
-)
+FIRST_RUNS = [[], ["--track"], ["--no-refine"], ["--method", "icp"]]
+"""The options of a first ``localize`` that the warm-up must leave nothing to compile for."""
+IN_TURN = """
+import contextlib, io, json, sys
+from segloc_cli.cli import main
+said = {}
+for name, argv in json.loads(sys.argv[1]).items():
+    err = io.StringIO()
+    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(err):
+        try:
+            main(argv)
+        except SystemExit as exc:
+            assert not exc.code, (argv, exc.code, err.getvalue())
+    said[name] = err.getvalue()
+print(json.dumps(said))
+"""
+"""Runs each command of the JSON object ``argv[1]`` (name: arguments) in turn in this
+process, then prints what each said on stderr, by name, as JSON."""
+
+
 def test_the_demo_and_a_first_localize_after_the_warm_up_compile_nothing(
-    warm_cache, demo_map, tmp_path, options
+    warm_cache, demo_map, tmp_path
 ):
+    """Each localize of ``FIRST_RUNS`` in turn, in one fresh process: a kernel that the
+    warm-up left out, or compiled for other argument types, would be compiled there (and
+    cached) by the first run that calls it."""
     cache_dir, env, *_ = warm_cache
     before = cached(cache_dir, ".nbc")
-    argv = ["localize", str(HALL / "log.mcap"), "--map", str(demo_map), *options]
-    done = segloc([*argv, "--out", str(tmp_path / "estimates.csv")], env)
+    runs = {
+        " ".join(options) or "default": ["localize", str(HALL / "log.mcap"), "--map",
+                                         str(demo_map), *options,
+                                         "--out", str(tmp_path / f"estimates-{i}.csv")]
+        for i, options in enumerate(FIRST_RUNS)
+    }  # fmt: skip
+    said = json.loads(run([sys.executable, "-c", IN_TURN, json.dumps(runs)], env).stdout)
     assert cached(cache_dir, ".nbc") == before
-    assert not compiling_lines(done.stderr), done.stderr
+    assert list(said) == list(runs)
+    for name, err in said.items():
+        assert not compiling_lines(err), f"localize {name}: {err}"
 
 
 def test_a_first_global_or_seen_through_says_it_compiles_its_kernels_once(later_cache):
