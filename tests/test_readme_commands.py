@@ -6,8 +6,9 @@ they appear, and says how each is checked. Each page runs on its own, top to bot
 temporary copy of the repository's layout (its ``datasets/`` and the files the page shows,
 such as ``sweep.toml``), with ``segloc`` on PATH from this test's environment, each block
 reading what the blocks before it on that page wrote. A command block runs as ``sh -e`` runs
-it (through ``segloc``'s entry point in this process where it is plain ``segloc`` commands
-that start no process of their own: ``run_block``) and must exit with the status its page
+it (in this process where it holds only ``segloc`` commands that start no process of their
+own, run through its entry point, files written by a heredoc and ``mkdir -p``:
+``run_block``) and must exit with the status its page
 gives (0 unless it says otherwise). A block a page prints as a command's output must be
 printed by the block before it; a TOML block must be the file it says it is, or be accepted
 by the commands its tables name; a synopsis must name every command, each with options it
@@ -23,6 +24,8 @@ skipped with a reason.
 
 from __future__ import annotations
 
+import functools
+import itertools
 import os
 import re
 import shutil
@@ -150,36 +153,70 @@ IN_PROCESS_COMMANDS = ("localize", "evaluate", "map", "info", "simulate", "impor
 own past their run: a block of them alone runs through ``segloc``'s entry point in this
 process (``run_block``)."""
 SHELL_SYNTAX = re.compile(r"[|&;<>$`(){}*?~\\\"'=]")
+HEREDOC = re.compile(r"cat > ([\w./-]+) <<'(\w+)'")
+"""A line that writes the lines after it to a file, as they are (the end word quoted), up to
+the end word: ``cat > NAME <<'END'``."""
+Step = Callable[[Path, dict[str, str]], Result]
+"""A step of a block, run in a folder with an environment."""
 
 
-def segloc_commands(script: str) -> list[list[str]] | None:
-    """The argument lists of a block made of ``IN_PROCESS_COMMANDS`` alone, one a line (with
-    ``\\`` continuations and ``#`` comments as ``sh`` reads them) and no other shell syntax;
-    None for any other block."""
-    commands = []
-    for line in script.replace("\\\n", " ").splitlines():
-        words = re.sub(r"(^|\s)#.*", "", line).split()
+def block_steps(script: str) -> list[Step] | None:
+    """The steps of a block made of ``IN_PROCESS_COMMANDS`` one a line (with ``\\``
+    continuations and ``#`` comments as ``sh`` reads them), files written by ``HEREDOC``
+    and folders made by ``mkdir -p``, and no other shell syntax; None for any other block."""
+    steps: list[Step] = []
+    lines = iter(script.splitlines())
+    joined = ""
+    for line in lines:
+        if not joined and (heredoc := HEREDOC.fullmatch(line.strip())):
+            name, end = heredoc.groups()
+            text = "".join(f"{body}\n" for body in itertools.takewhile(end.__ne__, lines))
+            steps.append(functools.partial(_write, name, text))
+            continue
+        if line.endswith("\\"):
+            joined += line[:-1] + " "
+            continue
+        words = re.sub(r"(^|\s)#.*", "", joined + line).split()
+        joined = ""
         if not words:
             continue
-        if words[0] != "segloc" or len(words) < 2 or words[1] not in IN_PROCESS_COMMANDS:
-            return None
         if any(SHELL_SYNTAX.search(word) for word in words):
             return None
-        commands.append(words[1:])
-    return commands or None
+        if words[:2] == ["mkdir", "-p"] and len(words) > 2:
+            steps.append(functools.partial(_make_folders, words[2:]))
+        elif words[0] == "segloc" and len(words) > 1 and words[1] in IN_PROCESS_COMMANDS:
+            steps.append(functools.partial(_in_process, words[1:]))
+        else:
+            return None
+    return steps or None
+
+
+def _write(name: str, text: str, cwd: Path, env: dict[str, str]) -> Result:
+    (cwd / name).write_text(text, encoding="utf-8")
+    return Result(0, "", "")
+
+
+def _make_folders(names: list[str], cwd: Path, env: dict[str, str]) -> Result:
+    for name in names:
+        (cwd / name).mkdir(parents=True, exist_ok=True)
+    return Result(0, "", "")
+
+
+def _in_process(argv: list[str], cwd: Path, env: dict[str, str]) -> Result:
+    return run_in_process(*argv, cwd=cwd, env=env)
 
 
 def run_block(script: str, cwd: Path, env: dict[str, str]) -> Result:
-    """``script`` as ``sh -e`` runs it in ``cwd`` with ``env``: in this process through
-    ``segloc``'s entry point where it is ``segloc`` commands alone (``segloc_commands``),
-    which saves each its start-up, else by ``sh``. Either way the block stops at its first
-    command that fails, with that status."""
-    commands = segloc_commands(script)
-    if commands is None:
+    """``script`` as ``sh -e`` runs it in ``cwd`` with ``env``: in this process, ``segloc``
+    commands through its entry point, where ``block_steps`` can take the block apart (which
+    saves each command its start-up), else by ``sh``. Either way the block stops at its
+    first step that fails, with that status."""
+    steps = block_steps(script)
+    if steps is None:
         return run_shell(script, cwd, env)
     said = []
-    for argv in commands:
-        said.append(run_in_process(*argv, cwd=cwd, env=env))
+    for step in steps:
+        said.append(step(cwd, env))
         if said[-1].code != 0:
             break
     return Result(said[-1].code, "".join(r.out for r in said), "".join(r.err for r in said))
