@@ -6,8 +6,8 @@ they appear, and says how each is checked. Each page runs on its own, top to bot
 temporary copy of the repository's layout (its ``datasets/`` and the files the page shows,
 such as ``sweep.toml``), with ``segloc`` on PATH from this test's environment, each block
 reading what the blocks before it on that page wrote. A command block runs as ``sh -e`` runs
-it (in this process where it holds only ``segloc`` commands that start no process of their
-own, run through its entry point, files written by a heredoc and ``mkdir -p``:
+it (in this process where it holds only ``segloc`` commands that leave no process of their
+own behind, run through its entry point, files written by a heredoc and ``mkdir -p``:
 ``run_block``) and must exit with the status its page
 gives (0 unless it says otherwise). A block a page prints as a command's output must be
 printed by the block before it; a TOML block must be the file it says it is, or be accepted
@@ -148,10 +148,10 @@ def run_shell(script: str, cwd: Path, env: dict[str, str]) -> Result:
         )
 
 
-IN_PROCESS_COMMANDS = ("localize", "evaluate", "map", "info", "simulate", "import")
-"""Commands that start no process, open no device and install no signal handler of their
-own past their run: a block of them alone runs through ``segloc``'s entry point in this
-process (``run_block``)."""
+IN_PROCESS_COMMANDS = ("localize", "evaluate", "map", "info", "simulate", "import", "sweep")
+"""Commands that open no device and leave no process or signal handler of their own behind
+once they end (a sweep's local workers end with it): a block of them alone runs through
+``segloc``'s entry point in this process (``run_block``)."""
 SHELL_SYNTAX = re.compile(r"[|&;<>$`(){}*?~\\\"'=]")
 HEREDOC = re.compile(r"cat > ([\w./-]+) <<'(\w+)'")
 """A line that writes the lines after it to a file, as they are (the end word quoted), up to
