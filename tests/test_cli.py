@@ -759,7 +759,7 @@ def test_pipeline_estimates_csv(hall):
 
 
 def test_pipeline_evaluate_gate_passes(hall):
-    result = run_script(
+    result = run_in_process(
         "evaluate", hall.estimates, "--survey", hall.survey,
         "--fail-above-cm", 2, "--fail-above-deg", 0.3,
         cwd=hall.dir,
@@ -772,7 +772,7 @@ def test_pipeline_evaluate_gate_passes(hall):
 
 
 def test_pipeline_evaluate_json_has_paper_initial_errors(hall):
-    result = run_script(
+    result = run_in_process(
         "evaluate", hall.estimates, "--survey", hall.survey, "--format", "json", cwd=hall.dir
     )
     assert result.code == 0, result.err
@@ -792,7 +792,7 @@ def test_pipeline_evaluate_json_has_paper_initial_errors(hall):
 
 
 def test_pipeline_evaluate_gate_fails(hall):
-    result = run_script(
+    result = run_in_process(
         "evaluate", hall.estimates, "--survey", hall.survey, "--fail-above-cm", 0.001, cwd=hall.dir
     )
     assert result.code == 1, f"a 0.001 cm gate must fail; exit {result.code}, stderr:\n{result.err}"
@@ -809,7 +809,7 @@ def test_pipeline_evaluate_gate_fails(hall):
 
 
 def test_gate_message_shows_the_limit_given(hall):
-    result = run_script(
+    result = run_in_process(
         "evaluate", hall.estimates, "--survey", hall.survey, "--fail-above-cm", 0.001, cwd=hall.dir
     )
     assert result.code == 1
@@ -822,7 +822,7 @@ def test_gate_message_shows_the_limit_given(hall):
 
 
 def test_info_counts_scans(hall):
-    result = run_script("info", hall.log, cwd=hall.dir)
+    result = run_in_process("info", hall.log, cwd=hall.dir)
     assert result.code == 0, result.err
     scan_lines = [ln for ln in result.out.splitlines() if ln.startswith("/scan")]
     assert len(scan_lines) == 1, result.out
@@ -902,7 +902,7 @@ HELP_CASES = {
 
 @pytest.mark.parametrize("command", list(HELP_CASES))
 def test_help(command, tmp_path):
-    result = run_script(*command.split(), "--help", cwd=tmp_path)
+    result = run_in_process(*command.split(), "--help", cwd=tmp_path)
     assert result.code == 0, f"`segloc {command} --help` exited {result.code}: {result.err}"
     assert result.err == "", result.err
     assert result.out.startswith(f"Usage: segloc {command}"), result.out[:200]
