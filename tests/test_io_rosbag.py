@@ -4,12 +4,11 @@ from __future__ import annotations
 
 import math
 import shutil
-import subprocess
 from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import HALL, SEGLOC
+from conftest import HALL
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from mcap.reader import make_reader
@@ -18,7 +17,7 @@ from rosbags.rosbag2 import StoragePlugin
 from rosbags.rosbag2 import Writer as Ros2Writer
 from rosbags.typesys import Stores, get_typestore
 from rosbags.typesys.store import Typestore
-from test_cli import assert_one_line_error, run_cli
+from test_cli import assert_one_line_error, run_cli, run_in_process
 
 from segloc_cli.errors import InputError
 from segloc_cli.geometry import Pose2, heading_to_quaternion
@@ -948,12 +947,8 @@ def test_the_imported_intel_bag_is_compact_and_indexed(tmp_path):
     """The public Intel Research Lab bag (3.9 MB, bz2) becomes a log of at most 1.5 times its
     size, zstd chunks listed in the summary, with every scan of the bag."""
     out = tmp_path / "intel.mcap"
-    done = subprocess.run(
-        [str(SEGLOC), "import", "rosbag", str(INTEL_BAG), "--out", str(out)],
-        capture_output=True,
-        text=True,
-    )
-    assert done.returncode == 0, done.stderr
+    done = run_in_process("import", "rosbag", INTEL_BAG, "--out", out)
+    assert done.code == 0, done.err
     assert out.stat().st_size <= 1.5 * INTEL_BAG.stat().st_size
     with open(out, "rb") as stream:
         summary = make_reader(stream).get_summary()

@@ -121,11 +121,11 @@ def test_sigkill_loses_at_most_the_last_half_second(emulator, tmp_path):
     # second (2) and the one in flight are all a kill can take.
     assert reported - math.ceil(DURABLE_EVERY_S * 4) - 1 <= len(contents.scans) <= reported + 1
     assert contents.sensor["device.protocol"] == "explorer"
-    shown = run_segloc("info", log)
-    assert shown.returncode == 0
-    assert "finished:  no" in shown.stdout
-    assert f"/scan:     {len(contents.scans)} scans, 1024 readings" in shown.stdout
-    assert "recording was not finished" in shown.stderr
+    shown = run_in_process("info", log)
+    assert shown.code == 0
+    assert "finished:  no" in shown.out
+    assert f"/scan:     {len(contents.scans)} scans, 1024 readings" in shown.out
+    assert "recording was not finished" in shown.err
 
 
 @pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
@@ -199,11 +199,11 @@ def test_info_shows_the_device_identity(emulator, tmp_path):
         run_segloc("record", "--device", f"scip2:{port}", "--scans", "2", "--out", log).returncode
         == 0
     )
-    shown = run_segloc("info", log)
-    assert shown.returncode == 0
-    assert "finished:  yes" in shown.stdout
-    assert "sensor.device.protocol: scip2" in shown.stdout
-    assert "sensor.range_max_m:" in shown.stdout
+    shown = run_in_process("info", log)
+    assert shown.code == 0
+    assert "finished:  yes" in shown.out
+    assert "sensor.device.protocol: scip2" in shown.out
+    assert "sensor.range_max_m:" in shown.out
 
 
 # --- bad input: one line, exit 2, no file ------------------------------------------------
