@@ -114,6 +114,44 @@ def run_in_process(*args, cwd: Path | None = None, env: dict[str, str] | None = 
     return Result(code, out.getvalue(), err.getvalue())
 
 
+IN_TURN = """
+import contextlib, io, json, sys
+from segloc_cli.cli import main
+said = {}
+for name, argv in json.loads(sys.argv[1]).items():
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        try:
+            main(argv)
+            code = 0
+        except SystemExit as exc:
+            code = exc.code if isinstance(exc.code, int) else int(exc.code is not None)
+    said[name] = [code, out.getvalue(), err.getvalue()]
+print(json.dumps({"said": said, "modules": sorted(sys.modules)}))
+"""
+"""Runs each command of the JSON object ``argv[1]`` (name: arguments) in turn in this
+process, then prints what each gave (status, stdout, stderr) by name and the modules
+imported by then, as JSON."""
+
+
+def run_in_turn(
+    commands: dict[str, list], cwd: Path | None = None, env: dict[str, str] | None = None
+) -> tuple[dict[str, Result], set[str]]:
+    """Each of ``commands`` (name: ``segloc`` arguments) in turn in one fresh process, in
+    ``cwd`` with ``env``, through the console script's entry point: what each gave, by name,
+    and the modules that process had imported at the end. An exception out of a command
+    fails the test (the process ends with its traceback)."""
+    argv = {name: [str(a) for a in args] for name, args in commands.items()}
+    done = subprocess.run(
+        [str(SEGLOC.parent / "python"), "-c", IN_TURN, json.dumps(argv)],
+        capture_output=True, text=True, check=False, cwd=cwd, env=env,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr[-4000:]
+    report = json.loads(done.stdout)
+    said = {name: Result(*result) for name, result in report["said"].items()}
+    return said, set(report["modules"])
+
+
 def run_script(*args, cwd: Path) -> Result:
     """Run the installed ``segloc`` console script in a subprocess."""
     assert SEGLOC.exists(), f"console script not installed at {SEGLOC}"

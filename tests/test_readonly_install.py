@@ -21,6 +21,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 from conftest import HALL, SEGLOC
+from test_cli import run_in_turn
 
 from segloc_cli.estimates import ESTIMATE_COLUMNS
 from segloc_cli.jit import UNCACHED_COMPILE_S
@@ -100,27 +101,13 @@ def test_a_read_only_install_runs_uncached_with_the_same_results(tmp_path):
     assert (locked / "table.txt").read_text() == (free / "table.txt").read_text()
 
 
-UNLOADED_BY = """
-import sys
-from segloc_cli.cli import main
-for argv in sys.argv[2:]:
-    try:
-        main(argv.split("|"))
-    except SystemExit as exc:
-        assert not exc.code, (argv, exc.code)
-loaded = [name for name in sys.argv[1].split(",") if name in sys.modules]
-assert not loaded, (loaded, sorted(m for m in sys.modules if "segloc_cli" in m))
-"""
-"""Runs each command (its arguments joined by ``|``) of ``argv[2:]`` in one process, then
-fails if a package of ``argv[1]`` (comma-separated) was imported."""
-
-
-def _unloaded_by(packages: str, commands: list[str], cwd: Path) -> None:
-    run = subprocess.run(
-        [str(Path(SEGLOC).parent / "python"), "-c", UNLOADED_BY, packages, *commands],
-        capture_output=True, text=True, check=False, cwd=cwd,
-    )  # fmt: skip
-    assert run.returncode == 0, run.stderr
+def _unloaded_by(package: str, commands: list[list], cwd: Path) -> None:
+    """Each of ``commands`` (``segloc`` arguments) runs in turn in one process and exits 0,
+    and ``package`` is not imported by the end."""
+    said, modules = run_in_turn({" ".join(map(str, c)): c for c in commands}, cwd=cwd)
+    for name, result in said.items():
+        assert result.code == 0, f"segloc {name}: {result.err}"
+    assert package not in modules, sorted(m for m in modules if m.startswith("segloc_cli"))
 
 
 def test_commands_that_need_no_kernel_load_none(tmp_path):
@@ -132,10 +119,10 @@ def test_commands_that_need_no_kernel_load_none(tmp_path):
     )
     _survey_as_estimates(tmp_path / "estimates.csv")
     commands = [
-        f"evaluate|{tmp_path / 'estimates.csv'}|--survey|{HALL / 'survey.csv'}",
-        f"info|{HALL / 'log.mcap'}",
-        f"import|carmen|{carmen}|--out|{tmp_path / 'two.mcap'}",
-        f"map|export|{HALL / 'map.json'}|--out|{tmp_path / 'map.yaml'}",
+        ["evaluate", tmp_path / "estimates.csv", "--survey", HALL / "survey.csv"],
+        ["info", HALL / "log.mcap"],
+        ["import", "carmen", carmen, "--out", tmp_path / "two.mcap"],
+        ["map", "export", HALL / "map.json", "--out", tmp_path / "map.yaml"],
     ]
     _unloaded_by("numba", commands, tmp_path)
 
@@ -144,10 +131,10 @@ def test_building_a_map_and_localizing_load_no_pandas(tmp_path):
     """Nor do ``map build`` and ``localize`` import pandas (a third of a second), which only
     reading estimates and scoring need."""
     commands = [
-        f"map|build|{HALL / 'mapping/log.mcap'}|--survey|{HALL / 'mapping/survey.csv'}"
-        f"|--out|{tmp_path / 'map.json'}|--end|20",
-        f"localize|{HALL / 'log.mcap'}|--map|{tmp_path / 'map.json'}|--scans|2"
-        f"|--initial|{HALL / 'survey.csv'}|--out|{tmp_path / 'estimates.csv'}"
-        f"|--tum|{tmp_path / 'estimates.tum'}",
-    ]
+        ["map", "build", HALL / "mapping/log.mcap", "--survey", HALL / "mapping/survey.csv",
+         "--out", tmp_path / "map.json", "--end", "20"],
+        ["localize", HALL / "log.mcap", "--map", tmp_path / "map.json", "--scans", "2",
+         "--initial", HALL / "survey.csv", "--out", tmp_path / "estimates.csv",
+         "--tum", tmp_path / "estimates.tum"],
+    ]  # fmt: skip
     _unloaded_by("pandas", commands, tmp_path)

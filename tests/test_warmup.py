@@ -27,11 +27,11 @@ from __future__ import annotations
 
 import ast
 import json
-import sys
 from pathlib import Path
 
 from conftest import HALL
-from kernel_caches import cached, compiling_lines, run
+from kernel_caches import cached, compiling_lines
+from test_cli import run_in_turn
 
 from segloc_cli.jit import GLOBAL_KERNELS, SEEN_THROUGH_KERNELS
 from segloc_cli.runs.warmup import FIRST_RUN_KERNELS
@@ -97,22 +97,6 @@ def test_the_warm_up_compiles_the_first_runs_kernels_and_says_how_many(warm_cach
 
 FIRST_RUNS = [[], ["--track"], ["--no-refine"], ["--method", "icp"]]
 """The options of a first ``localize`` that the warm-up must leave nothing to compile for."""
-IN_TURN = """
-import contextlib, io, json, sys
-from segloc_cli.cli import main
-said = {}
-for name, argv in json.loads(sys.argv[1]).items():
-    err = io.StringIO()
-    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(err):
-        try:
-            main(argv)
-        except SystemExit as exc:
-            assert not exc.code, (argv, exc.code, err.getvalue())
-    said[name] = err.getvalue()
-print(json.dumps(said))
-"""
-"""Runs each command of the JSON object ``argv[1]`` (name: arguments) in turn in this
-process, then prints what each said on stderr, by name, as JSON."""
 
 
 def test_the_demo_and_a_first_localize_after_the_warm_up_compile_nothing(
@@ -129,11 +113,12 @@ def test_the_demo_and_a_first_localize_after_the_warm_up_compile_nothing(
                                          "--out", str(tmp_path / f"estimates-{i}.csv")]
         for i, options in enumerate(FIRST_RUNS)
     }  # fmt: skip
-    said = json.loads(run([sys.executable, "-c", IN_TURN, json.dumps(runs)], env).stdout)
+    said, _ = run_in_turn(runs, env=env)
     assert cached(cache_dir, ".nbc") == before
     assert list(said) == list(runs)
-    for name, err in said.items():
-        assert not compiling_lines(err), f"localize {name}: {err}"
+    for name, result in said.items():
+        assert result.code == 0, f"localize {name}: {result.err}"
+        assert not compiling_lines(result.err), f"localize {name}: {result.err}"
 
 
 def test_a_first_global_or_seen_through_says_it_compiles_its_kernels_once(later_cache):
