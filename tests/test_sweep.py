@@ -229,11 +229,14 @@ def test_results_of_another_spec_are_not_mixed_in(hall_sweep, tmp_path):
 
 GLOBAL_SPEC = (
     SPEC.replace('init-errors = "uniform:1.5,20"', "global = true")
-    .replace("iterations = [6, 8]\ngrid-m = [1.0, 1.5]", "search-heading-step-deg = [2.0, 3.0]")
+    .replace(
+        "iterations = [6, 8]\ngrid-m = [1.0, 1.5]", "search-heading-step-deg = [1.5, 2.0, 2.5, 3.0]"
+    )
     .replace("seeds = [1, 2]", "seeds = [1]")
 )
-"""Two tasks slow enough (global searches) to stop a sweep between them."""
-GLOBAL_TASKS = 2
+"""Tasks (global searches, a few tenths of a second each) enough that a sweep stopped as its
+first is kept has some left, however fast the machine and its 0.5 s between looks at a stop."""
+GLOBAL_TASKS = 4
 
 
 @pytest.mark.parametrize("how", [signal.SIGTERM, signal.SIGKILL], ids=["SIGTERM", "SIGKILL"])

@@ -168,7 +168,7 @@ def _written(
     ``progress()`` made once the files are open, and calling ``timed(runtime_ms, planned)``
     at the first row whose time includes no compiling; (statuses, runtimes in ms) of those
     written."""
-    from segloc_cli.stopping import stop_requests
+    from segloc_cli.stopping import interrupt_taken, stop_requests
 
     statuses: list[str] = []
     runtimes_ms: list[float] = []
@@ -192,6 +192,7 @@ def _written(
                 if stops:
                     break
         except KeyboardInterrupt:  # Ctrl-C that arrived outside the stop handler
+            interrupt_taken()
             stops.append("Ctrl-C")
     return tuple(statuses), tuple(runtimes_ms)
 
