@@ -77,10 +77,12 @@ kernels: $(STAMP)
 # Tests marked with an xdist_group run on one worker (--dist loadgroup): those sharing
 # kernels that only they compile. The HTML report's test opens it in Debian's headless
 # Chromium; as root (CI) it is installed when missing, elsewhere that one test is skipped and
-# says why.
+# says why. That install (mostly download, about half a minute) runs beside the setup and the
+# kernels' compiling rather than after them.
 CORES := import os; print(len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count())
 TEST_WORKERS ?= $$(( $$($(BIN)/python -c '$(CORES)') + 1 ))
-test: kernels browser
+test:
+	@$(MAKE) --no-print-directory -j2 kernels browser
 	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadgroup --durations=30
 
 browser:
