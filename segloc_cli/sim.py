@@ -41,6 +41,11 @@ EXPLORER_READINGS = (128, 256, 1024, 2048)
 FULL_CIRCLE_DEG = 360.0
 """The widest field of view: a full turn, whose beams start straight ahead (``beam_angles``)."""
 
+MAX_NOISE_CM = 100
+"""Largest range noise σ (cm) a simulated scanner takes, however it is chosen (option or
+world file): at a metre the scans hold no room a map could be matched to."""
+
+
 # Initial errors of the paper's Table 1 (Reina & Gonzalez 2000), "surveyed minus
 # initial guess", one row per logged pose: x cm, y cm, heading degrees.
 PAPER_TABLE1_INITIAL_ERRORS = np.array(
@@ -92,8 +97,8 @@ class SensorModel:
             raise ValueError(f"readings must be 2 to {MAX_READINGS}, got {self.readings}")
         if not 0.0 < self.fov_deg <= FULL_CIRCLE_DEG:
             raise ValueError(f"fov_deg must be above 0 and at most 360, got {self.fov_deg}")
-        if not self.noise_cm >= 0.0:
-            raise ValueError(f"noise_cm must be >= 0, got {self.noise_cm}")
+        if not 0.0 <= self.noise_cm <= MAX_NOISE_CM:
+            raise ValueError(f"noise_cm must be 0 to {MAX_NOISE_CM:g}, got {self.noise_cm}")
         if not self.resolution_m >= 0.0:
             raise ValueError(f"resolution_m must be >= 0, got {self.resolution_m}")
         if not self.range_max_m > 0.0:
@@ -255,7 +260,7 @@ def _clutter_ranges(
     for _ in range(int(rng.poisson(mean_clusters))):
         range_m = rng.uniform(0.8, 5.0)
         width_m = rng.uniform(0.3, 0.6)
-        count = max(1, round(width_m / range_m / step_rad))
+        count = min(n_beams, max(1, round(width_m / range_m / step_rad)))
         first = int(rng.integers(n_beams))
         beams = first + np.arange(count)
         beams = beams % n_beams if full_turn else beams[beams < n_beams]

@@ -1289,3 +1289,62 @@ def test_a_required_option_left_out_is_named(capsys, tmp_path, monkeypatch, path
     assert result.code == 2, result
     (line,) = result.err.splitlines()  # a choice's line goes on to list the choices
     assert line.startswith(f"segloc: error: Missing option '{option}'.")
+
+
+def _commands(group, names=()):
+    """(names, command) of every command under ``group``."""
+    import click
+
+    for name, command in group.commands.items():
+        if isinstance(command, click.Group):
+            yield from _commands(command, (*names, name))
+        else:
+            yield (*names, name), command
+
+
+def test_every_file_option_and_argument_refuses_an_empty_path():
+    """An empty value is no file: Path('') is the current folder, which commands would read
+    as a folder of inputs or fail to name an output after (an internal error)."""
+    import click
+
+    from segloc_cli.cli import cli
+    from segloc_cli.commands.options import holds_path
+
+    checked = []
+    for names, command in _commands(cli):
+        ctx = click.Context(command, info_name=names[-1])
+        for param in command.params:
+            if holds_path(param):
+                with pytest.raises(click.BadParameter, match="an empty"):
+                    param.type.convert("", param, ctx)
+                checked.append((names, param.name))
+    assert {("localize", "initial"), ("sweep", "convergence"), ("evaluate", "estimates_path")} <= {
+        (names[-1], name) for names, name in checked
+    }
+
+
+@pytest.mark.parametrize(
+    ("args", "fragments"),
+    [
+        (["localize", HALL / "log.mcap", "--map", HALL / "map.json", "--out", ""],
+         ["'--out'", "an empty path"]),
+        (["localize", HALL / "log.mcap", "--map", HALL / "map.json", "--out", "{tmp}/e.csv",
+          "--initial", ""],
+         ["'--initial'", "an empty value", "odom"]),
+        (["sweep", HALL.parents[1] / "sweep.toml", "--out", "{tmp}/s.parquet",
+          "--convergence", ""],
+         ["'--convergence'", "an empty path"]),
+        (["map", "export", HALL / "map.json", "--out", "{tmp}/m.yaml", "--resolution", "nan"],
+         ["'--resolution'", "not a finite number"]),
+        (["map", "export", HALL / "map.json", "--out", "{tmp}/m.yaml", "--resolution", "inf"],
+         ["'--resolution'", "not a finite number"]),
+    ],
+    ids=["out", "initial", "convergence", "resolution-nan", "resolution-inf"],
+)  # fmt: skip
+def test_an_empty_path_or_a_number_that_is_none_is_one_line_naming_the_option(
+    capsys, tmp_path, args, fragments
+):
+    args = [str(a).replace("{tmp}", str(tmp_path)) for a in args]
+    result = run_cli(capsys, *args)
+    assert_one_line_error(result, *fragments)
+    assert not list(tmp_path.iterdir())

@@ -249,6 +249,24 @@ def test_force_never_overwrites_an_input(capsys, tmp_path, command, fragment):
     assert {p: p.read_bytes() for p in before} == before
 
 
+@pytest.mark.parametrize(
+    ("command", "table"),
+    [
+        (["localize", LOG], f'[localize]\nmap = "{MAP}"\n'),
+        (["map", "build", LOG], f'[map.build]\nsurvey = "{SURVEY}"\n'),
+        (["evaluate", SURVEY], f'[evaluate]\nsurvey = "{SURVEY}"\n'),
+    ],
+    ids=["localize", "map-build", "evaluate"],
+)
+def test_force_never_overwrites_the_config_file_read(capsys, tmp_path, command, table):
+    config = tmp_path / "options.toml"
+    config.write_text(table, encoding="utf-8")
+    before = config.read_bytes()
+    result = run_cli(capsys, *command, "--config", config, "--out", config, "--force")
+    assert_one_line_error(result, "options.toml", "is an input of this command", "--out")
+    assert config.read_bytes() == before
+
+
 def test_an_input_reached_through_a_link_is_kept(capsys, tmp_path):
     log = tmp_path / "log.mcap"
     log.write_bytes(LOG.read_bytes())

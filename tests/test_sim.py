@@ -185,6 +185,17 @@ def test_clutter_on_a_fan_stops_at_its_edge_and_on_a_full_turn_wraps():
         np.testing.assert_array_equal(clutter[seen], 1.0)
 
 
+@pytest.mark.parametrize("fov_deg", [1e-9, 1e-3])
+def test_clutter_on_a_fan_narrower_than_a_person_covers_at_most_its_beams(fov_deg):
+    """A person 0.5 m wide at 1 m subtends more than the whole fan: the cluster covers the
+    fan's beams from the one drawn to its edge, never more beams than the fan has."""
+    from segloc_cli.sim import _clutter_ranges
+
+    clutter = _clutter_ranges(beam_angles(3, fov_deg), 1.0, OneClusterNearTheEnd())
+    assert clutter.shape == (3,)
+    np.testing.assert_array_equal(clutter, [np.inf, 1.0, 1.0])
+
+
 def test_rays_against_thousands_of_segments_take_megabytes():
     """A plan of 20,000 segments scanned by 1024 beams: memory stays bounded (every ray
     against every segment at once would need 160 MB per array), and the ranges are those

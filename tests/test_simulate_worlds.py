@@ -244,7 +244,8 @@ def test_the_hall_is_simulated_as_it_was(tmp_path, capsys):
         ({"sensor": {"readings": 10.5}}, "`sensor.readings` must be a whole number, got 10.5"),
         ({"sensor": {"fov": 180}}, "unknown key 'fov' in `sensor`"),
         ({"sensor": {"clutter": "no"}}, "`sensor.clutter` must be true or false, got 'no'"),
-        ({"sensor": {"noise_cm": -1}}, "sensor.noise_cm must be >= 0, got -1"),
+        ({"sensor": {"noise_cm": -1}}, "sensor.noise_cm must be 0 to 100, got -1"),
+        ({"sensor": {"noise_cm": 101}}, "sensor.noise_cm must be 0 to 100, got 101"),
         ({"sensor": [361, 180]}, "`sensor` must be an object of readings, fov_deg"),
     ],
 )
@@ -270,6 +271,8 @@ def test_materials_not_one_per_segment_count_in_words(tmp_path, capsys):
         (("--fov-deg", "361"), "0<x<=360"),
         (("--fov-deg", "nan"), "--fov-deg"),
         (("--readings", "1"), "2<=x<=100000"),
+        (("--noise-cm", "101"), "0<=x<=100"),
+        (("--seed", "-1"), "x>=0"),
         (("--material", "brick"), "'brick' is not one of 'wall', 'glass'"),
     ],
 )

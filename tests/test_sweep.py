@@ -356,6 +356,8 @@ def _flaky(log: Path):
         (("iterations = [6, 8]", "iterations = [6, 6]"), ["lists a value twice"]),
         (("seeds = [1, 2]", "seeds = [1, 2]\niterations = 8"), ["both fixed and in [grid]"]),
         (("seeds = [1, 2]", "seeds = [1.5]"), ["key 'seeds' takes a list of distinct whole"]),
+        (("seeds = [1, 2]", "seeds = [1, -1]"), ["key 'seeds'", "from 0 to"]),
+        (("seeds = [1, 2]", f"seeds = [{2**63}]"), ["key 'seeds'", "from 0 to"]),
         (("seeds = [1, 2]", 'seeds = [1]\ninitial = "guesses.csv"'), ["not both"]),
         (('"uniform:1.5,20"', '"uniform:1.5"'), ["key 'init-errors'", "uniform:XY_M,THETA_DEG"]),
         (("hall/log.mcap", "hall/nowhere.mcap"), ["nowhere.mcap does not exist"]),
@@ -367,8 +369,8 @@ def _flaky(log: Path):
          ["a log's table takes path, map, survey, not 'mapp'"]),
     ],
     ids=["grid-key", "top-key", "bad-value", "not-a-list", "twice", "fixed-and-grid",
-         "seeds", "guesses-twice", "init-errors", "missing-log", "modes", "track",
-         "other-table", "log-table"],
+         "seeds", "negative-seed", "seed-beyond-int64", "guesses-twice", "init-errors",
+         "missing-log", "modes", "track", "other-table", "log-table"],
 )  # fmt: skip
 def test_a_bad_spec_is_one_line_naming_what_is_wrong(tmp_path, capsys, change, fragments):
     spec = _spec(tmp_path, SPEC.replace(*change))

@@ -9,13 +9,13 @@ records, for the run to say when it does not repeat that one.
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
 import click
 
-from segloc_cli.commands.options import holds_path, names_file
+from segloc_cli.commands.options import FilePath, holds_path, names_file
 from segloc_cli.commands.printing import warn
 from segloc_cli.errors import InputError
 from segloc_cli.wording import did_you_mean
@@ -24,13 +24,16 @@ COMMAND_LINE_ONLY = frozenset({"force"})
 """Options a configuration file may not set: ``--force`` must be seen where it is given, or
 a file kept for its settings would overwrite outputs unasked."""
 
+RUN_FILE_OUTPUT = "--out (run file)"
+"""The name under which a command checks the run file it writes beside ``--out``."""
+
 RECORDED_INPUTS = "segloc.recorded_inputs"
 """Key of the click context's ``meta`` holding the ``--config`` file and the inputs it
 records, (role, sha256) pairs, when it is a run file."""
 
 config_option = click.option(
     "--config",
-    type=click.Path(path_type=Path, dir_okay=False),
+    type=FilePath(dir_okay=False),
     is_eager=True,
     expose_value=False,
     callback=lambda ctx, param, value: _apply_config(ctx, value),
@@ -39,6 +42,31 @@ config_option = click.option(
     "its run.",
 )
 """``--config FILE.toml`` on every command that does work."""
+
+
+def check_command_outputs(
+    outputs: Mapping[str, str | Path | None],
+    inputs: Iterable[str | Path | None],
+    force: bool,
+    replaced: Iterable[str] = (),
+) -> None:
+    """``io.files.check_outputs`` with the ``--config`` file read (if any) among ``inputs``:
+    the file a command takes its options from is none of its outputs, ``--force`` or not;
+    only a run repeated in place from its run file rewrites that (``RUN_FILE_OUTPUT``)."""
+    from segloc_cli.io.files import check_outputs
+
+    ctx = click.get_current_context(silent=True)
+    config = None if ctx is None else ctx.meta.get(RECORDED_INPUTS, (None,))[0]
+    if config is not None and _same_file(config, outputs.get(RUN_FILE_OUTPUT)):
+        config = None
+    check_outputs(outputs, [*inputs, config], force, replaced)
+
+
+def _same_file(path: Path, other: str | Path | None) -> bool:
+    try:
+        return other is not None and path.samefile(other)
+    except OSError:  # one of them does not exist
+        return False
 
 
 def option_key(option: click.Parameter) -> str:

@@ -8,9 +8,10 @@ from pathlib import Path
 
 import click
 
+from segloc_cli.commands.configfile import check_command_outputs
 from segloc_cli.commands.evaluate_options import EVALUATE_OPTIONS
 from segloc_cli.commands.invocation import Invocation
-from segloc_cli.commands.options import with_options
+from segloc_cli.commands.options import FilePath, with_options
 from segloc_cli.commands.printing import info, load_log, warn
 from segloc_cli.errors import EXIT_GATE_FAILED
 from segloc_cli.wording import plural
@@ -29,7 +30,7 @@ Another localizer in CI, e.g. AMCL in a ROS 2 bag:
 
 
 @click.command(epilog=EPILOG)
-@click.argument("estimates_path", metavar="EST", type=click.Path(path_type=Path))
+@click.argument("estimates_path", metavar="EST", type=FilePath())
 @with_options(*EVALUATE_OPTIONS)
 def evaluate(estimates_path, force, **given):
     """Score estimates against ground truth.
@@ -59,7 +60,6 @@ def evaluate(estimates_path, force, **given):
     and with --map and --log those of both stages (--relations: the trajectory and the
     relation errors over time).
     """
-    from segloc_cli.io.files import check_outputs
     from segloc_cli.io.tables import refuse_map
     from segloc_cli.runs import evaluation
 
@@ -69,7 +69,7 @@ def evaluate(estimates_path, force, **given):
     if problem is not None:
         raise click.UsageError(problem)
     # Outputs are checked before any input is read, so a refusal costs no work.
-    check_outputs(options.outputs, options.inputs, force, replaced=options.REPORTS)
+    check_command_outputs(options.outputs, options.inputs, force, replaced=options.REPORTS)
     if options.survey_path is not None:
         refuse_map(options.survey_path, "--survey", "the surveyed poses")
     if options.plots_dir is not None:

@@ -5,12 +5,12 @@ outputs and the figures."""
 from __future__ import annotations
 
 from collections.abc import Callable
-from pathlib import Path
 
 import click
 
 from segloc_cli.commands.configfile import config_option
 from segloc_cli.commands.options import (
+    FilePath,
     FiniteRange,
     ModuleChoice,
     force_option,
@@ -183,7 +183,7 @@ FIGURE_OPTIONS = (
     click.option(
         "--plots",
         "plots_dir",
-        type=click.Path(path_type=Path, file_okay=False),
+        type=FilePath(file_okay=False),
         help="Also draw figures (PNG and PDF) into this folder, created if needed "
         "(existing figures need --force).",
     ),

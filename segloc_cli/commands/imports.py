@@ -8,10 +8,11 @@ from pathlib import Path
 import click
 import numpy as np
 
-from segloc_cli.commands.configfile import config_option
+from segloc_cli.commands.configfile import check_command_outputs, config_option
 from segloc_cli.commands.invocation import Invocation
 from segloc_cli.commands.logs import laser_offset_line
 from segloc_cli.commands.options import (
+    FilePath,
     FiniteRange,
     force_option,
     path_option,
@@ -100,7 +101,7 @@ CARMEN_OPTIONS = (
 
 
 @import_group.command("carmen")
-@click.argument("log_path", metavar="FILE[.gz]", type=click.Path(path_type=Path))
+@click.argument("log_path", metavar="FILE[.gz]", type=FilePath())
 @with_options(*CARMEN_OPTIONS)
 def import_carmen(log_path, out_path, survey_out, laser, range_max_m, force):
     """Import a CARMEN text log (plain or gzip-compressed).
@@ -115,11 +116,12 @@ def import_carmen(log_path, out_path, survey_out, laser, range_max_m, force):
     """
 
     from segloc_cli.io.carmen import read_carmen
-    from segloc_cli.io.files import check_outputs
     from segloc_cli.progress import Progress
 
     outputs = {"--out": out_path, "--survey-out": survey_out}
-    check_outputs({**outputs, "--out (run file)": run_file_path(out_path)}, [log_path], force)
+    check_command_outputs(
+        {**outputs, "--out (run file)": run_file_path(out_path)}, [log_path], force
+    )
     log = read_carmen(log_path, laser=laser, range_max_m=range_max_m, progress=Progress)
     _write_imported(log, out_path)
     if survey_out is not None:
@@ -164,7 +166,7 @@ ROSBAG_OPTIONS = (
 
 
 @import_group.command("rosbag")
-@click.argument("bag_path", metavar="PATH", type=click.Path(path_type=Path))
+@click.argument("bag_path", metavar="PATH", type=FilePath())
 @with_options(*ROSBAG_OPTIONS)
 def import_rosbag(
     bag_path, out_path, survey_out, scan_topic, odom_topic, laser_offset, range_max_m, force
@@ -176,7 +178,6 @@ def import_rosbag(
     scans on the robot by it, so that the odometry, the survey and every estimate are the
     robot's poses. An upside-down scanner's beams are mirrored into an upright scan.
     """
-    from segloc_cli.io.files import check_outputs
     from segloc_cli.io.log import MAX_LASER_OFFSET_M
     from segloc_cli.io.rosbag import read_rosbag
     from segloc_cli.progress import Progress
@@ -190,7 +191,9 @@ def import_rosbag(
             "odometry topic (nav_msgs/Odometry)"
         )
     outputs = {"--out": out_path, "--survey-out": survey_out}
-    check_outputs({**outputs, "--out (run file)": run_file_path(out_path)}, [bag_path], force)
+    check_command_outputs(
+        {**outputs, "--out (run file)": run_file_path(out_path)}, [bag_path], force
+    )
     log = read_rosbag(
         bag_path,
         scan_topic=scan_topic,

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import click
 
-from segloc_cli.commands.options import SCAN_SELECTION, scan_selection, with_options
+from segloc_cli.commands.options import SCAN_SELECTION, FilePath, scan_selection, with_options
 from segloc_cli.wording import counted
 
 
@@ -23,7 +23,7 @@ def _print_layout_path(ctx: click.Context, _param: click.Parameter, value: bool)
 
 
 @click.command("info")
-@click.argument("log_path", metavar="LOG.mcap", type=click.Path(path_type=Path))
+@click.argument("log_path", metavar="LOG.mcap", type=FilePath())
 @click.option(
     "--foxglove-layout",
     is_flag=True,

@@ -7,11 +7,12 @@ from pathlib import Path
 
 import click
 
-from segloc_cli.commands.configfile import config_option
+from segloc_cli.commands.configfile import check_command_outputs, config_option
 from segloc_cli.commands.invocation import Invocation
 from segloc_cli.commands.localize_lines import expect, report, say_how
 from segloc_cli.commands.options import (
     SCAN_SELECTION,
+    FilePath,
     GuessSource,
     force_option,
     path_option,
@@ -91,9 +92,7 @@ LOCALIZE_OPTIONS = (
 
 
 @click.command()
-@click.argument(
-    "log_paths", metavar="LOG.mcap...", nargs=-1, required=True, type=click.Path(path_type=Path)
-)
+@click.argument("log_paths", metavar="LOG.mcap...", nargs=-1, required=True, type=FilePath())
 @with_options(*LOCALIZE_OPTIONS)
 def localize(
     log_paths,
@@ -143,7 +142,6 @@ def localize(
     killed process leaves every finished row in the file. Beside OUT goes
     its run file (OUT.run.toml): --config OUT.run.toml repeats the run.
     """
-    from segloc_cli.io.files import check_outputs
     from segloc_cli.io.maps import read_map
     from segloc_cli.jit import GLOBAL_KERNELS, watching_compiles
     from segloc_cli.progress import Progress
@@ -158,7 +156,7 @@ def localize(
     selection = scan_selection(run.options)
     written = RowOutputs.beside(out_path, tum_path, hypotheses, mcap_path)
     guess_file = guesses if isinstance(guesses, Path) else None
-    check_outputs(written.by_option(), [*log_paths, map_path, guess_file], run.force)
+    check_command_outputs(written.by_option(), [*log_paths, map_path, guess_file], run.force)
     segments_world = read_map(map_path)
     if mode == "global":
         pipeline.check_global_extent(segments_world, map_path, config.localize.search.region)

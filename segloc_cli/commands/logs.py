@@ -9,9 +9,10 @@ from pathlib import Path
 
 import click
 
-from segloc_cli.commands.configfile import config_option
+from segloc_cli.commands.configfile import check_command_outputs, config_option
 from segloc_cli.commands.invocation import Invocation
 from segloc_cli.commands.options import (
+    FilePath,
     FiniteRange,
     ModuleChoice,
     force_option,
@@ -133,7 +134,7 @@ SIMULATE_OPTIONS = (
 
 
 @click.command()
-@click.argument("world_path", metavar="WORLD_OR_MAP.json", type=click.Path(path_type=Path))
+@click.argument("world_path", metavar="WORLD_OR_MAP.json", type=FilePath())
 @with_options(*SIMULATE_OPTIONS)
 def simulate(
     world_path,
@@ -165,7 +166,6 @@ def simulate(
     import numpy as np
 
     from segloc_cli.estimates import PoseTable
-    from segloc_cli.io.files import check_outputs
     from segloc_cli.io.maps import read_world
     from segloc_cli.io.tables import read_pose_table, write_pose_table
     from segloc_cli.runs import pipeline
@@ -183,7 +183,7 @@ def simulate(
     if out_dir.is_dir():
         outputs = {"--out (log.mcap)": log_path, "--out (survey.csv)": survey_path}
         outputs["--out (run file)"] = run_file_path(log_path)
-        check_outputs(outputs, [world_path, poses_path], force)
+        check_command_outputs(outputs, [world_path, poses_path], force)
     world = read_world(world_path, default_material=material)
     truth = read_pose_table(poses_path, require_time=False)
     times = truth.time_s

@@ -10,10 +10,11 @@ from pathlib import Path
 import click
 import numpy as np
 
-from segloc_cli.commands.configfile import config_option
+from segloc_cli.commands.configfile import check_command_outputs, config_option
 from segloc_cli.commands.invocation import Invocation
 from segloc_cli.commands.options import (
     SCAN_SELECTION,
+    FilePath,
     force_option,
     path_option,
     scan_selection,
@@ -90,7 +91,7 @@ BUILD_OPTIONS = (
 
 
 @map_group.command("build")
-@click.argument("log_path", metavar="LOG.mcap", type=click.Path(path_type=Path))
+@click.argument("log_path", metavar="LOG.mcap", type=FilePath())
 @with_options(*BUILD_OPTIONS)
 def map_build(
     log_path, survey_path, out_path, mcap_path, initial_text, poses_out, loops_out, force, **_
@@ -110,7 +111,6 @@ def map_build(
     poses see through than see (people walking by). Beside OUT goes its run
     file (OUT.run.toml).
     """
-    from segloc_cli.io.files import check_outputs
     from segloc_cli.io.maps import bounds_problem, write_map
     from segloc_cli.io.tables import read_pose_table, refuse_map
     from segloc_cli.jit import SEEN_THROUGH_KERNELS, watching_compiles
@@ -136,7 +136,7 @@ def map_build(
         )
     outputs = {"--out": out_path, "--mcap": mcap_path, "--poses-out": poses_out}
     outputs |= {"--loops-out": loops_out, "--out (run file)": run_file_path(out_path)}
-    check_outputs(outputs, [log_path, survey_path], force)
+    check_command_outputs(outputs, [log_path, survey_path], force)
     if survey_path is None:
         extra = {"poses": poses_out, "loops": loops_out, "view": mcap_path}
         _map_without_survey(run, log_path, out_path, extra, initial)

@@ -88,6 +88,19 @@ class ModuleChoice(click.Choice):
         pass  # the constant is the only source
 
 
+class FilePath(click.Path):
+    """A file or folder named by an option or argument, as a ``Path``: never empty, which
+    ``Path`` would take for the current folder (or fail on as a file name, later)."""
+
+    def __init__(self, **checks: Any):
+        super().__init__(path_type=Path, **checks)
+
+    def convert(self, value, param, ctx):
+        if isinstance(value, str) and not value:
+            self.fail("an empty path; give a file or folder name", param, ctx)
+        return super().convert(value, param, ctx)
+
+
 class GuessSource(click.ParamType):
     """``--initial``: the keyword ``odom``, the first scan's pose ``X_M,Y_M,THETA_DEG`` (three
     numbers; checked here), or a file of poses (a path in a ``--config``)."""
@@ -96,6 +109,13 @@ class GuessSource(click.ParamType):
     holds_path = True
 
     def convert(self, value, param, ctx):
+        if value == "":
+            self.fail(
+                f"an empty value; give {GUESSES_KEYWORD}, a pose X_M,Y_M,THETA_DEG or a file of "
+                "poses",
+                param,
+                ctx,
+            )
         # Numbers of another count than three are a pose mistyped, unless a file has that name.
         if seed_pose(value) is not None or (numbers_only(value) and not Path(value).exists()):
             parse_planar_pose(value, "--initial", MAX_COORDINATE_M, "11,1.6,90")
@@ -189,23 +209,24 @@ force_option = click.option(
 def path_option(*names: str, required: bool = False, help: str) -> Callable:
     """An option naming a file or folder (``--map``, ``--out``, ...): a ``Path``, or None
     when not given."""
-    return click.option(*names, required=required, type=click.Path(path_type=Path), help=help)
+    return click.option(*names, required=required, type=FilePath(), help=help)
 
 
 def sensor_options(noise_help: str, from_world: bool = False) -> tuple[Callable, Callable]:
     """``--noise-cm`` and ``--seed`` of the simulated scanner (``simulate``, ``emulate``),
     the noise's default that of ``sim.SensorModel``; ``from_world``: None by default, for
     the world file's choice or else the model's default (``noise_help`` says so)."""
-    from segloc_cli.sim import SensorModel
+    from segloc_cli.sim import MAX_NOISE_CM, SensorModel
 
     noise = click.option(
         "--noise-cm",
-        type=FiniteRange(min=0, max=100),
+        type=FiniteRange(min=0, max=MAX_NOISE_CM),
         default=None if from_world else SensorModel.noise_cm,
         show_default=not from_world,
         help=noise_help,
     )
-    seed = click.option("--seed", type=int, default=0, show_default=True, help="Random seed.")
+    seeds = click.IntRange(min=0)  # numpy's generators take no negative seed
+    seed = click.option("--seed", type=seeds, default=0, show_default=True, help="Random seed.")
     return noise, seed
 
 

@@ -7,9 +7,15 @@ from pathlib import Path
 
 import click
 
-from segloc_cli.commands.configfile import config_option
+from segloc_cli.commands.configfile import check_command_outputs, config_option
 from segloc_cli.commands.invocation import Invocation
-from segloc_cli.commands.options import force_option, path_option, with_options
+from segloc_cli.commands.options import (
+    FilePath,
+    FiniteRange,
+    force_option,
+    path_option,
+    with_options,
+)
 from segloc_cli.commands.optionvalues import parse_point
 from segloc_cli.commands.printing import info, warn
 from segloc_cli.errors import InputError
@@ -56,7 +62,7 @@ IMPORT_OPTIONS = (
 
 
 @click.command("import")
-@click.argument("plan_path", metavar="PLAN.dxf|PLAN.svg|GRID.yaml", type=click.Path(path_type=Path))
+@click.argument("plan_path", metavar="PLAN.dxf|PLAN.svg|GRID.yaml", type=FilePath())
 @with_options(*IMPORT_OPTIONS)
 def map_import(plan_path, out_path, layers, units, scale_m, origin_m, force):
     """Make a segment map from a building plan (DXF or SVG) or a nav2 grid.
@@ -84,7 +90,6 @@ def map_import(plan_path, out_path, layers, units, scale_m, origin_m, force):
       segloc map import slam_map.yaml --out slam_map.json
       segloc localize scans.mcap --map office.json --out estimates.csv
     """
-    from segloc_cli.io.files import check_outputs
     from segloc_cli.io.maps import bounds_problem, write_map
     from segloc_cli.runs.pipeline import read_plan
 
@@ -93,7 +98,7 @@ def map_import(plan_path, out_path, layers, units, scale_m, origin_m, force):
     _only_for(kind, "svg", {"--scale": scale_m, "--origin": origin_m})
     origin = (0.0, 0.0) if origin_m is None else parse_point(origin_m, "--origin", "-5,12")
     outputs = {"--out": out_path, "--out (run file)": run_file_path(out_path)}
-    check_outputs(outputs, [plan_path], force)
+    check_command_outputs(outputs, [plan_path], force)
     wanted = [name.strip() for name in (layers or "").split(",") if name.strip()]
     plan = read_plan(plan_path, kind, wanted, units, scale_m, origin)
     problem = bounds_problem(plan.segments)
@@ -107,7 +112,7 @@ def map_import(plan_path, out_path, layers, units, scale_m, origin_m, force):
 
 
 @click.command("export")
-@click.argument("map_path", metavar="MAP.json", type=click.Path(path_type=Path))
+@click.argument("map_path", metavar="MAP.json", type=FilePath())
 @with_options(
     path_option(
         "--out",
@@ -125,7 +130,7 @@ def map_import(plan_path, out_path, layers, units, scale_m, origin_m, force):
     click.option(
         "--resolution",
         "resolution_m",
-        type=click.FloatRange(min=0.0, min_open=True),
+        type=FiniteRange(min=0.0, min_open=True),
         default=None,
         metavar="M",
         help="nav2: the side of a cell in metres (default 0.05).",
@@ -154,7 +159,6 @@ def map_export(map_path, out_path, plan_format, resolution_m, force):
       segloc map export map.json --out map.svg
       segloc map export map.json --out map.yaml --resolution 0.025
     """
-    from segloc_cli.io.files import check_outputs
     from segloc_cli.io.maps import read_map
     from segloc_cli.runs.pipeline import write_plan
 
@@ -164,7 +168,7 @@ def map_export(map_path, out_path, plan_format, resolution_m, force):
     if kind == "nav2":
         outputs["--out (image)"] = out_path.with_suffix(".pgm")
     outputs["--out (run file)"] = run_file_path(out_path, whole_name=True)
-    check_outputs(outputs, [map_path], force)
+    check_command_outputs(outputs, [map_path], force)
     segments = read_map(map_path)
     written = write_plan(out_path, segments, kind, resolution_m)
     Invocation.current().write_run_file(out_path, whole_name=True)

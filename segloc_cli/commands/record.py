@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from segloc_cli.commands.configfile import config_option
+from segloc_cli.commands.configfile import check_command_outputs, config_option
 from segloc_cli.commands.invocation import Invocation
 from segloc_cli.commands.options import (
     FiniteRange,
@@ -104,10 +104,11 @@ def record_command(
     """
     from segloc_cli.devices import driver_class, parse_device
     from segloc_cli.devices.record import RecordSettings, record
-    from segloc_cli.io.files import check_outputs
 
     protocol, port = parsed(parse_device, device, "--device")
-    check_outputs({"--out": out_path, "--out (run file)": run_file_path(out_path)}, [port], force)
+    check_command_outputs(
+        {"--out": out_path, "--out (run file)": run_file_path(out_path)}, [port], force
+    )
     settings = RecordSettings(scans, duration_s, readings, rev_per_s, stall_s)
     driver = driver_class(protocol)(port, baud, timeout_s)
     display = _RecordDisplay(port, out_path, sys.stderr.isatty())

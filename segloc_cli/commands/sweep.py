@@ -8,16 +8,16 @@ from pathlib import Path
 import click
 from click.core import ParameterSource
 
-from segloc_cli.commands.configfile import config_option
+from segloc_cli.commands.configfile import check_command_outputs, config_option
 from segloc_cli.commands.invocation import Invocation
-from segloc_cli.commands.options import force_option, format_option, path_option
+from segloc_cli.commands.options import FilePath, force_option, format_option, path_option
 from segloc_cli.commands.printing import info, warn, within_cores
 from segloc_cli.method.confidence import RIGHT_PLACE_DEG, RIGHT_PLACE_M
 from segloc_cli.wording import counted
 
 
 @click.command()
-@click.argument("spec_path", metavar="SPEC.toml", type=click.Path(path_type=Path))
+@click.argument("spec_path", metavar="SPEC.toml", type=FilePath())
 @path_option("--out", "out_path", required=True, help="Results table to write (Parquet).")
 @click.option(
     "--scheduler",
@@ -37,7 +37,7 @@ from segloc_cli.wording import counted
 @click.option(
     "--convergence",
     metavar="PREFIX",
-    type=click.Path(path_type=Path),
+    type=FilePath(),
     help="Also write convergence curves, per combination the share of poses found within "
     f"{100 * RIGHT_PLACE_M:g} cm and {RIGHT_PLACE_DEG:g}° of the truth against the guess's "
     "position and heading errors, with 95 % Wilson intervals: PREFIX.md, PREFIX.png, "
@@ -95,18 +95,17 @@ def sweep(spec_path, out_path, scheduler, jobs, fmt, convergence, force):
 
     _check_extra()
     _check_scheduler(scheduler)
-    from segloc_cli.io.files import check_outputs
     from segloc_cli.runs.runfile import run_file_path
     from segloc_cli.runs.sweep import convergence_outputs
 
     run = Invocation.current()
     curves = convergence_outputs(convergence)
-    check_outputs(curves, [], force)
+    check_command_outputs(curves, [], force)
     # An existing OUT is the sweep's to resume (force), but never one of its inputs.
     outputs = {"--out": out_path, "--out (run file)": run_file_path(out_path), **curves}
-    check_outputs(outputs, [spec_path], force=True)
+    check_command_outputs(outputs, [spec_path], force=True)
     plan = read_spec(spec_path)
-    check_outputs(outputs, [path for _, path in plan.inputs], force=True)
+    check_command_outputs(outputs, [path for _, path in plan.inputs], force=True)
     table, stops = _run(plan, out_path, scheduler, jobs, force)
     run.write_run_file(out_path, also_read=plan.inputs)
     from segloc_cli.commands.sweep_lines import report

@@ -220,10 +220,19 @@ def _logs(document: dict, path: Path) -> list[_Log]:
     return logs
 
 
+MAX_SEED = 2**63 - 1
+"""Largest seed a sweep takes (seeds start at 0, as numpy's generators do): its tables hold
+a seed as a 64-bit signed integer."""
+
+
 def _seeds(value: Any, path: Path) -> list[int]:
     ok = isinstance(value, list) and value and all(type(v) is int for v in value)
-    if not ok or len(set(value)) < len(value):
-        raise InputError(f"key 'seeds' takes a list of distinct whole numbers, not {value!r}", path)
+    if not ok or len(set(value)) < len(value) or not all(0 <= v <= MAX_SEED for v in value):
+        raise InputError(
+            f"key 'seeds' takes a list of distinct whole numbers from 0 to {MAX_SEED}, "
+            f"not {value!r}",
+            path,
+        )
     return value
 
 
