@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import math
 import re
+import warnings
 
 import numpy as np
 import pandas as pd
@@ -16,6 +17,7 @@ from segloc_cli.runs.evaluation import read_baseline
 from segloc_cli.scoring.baseline import (
     BETTER,
     NO_CHANGE,
+    NOT_COMPARED,
     WORSE,
     WORSE_WITHIN_LIMIT,
     compare,
@@ -217,6 +219,25 @@ def test_json_of_a_comparison_is_plain_json():
     assert out["n_shared"] == 3 and out["failed"] is False
 
 
+def test_figures_that_cannot_be_compared_never_pass():
+    # This run's errors so large that their squares overflow: the X figures are not finite.
+    before = make_table([1, 2, 3], [1.0, 2.0, 3.0], [0.0, 0.5, 1.0], [0.5, 0.0, 0.1])
+    now = make_table([1, 2, 3], [1e300, 2.0, 3.0], [0.0, 0.5, 1.0], [0.5, 0.0, 0.1])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        comparison = compare(as_baseline(before), now, fail_if_worse_cm=1.0)
+        unlimited = compare(as_baseline(before), now, fail_if_worse_deg=1.0)
+    rows = by_figure(comparison)
+    not_compared = [f for f, row in rows.items() if row.verdict == NOT_COMPARED]
+    assert not_compared == ["RMS X", "RMS |XY|"]
+    assert comparison.failed and rows["RMS X"].failed and not rows["mean |XY|"].failed
+    assert "RMS X cannot be compared" in comparison.failures[0]
+    assert [o.passed for o in comparison.outcomes if "RMS X" in o.title] == [False]
+    # Without a limit on its unit the figure is shown as not compared, and fails nothing.
+    assert by_figure(unlimited)["RMS X"].verdict == NOT_COMPARED and not unlimited.failed
+    assert json.loads(json.dumps(comparison.as_json(), allow_nan=False))["failed"] is True
+
+
 # --- baseline files ------------------------------------------------------------------------
 
 
@@ -252,6 +273,29 @@ GOOD_POSE = {
         (json.dumps({"poses": [{**GOOD_POSE, "err_y_cm": "2"}]}), "err_y_cm '2' is not a num"),
         (json.dumps({"poses": [{**GOOD_POSE, "err_y_cm": True}]}), "err_y_cm True is not a"),
         (json.dumps({"poses": [GOOD_POSE, GOOD_POSE]}), "pose 1 more than once"),
+        # Ids beyond int64, numbers too long to read, and nesting too deep name the file too.
+        (json.dumps({"poses": [{**GOOD_POSE, "pose_id": 2**63}]}), "not an integer within"),
+        (json.dumps({"poses": [{**GOOD_POSE, "pose_id": -(2**64)}]}), "not an integer within"),
+        (json.dumps({"poses": [{**GOOD_POSE, "pose_id": 10**4000}]}), r"1\d+… \(4001 digits\)"),
+        ('{"poses": [{"pose_id": 1' + "0" * 5000 + "}]}", "a number too long to read"),
+        ('{"poses": ' + "[" * 100_000 + "]" * 100_000 + "}", "nested too deeply"),
+        # Errors that are not finite, or so large that their squares overflow, are refused.
+        *(
+            (json.dumps({"poses": [{**GOOD_POSE, key: value}]}), f"{key} .* is no error")
+            for key, value in (
+                ("err_x_cm", 1e308),
+                ("err_y_cm", -1e300),
+                ("err_xy_cm", math.inf),
+                ("err_theta_deg", math.nan),
+                ("err_theta_deg", 400.0),
+                ("err_x_cm", 10**20),
+            )
+        ),
+        (
+            '{"poses": [{"pose_id": 1, "err_x_cm": 1e400, "err_y_cm": 0, "err_xy_cm": 0, '
+            '"err_theta_deg": 0, "status": "ok"}]}',
+            "err_x_cm inf is no error",
+        ),
     ],
 )
 def test_bad_baseline_files_are_one_line_errors(tmp_path, content, expected):

@@ -27,6 +27,7 @@ import pandas as pd
 from segloc_cli.errors import InputError
 from segloc_cli.estimates import ESTIMATED
 from segloc_cli.io.numbers import rounded_frame
+from segloc_cli.limits import MAX_ABS_ID, MAX_COORDINATE_M
 from segloc_cli.markdown import cell
 from segloc_cli.scoring.gates import (
     GATE_SLACK,
@@ -43,6 +44,11 @@ ERROR_KEYS = ("err_x_cm", "err_y_cm", "err_xy_cm", "err_theta_deg")
 POSE_KEYS = ("pose_id", *ERROR_KEYS, "status")
 """What every pose of a baseline must have."""
 
+ERROR_BOUNDS = {"cm": 400.0 * MAX_COORDINATE_M, "°": 360.0}
+"""The largest final error (by unit) a baseline may hold: two positions within ±10^7 m lie
+less than 4·10^9 cm apart, and evaluate wraps headings to ±180°. A larger value (or one not
+finite) is no run of evaluate, and its square could overflow the comparison's sums."""
+
 HOW_TO_MAKE = "make one with `segloc evaluate ... --format json --out OLD.json`"
 
 WORSE = "worse"
@@ -53,6 +59,8 @@ NO_CHANGE = "no change shown"
 """The interval holds 0."""
 BETTER = "better"
 """The interval lies wholly below 0."""
+NOT_COMPARED = "cannot be compared"
+"""The figure or its interval is not a finite number: with a limit, the figure fails."""
 
 CONFIDENCE = 0.95
 """Coverage of the bootstrap interval of each change."""
@@ -98,8 +106,9 @@ class ComparisonRow:
 
     @property
     def failed(self) -> bool:
-        """Worse by more than the limit."""
-        return self.verdict == WORSE
+        """Worse by more than the limit, or not comparable where a limit is given: a
+        comparison that cannot be made never passes."""
+        return self.verdict == WORSE or (self.verdict == NOT_COMPARED and self.limit is not None)
 
 
 @dataclass(frozen=True)
@@ -144,7 +153,9 @@ class Comparison:
         compared when it failed."""
         fewer = [] if self.fewer is None or self.fewer.passed else [self.fewer.text]
         return fewer + [
-            f"{row.figure} worse by {with_unit(_num(row.change, row.unit), row.unit)} "
+            f"{row.figure} {NOT_COMPARED} (not a finite number)"
+            if row.verdict == NOT_COMPARED
+            else f"{row.figure} worse by {with_unit(_num(row.change, row.unit), row.unit)} "
             f"({_INTERVAL} {with_unit(_interval(row), row.unit)}) beyond "
             f"{with_unit(f'{row.limit:g}', row.unit)}"
             for row in self.rows
@@ -242,15 +253,25 @@ def _interval(row: ComparisonRow) -> str:
 
 def parse_baseline(text: str, path: object = "baseline") -> dict:
     """``text`` as a baseline: a JSON object whose ``"poses"`` list holds, for every pose,
-    ``pose_id`` (a unique integer), ``err_x_cm``, ``err_y_cm``, ``err_xy_cm`` (cm),
-    ``err_theta_deg`` (degrees; each a number or null) and ``status``. Returns the object.
-    Raises a one-line ``InputError`` naming ``path`` and what is wrong."""
+    ``pose_id`` (a unique integer within int64), ``err_x_cm``, ``err_y_cm``, ``err_xy_cm``
+    (cm), ``err_theta_deg`` (degrees; each null or a finite number within ``ERROR_BOUNDS``)
+    and ``status``. Returns the object. Raises a one-line ``InputError`` naming ``path`` and
+    what is wrong, a file nested too deeply among them."""
     try:
         data = json.loads(text)
     except json.JSONDecodeError as exc:
         raise InputError(
             f"not JSON ({exc.msg}, line {exc.lineno}); a baseline is the JSON of evaluate: "
             + HOW_TO_MAKE,
+            path=path,
+        ) from None
+    except RecursionError:
+        raise InputError(
+            "its JSON is nested too deeply to be the JSON of evaluate; " + HOW_TO_MAKE, path=path
+        ) from None
+    except ValueError:  # an integer of more digits than Python converts
+        raise InputError(
+            "holds a number too long to read, so it is not the JSON of evaluate; " + HOW_TO_MAKE,
             path=path,
         ) from None
     _baseline_run(data, path)
@@ -277,16 +298,7 @@ def _baseline_run(data: object, path: object) -> _Run:
         missing = [key for key in POSE_KEYS if not isinstance(pose, dict) or key not in pose]
         if missing:
             raise InputError(f"poses[{i}] lacks {', '.join(missing)}; {HOW_TO_MAKE}", path=path)
-        if not isinstance(pose["pose_id"], int) or isinstance(pose["pose_id"], bool):
-            raise InputError(
-                f"poses[{i}]: pose_id {pose['pose_id']!r} is not an integer", path=path
-            )
-        for key in ERROR_KEYS:
-            value = pose[key]
-            if value is not None and (
-                isinstance(value, bool) or not isinstance(value, int | float)
-            ):
-                raise InputError(f"poses[{i}]: {key} {value!r} is not a number or null", path=path)
+        _check_pose(pose, i, path)
     errors = [[math.nan if p[key] is None else p[key] for key in ERROR_KEYS] for p in poses]
     run = _Run(
         np.array([p["pose_id"] for p in poses], dtype=np.int64),
@@ -295,6 +307,39 @@ def _baseline_run(data: object, path: object) -> _Run:
     )
     _refuse_repeated_ids(run.pose_id, path, "the baseline")
     return run
+
+
+def _check_pose(pose: dict, i: int, path: object) -> None:
+    """Refuse the ``i``-th pose of a baseline unless its id is an integer within int64 and
+    each error null or a finite number within ``ERROR_BOUNDS``."""
+    pose_id = pose["pose_id"]
+    if not isinstance(pose_id, int) or isinstance(pose_id, bool):
+        raise InputError(f"poses[{i}]: pose_id {pose_id!r} is not an integer", path=path)
+    if abs(pose_id) > MAX_ABS_ID:
+        raise InputError(
+            f"poses[{i}]: pose_id {_shown(pose_id)} is not an integer within ±{MAX_ABS_ID}",
+            path=path,
+        )
+    for key, unit in zip(ERROR_KEYS, ("cm", "cm", "cm", "°"), strict=True):
+        value = pose[key]
+        if value is None:
+            continue
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise InputError(f"poses[{i}]: {key} {value!r} is not a number or null", path=path)
+        bound = ERROR_BOUNDS[unit]
+        if not abs(value) <= bound:
+            raise InputError(
+                f"poses[{i}]: {key} {_shown(value)} is no error evaluate gives (a finite "
+                f"number within ±{with_unit(f'{bound:g}', unit)}); {HOW_TO_MAKE}",
+                path=path,
+            )
+
+
+def _shown(value: float) -> str:
+    """A number of a baseline as its message shows it: an integer of many digits by its
+    first ones and its length."""
+    text = repr(value)
+    return text if len(text) <= 24 else f"{text[:12]}… ({len(text)} digits)"
 
 
 def _table_run(table: pd.DataFrame) -> _Run:
@@ -324,7 +369,11 @@ def _check_limit(limit: float | None, name: str) -> None:
         raise ValueError(f"{name} must be a non-negative number, got {limit}")
 
 
-def _verdict(low: float, high: float, limit: float | None) -> str:
+def _verdict(figures: tuple, low: float, high: float, limit: float | None) -> str:
+    """The verdict on a change whose interval is ``low``..``high``, ``figures`` the
+    baseline's, the run's and the change, all of which must be finite to be compared."""
+    if not np.isfinite([*figures, low, high]).all():
+        return NOT_COMPARED
     # The same poses read from another format (a heading from a quaternion) differ in the
     # last bits; a change that small is no change.
     if limit is not None and low > limit + GATE_SLACK:
@@ -407,11 +456,15 @@ def compare(
             f"compare ({shared.size} in both, {shared.size - n} left out); at least 2 are "
             "needed: are they of the same survey?"
         )
-    before_values = _summands(before.errors[in_before[keep]])
-    now_values = _summands(now.errors[in_now[keep]])
-    lows, highs = _paired_interval(before_values, now_values, n_resamples, seed)
-    baseline_figures = _finish(before_values.mean(axis=0))
-    now_figures = _finish(now_values.mean(axis=0))
+    # Errors so large that their squares overflow give figures that are not finite: those
+    # are not compared (``NOT_COMPARED``), without numpy's warnings on the way.
+    with np.errstate(over="ignore", invalid="ignore"):
+        before_values = _summands(before.errors[in_before[keep]])
+        now_values = _summands(now.errors[in_now[keep]])
+        lows, highs = _paired_interval(before_values, now_values, n_resamples, seed)
+        baseline_figures = _finish(before_values.mean(axis=0))
+        now_figures = _finish(now_values.mean(axis=0))
+        changes = now_figures - baseline_figures
     limits = {"cm": fail_if_worse_cm, "°": fail_if_worse_deg}
     rows = [
         ComparisonRow(
@@ -419,11 +472,16 @@ def compare(
             unit=figure.unit,
             baseline=float(baseline_figures[j]),
             now=float(now_figures[j]),
-            change=float(now_figures[j] - baseline_figures[j]),
+            change=float(changes[j]),
             low=float(lows[j]),
             high=float(highs[j]),
             limit=limits[figure.unit],
-            verdict=_verdict(float(lows[j]), float(highs[j]), limits[figure.unit]),
+            verdict=_verdict(
+                (baseline_figures[j], now_figures[j], changes[j]),
+                float(lows[j]),
+                float(highs[j]),
+                limits[figure.unit],
+            ),
         )
         for j, figure in enumerate(_FIGURES)
     ]
