@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+import warnings
 
 import numpy as np
 import pandas as pd
@@ -131,6 +132,46 @@ def test_poses_without_a_usable_covariance_are_counted_not_judged():
     assert (result.n_poses, result.n_without, result.n_used) == (5, 4, 1)
     assert (result.nees_position, result.nees_heading) == (1.0, 1.0)
     assert "4 without" in result.lines()[0]
+
+
+@pytest.mark.parametrize(
+    ("tiny", "error_m"),
+    [
+        (np.eye(3) * 1e-310, 0.01),  # subnormal: the 2×2 determinant rounds to 0
+        (np.diag([1e-310, 1.0, 1.0]), 0.01),  # one subnormal variance
+        (np.eye(3) * 1e-150, 1e80),  # invertible, but the NEES is past float64's range
+        (np.diag([1.0, 1.0, 1e-320]), 0.01),  # the heading's variance
+    ],
+)
+def test_a_covariance_too_small_to_invert_is_counted_not_judged(tiny, error_m):
+    errors = np.array([[1.0, 1.0, 0.5], [error_m, -error_m, error_m]])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        result = consistency(errors, np.stack([HAND_COVARIANCE, tiny]))
+    assert result is not None
+    assert (result.n_poses, result.n_without, result.n_used) == (2, 1, 1)
+    assert (result.nees_position, result.nees_heading) == (1.0, 1.0)
+    assert (
+        "1 without (missing, not positive definite, or too small to invert)" in (result.lines()[0])
+    )
+    # Alone, it leaves nothing to judge.
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        alone = consistency(errors[1:], tiny[None])
+    assert alone is not None and (alone.n_used, alone.verdict) == (0, "unknown")
+    assert json.loads(json.dumps(alone.as_json(), allow_nan=False))["nees_position"] is None
+
+
+def test_a_mean_nees_whose_sum_overflows_stays_finite():
+    # Two poses, each NEES finite but near float64's largest: their plain sum overflows.
+    covariance = np.eye(3) * 1e-100
+    errors = np.array([[1.3e104, 0.0, 0.0], [1.3e104, 0.0, 0.0]])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        result = consistency(errors, np.stack([covariance, covariance]))
+    assert result is not None and result.n_used == 2
+    assert math.isfinite(result.nees_position) and result.nees_position > 1e307
+    assert result.verdict == "over-confident"
 
 
 def test_no_covariance_at_all_gives_none_and_none_usable_gives_unknown():

@@ -40,6 +40,8 @@ VERDICTS = ("consistent", "over-confident", "under-confident", "unknown")
 # singular in all but name: its inverse would be noise.
 _PD_RELATIVE_TOLERANCE = 1e-12
 
+_UNUSABLE = "missing, not positive definite, or too small to invert"
+
 _VERDICT_TEXT = {
     "consistent": "the covariances match the errors",
     "over-confident": "the errors are larger than the covariances say",
@@ -127,7 +129,8 @@ class Consistency:
     """How a localizer's covariances bear out against its errors.
 
     ``n_poses``: poses with a finite error; ``n_without``: those among them with no usable
-    covariance (an entry missing, or the 3×3 not positive definite), left out of the rest.
+    covariance (an entry missing, the 3×3 not positive definite, or so small against the
+    error that its NEES is not a finite number), left out of the rest.
     ``share_within``: % of the used poses inside the 1σ, 2σ and 3σ ellipse of their
     position covariance (``SIGMAS``); ``expected_share`` the same for a consistent
     localizer. ``nees_position`` and ``nees_heading``: mean NEES of the position (2×2
@@ -156,14 +159,10 @@ class Consistency:
         """The result in words, one sentence a line, for a Markdown summary."""
         if self.n_used == 0:
             return [
-                f"Covariance: none of the {self.n_poses} poses carries a usable one (missing, "
-                "or not positive definite), so its consistency is not judged."
+                f"Covariance: none of the {self.n_poses} poses carries a usable one ({_UNUSABLE}), "
+                "so its consistency is not judged."
             ]
-        without = (
-            f"; {self.n_without} without (missing, or not positive definite)"
-            if self.n_without
-            else ""
-        )
+        without = f"; {self.n_without} without ({_UNUSABLE})" if self.n_without else ""
         sigmas = " / ".join(f"{k}σ" for k in SIGMAS)
         shares = " / ".join(f"{s:.1f}" for s in self.share_within)
         expected = " / ".join(f"{s:.1f}" for s in self.expected_share)
@@ -217,6 +216,14 @@ def _verdict(mean_nees: float, interval: tuple[float, float]) -> str:
     return "consistent"
 
 
+def _mean(values: np.ndarray) -> float:
+    """The mean of finite ``values``; where their sum overflows, the sum of their shares
+    (each value over their count), which stays within the largest."""
+    with np.errstate(over="ignore"):
+        mean = float(np.mean(values))
+    return mean if math.isfinite(mean) else float(np.sum(values / values.size))
+
+
 def consistency(errors: np.ndarray, covariances: np.ndarray) -> Consistency | None:
     """Judge ``covariances`` (N, 3, 3; x m, y m, θ rad, world frame) against ``errors``
     (N, 3: x m, y m, θ rad, surveyed minus estimate, θ wrapped again here).
@@ -238,18 +245,22 @@ def consistency(errors: np.ndarray, covariances: np.ndarray) -> Consistency | No
     posed = np.all(np.isfinite(errors), axis=1)
     errors, covariances = errors[posed], covariances[posed]
     used = usable_covariances(covariances)
-    e, cov = errors[used], covariances[used]
+    ex, ey, etheta = errors[:, 0], errors[:, 1], wrap_angle(errors[:, 2])
+    a, b, d = covariances[:, 0, 0], covariances[:, 0, 1], covariances[:, 1, 1]
+    with np.errstate(all="ignore"):
+        # The 2×2 inverse in closed form: positive definiteness of the 3×3 keeps det > 0,
+        # but a covariance of subnormal entries (1e-310 m²) has a det that rounds to 0, and
+        # one tiny against its error a NEES past float64's range. Such a pose has no NEES to
+        # judge: it is counted among those without a usable covariance.
+        nees_xy = (d * ex * ex - 2.0 * b * ex * ey + a * ey * ey) / (a * d - b * b)
+        nees_theta = etheta * etheta / covariances[:, 2, 2]
+    used &= np.isfinite(nees_xy) & np.isfinite(nees_theta)
+    nees_xy, nees_theta = nees_xy[used], nees_theta[used]
     n_used = int(np.count_nonzero(used))
-
-    ex, ey, etheta = e[:, 0], e[:, 1], wrap_angle(e[:, 2])
-    a, b, d = cov[:, 0, 0], cov[:, 0, 1], cov[:, 1, 1]
-    # The 2×2 inverse in closed form: positive definiteness of the 3×3 keeps det > 0.
-    nees_xy = (d * ex * ex - 2.0 * b * ex * ey + a * ey * ey) / (a * d - b * b)
-    nees_theta = etheta * etheta / cov[:, 2, 2]
 
     if n_used:
         share = tuple(100.0 * float(np.mean(nees_xy <= k * k)) for k in SIGMAS)
-        mean_xy, mean_theta = float(np.mean(nees_xy)), float(np.mean(nees_theta))
+        mean_xy, mean_theta = _mean(nees_xy), _mean(nees_theta)
     else:
         share = (math.nan,) * len(SIGMAS)
         mean_xy = mean_theta = math.nan
