@@ -11,6 +11,7 @@ import io
 import json
 import os
 import re
+import tomllib
 from pathlib import Path
 
 import numpy as np
@@ -335,6 +336,163 @@ def test_without_the_variable_no_step_summary_is_written(run_files, tmp_path, ca
     assert summary.read_text(encoding="utf-8").startswith("### segloc evaluate: no gates\n")
     assert [p.name for p in tmp_path.iterdir()] == ["summary.md"]
     assert f"segloc: wrote {summary}" in err.splitlines()
+
+
+def copied_run(run_files, where: Path) -> tuple[Path, Path]:
+    """The estimates and the survey copied into ``where``: a test may point an output at them."""
+    for name in ("segloc", "survey"):
+        (where / run_files[name].name).write_bytes(run_files[name].read_bytes())
+    return where / run_files["segloc"].name, where / run_files["survey"].name
+
+
+STEP_SUMMARY_WARNING = "segloc: warning: no step summary appended (GITHUB_STEP_SUMMARY): "
+
+
+def step_summary_warnings(err: str) -> list[str]:
+    return [line for line in err.splitlines() if "GITHUB_STEP_SUMMARY" in line]
+
+
+@pytest.mark.parametrize(
+    "target",
+    ["estimates", "survey", "a link to the survey", "--out", "--out's run file", "--junit",
+     "--summary-md"],
+)  # fmt: skip
+def test_a_step_summary_naming_an_input_or_another_output_is_left_alone(
+    run_files, tmp_path, capsys, monkeypatch, target
+):
+    estimates, survey = copied_run(run_files, tmp_path)
+    out, junit, summary = tmp_path / "t.json", tmp_path / "r.xml", tmp_path / "s.md"
+    (tmp_path / "link.md").symlink_to(survey)
+    named = {
+        "estimates": estimates,
+        "survey": survey,
+        "a link to the survey": tmp_path / "link.md",
+        "--out": out,
+        "--out's run file": tmp_path / "t.run.toml",
+        "--junit": junit,
+        "--summary-md": summary,
+    }[target]
+    monkeypatch.setenv("GITHUB_STEP_SUMMARY", str(named))
+    inputs = {path: path.read_bytes() for path in (estimates, survey)}
+    args = ("--fail-above-xy-cm", 10, "--format", "json", "--out", out)
+    code, _, err = evaluate(
+        capsys, estimates, survey, *args, "--junit", junit, "--summary-md", summary
+    )
+    # The gate's verdict stands, the step summary's trouble said once, before any work.
+    assert code == 1, err
+    (warning,) = step_summary_warnings(err)
+    assert warning.startswith(STEP_SUMMARY_WARNING + str(named) + ": ")
+    assert err.splitlines()[0] == warning
+    assert ("is an input of this command" in warning) == (target in {
+        "estimates", "survey", "a link to the survey"
+    })  # fmt: skip
+    # Nothing written into an input, nor twice into an output.
+    assert {path: path.read_bytes() for path in inputs} == inputs
+    assert json.loads(out.read_text(encoding="utf-8"))["summary"]["n_poses"] == N
+    assert tomllib.loads((tmp_path / "t.run.toml").read_text(encoding="utf-8"))
+    assert summary.read_text(encoding="utf-8").count("### segloc evaluate") == 1
+    assert "### segloc evaluate" not in junit.read_text(encoding="utf-8")
+
+
+@pytest.mark.parametrize("kind", ["folder", "pipe", "device", "missing folder", "read-only"])
+def test_a_step_summary_that_cannot_be_appended_to_is_left_alone(
+    run_files, tmp_path, capsys, monkeypatch, kind
+):
+    if kind == "device" and not Path("/dev/full").exists():
+        pytest.skip("no /dev/full here")
+    if kind == "read-only" and os.geteuid() == 0:
+        pytest.skip("root writes read-only files")
+    named = {
+        "folder": tmp_path / "steps",
+        "pipe": tmp_path / "steps.fifo",
+        "device": Path("/dev/full"),  # every write fails: no space left on device
+        "missing folder": tmp_path / "none" / "steps.md",
+        "read-only": tmp_path / "steps.md",
+    }[kind]
+    if kind == "folder":
+        named.mkdir()
+    elif kind == "read-only":
+        named.write_text("earlier\n", encoding="utf-8")
+        named.chmod(0o444)
+    reader = None
+    if kind == "pipe":
+        os.mkfifo(named)
+        # A reader that waits for nothing: a writer then gets in at once, and nothing hangs.
+        reader = os.open(named, os.O_RDONLY | os.O_NONBLOCK)
+    monkeypatch.setenv("GITHUB_STEP_SUMMARY", str(named))
+    junit = tmp_path / "r.xml"
+    try:
+        args = ("--fail-above-xy-cm", 10, "--junit", junit)
+        code, _, err = evaluate(capsys, run_files["segloc"], run_files["survey"], *args)
+        if reader is not None:
+            with contextlib.suppress(BlockingIOError):
+                assert os.read(reader, 1 << 20) == b""
+    finally:
+        if reader is not None:
+            os.close(reader)
+    assert code == 1, err
+    (warning,) = step_summary_warnings(err)
+    assert warning.startswith(STEP_SUMMARY_WARNING + str(named) + ": ")
+    assert err.splitlines()[0] == warning  # said before any work
+    assert junit.stat().st_size > 0
+    if kind == "read-only":
+        assert named.read_text(encoding="utf-8") == "earlier\n"
+
+
+def test_a_step_summary_whose_write_fails_is_taken_back_and_the_verdict_stands(
+    run_files, tmp_path, capsys, monkeypatch
+):
+    import errno
+
+    step_summary = tmp_path / "steps.md"
+    step_summary.write_text("earlier\n", encoding="utf-8")
+    monkeypatch.setenv("GITHUB_STEP_SUMMARY", str(step_summary))
+    written = []
+    real_write = os.write
+
+    def disk_fills(fd: int, data: bytes) -> int:
+        if os.fstat(fd).st_ino != step_summary.stat().st_ino:
+            return real_write(fd, data)
+        if not written:  # the first part goes in, then the disk is full
+            written.append(real_write(fd, data[:100]))
+            return written[0]
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    monkeypatch.setattr(os, "write", disk_fills)
+    summary = tmp_path / "s.md"
+    args = ("--fail-above-xy-cm", 10, "--summary-md", summary)
+    code, _, err = evaluate(capsys, run_files["segloc"], run_files["survey"], *args)
+    assert code == 1, err
+    assert written == [100]
+    (warning,) = step_summary_warnings(err)
+    assert warning == (
+        f"{STEP_SUMMARY_WARNING}{step_summary}: cannot write file (No space left on device)"
+    )
+    assert step_summary.read_text(encoding="utf-8") == "earlier\n"
+    assert summary.read_text(encoding="utf-8").startswith("### segloc evaluate: FAIL")
+
+
+def test_a_step_summary_naming_a_figure_or_the_page_is_left_alone(run_files, tmp_path, monkeypatch):
+    from segloc_cli.runs.evaluation import EvaluateOptions
+    from segloc_cli.runs.reports import step_summary_path
+
+    plots, page = tmp_path / "plots", tmp_path / "page.html"
+    plots.mkdir()
+    options = EvaluateOptions(
+        run_files["segloc"], survey_path=run_files["survey"], plots_dir=plots, html_path=page
+    )
+    for named, other in ((plots / "errors.png", "--plots (errors.png)"), (page, "--html")):
+        monkeypatch.setenv("GITHUB_STEP_SUMMARY", str(named))
+        path, problem = step_summary_path(options)
+        assert path is None
+        assert problem == (
+            f"no step summary appended (GITHUB_STEP_SUMMARY): {named}: {other} and "
+            "GITHUB_STEP_SUMMARY name the same file"
+        )
+    monkeypatch.setenv("GITHUB_STEP_SUMMARY", str(tmp_path / "steps.md"))
+    assert step_summary_path(options) == (tmp_path / "steps.md", None)
+    monkeypatch.setenv("GITHUB_STEP_SUMMARY", " ")
+    assert step_summary_path(options) == (None, None)
 
 
 # --------------------------------------------------------------------------- baseline

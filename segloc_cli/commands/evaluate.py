@@ -74,13 +74,14 @@ def evaluate(estimates_path, force, **given):
         refuse_map(options.survey_path, "--survey", "the surveyed poses")
     if options.plots_dir is not None:
         evaluation.check_plots(options, force)
+    step_summary = _step_summary(options)
     estimates = evaluation.read_scored_estimates(options)
     scores, figures = _score(estimates, options)
     info(scores.pairing)
     for warning in scores.warnings:
         warn(warning)
     _emit(scores.text, options.out_path)
-    _write_reports(options, scores, figures)
+    _write_reports(options, scores, figures, step_summary)
     if options.plots_dir is not None:
         _draw(options, figures)
     if scores.all_outcomes:
@@ -141,13 +142,28 @@ def _unused_figure_inputs(given: dict) -> None:
         given[name] = None
 
 
-def _write_reports(options, scores, figures) -> None:
-    """The CI outputs asked for: JUnit, the Markdown summary (and GitHub's step summary),
-    the HTML page; each said."""
+def _step_summary(options) -> Path | None:
+    """The step summary to append to (``GITHUB_STEP_SUMMARY``'s file), checked before any
+    work; one that cannot take it is left alone, saying so."""
+    from segloc_cli.runs.reports import step_summary_path
+
+    path, problem = step_summary_path(options)
+    if problem is not None:
+        warn(problem)
+    return path
+
+
+def _write_reports(options, scores, figures, step_summary: Path | None) -> None:
+    """The CI outputs asked for: JUnit, the Markdown summary, the HTML page (and GitHub's
+    step summary); each said, and a step summary that could not be appended to warned of."""
     from segloc_cli.runs.reports import write_reports
 
-    for path in write_reports(options, scores, figures, Invocation.current().options):
+    settings = Invocation.current().options
+    written, problems = write_reports(options, scores, figures, settings, step_summary)
+    for path in written:
         info(f"wrote {path}")
+    for problem in problems:
+        warn(problem)
 
 
 def _draw(options, figures) -> None:

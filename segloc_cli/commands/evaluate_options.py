@@ -169,7 +169,8 @@ CI_OPTIONS = (
         "--summary-md",
         "summary_md_path",
         help="Write the Markdown summary here, verdict first, under 1 MiB (with "
-        "GITHUB_STEP_SUMMARY set, it is also appended there). Replaced on a rerun.",
+        "GITHUB_STEP_SUMMARY set, it is also appended there, or a warning says why not). "
+        "Replaced on a rerun.",
     ),
     path_option(
         "--html",

@@ -112,6 +112,32 @@ def check_outputs(
         seen[key] = option
 
 
+def check_appended(
+    path: str | Path,
+    option: str,
+    outputs: Mapping[str, str | Path | None],
+    inputs: Iterable[str | Path | None],
+) -> Path:
+    """Refuse, before any work, a file a run appends to (named by ``option``): one that is
+    one of the ``inputs`` or another of the run's ``outputs`` (as ``check_outputs`` takes
+    them), is not a regular file (a pipe could block the run forever, a device take
+    nothing), or cannot be written (the file read-only, its folder missing or not writable).
+    Raises ``OutputError`` naming the file; returns the path. An existing file is no reason
+    to refuse: appending keeps what it holds."""
+    path = Path(path)
+    key = _identity(path)
+    for source in (Path(s) for s in inputs if s is not None):
+        if _identity(source) == key:
+            raise OutputError(f"is an input of this command; choose another {option}", path=path)
+    for other, named in outputs.items():
+        if named is not None and _identity(Path(named)) == key:
+            raise OutputError(f"{other} and {option} name the same file", path=path)
+    check_output(path, force=True, option=option)
+    if path.exists() and not os.access(path, os.W_OK):
+        raise OutputError(f"is not writable; choose another {option}", path=path)
+    return path
+
+
 def _identity(path: Path) -> str:
     """The file ``path`` names (links, hard ones too, followed), whether or not it exists."""
     try:

@@ -11,8 +11,8 @@ raises ``InputError`` naming the file.
   the covariance's consistency and the comparison with a baseline (``read_baseline``), as
   ``Scores``.
 - ``relation_scores``: the relation metric of Kümmerle et al. (2009) with its gates.
-- ``check_plots``, ``figure_names``, ``figures_of``, ``relation_figures_of``: the figures,
-  checked before any work.
+- ``check_plots``, ``figure_names``, ``figure_paths``, ``figures_of``,
+  ``relation_figures_of``: the figures, checked before any work.
 """
 
 from __future__ import annotations
@@ -533,9 +533,16 @@ def check_plots(options: EvaluateOptions, force: bool) -> None:
             ancestor = ancestor.parent
         check_output(ancestor / ".segloc-plots", force=True, option="--plots")
         return
-    for name in figure_names(options):
-        for suffix in (".png", ".pdf"):
-            check_output(plots_dir / f"{name}{suffix}", force, option="--plots")
+    for path in figure_paths(options):
+        check_output(path, force, option="--plots")
+
+
+def figure_paths(options: EvaluateOptions) -> list[Path]:
+    """The files of the figures a run draws into ``--plots`` (none without it)."""
+    if options.plots_dir is None:
+        return []
+    names = figure_names(options)
+    return [options.plots_dir / f"{name}{suffix}" for name in names for suffix in (".png", ".pdf")]
 
 
 def figure_names(options: EvaluateOptions) -> tuple[str, ...]:

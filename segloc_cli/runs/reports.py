@@ -8,11 +8,13 @@ and the figures; the table of every pose comes last, folded, its failing rows ma
 Markdown summary stays under ``SUMMARY_MAX_BYTES`` (GitHub refuses a step summary over
 1 MiB): what does not fit is left out, and a line says what and where to find it.
 
-``write_reports`` writes those asked for and returns their paths; nothing here prints.
+``step_summary_path`` checks the step summary before any work; ``write_reports`` writes
+those asked for and returns their paths; nothing here prints.
 """
 
 from __future__ import annotations
 
+import contextlib
 import os
 from collections.abc import Callable, Mapping
 from pathlib import Path
@@ -20,7 +22,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from segloc_cli.io.files import OutputError
+from segloc_cli.io.files import OutputError, writing_error
 from segloc_cli.markdown import cell
 from segloc_cli.wording import counted
 
@@ -31,6 +33,8 @@ if TYPE_CHECKING:
 
 GITHUB_STEP_SUMMARY = "GITHUB_STEP_SUMMARY"
 """The variable GitHub Actions sets to the file a step appends its Markdown summary to."""
+STEP_SUMMARY_SKIPPED = f"no step summary appended ({GITHUB_STEP_SUMMARY})"
+"""How the warning of a step summary left alone starts."""
 
 STEP_SUMMARY_LIMIT_BYTES = 1024 * 1024
 """The most GitHub Actions takes in one step's summary (1 MiB); more and it shows none."""
@@ -303,25 +307,50 @@ def _table_sections(scores: Scores) -> list[ReportSection]:
     return [ReportSection(title, _full_table_md(scores), folded=True, marked_rows=marked)]
 
 
-def _append_step_summary(options: EvaluateOptions, scores: Scores) -> Path | None:
-    """Append the summary to the file ``GITHUB_STEP_SUMMARY`` names, if set, within what the
-    step's summary has room for; its path."""
+def step_summary_path(options: EvaluateOptions) -> tuple[Path | None, str | None]:
+    """The file ``GITHUB_STEP_SUMMARY`` names, checked before any work (``files.check_appended``),
+    or None and why it is left alone (a warning's text, None when the variable is unset).
+    One that is an input or another output of the run (the figures among them), is not a
+    regular file, or cannot be written is skipped, not refused: the variable is the CI
+    runner's, not the command line's, and the run's results and exit status must not hang
+    on it."""
+    from segloc_cli.io.files import check_appended
+    from segloc_cli.runs.evaluation import figure_paths
+
     named = os.environ.get(GITHUB_STEP_SUMMARY, "").strip()
     if not named:
-        return None
-    path = Path(named)
+        return None, None
+    outputs: dict[str, Path | None] = dict(options.outputs)
+    outputs |= {f"--plots ({path.name})": path for path in figure_paths(options)}
     try:
-        used = path.stat().st_size if path.is_file() else 0
-        room = min(SUMMARY_MAX_BYTES, STEP_SUMMARY_LIMIT_BYTES - used - 1)
-        text = summary_markdown(options, scores, max(room, 0))
-        with path.open("a", encoding="utf-8") as stream:
-            stream.write(text + "\n")
+        return check_appended(named, GITHUB_STEP_SUMMARY, outputs, options.inputs), None
+    except OutputError as exc:
+        return None, f"{STEP_SUMMARY_SKIPPED}: {exc}"
+
+
+def _append_step_summary(path: Path, options: EvaluateOptions, scores: Scores) -> str | None:
+    """Append the summary to the step summary ``path`` within what it has room for; None,
+    or why it could not be (a warning's text: the run's verdict does not hang on it). A
+    write that fails part way is taken back: the file keeps what it held before."""
+    try:
+        # Not blocking: should a pipe have taken the file's place, opening it fails at once.
+        fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT | os.O_NONBLOCK, 0o666)
     except OSError as exc:
-        raise OutputError(
-            f"cannot append the step summary ({exc.strerror or exc}); check {GITHUB_STEP_SUMMARY}",
-            path=path,
-        ) from None
-    return path
+        return f"{STEP_SUMMARY_SKIPPED}: {writing_error(path, exc)}"
+    try:
+        used = os.fstat(fd).st_size
+        room = min(SUMMARY_MAX_BYTES, STEP_SUMMARY_LIMIT_BYTES - used - 1)
+        data = (summary_markdown(options, scores, max(room, 0)) + "\n").encode("utf-8")
+        try:
+            while data:
+                data = data[os.write(fd, data) :]
+        except OSError as exc:
+            with contextlib.suppress(OSError):
+                os.ftruncate(fd, used)
+            return f"{STEP_SUMMARY_SKIPPED}: {writing_error(path, exc)}"
+    finally:
+        os.close(fd)
+    return None
 
 
 def write_reports(
@@ -329,11 +358,13 @@ def write_reports(
     scores: Scores,
     figures: Mapping[str, Callable],
     settings: Mapping[str, object],
-) -> list[Path]:
-    """Write the CI outputs ``options`` asks for (JUnit, Markdown summary, GitHub's step
-    summary, HTML page), each replacing an earlier one, and return the paths written, in
-    that order; ``settings`` are the options the run was given by key, as the JUnit
-    properties and the page show them."""
+    step_summary: Path | None = None,
+) -> tuple[list[Path], list[str]]:
+    """Write the CI outputs ``options`` asks for (JUnit, Markdown summary, HTML page), each
+    replacing an earlier one, then append the summary to ``step_summary`` (``step_summary_path``'s,
+    None: none); return the paths written, in that order, and warnings: a step summary
+    that could not be appended to is one, not an error. ``settings`` are the options the
+    run was given by key, as the JUnit properties and the page show them."""
     from segloc_cli.io.files import write_text_atomic
     from segloc_cli.io.html_report import write_html_report
     from segloc_cli.io.junit import write_junit
@@ -345,10 +376,14 @@ def write_reports(
     if options.summary_md_path is not None:
         write_text_atomic(options.summary_md_path, summary_markdown(options, scores))
         written.append(options.summary_md_path)
-    step_summary = _append_step_summary(options, scores)
-    if step_summary is not None:
-        written.append(step_summary)
     if options.html_path is not None:
         write_html_report(options.html_path, _html_text(options, scores, figures, settings))
         written.append(options.html_path)
-    return written
+    warnings = []
+    if step_summary is not None:
+        problem = _append_step_summary(step_summary, options, scores)
+        if problem is None:
+            written.append(step_summary)
+        else:
+            warnings.append(problem)
+    return written, warnings
