@@ -782,6 +782,38 @@ def test_relations_missing_an_end_fail_as_cases_of_their_own(
     )
 
 
+def test_relations_without_a_gate_give_a_junit_file_of_the_relations_missing_an_end(
+    run_files, relations_file, tmp_path, capsys
+):
+    from junitparser import JUnitXml
+
+    report = tmp_path / "relations.xml"
+    code, _, err = relations_run(capsys, run_files, relations_file, "--junit", report)
+    assert code == 0, err
+    (suite,) = JUnitXml.fromfile(str(report))
+    assert (suite.tests, suite.failures, suite.errors) == (0, 0, 0)
+    # Estimates of every pose but the third: its relations are cases, which no gate fails.
+    kept = np.arange(N) != 2
+    estimates = write_csv_estimates(tmp_path / "est.csv", POSES[kept], TIMES_S[kept])
+    missing = [k for k, (i, j) in enumerate(RELATION_PAIRS) if 2 in (i, j)]
+    # Without a gate, and with gates that tolerate them (saying so once).
+    for gates, tail in (((), ""), (("--min-paired-pct", 50), "; tolerated by the gates")):
+        args = ("--relations", relations_file, "--junit", report, *gates)
+        code, _, err = run_cli(capsys, "evaluate", estimates, *args)
+        assert code == 0, err
+        (suite,) = JUnitXml.fromfile(str(report))
+        cases = [case for case in suite if case.name.startswith("relation ")]
+        assert [case.name for case in cases] == [f"relation {k + 1}" for k in missing]
+        assert suite.failures == 0 and all(case.is_passed for case in suite)
+        for case, k in zip(cases, missing, strict=True):
+            i, j = RELATION_PAIRS[k]
+            end = "t1" if i == 2 else "t2"
+            assert case.system_out == (
+                f"t1 {TIMES_S[i]:.3f} s, t2 {TIMES_S[j]:.3f} s: no estimate within 50 ms of "
+                f"{end}{tail}"
+            )
+
+
 def test_relation_figures_are_drawn_as_pngs(run_files, relations_file, tmp_path, capsys):
 
     plots = tmp_path / "plots"
