@@ -238,29 +238,30 @@ ODOM_BASE = [(0.2 * j, 0.05 * j * j, 0.1 * j - 1.0) for j in range(20)]
 FOOTPRINT = (0.1, -0.05, 0.2)
 
 
-def tf_records(store) -> list[tuple]:
+def tf_records(store, odom_base=ODOM_BASE, map_odom=MAP_ODOM) -> list[tuple]:
     records = [
         ("/tf_static", EPOCH_NS, tf_message(store, [(0, "base_link", "base_footprint", FOOTPRINT)]))
     ]
     records += [
         ("/tf", stamp, tf_message(store, [(stamp, "odom", "base_link", pose)]))
-        for stamp, pose in zip(ODOM_STAMPS, ODOM_BASE, strict=True)
+        for stamp, pose in zip(ODOM_STAMPS, odom_base, strict=True)
     ]
     records += [
         ("/tf", stamp + 1, tf_message(store, [(stamp, "map", "odom", pose)]))
-        for stamp, pose in zip(MAP_ODOM_STAMPS, MAP_ODOM, strict=True)
+        for stamp, pose in zip(MAP_ODOM_STAMPS, map_odom, strict=True)
     ]
     return sorted(records, key=lambda r: r[1])
 
 
-def expected_chain() -> tuple[list[int], np.ndarray]:
+def expected_chain(odom_base=ODOM_BASE, map_odom=MAP_ODOM) -> tuple[list[int], np.ndarray]:
     """By the rule: at each odometry stamp from the first map → odom on, the latest
-    map → odom ⊕ odom → base_link ⊕ the footprint's mounting."""
+    map → odom ⊕ odom → base_link ⊕ the footprint's mounting; none where either latest
+    link is not finite."""
     stamps, poses = [], []
-    for stamp, odom_base in zip(ODOM_STAMPS, ODOM_BASE, strict=True):
-        latest = [pose for s, pose in zip(MAP_ODOM_STAMPS, MAP_ODOM, strict=True) if s <= stamp]
-        if latest:
-            pose = Pose2(*latest[-1]).compose(Pose2(*odom_base)).compose(Pose2(*FOOTPRINT))
+    for stamp, odom_pose in zip(ODOM_STAMPS, odom_base, strict=True):
+        latest = [pose for s, pose in zip(MAP_ODOM_STAMPS, map_odom, strict=True) if s <= stamp]
+        if latest and np.isfinite([*latest[-1], *odom_pose]).all():
+            pose = Pose2(*latest[-1]).compose(Pose2(*odom_pose)).compose(Pose2(*FOOTPRINT))
             stamps.append(stamp)
             poses.append(pose.as_array())
     return stamps, np.array(poses)
@@ -282,6 +283,39 @@ def test_a_transform_chain_is_composed_at_each_stamp_of_a_moving_link(tmp_path, 
     }
     assert "map → odom → base_link → base_footprint" in frame.attrs["source"]
     assert np.isnan(frame[list(COVARIANCE_COLUMNS)].to_numpy()).all()
+
+
+@pytest.mark.parametrize("kind", ["ros1", "mcap"])
+def test_a_link_not_finite_leaves_no_pose_until_it_is_given_again(tmp_path, kind):
+    store = ROS1_STORE if kind == "ros1" else ROS2_STORE
+    nan = (np.nan, 0.0, 0.0)
+    odom_base = [nan if j == 8 else pose for j, pose in enumerate(ODOM_BASE)]
+    map_odom = [nan if k == 2 else pose for k, pose in enumerate(MAP_ODOM)]  # odom's 11
+    path = tmp_path / ("tf.bag" if kind == "ros1" else "tf")
+    records = tf_records(store, odom_base, map_odom)
+    bag = write_bag(kind, path, {"/tf": TF, "/tf_static": TF}, records)
+    frame = read_trajectory(bag, topic="/tf", frames=("map", "base_footprint"))
+    stamps, poses = expected_chain(odom_base, map_odom)
+    # Not at odom's stamp 8, nor at 11–15 while map → odom's latest is unknown.
+    assert len(stamps) == 13
+    assert frame["time_s"].tolist() == [stamp / NS for stamp in stamps]
+    assert_same_poses(frame, poses)
+    chain = "map → odom → base_link → base_footprint"
+    assert frame.attrs["dropped"] == {
+        "transforms not finite or with an all-zero quaternion": 2,
+        f"stamps at which a link of {chain} was last given by a transform not finite": 6,
+        f"stamps at which a link of {chain} was not yet given or older than 10 s": 1,
+    }
+
+
+def test_a_chain_of_static_transforms_alone_is_refused(tmp_path):
+    records = [
+        ("/tf_static", EPOCH_NS, tf_message(ROS2_STORE, [(0, "map", "odom", (1.0, 0.0, 0.0))])),
+        ("/tf_static", EPOCH_NS + 1, tf_message(ROS2_STORE, [(0, "odom", "base_link", FOOTPRINT)])),
+    ]
+    bag = write_bag("mcap", tmp_path / "bag", {"/tf_static": TF}, records)
+    text = read_error(bag, topic="/tf_static", frames=("map", "base_link"))
+    assert_one_line(InputError(text), "no link of the chain map → odom → base_link moves")
 
 
 def test_a_chain_of_foxglove_frame_transforms_is_composed(tmp_path):

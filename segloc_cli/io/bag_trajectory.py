@@ -175,7 +175,8 @@ def _gather(source: Source, topic: str, msgtype: str, static_topics: list[str]) 
         try:
             decoded = message.decode()
             if message.msgtype in LINK_TYPES:
-                static = message.topic in static_topics
+                # /tf_static's transforms are fixed links when it is the topic read, too.
+                static = message.topic in static_topics or message.topic == TF_STATIC_TOPIC
                 links += message_links(message.msgtype, decoded, static, message.log_time_ns)
             else:
                 pose = POSE_READERS[msgtype](decoded)

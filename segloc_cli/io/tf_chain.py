@@ -10,7 +10,8 @@ value until its next stamp, for at most ``MAX_LINK_AGE_S``: no interpolation (tf
 interpolate, but a localizer's ``map → odom`` is meant to hold until its next correction).
 At each stamp of a moving link the chain is composed once every link is held, so a chain of
 ``map → odom`` from a localizer and ``odom → base_link`` from odometry gives a pose at each
-stamp of either.
+stamp of either. A moving link's transform that is not finite leaves the link unknown until
+its next one: no pose at those stamps, rather than one composed with the value before it.
 """
 
 from __future__ import annotations
@@ -46,7 +47,7 @@ class Chain(NamedTuple):
     dropped: dict[str, int]
 
 
-def _span(moving: list[tuple[int, str, np.ndarray]], child: str, parent: str) -> str:
+def _span(moving: list[tuple[int, str, np.ndarray | None]], child: str, parent: str) -> str:
     """When the moving link from ``parent`` to ``child`` was given, in words."""
     stamps = [stamp / NS_PER_S for stamp, below, _ in moving if below == child]
     if not stamps:
@@ -95,15 +96,21 @@ def compose_chain(links: list[Link], parent: str, child: str) -> Chain:
     """
     dropped: Counter[str] = Counter()
     usable = []
+    broken = []
     for link in links:
         try:
             usable.append((link, transform_matrix(link.values[:3], link.values[3:])))
         except ValueError:
             dropped["transforms not finite or with an all-zero quaternion"] += 1
+            broken.append(link)
     frames = chain_frames([link for link, _ in usable], parent, child)
     on_chain = dict(pairwise(frames))  # child → parent
     fixed: dict[str, np.ndarray] = {}
-    moving: list[tuple[int, str, np.ndarray]] = []
+    moving: list[tuple[int, str, np.ndarray | None]] = [
+        (link.stamp_ns, link.child, None)
+        for link in broken
+        if not link.static and on_chain.get(link.child) == link.parent
+    ]
     for link, matrix in usable:
         if link.child not in on_chain:
             continue
@@ -115,12 +122,12 @@ def compose_chain(links: list[Link], parent: str, child: str) -> Chain:
             fixed[link.child] = matrix
         else:
             moving.append((link.stamp_ns, link.child, matrix))
-    shadowed = [m for m in moving if m[1] in fixed]
+    shadowed = [m for m in moving if m[1] in fixed and m[2] is not None]
     if shadowed:
         dropped["transforms of a link also given as static (the static one used)"] += len(shadowed)
-        moving = [m for m in moving if m[1] not in fixed]
+    moving = [m for m in moving if m[1] not in fixed]
     shown = " → ".join(reversed(frames))
-    if not moving:
+    if not any(m[2] is not None for m in moving):
         raise ChainError(f"no link of the chain {shown} moves: every one is static")
     return _composed(frames, fixed, moving, dropped)
 
@@ -128,18 +135,23 @@ def compose_chain(links: list[Link], parent: str, child: str) -> Chain:
 def _composed(
     frames: list[str],
     fixed: dict[str, np.ndarray],
-    moving: list[tuple[int, str, np.ndarray]],
+    moving: list[tuple[int, str, np.ndarray | None]],
     dropped: Counter[str],
 ) -> Chain:
     """The chain composed at each stamp of ``moving`` (stamp ns, child frame, its pose in
     its parent), the ``fixed`` links held throughout and each moving link for at most
-    ``MAX_LINK_AGE_S``."""
+    ``MAX_LINK_AGE_S``. A pose of None is a transform that was unusable (not finite): the
+    link's value at that stamp is unknown, so it holds no value until its next transform and
+    the chain is not composed meanwhile (not with the value before it)."""
     moving.sort(key=lambda m: m[0])  # stable: among equal stamps, bag order
-    current = {child: (-1, matrix) for child, matrix in fixed.items()}  # -1: never stale
+    current: dict[str, tuple[int, np.ndarray | None]] = {
+        child: (-1, matrix)
+        for child, matrix in fixed.items()  # -1: never stale
+    }
     stamps: list[int] = []
     matrices: list[np.ndarray] = []
     given: set[tuple[int, str]] = set()
-    incomplete = 0
+    incomplete = unknown = 0
     max_age_ns = round(MAX_LINK_AGE_S * NS_PER_S)
     for i, (stamp_ns, child, matrix) in enumerate(moving):
         if (stamp_ns, child) in given:
@@ -155,11 +167,15 @@ def _composed(
             if frame in current
             and (current[frame][0] < 0 or stamp_ns - current[frame][0] <= max_age_ns)
         ]
+        known = [matrix for matrix in held if matrix is not None]
+        if len(known) < len(held):
+            unknown += 1
+            continue
         if len(held) < len(frames) - 1:
             incomplete += 1
             continue
         pose = np.eye(4)
-        for link in held:  # from the child up
+        for link in known:  # from the child up
             pose = link @ pose
         stamps.append(stamp_ns)
         matrices.append(pose)
@@ -171,6 +187,10 @@ def _composed(
         raise ChainError(
             f"the chain {shown} is never complete: at no stamp had each moving link been given "
             f"within {MAX_LINK_AGE_S:g} s ({spans})"
+        )
+    if unknown:
+        dropped[f"stamps at which a link of {shown} was last given by a transform not finite"] += (
+            unknown
         )
     if incomplete:
         dropped[
