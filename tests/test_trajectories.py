@@ -12,6 +12,7 @@ import numpy as np
 import pandas as pd
 import pytest
 from amcl_bags import write_amcl_bag
+from test_cli import run_cli
 from trajectory_samples import (
     NS,
     ODOMETRY,
@@ -384,9 +385,55 @@ def test_what_is_left_out_is_counted_by_reason(tmp_path):
     assert frame["time_s"].tolist() == TIMES_S[kept].tolist()
     assert_same_poses(frame, POSES[kept])  # the first of the repeated stamp, not (50, 50)
     assert frame.attrs["warnings"] == [
-        "1 pose tilted more than 5° from level (at most 10.0°); its heading is its x "
+        "1 pose tilted more than 3° from level (at most 10.0°); its heading is its x "
         "axis seen from above"
     ]
+
+
+TILTED = {3: 20.0, 4: 30.0, 6: 4.0}
+"""Poses rolled (degrees) in the trajectories below; the others are level."""
+
+
+def tilted_tum(path: Path) -> Path:
+    lines = []
+    for k, (stamp, (x, y, theta)) in enumerate(zip(STAMPS, POSES, strict=True)):
+        q = rolled(theta, math.radians(TILTED.get(k, 0.0)))
+        lines.append(" ".join(repr(float(v)) for v in (stamp / NS, x, y, 0.0, *q)))
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def tilted_bag(path: Path) -> Path:
+    messages = [
+        ("/amcl_pose", stamp, pose_with_covariance(ROS2_STORE, stamp, "map", p, quaternion=q))
+        for k, (stamp, p) in enumerate(zip(STAMPS, POSES, strict=True))
+        for q in [rolled(p[2], math.radians(TILTED.get(k, 0.0)))]
+    ]
+    return write_bag("mcap", path, {"/amcl_pose": PWCS}, messages)
+
+
+@pytest.mark.parametrize(
+    ("make", "warning"),
+    [
+        (tilted_tum, "3 poses tilted more than 3° from level (at most 30.0°)"),
+        (tilted_bag, "3 poses tilted more than 3° from level (at most 30.0°)"),
+        (
+            lambda path: write_json_pose_mcap(path, STAMPS, POSES, untimed=(2, 5)),
+            "2 messages on /pose carry no timestamp; their log times are used",
+        ),
+    ],
+    ids=["tum", "ros2", "mcap-untimed"],
+)
+def test_evaluate_prints_what_the_reader_noted_once_with_its_count(capsys, tmp_path, make, warning):
+    est = make(tmp_path / "est")
+    survey = tmp_path / "survey.tum"
+    write_pose_table_tum(survey, SURVEY)
+    fmt = {"tilted_tum": "tum", "tilted_bag": "ros2"}.get(make.__name__, "mcap")
+    result = run_cli(capsys, "evaluate", est, "--est-format", fmt, "--survey", survey)
+    assert result.code == 0, result.err
+    warnings = [line for line in result.err.splitlines() if line.startswith("segloc: warning:")]
+    assert len(warnings) == 1, result.err
+    assert warnings[0].startswith(f"segloc: warning: {est}: {warning}")
 
 
 # --- bad input ------------------------------------------------------------------------

@@ -206,8 +206,11 @@ def write_foxglove_mcap(path: Path, stamps: list[int], poses: np.ndarray, frame:
     return path
 
 
-def write_json_pose_mcap(path: Path, stamps: list[int], poses: np.ndarray, frame: str = "map"):
-    """An MCAP file of ``/pose``, ``foxglove.PoseInFrame`` in JSON encoding (mcap writer)."""
+def write_json_pose_mcap(
+    path: Path, stamps: list[int], poses: np.ndarray, frame: str = "map", untimed=()
+):
+    """An MCAP file of ``/pose``, ``foxglove.PoseInFrame`` in JSON encoding (mcap writer); the
+    messages numbered in ``untimed`` (from 0) without a timestamp, logged at their stamp."""
     from mcap.writer import Writer
 
     with path.open("wb") as stream:
@@ -217,7 +220,7 @@ def write_json_pose_mcap(path: Path, stamps: list[int], poses: np.ndarray, frame
             name="foxglove.PoseInFrame", encoding="jsonschema", data=b'{"type": "object"}'
         )
         channel = writer.register_channel("/pose", message_encoding="json", schema_id=schema)
-        for stamp, (x, y, theta) in zip(stamps, poses, strict=True):
+        for k, (stamp, (x, y, theta)) in enumerate(zip(stamps, poses, strict=True)):
             qx, qy, qz, qw = heading_to_quaternion(theta).tolist()
             message = {
                 "timestamp": {"sec": stamp // NS, "nsec": stamp % NS},
@@ -227,6 +230,8 @@ def write_json_pose_mcap(path: Path, stamps: list[int], poses: np.ndarray, frame
                     "orientation": {"x": qx, "y": qy, "z": qz, "w": qw},
                 },
             }
+            if k in untimed:
+                del message["timestamp"]
             data = json.dumps(message).encode()
             writer.add_message(channel, log_time=stamp, data=data, publish_time=stamp)
         writer.finish()

@@ -95,6 +95,7 @@ from segloc_cli.io.tf import (
     transform_matrix,
 )
 from segloc_cli.io.times import NS_PER_S, importer_times
+from segloc_cli.limits import MAX_PLANAR_TILT_DEG, MAX_TILT_DEG
 from segloc_cli.progress import Progress, ProgressFactory, silent
 from segloc_cli.scan import MAX_RANGE_M, MAX_READINGS, Scan, fan_defect
 from segloc_cli.wording import counted, plural
@@ -103,12 +104,6 @@ SCAN_TYPE = "sensor_msgs/msg/LaserScan"
 ODOM_TYPE = "nav_msgs/msg/Odometry"
 EXPECTED_BAG = "a ROS 1 .bag file, a ROS 2 bag folder with metadata.yaml, or a ROS 2 .mcap file"
 TF_TOPICS = (TF_STATIC_TOPIC, TF_TOPIC)
-MAX_TILT_DEG = 3.0
-"""Largest tilt (degrees) of a scan plane from the robot's floor plane taken as level; a
-scanner tilted more is still read as level, with a warning."""
-MAX_PLANAR_TILT_DEG = 45.0
-"""Largest tilt (degrees) of a scan plane with which a bag is imported from its transforms:
-a scanner nearer vertical than level does not scan the floor plan."""
 NO_OFFSET = "none"
 """The laser offset's source when neither the bag nor ``--laser-offset`` gives one."""
 OFFSET_TOLERANCE_M = 1e-3

@@ -23,7 +23,8 @@ block of the message's 6×6 pose covariance (m², m·rad, rad²), NaN where the 
 
 A 2D localizer's poses are level. A pose tilted more than ``MAX_PLANAR_TILT_DEG`` from
 level is no floor pose and is left out; one tilted more than ``MAX_TILT_DEG`` is kept (its
-heading is still its x axis seen from above) and counted in a warning.
+heading is still its x axis seen from above) and counted in a warning (both limits are
+``segloc_cli.limits``, the same for a bag's scanner).
 
 Nothing is left out unsaid. ``frame.attrs`` holds ``source``, one line saying what was read
 (format, topic, type, count, frame), ``dropped``, reason → count of the messages or
@@ -53,7 +54,7 @@ from segloc_cli.estimates import (
 from segloc_cli.geometry import quaternion_to_heading
 from segloc_cli.io.files import reading
 from segloc_cli.io.other_logs import refuse_inside_ros2_bag
-from segloc_cli.limits import MAX_COORDINATE_M
+from segloc_cli.limits import MAX_COORDINATE_M, MAX_PLANAR_TILT_DEG, MAX_TILT_DEG
 from segloc_cli.wording import counted, plural
 
 EST_FORMATS = ("segloc", "tum", "ros1", "ros2", "mcap")
@@ -62,11 +63,6 @@ TOPIC_OPTION = "--topic"
 FRAMES_OPTION = "--frames"
 """The options of ``segloc evaluate`` that set ``fmt``, ``topic`` and ``frames``, as the
 messages name them."""
-MAX_TILT_DEG = 5.0
-"""Largest tilt (degrees) of a pose from level kept without a warning."""
-MAX_PLANAR_TILT_DEG = 45.0
-"""Largest tilt (degrees) of a pose from level kept at all: nearer vertical, its heading
-seen from above says nothing."""
 TUM_VALUES = 8
 _EXTENSIONS = {".csv": "segloc", ".tum": "tum", ".bag": "ros1", ".mcap": "mcap"}
 _KINDS = {"segloc": "segloc estimates CSV", "tum": "TUM trajectory"}

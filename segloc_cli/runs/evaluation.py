@@ -380,7 +380,8 @@ def survey_scores(estimates: pd.DataFrame, survey: PoseTable, options: EvaluateO
         _pose_items(table, failures),
         "pose",
         len(table),
-        _coverage_warnings(n_paired, len(table), "surveyed pose", "have an estimate", options),
+        _read_warnings(estimates, options)
+        + _coverage_warnings(n_paired, len(table), "surveyed pose", "have an estimate", options),
         stats,
     )
 
@@ -402,6 +403,13 @@ def _pose_items(table: pd.DataFrame, failures: Mapping[int, list[str]]) -> tuple
         reasons = tuple(failures.get(int(pose_id), ()))
         items.append(Item(f"pose {pose_id}", line, reasons, bool(missing[row])))
     return tuple(items)
+
+
+def _read_warnings(estimates: pd.DataFrame, options: EvaluateOptions) -> tuple[str, ...]:
+    """What the estimates' reader noted about the poses it kept (tilted, timed by their log
+    time, read up to damage: ``io/trajectories``), one line each with its count, naming the
+    file."""
+    return tuple(f"{options.estimates_path}: {w}" for w in estimates.attrs.get("warnings") or ())
 
 
 def _coverage_warnings(
@@ -701,7 +709,8 @@ def relation_scores(
         items=_relation_items(errors, relations),
         item_kind="relation",
         n_truth=len(relations),
-        warnings=_coverage_warnings(
+        warnings=_read_warnings(estimates, options)
+        + _coverage_warnings(
             errors.used, len(relations), "relation", "have estimates at both ends", options
         ),
     )
