@@ -86,7 +86,10 @@ def pair_by_time(
     - the reference time nearest a query is held by two or more reference rows
       (equal times, e.g. all 0 or absolute times printed with too few digits):
       the query could be paired with either, and the message names
-      ``ref_path`` and those rows; or
+      ``ref_path`` and those rows;
+    - two distinct reference times are exactly as near a query, one on either
+      side (a query halfway between two rows): the message names ``ref_path``
+      and those two rows; or
     - ``distinct_queries`` is true and two or more queries that found a
       reference have the same time: they would all take the same reference
       row, and the message names ``query_path`` and those queries.
@@ -94,9 +97,7 @@ def pair_by_time(
     Nothing else is refused. Other references that lie within the tolerance
     but farther than the nearest one do not matter: scans 25 ms apart at
     40 Hz pair one-to-one with a table written at the same times, whatever
-    the tolerance. Two distinct reference times exactly as far from a query
-    on either side are no collision; the earlier one is taken, as in
-    ``nearest_by_time``. Distinct query times may share a reference row (a
+    the tolerance. Distinct query times may share a reference row (a
     sparse survey under a dense log). Rows are numbered from 1, in the
     order given; labels are singular nouns ("scan", "row") made plural with an "s".
     """
@@ -127,6 +128,18 @@ def pair_by_time(
             f"than one {ref_label}; give every {ref_label} a distinct time{hint}",
         )
 
+    halfway = _halfway(query[hit], sorted_ref)
+    if halfway is not None:
+        at, below, above = halfway
+        q = int(hit[at])
+        raise _located_error(
+            ref_path,
+            _numbered(ref_label, np.flatnonzero((ref == below) | (ref == above))),
+            f"their times {below:.3f} and {above:.3f} s are equally near "
+            f"{with_article(query_label)} at {query[q]:.3f} s, so it matches either; give times "
+            f"that are not halfway between two {ref_label}s (or lower --tolerance-ms)",
+        )
+
     if distinct_queries and hit.size > 1:
         matched_query_s = query[hit]
         _, inverse, counts = np.unique(matched_query_s, return_inverse=True, return_counts=True)
@@ -142,6 +155,21 @@ def pair_by_time(
                 f"{int(match[q]) + 1} of {ref_path}; give every {query_label} a distinct time",
             )
     return match
+
+
+def _halfway(query: np.ndarray, sorted_ref: np.ndarray) -> tuple[int, float, float] | None:
+    """The first of the queries (finite, each with a reference within reach) that lies exactly
+    halfway between two neighbouring times of ``sorted_ref``: its index, and the reference
+    times before and after it; None when no query does."""
+    right = np.searchsorted(sorted_ref, query, side="left")  # the first time not earlier
+    left = right - 1  # the last earlier time
+    inside = np.flatnonzero((left >= 0) & (right < len(sorted_ref)))
+    q, later, earlier = query[inside], sorted_ref[right[inside]], sorted_ref[left[inside]]
+    tied = np.flatnonzero((later != q) & (later - q == q - earlier))
+    if tied.size == 0:
+        return None
+    first = int(tied[0])
+    return int(inside[first]), float(earlier[first]), float(later[first])
 
 
 def time_range(times_s) -> str:

@@ -188,19 +188,26 @@ def test_matching_tolerance_and_survey_ids():
     assert np.isfinite(table.loc[0, "err_xy_cm"]) and np.isnan(table.loc[1, "err_xy_cm"])
 
 
-def test_matching_takes_nearest_and_earlier_on_a_tie():
+def test_matching_takes_the_nearest_and_refuses_two_equally_near():
     survey = make_survey([(1, 10.0, 0.0, 0.0, 0.0), (2, 20.0, 0.0, 0.0, 0.0)])
-    # Rows out of time order; x_m tells which row was paired. 1/32 s keeps the tie exact.
-    estimates = make_estimates(
-        [
-            {"time_s": 10.03125, "x_m": -0.01},
-            {"time_s": 9.96875, "x_m": -0.02},
-            {"time_s": 20.04, "x_m": -0.03},
-            {"time_s": 20.01, "x_m": -0.04},
-        ]
+    # Rows out of time order; x_m tells which row was paired.
+    rows = [
+        {"time_s": 10.03, "x_m": -0.01},
+        {"time_s": 9.96, "x_m": -0.02},
+        {"time_s": 20.04, "x_m": -0.03},
+        {"time_s": 20.01, "x_m": -0.04},
+    ]
+    table = table1(make_estimates(rows), survey)
+    assert table["err_x_cm"].to_numpy() == pytest.approx([1.0, 4.0])
+    # 1/32 s on either side keeps the two exactly as near: neither is taken.
+    rows[0]["time_s"], rows[1]["time_s"] = 10.03125, 9.96875
+    with pytest.raises(InputError) as caught:
+        table1(make_estimates(rows), survey, estimates_path="est.csv", survey_path="survey.csv")
+    assert str(caught.value) == (
+        "est.csv, rows 1 and 2: their times 9.969 and 10.031 s are equally near a row at "
+        "10.000 s, so it matches either; give times that are not halfway between two rows "
+        "(or lower --tolerance-ms)"
     )
-    table = table1(estimates, survey)
-    assert table["err_x_cm"].to_numpy() == pytest.approx([2.0, 4.0])
 
 
 def test_rows_follow_survey_order_and_unmatched_are_counted():

@@ -471,6 +471,24 @@ def test_pairing_refuses_rows_sharing_the_nearest_time():
         pair(np.zeros(3), np.zeros(5))
 
 
+def test_pairing_refuses_a_query_halfway_between_two_rows():
+    with pytest.raises(InputError) as caught:
+        pair([1.0, 2.25], [3.0, 2.5, 1.0, 2.0], 0.5, query_label="scan")
+    assert str(caught.value) == (
+        "survey.csv, rows 2 and 4: their times 2.000 and 2.500 s are equally near a scan at "
+        "2.250 s, so it matches either; give times that are not halfway between two rows "
+        "(or lower --tolerance-ms)"
+    )
+    assert caught.value.path == "survey.csv"
+    # Whether or not queries must be distinct (relations share times).
+    with pytest.raises(InputError, match="equally near"):
+        pair([0.5], [0.0, 1.0], tolerance_s=1.0, distinct_queries=False)
+    # A row at the query's own time, or a nearer one, settles it.
+    np.testing.assert_array_equal(pair([2.0, 2.26], [1.5, 2.0, 2.5], 1.0), [1, 2])
+    # Halfway but out of reach: unpaired, nothing to refuse.
+    np.testing.assert_array_equal(pair([2.25], [2.0, 2.5], 0.2), [-1])
+
+
 def test_pairing_ignores_shared_times_that_are_not_nearest():
     # 12.5 twice lies within the tolerance of 12.52, but 12.52 itself is nearer.
     np.testing.assert_array_equal(pair([12.52, 20.0], [12.5, 12.5, 12.52]), [2, -1])
@@ -501,6 +519,11 @@ def test_pairing_is_nearest_or_refused(query, ref, tolerance_steps):
     matched_ref = np.asarray(ref)[nearest[hit]] if ref else np.zeros(0)
     ambiguous = any(ref.count(t) > 1 for t in matched_ref)
     ambiguous |= len(set(np.asarray(query)[hit])) < int(np.count_nonzero(hit))
+    gaps = np.abs(np.asarray(query)[hit] - matched_ref)
+    ambiguous |= any(
+        gap > 0 and q - gap in ref and q + gap in ref
+        for q, gap in zip(np.asarray(query)[hit], gaps, strict=True)
+    )
     try:
         got = pair(query, ref, tolerance_s)
     except InputError:
