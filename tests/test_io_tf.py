@@ -4,9 +4,10 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import pytest
 
-from segloc_cli.io.tf import Transform, find_mounting, fixed_links, root_of
+from segloc_cli.io.tf import Transform, find_mounting, fixed_links, root_of, transform_matrix
 
 LEVEL = (0.0, 0.0, 0.0, 1.0)
 
@@ -56,3 +57,13 @@ def test_frames_of_separate_trees_or_a_loop_have_no_chain():
     loop = fixed_links([link("/tf_static", "a", "b", 0.1), link("/tf_static", "b", "a", 0.1)])
     assert find_mounting(loop, "base_link", "a") is None
     assert root_of(loop, "a") == "b"
+
+
+def test_a_quaternion_of_any_scale_is_the_turn_it_names():
+    quarter = transform_matrix((1.0, 2.0, 0.0), (0.0, 0.0, 1.0, 1.0))  # 90° about z
+    np.testing.assert_allclose(quarter[:2, :2], [[0.0, -1.0], [1.0, 0.0]], atol=1e-15)
+    for scale in (1e-200, 1e-320, 1e200, 1e300):
+        q = (0.0, 0.0, scale, scale)
+        np.testing.assert_allclose(transform_matrix((1.0, 2.0, 0.0), q), quarter, atol=1e-15)
+    with pytest.raises(ValueError, match="all zeros"):
+        transform_matrix((0.0, 0.0, 0.0), (0.0, 0.0, 0.0, -0.0))

@@ -87,10 +87,11 @@ def transform_matrix(translation: Iterable[float], rotation: Iterable[float]) ->
     q = np.asarray(list(rotation), dtype=float)
     if not (np.all(np.isfinite(t)) and np.all(np.isfinite(q))):
         raise ValueError("the transform is not finite")
-    norm = float(np.linalg.norm(q))
-    if norm == 0.0:
+    largest = float(np.max(np.abs(q)))
+    if largest == 0.0:
         raise ValueError("the transform's rotation quaternion is all zeros")
-    x, y, z, w = q / norm
+    q = q / largest  # so that neither 1e-200 nor 1e200 under- or overflows in the norm
+    x, y, z, w = q / float(np.linalg.norm(q))
     matrix = np.eye(4)
     matrix[:3, :3] = [
         [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
