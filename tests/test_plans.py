@@ -391,3 +391,35 @@ def test_a_curve_that_cannot_be_taken_as_chords_is_one_line(tmp_path, capsys):
         result.err,
     )
     assert not out.exists()
+
+
+def test_a_layer_missing_from_the_layer_table_is_a_layer(tmp_path, capsys):
+    """Entities on layers the LAYER table does not list (minimal writers leave it out), drawn
+    directly or inside a block, are read with --layer naming those layers as without it."""
+    doc = ezdxf.new()
+    doc.header["$INSUNITS"] = 6
+    space = doc.modelspace()
+    space.add_line((0, 0), (4, 0), dxfattribs={"layer": "WALLS"})
+    space.add_line((0, 0), (0, 3), dxfattribs={"layer": "WALLS"})
+    space.add_line((1, 1), (2, 1), dxfattribs={"layer": "DESKS"})
+    pillar = doc.blocks.new("PILLAR")
+    pillar.add_line((0, 0), (0.5, 0), dxfattribs={"layer": "PILLARS"})
+    space.add_blockref("PILLAR", (3, 2))
+    path = tmp_path / "minimal.dxf"
+    doc.saveas(path)
+    assert "WALLS" not in [layer.dxf.name for layer in ezdxf.readfile(path).layers]
+    every = read_dxf(path)
+    assert every.source["layers"] == ["DESKS", "PILLARS", "WALLS"]
+    walls = read_dxf(path, layers=["WALLS", "PILLARS"])
+    assert same_segments(walls.segments, np.array([[0, 0, 4, 0], [0, 0, 0, 3], [3, 2, 3.5, 2]]))
+    assert same_segments(every.segments, np.vstack([walls.segments, [[1, 1, 2, 1]]]))
+    result = run_cli(
+        capsys, "map", "import", path, "--layer", "DESKS", "--out", tmp_path / "desks.json"
+    )
+    assert result.code == 0, result.err
+    result = run_cli(
+        capsys, "map", "import", path, "--layer", "ROOF", "--out", tmp_path / "roof.json"
+    )
+    assert result.code == 2 and result.err.endswith(
+        "no layer 'ROOF' in the drawing; its layers are 0, DESKS, Defpoints, PILLARS, WALLS\n"
+    )

@@ -124,7 +124,11 @@ def read_dxf(path: str | Path, layers: Sequence[str] = (), units: str | None = N
         except ezdxf.DXFStructureError as exc:
             raise InputError(f"not a readable DXF drawing ({exc})", path=path) from None
     scale = _metres_per_unit(path, doc.header.get("$INSUNITS", 0), units)
-    known = sorted(layer.dxf.name for layer in doc.layers)
+    _BlockCensus(path, doc).check(doc.modelspace())
+    entities = list(_flattened(doc.modelspace()))
+    # A layer that entities name but the LAYER table lacks (minimal writers leave the table
+    # out) exists all the same, as it does for a CAD program.
+    known = sorted({layer.dxf.name for layer in doc.layers} | {e.dxf.layer for e in entities})
     unknown = [name for name in layers if name not in known]
     if unknown:
         raise InputError(
@@ -132,10 +136,9 @@ def read_dxf(path: str | Path, layers: Sequence[str] = (), units: str | None = N
             f"{', '.join(known)}",
             path=path,
         )
-    _BlockCensus(path, doc).check(doc.modelspace())
     wanted = set(layers)
     read = _DxfReading(path, scale)
-    for entity in _flattened(doc.modelspace()):
+    for entity in entities:
         if not wanted or entity.dxf.layer in wanted:
             read.add(entity)
     pieces_m = np.array(read.pieces, dtype=float).reshape(-1, 4) * scale
