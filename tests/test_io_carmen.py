@@ -288,6 +288,49 @@ def test_robotlaser1_records(tmp_path):
     assert log.warnings == []
 
 
+def robot_line(ranges, time_s: float) -> str:
+    """A ROBOTLASER1 record: ``ranges`` over 180° from -90°, maximum range 50 m, no
+    remissions, laser and robot pose (1, 2, 0.5)."""
+    n = len(ranges)
+    fov = math.pi
+    return (
+        f"ROBOTLASER1 0 {-fov / 2!r} {fov!r} {fov / (n - 1)!r} 50.0 0.01 0 {n} "
+        f"{' '.join(f'{r:.3f}' for r in ranges)} 0 1.0 2.0 0.5 1.0 2.0 0.5 0 0 1.0 0.5 1000000 "
+        f"{time_s} host {time_s}"
+    )
+
+
+def test_a_scan_written_as_both_flaser_and_robotlaser1_is_imported_once(tmp_path):
+    """A logger writing each scan in both front-laser layouts: the ROBOTLASER1 records are
+    read, the FLASER twins (same time, as many readings, values written to fewer digits)
+    left out with one warning; a FLASER record without a twin stays."""
+    rng = np.random.default_rng(4)
+    ranges = np.round(rng.uniform(0.5, 9.0, size=(3, 181)), 3)
+    lines = []
+    for i, scan in enumerate(ranges):
+        lines.append(laser_line(np.round(scan, 2), (1.0, 2.0, 0.5), (1.0, 2.0, 0.5), 10.0 + i))
+        lines.append(robot_line(scan, 10.0 + i))
+    lines.append(laser_line(ranges[0, :180], (1.0, 2.0, 0.5), (1.0, 2.0, 0.5), 12.0))
+    lines.append(laser_line(ranges[1], (1.0, 2.0, 0.5), (1.0, 2.0, 0.5), 13.0))
+    path = write(tmp_path / "both.log", lines)
+    log = read_carmen(path)
+    assert log.original_times_s.tolist() == [10.0, 11.0, 12.0, 12.0, 13.0]
+    for scan, written in zip(log.scans[:3], ranges, strict=True):
+        np.testing.assert_array_equal(scan.ranges_m, written)
+        assert scan.range_max_m == 50.0
+    assert len(log.scans[3]) == 180 and len(log.scans[4]) == 181
+    assert log.numbers.tolist() == [2, 4, 6, 7, 8]
+    assert log.sensor["records"] == "FLASER,ROBOTLASER1"
+    repeats = [w for w in log.warnings if "left out" in w]
+    assert repeats == [
+        f"{path}: imported the ROBOTLASER1 records; left out 3 FLASER records repeating one of "
+        "them (same time, as many readings)"
+    ]
+    # The rear laser's records are a different scanner: no twins there.
+    rear = write(tmp_path / "rear.log", [line.replace("FLASER", "RLASER") for line in lines])
+    assert not any("left out" in w for w in read_carmen(rear, laser="rear").warnings)
+
+
 def test_range_max_argument_overrides_everything(tmp_path):
     path = write(
         tmp_path / "robot.log",

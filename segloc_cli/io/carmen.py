@@ -68,6 +68,11 @@ so every returned pose is the scanner's:
   moved by the offset along their heading, except in a record whose odometry
   equals its pose fields (a corrected log, where both hold the same pose).
 
+Both front-laser layouts of one scan: a log that writes each scan as a FLASER and a
+ROBOTLASER1 record (same time, as many readings) is read from its ROBOTLASER1 records,
+which carry the scanner's geometry and maximum range; one warning says how many FLASER
+duplicates were left out. FLASER records without a ROBOTLASER1 twin are kept.
+
 Bad records (wrong field count, a reading count below 1 or above
 ``segloc_cli.scan.MAX_READINGS``, non-numeric or non-finite values, a time that
 is negative, non-finite or above ``segloc_cli.io.times.MAX_TIME_S``, a
@@ -543,6 +548,7 @@ def read_carmen(
     with progress("reading the log", len(lines), "line") as shown:
         parsed = _parse_lines(lines, LASER_RECORDS[laser], shown)
     _check_records(path, parsed, laser, warnings)
+    _drop_repeated_scans(path, parsed, warnings)
     records = parsed.records
     per_record, rule = _range_maxes(path, parsed, laser, range_max_m, warnings)
     original_times_s = np.array([r.time_s for r in records], dtype=float)
@@ -610,6 +616,24 @@ def _check_records(path: Path, parsed: _Parsed, laser: str, warnings: list[str])
         warnings.insert(len(parsed.skipped), f"{note} ({_line_list(with_nul)})")
     if not parsed.records:
         raise InputError(_no_records_message(path, laser, parsed.counts, warnings), path=path)
+
+
+def _drop_repeated_scans(path: Path, parsed: _Parsed, warnings: list[str]) -> None:
+    """Leave out each FLASER record that repeats a ROBOTLASER1 record: same time, as many
+    readings (a logger writing both layouts of every scan), with one warning. ROBOTLASER1
+    is kept as it carries the scanner's own geometry and maximum range."""
+    robot = {(r.time_s, len(r.ranges_m)) for r in parsed.records if r.kind == "ROBOTLASER1"}
+    repeats = [r.kind == "FLASER" and (r.time_s, len(r.ranges_m)) in robot for r in parsed.records]
+    n = sum(repeats)
+    if not n:
+        return
+    kept = [i for i, repeat in enumerate(repeats) if not repeat]
+    parsed.records = [parsed.records[i] for i in kept]
+    parsed.numbers = [parsed.numbers[i] for i in kept]
+    warnings.append(
+        f"{path}: imported the ROBOTLASER1 records; left out {counted(n, 'FLASER record')} "
+        "repeating one of them (same time, as many readings)"
+    )
 
 
 def _range_maxes(
