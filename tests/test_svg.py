@@ -185,3 +185,25 @@ def test_options_of_other_formats_are_refused(tmp_path, capsys):
     result = run_cli(capsys, "map", "import", tmp_path / "grid.yaml", "--out", out, "--scale", "2")
     assert_one_line_error(result, "--scale", "applies to SVG plans only, not to nav2 grids")
     assert not out.exists()
+
+
+@pytest.mark.parametrize("container", ["symbol", "marker", "mask", "clipPath", "pattern", "defs"])
+@pytest.mark.parametrize("xmlns", [' xmlns="http://www.w3.org/2000/svg"', ""])
+def test_what_only_a_reference_draws_is_read_only_where_a_use_places_it(container, xmlns, tmp_path):
+    """The content of a symbol, marker, mask, clipPath, pattern or defs is never drawn by
+    itself, at the top or inside a group: only the wall is read; a use of the symbol's or the
+    defs' content places it where the use says."""
+    inner = f'<{container} id="t"><line id="l" x1="0" y1="20" x2="10" y2="20"/></{container}>'
+    drawing = (
+        f'<svg{xmlns} viewBox="0 0 100 100"><line x1="0" y1="50" x2="40" y2="50"/>'
+        f'{inner}<g transform="translate(1 1)">{inner.replace("id=", "data-id=")}</g>{{use}}</svg>'
+    )
+    path = tmp_path / "plan.svg"
+    path.write_text(drawing.format(use=""))
+    wall = np.array([[0.0, -0.5, 0.4, -0.5]])
+    assert same_segments(read_svg(path, scale_m=0.01).segments, wall)
+    if container in ("symbol", "defs"):
+        target = "t" if container == "symbol" else "l"
+        path.write_text(drawing.format(use=f'<use href="#{target}" x="30" y="5"/>'))
+        placed = np.array([[0.3, -0.25, 0.4, -0.25]])
+        assert same_segments(read_svg(path, scale_m=0.01).segments, np.vstack([wall, placed]))

@@ -1,10 +1,12 @@
 """SVG drawings as segment maps, in and out, through svgelements.
 
 Reading takes every ``line``, ``polyline``, ``polygon``, ``rect`` and ``path`` of the drawing
-(those in ``defs`` where a ``use`` places them), with the transforms of their groups and
-their own applied, as straight pieces: a path's curves (cubic and quadratic Béziers,
-elliptical arcs, a rect's rounded corners) are taken as their chords, and counted. Other
-elements (``circle``, ``ellipse``, ``text``, ``image``) are left out.
+(those in ``defs`` or a ``symbol`` only where a ``use`` places them; the content of a
+``marker``, ``mask``, ``clipPath`` or ``pattern`` never, as segloc applies none of them),
+with the transforms of their groups and their own applied, as straight pieces: a path's
+curves (cubic and quadratic Béziers, elliptical arcs, a rect's rounded corners) are taken as
+their chords, and counted. Other elements (``circle``, ``ellipse``, ``text``, ``image``) are
+left out.
 
 Coordinates are in the drawing's user units: those of the outermost ``svg`` element, its
 ``viewBox`` if it has one. A point (u, v) of the drawing lands on the map at
@@ -33,7 +35,7 @@ import io
 import math
 import re
 from pathlib import Path
-from xml.etree.ElementTree import Element, ParseError
+from xml.etree.ElementTree import Element, ParseError, tostring
 
 import numpy as np
 
@@ -67,6 +69,11 @@ MAX_SVG_ELEMENTS = 250_000
 60 µs, so this bounds the reading to about 15 s, where ``use`` elements placing groups of
 ``use`` elements could otherwise multiply a small file into billions."""
 
+TEMPLATES = ("symbol", "marker", "mask")
+"""Elements an SVG renderer never draws by themselves: their content is drawn only where
+something refers to them (a ``use`` placing a ``symbol``; a marker or mask, which segloc does
+not apply, draws no walls)."""
+
 _HREFS = ("href", "{http://www.w3.org/1999/xlink}href")
 """Attributes through which a ``use`` names what it places (svgelements prefers ``href``)."""
 
@@ -99,7 +106,10 @@ def read_svg(
         raise InputError(f"--origin must be two finite numbers, got {origin_m}", path=path)
     with reading(path, "an SVG drawing"):
         data = path.read_bytes()
-    _check_structure(path, _vetted_xml(path, data))
+    root = _vetted_xml(path, data)
+    _check_structure(path, root)
+    if _hide_templates(root):
+        data = tostring(root)
     try:
         drawing = se.SVG.parse(io.BytesIO(data), reify=True)
     except _SVG_ERRORS as exc:
@@ -188,6 +198,27 @@ def _vetted_xml(path: Path, data: bytes) -> Element:
         raise InputError(
             f"not an SVG drawing segloc reads: {exc}; save it as plain SVG", path=path
         ) from None
+
+
+def _hide_templates(element: Element) -> bool:
+    """Put each ``TEMPLATES`` element below ``element`` that is not in a ``defs`` yet into a
+    ``defs`` of its own, in its place, so that svgelements draws its content only where a
+    ``use`` places it (as it does for ``defs``, ``clipPath`` and ``pattern`` content, but not
+    for these); whether any was moved."""
+    moved = False
+    for place, child in enumerate(list(element)):
+        if not isinstance(child.tag, str):
+            continue  # a comment or processing instruction
+        namespace, _, tag = child.tag.rpartition("}")
+        if tag in TEMPLATES:
+            defs = Element(f"{namespace}}}defs" if namespace else "defs")
+            element.remove(child)
+            defs.append(child)
+            element.insert(place, defs)
+            moved = True
+        elif tag != "defs":
+            moved = _hide_templates(child) or moved
+    return moved
 
 
 def _check_structure(path: Path, root: Element) -> None:
