@@ -2,7 +2,12 @@
 
 from __future__ import annotations
 
+import errno
+import json
 import math
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -16,6 +21,7 @@ from precision import (
     assert_frame_within_precision,
     assert_within_precision,
 )
+from test_campaign_runs import needs_tmpfs
 from test_cli import run_cli
 
 from segloc_cli.errors import InputError
@@ -24,6 +30,7 @@ from segloc_cli.geometry import heading_to_quaternion, quaternion_to_heading, wr
 from segloc_cli.io.files import OutputError
 from segloc_cli.io.tables import (
     EstimatesWriter,
+    HypothesesWriter,
     TumWriter,
     read_estimates,
     read_pose_table,
@@ -752,6 +759,105 @@ def test_tum_writer_writes_what_write_tum_writes(tmp_path):
     assert streamed.read_bytes() == whole.read_bytes()
 
 
+def _disk_with_room(monkeypatch, room: int) -> None:
+    """Make ``os.write`` behave as on a disk with ``room`` bytes left: a write past them
+    takes what fits (a short write), the next one fails with ENOSPC."""
+    real_write = os.write
+
+    def write(fd: int, data) -> int:
+        nonlocal room
+        if room == 0:
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        taken = real_write(fd, bytes(data[:room]))
+        room -= taken
+        return taken
+
+    monkeypatch.setattr(os, "write", write)
+
+
+@pytest.mark.parametrize("kind", ["csv", "tum", "hypotheses"])
+def test_a_full_disk_leaves_whole_lines_and_an_error_naming_the_file(kind, tmp_path, monkeypatch):
+    """Whatever byte the disk fills at (in the header, inside a line or between two), the
+    streamed file ends at its last whole line and the error names it, the writer left as a
+    context manager or not."""
+    make = {
+        "csv": EstimatesWriter,
+        "tum": TumWriter,
+        "hypotheses": lambda path: HypothesesWriter(path, 2),
+    }[kind]
+    rows = frame_rows(estimates_frame())
+    for row in rows:
+        row["hypotheses"] = [
+            {
+                "x_m": 1,
+                "y_m": 2,
+                "theta_deg": 3,
+                "inlier_ratio": 0.25,
+                "score": 0.5,
+                "confidence": 1,
+            }
+        ] * 2
+    whole = tmp_path / f"whole.{kind}"
+    with make(whole) as writer:
+        for row in rows:
+            writer.write_row(row)
+    written = whole.read_bytes()
+    ends = [i + 1 for i, byte in enumerate(written) if byte == ord("\n")]
+    for room in sorted({0, 5, *ends[:-1], *(end + 7 for end in ends[:-1])}):
+        path = tmp_path / f"full-{room}.{kind}"
+        with monkeypatch.context() as patch:
+            _disk_with_room(patch, room)
+            with pytest.raises(OutputError) as error:
+                with make(path) as writer:
+                    for row in rows:
+                        writer.write_row(row)
+                    pytest.fail("every line fitted")
+        assert str(path) in str(error.value) and "No space left on device" in str(error.value)
+        kept = max([0, *(end for end in ends if end <= room)])
+        assert path.read_bytes() == written[:kept], room
+
+
+FILL_A_DISK = """
+import json, sys
+from segloc_cli.io.files import OutputError
+from segloc_cli.io.tables import EstimatesWriter
+row = {c: 1.0 / 3.0 for c in json.loads(sys.argv[2])}
+row.update(pose_id=1, n_local_segments=5, status="ok", window_scans=1)
+try:
+    with EstimatesWriter(sys.argv[1]) as writer:
+        while True:
+            writer.write_row(row)
+except OutputError as error:
+    with open(sys.argv[1], "rb") as stream:
+        print(json.dumps([str(error), stream.read().decode()]))
+"""
+
+
+@needs_tmpfs
+def test_a_full_tmpfs_leaves_the_estimates_whole_rows(tmp_path):
+    """On a real full disk (a 4 KiB tmpfs) the estimates end at their last whole row."""
+    small = tmp_path / "small"
+    small.mkdir()
+    path = small / "est.csv"
+    mount = f'mount -t tmpfs -o size=4k tmpfs {small} && exec "$@"'
+    result = subprocess.run(
+        ["unshare", "-rm", "sh", "-c", mount, "sh", sys.executable, "-c", FILL_A_DISK,
+         str(path), json.dumps(ESTIMATE_COLUMNS)],
+        capture_output=True, text=True, check=True,
+    )  # fmt: skip
+    error, text = json.loads(result.stdout)
+    assert error.startswith(f"{path}: cannot write file") and "No space left" in error
+    assert text.endswith("\n") and len(text) > 4000 - 2 * len(text.splitlines()[1])
+    assert len(read_estimates_text(tmp_path, text)) == text.count("\n") - 1
+
+
+def read_estimates_text(tmp_path: Path, text: str) -> pd.DataFrame:
+    path = tmp_path / "copy.csv"
+    path.write_text(text)
+    return read_estimates(path)
+
+
+# --- pairing on the command line -------------------------------------------------------
 # --- pairing on the command line -------------------------------------------------------
 
 HALL = Path(__file__).resolve().parents[1] / "datasets" / "hall"

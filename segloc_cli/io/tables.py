@@ -14,6 +14,7 @@ Numbers are written rounded to the precision of their column's unit (``io/number
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import io
 import math
@@ -41,7 +42,7 @@ from segloc_cli.estimates import (
     PoseTable,
 )
 from segloc_cli.geometry import heading_to_quaternion, quaternion_to_heading
-from segloc_cli.io.files import atomic_write, reading, writing_error
+from segloc_cli.io.files import OutputError, atomic_write, reading, writing_error
 from segloc_cli.io.numbers import number_text, unit_of
 from segloc_cli.limits import MAX_ABS_ID, MAX_COORDINATE_M
 
@@ -421,33 +422,48 @@ def write_estimates(path: str | Path, frame: pd.DataFrame) -> None:
 
 
 class _RowStream:
-    """A text file written in place, one line at a time, each flushed as written.
+    """A text file written in place, one line at a time, each handed to the OS as written.
 
     Every line reaches the operating system before ``write_line`` returns, so a
     killed process leaves every line it finished; ``os.fsync`` runs at most
     every ``STREAM_FSYNC_INTERVAL_S`` and on ``close``, bounding what a power
-    cut can take. OS errors come out as ``OutputError`` naming the file.
+    cut can take. A line the OS takes only part of (a full disk) is cut off again,
+    so the file ends at the last whole line. OS errors come out as ``OutputError``
+    naming the file.
     """
 
     def __init__(self, path: str | Path, header: str):
         self.path = Path(path)
         self.rows = 0
+        self._size = 0  # bytes of the whole lines written
         try:
-            self._stream: IO[str] | None = open(self.path, "w", encoding="utf-8", newline="")
+            # Unbuffered: nothing is left in a buffer for close() to fail on after an error.
+            self._stream: IO[bytes] | None = open(self.path, "wb", buffering=0)
         except OSError as exc:
             raise writing_error(self.path, exc) from None
         self._synced_at = time.monotonic()
-        self._write(header)
-        self._sync()
+        try:
+            self._write(header)
+            self._sync()
+        except OutputError:
+            self._stream.close()
+            self._stream = None
+            raise
 
     def _write(self, line: str) -> None:
         if self._stream is None:
             raise ValueError(f"{self.path} is closed")
+        encoded = (line + "\n").encode("utf-8")
+        data, fd = memoryview(encoded), self._stream.fileno()
         try:
-            self._stream.write(line + "\n")
-            self._stream.flush()
+            while data:  # a write may take only part of the line
+                data = data[os.write(fd, data) :]
         except OSError as exc:
+            with contextlib.suppress(OSError):
+                os.ftruncate(fd, self._size)
+                os.lseek(fd, self._size, os.SEEK_SET)
             raise writing_error(self.path, exc) from None
+        self._size += len(encoded)
 
     def _sync(self) -> None:
         assert self._stream is not None
@@ -469,7 +485,6 @@ class _RowStream:
             return
         stream, self._stream = self._stream, None
         try:
-            stream.flush()
             os.fsync(stream.fileno())
         except OSError as exc:
             raise writing_error(self.path, exc) from None
