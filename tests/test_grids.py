@@ -337,6 +337,54 @@ def test_export_writes_nothing_over_what_exists(tmp_path, capsys):
     assert_one_line_error(result, "--resolution", "applies to nav2 grids only")
 
 
+@pytest.mark.parametrize("old", [True, False], ids=["over-a-pair", "new"])
+@pytest.mark.parametrize(
+    ("fails", "named"),
+    [("write lab.yaml", "lab.yaml"), ("rename lab.pgm", "lab.pgm"),
+     ("rename lab.yaml", "lab.yaml")],
+)  # fmt: skip
+def test_an_export_replaces_image_and_yaml_together_or_not_at_all(
+    old, fails, named, tmp_path, capsys, monkeypatch
+):
+    """Writing the YAML or renaming either file fails (a full disk, a rename refused): the
+    old pair is left as it was (or, with none, no file), with no temporary file, and one line
+    names the file that failed."""
+    import os
+    from pathlib import Path
+
+    write_map(tmp_path / "lab.json", lab())
+    args = ["map", "export", tmp_path / "lab.json", "--out", tmp_path / "lab.yaml", "--force"]
+    if old:
+        assert run_cli(capsys, *args, "--resolution", "0.1").code == 0
+    before = {p.name: p.read_bytes() for p in tmp_path.iterdir()}
+    action, name = fails.split()
+    full = OSError(28, os.strerror(28))
+    if action == "write":
+        real_write_text = Path.write_text
+
+        def write_text(self, *a, **k):
+            if self.name.startswith(f".{name}."):
+                raise full
+            return real_write_text(self, *a, **k)
+
+        monkeypatch.setattr(Path, "write_text", write_text)
+    else:
+        real_replace = os.replace
+
+        def replace(source, target):
+            if Path(target).name == name and Path(source).name.endswith(".tmp"):
+                raise PermissionError(13, os.strerror(13))
+            return real_replace(source, target)
+
+        monkeypatch.setattr(os, "replace", replace)
+    result = run_cli(capsys, *args, "--resolution", "0.05")
+    assert_one_line_error(result, str(tmp_path / named), "cannot write file")
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before
+    monkeypatch.undo()
+    assert run_cli(capsys, *args, "--resolution", "0.05").code == 0
+    assert read_header(tmp_path / "lab.yaml").resolution_m == 0.05
+
+
 # --- bad grids -------------------------------------------------------------------------------
 
 GOOD = {

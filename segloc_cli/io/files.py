@@ -17,6 +17,7 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import os
+import shutil
 import tempfile
 from collections.abc import Iterable, Iterator, Mapping
 from contextlib import contextmanager
@@ -153,6 +154,18 @@ def writing_error(path: str | Path, exc: OSError) -> OutputError:
 
 
 @contextmanager
+def writing(path: str | Path) -> Iterator[None]:
+    """Turn an ``OSError`` met in the block into the ``OutputError`` naming ``path``: for a
+    block writing one of the files of ``atomic_paths``, which cannot tell which one failed."""
+    try:
+        yield
+    except OSError as exc:
+        if isinstance(exc, InputError):
+            raise
+        raise writing_error(path, exc) from None
+
+
+@contextmanager
 def atomic_path(path: str | Path) -> Iterator[Path]:
     """A temporary path beside ``path``, renamed to ``path`` when the block ends without error.
 
@@ -160,24 +173,73 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     error the temporary file is removed and ``path`` is left as it was; an
     ``OSError`` comes out as an ``OutputError`` naming ``path``.
     """
-    path = Path(path)
-    folder = path.parent if str(path.parent) else Path(".")
-    try:
-        fd, name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=folder)
-        os.close(fd)
-    except OSError as exc:
-        raise writing_error(path, exc) from None
-    temporary = Path(name)
-    try:
+    with atomic_paths(path) as (temporary,):
         yield temporary
-        os.chmod(temporary, 0o666 & ~_umask())
-        os.replace(temporary, path)
-    except BaseException as exc:
-        with contextlib.suppress(OSError):
-            temporary.unlink()
-        if isinstance(exc, OSError) and not isinstance(exc, InputError):
-            raise writing_error(path, exc) from None
-        raise
+
+
+@contextmanager
+def atomic_paths(*paths: str | Path) -> Iterator[list[Path]]:
+    """Temporary paths beside ``paths``, renamed over them together when the block ends
+    without error: files that go as a set (an image and the YAML naming it) are replaced
+    all or none.
+
+    Every file is complete before any is renamed. A rename that fails puts back the files
+    already replaced (the old ones, or none where there was none), so the set is left as
+    it was; on any error the temporary files are removed. An ``OSError`` comes out as an
+    ``OutputError`` naming the first path, unless the block names the file (``writing``).
+    """
+    targets = [Path(path) for path in paths]
+    temporaries: list[Path] = []
+    try:
+        for path in targets:
+            folder = path.parent if str(path.parent) else Path(".")
+            try:
+                fd, name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=folder)
+            except OSError as exc:
+                raise writing_error(path, exc) from None
+            os.close(fd)
+            temporaries.append(Path(name))
+        with writing(targets[0]):
+            yield temporaries
+        _replace_together(targets, temporaries)
+    finally:
+        for temporary in temporaries:
+            with contextlib.suppress(OSError):
+                temporary.unlink()
+
+
+def _replace_together(paths: list[Path], temporaries: list[Path]) -> None:
+    """Rename each temporary over its path; when one fails, put back the files replaced
+    before it (from a hard link or copy of each old file, made before it is replaced) and
+    raise ``OutputError`` naming the one that failed."""
+    replaced: list[tuple[Path, Path | None]] = []  # a path replaced, and its old file's copy
+    copies: list[Path] = []
+    path = paths[0]
+    try:
+        for i, (path, temporary) in enumerate(zip(paths, temporaries, strict=True)):
+            os.chmod(temporary, 0o666 & ~_umask())
+            kept = None
+            if i < len(paths) - 1 and path.exists():  # nothing follows the last rename
+                kept = temporary.with_name(temporary.name + ".old")
+                copies.append(kept)
+                try:
+                    os.link(path, kept)
+                except OSError:
+                    shutil.copy2(path, kept)
+            os.replace(temporary, path)
+            replaced.append((path, kept))
+    except OSError as exc:
+        for done, kept in reversed(replaced):
+            with contextlib.suppress(OSError):
+                if kept is None:
+                    done.unlink()
+                else:
+                    os.replace(kept, done)
+        raise writing_error(path, exc) from None
+    finally:
+        for kept in copies:
+            with contextlib.suppress(OSError):
+                kept.unlink()
 
 
 @contextmanager

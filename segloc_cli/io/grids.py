@@ -52,7 +52,7 @@ import numpy as np
 from segloc_cli.config import ExtractParams
 from segloc_cli.errors import InputError
 from segloc_cli.geometry import Pose2, transform_segments
-from segloc_cli.io.files import atomic_path, reading, write_text_atomic
+from segloc_cli.io.files import atomic_paths, reading, writing
 from segloc_cli.io.plans import FloorPlan, checked_plan_segments
 from segloc_cli.limits import MAX_COORDINATE_M
 from segloc_cli.maps.wall_tracing import SPLIT_CELLS, line_cells, trace_walls
@@ -402,7 +402,7 @@ def write_nav2(
     path: str | Path, segments_world: np.ndarray, resolution_m: float = DEFAULT_RESOLUTION_M
 ) -> WrittenGrid:
     """Write segments (M, 4), metres, world frame, as a nav2 map: the YAML at ``path`` and a
-    PGM of the same name beside it, each atomically (the image first).
+    PGM of the same name beside it, replaced together or not at all (``atomic_paths``).
 
     Cells of ``resolution_m`` metres; see the module docstring for what is occupied, free
     and unknown. Raises ``InputError`` naming ``path`` when the grid would hold more than
@@ -433,8 +433,6 @@ def write_nav2(
     column, row = line_cells(segments - np.tile(origin[:2], 2), resolution_m)
     image[rows - 1 - row, column] = OCCUPIED_PIXEL
     image_path = path.with_suffix(".pgm")
-    with atomic_path(image_path) as partial:
-        Image.fromarray(image, mode="L").save(partial, format="PPM")
     header = {
         "image": image_path.name,
         "mode": "trinary",
@@ -449,7 +447,12 @@ def write_nav2(
         "# segloc map: walls occupied (0), free inside the map's bounding box (254), "
         f"unknown in the {MARGIN_CELLS}-cell margin beyond it (205)\n"
     )
-    write_text_atomic(path, comment + text)
+    # Replaced as a pair: an old YAML over a new image would read it at the old resolution.
+    with atomic_paths(image_path, path) as (image_partial, yaml_partial):
+        with writing(image_path):
+            Image.fromarray(image, mode="L").save(image_partial, format="PPM")
+        with writing(path):
+            yaml_partial.write_text(comment + text, encoding="utf-8")
     occupied = int(np.count_nonzero(image == OCCUPIED_PIXEL))
     return WrittenGrid(image_path, (columns, rows), occupied, origin)
 
