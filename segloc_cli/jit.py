@@ -1,10 +1,13 @@
 """Compiling segloc's kernels: numba's ``njit``, cached on disk wherever numba can write.
 
-Numba keeps a compiled kernel beside its module (``__pycache__``) or in the user's cache
-folder, and refuses to define a ``cache=True`` kernel when it can write to neither (a
-system install, a container run as another user, a read-only checkout). There segloc's
-kernels are defined uncached instead: every run compiles the ones it uses, which costs
-time but never the result, and the first one defined says so once on stderr.
+Numba keeps a compiled kernel in ``NUMBA_CACHE_DIR`` if set, else beside its module
+(``__pycache__``) or in the platform's user cache folder, and refuses to define a
+``cache=True`` kernel when it can write to none of them (a system install, a container run
+as another user, a read-only checkout and home). There segloc caches its kernels in a
+private folder of its own under the temporary directory (``private_cache_dir``), and the
+run that makes it says once where. Where even that cannot be had, the kernels are defined
+uncached: every run compiles the ones it uses, which costs time but never the result, and
+the first one defined says so once on stderr.
 
 A run says once, at the first kernel it compiles, that it is compiling and about how long
 it takes (``watching_compiles``): all of a first run's kernels on an empty cache, or, once
@@ -28,11 +31,14 @@ thread each: ``one_thread``).
 from __future__ import annotations
 
 import os
+import stat
 import subprocess
 import sys
+import tempfile
 import threading
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from pathlib import Path
 from typing import Any, NamedTuple
 
 import numba
@@ -47,6 +53,11 @@ if "NUMBA_THREADING_LAYER" not in os.environ:
     numba.config.THREADING_LAYER = "workqueue"  # type: ignore[attr-defined]
 
 _said_uncached = False
+_fallback_tried = False
+_cached_privately = False
+
+PRIVATE_CACHE_PREFIX = "segloc-numba-"
+"""The private kernel cache's folder under the temporary directory, followed by the user's id."""
 
 FIRST_COMPILE_S = 30
 """About how long (s) a first ``segloc localize`` on an empty cache spends compiling, with
@@ -103,8 +114,60 @@ def njit(function: Callable | None = None, **options: Any):
     except RuntimeError as exc:
         if not options.get("cache") or "no locator available" not in str(exc):
             raise
+    if _cache_privately():
+        return _numba_njit(**options)(function)
     _say_uncached()
     return _numba_njit(**{**options, "cache": False})(function)
+
+
+def private_cache_dir(temp: Path | None = None) -> tuple[Path | None, bool]:
+    """segloc's own kernel cache, for a user none of numba's folders is open to:
+    ``PRIVATE_CACHE_PREFIX`` and the user's id under ``temp`` (by default the temporary
+    directory), made with mode 0700; and whether this call made it. ``None`` where it cannot
+    be made or written, or is not a folder of this user's alone (another's, a link, open to
+    the group or others): a kernel loaded from there would run as this user."""
+    folder = Path(temp or tempfile.gettempdir()) / f"{PRIVATE_CACHE_PREFIX}{os.getuid()}"
+    made = False
+    try:
+        folder.mkdir(mode=0o700)
+        made = True
+    except FileExistsError:
+        pass
+    except OSError:
+        return None, False
+    try:
+        found = os.lstat(folder)
+    except OSError:
+        return None, False
+    alone = (
+        stat.S_ISDIR(found.st_mode)
+        and found.st_uid == os.getuid()
+        and not found.st_mode & (stat.S_IRWXG | stat.S_IRWXO)
+    )
+    if not alone or not os.access(folder, os.W_OK | os.X_OK):
+        return None, False
+    return folder, made
+
+
+def _cache_privately() -> bool:
+    """Point numba's cache at ``private_cache_dir`` (once; saying where, if this run made
+    it), and whether it is there. Set in numba's config, not the environment, which numba
+    would read again and with it drop segloc's default threading layer; a process this one
+    starts is given it as ``NUMBA_CACHE_DIR`` (``start_ahead``)."""
+    global _fallback_tried, _cached_privately
+    if not _fallback_tried:
+        _fallback_tried = True
+        folder, made = private_cache_dir()
+        if folder is not None:
+            numba.config.CACHE_DIR = str(folder)  # type: ignore[attr-defined]
+            _cached_privately = True
+            if made:
+                _say(
+                    "numba can write no cache beside the segloc_cli package nor in the "
+                    f"user's cache folder, so segloc caches its compiled kernels in {folder}; "
+                    "set NUMBA_CACHE_DIR to a writable folder to keep them elsewhere"
+                )
+    return _cached_privately
 
 
 def _say_uncached() -> None:
@@ -114,8 +177,9 @@ def _say_uncached() -> None:
     _said_uncached = True
     _say(
         "numba can write no cache for the compiled kernels here (not beside the "
-        "segloc_cli package nor in the user's cache folder), so each run compiles the ones "
-        "it uses; set NUMBA_CACHE_DIR to a writable folder to keep them"
+        "segloc_cli package, nor in the user's cache folder, nor in a private folder under "
+        f"{tempfile.gettempdir()}), so each run compiles the ones it uses; set "
+        "NUMBA_CACHE_DIR to a writable folder to keep them"
     )
 
 
@@ -272,7 +336,7 @@ def start_ahead(*arguments: str) -> None:
     try:
         process = subprocess.Popen(
             [*AHEAD_COMMAND, *arguments],
-            env={**os.environ, AHEAD_ENV: "compiling"},
+            env={**os.environ, **_cache_env(), AHEAD_ENV: "compiling"},
             stdin=subprocess.DEVNULL,
             stdout=subprocess.PIPE,
             stderr=subprocess.DEVNULL,
@@ -281,6 +345,12 @@ def start_ahead(*arguments: str) -> None:
     except OSError:
         return  # no second process: this one compiles everything, as without it
     _ahead = _Ahead(process)
+
+
+def _cache_env() -> dict[str, str]:
+    """``NUMBA_CACHE_DIR`` for a process this one starts, where this one caches there."""
+    folder = numba.config.CACHE_DIR  # type: ignore[attr-defined]
+    return {"NUMBA_CACHE_DIR": folder} if folder else {}
 
 
 def compiles_heard() -> int:

@@ -10,6 +10,7 @@ warm-up's ``--late-stages`` does, so nothing here compiles segloc's own kernels.
 
 from __future__ import annotations
 
+import stat
 import sys
 import threading
 import time
@@ -211,3 +212,77 @@ def test_compile_times_leave_out_what_was_loaded_from_the_cache():
             return None
 
     assert compile_times([Loaded()]) == []
+
+
+@pytest.fixture
+def no_cache_folder(monkeypatch, tmp_path):
+    """A process none of numba's cache folders is open to (a stand-in for numba that refuses
+    a cached kernel while its cache folder is unset), the temporary directory in
+    ``tmp_path``, nothing said or decided yet."""
+    import numba
+
+    def stand_in_njit(**options):
+        def define(function):
+            if options.get("cache") and not numba.config.CACHE_DIR:
+                raise RuntimeError("cannot cache function 'f': no locator available for file")
+            return options
+
+        return define
+
+    monkeypatch.setattr(jit, "_numba_njit", stand_in_njit)
+    monkeypatch.setattr(numba.config, "CACHE_DIR", "")
+    monkeypatch.setattr(jit.tempfile, "gettempdir", lambda: str(tmp_path))
+    for flag in ("_fallback_tried", "_cached_privately", "_said_uncached"):
+        monkeypatch.setattr(jit, flag, False)
+    return tmp_path
+
+
+def test_kernels_numba_cannot_cache_are_cached_in_a_private_folder_said_once(
+    no_cache_folder, capsys
+):
+    assert jit.njit(lambda x: x, cache=True) == {"cache": True}
+    assert jit.njit(lambda x: x, cache=True) == {"cache": True}
+    assert jit.njit(lambda x: x) == {}
+    (folder,) = no_cache_folder.iterdir()
+    err = capsys.readouterr().err
+    assert err.count(f"segloc caches its compiled kernels in {folder};") == 1
+    assert "each run compiles" not in err
+    # The process compiling ahead caches there too.
+    assert jit._cache_env() == {"NUMBA_CACHE_DIR": str(folder)}
+
+
+def test_where_no_private_folder_can_be_had_kernels_are_uncached_said_once(
+    no_cache_folder, monkeypatch, capsys
+):
+    monkeypatch.setattr(jit.tempfile, "gettempdir", lambda: str(no_cache_folder / "a file"))
+    (no_cache_folder / "a file").write_text("")
+    assert jit.njit(lambda x: x, cache=True) == {"cache": False}
+    assert jit.njit(lambda x: x, cache=True) == {"cache": False}
+    err = capsys.readouterr().err
+    assert err.count("so each run compiles the ones it uses") == 1
+    assert "caches its compiled kernels" not in err
+    assert jit._cache_env() == {}
+
+
+def test_the_private_cache_folder_is_made_0700_and_used_only_if_this_users_alone(
+    tmp_path, monkeypatch
+):
+    folder, made = jit.private_cache_dir(tmp_path)
+    assert made and folder is not None and folder.parent == tmp_path
+    assert stat.S_IMODE(folder.stat().st_mode) == 0o700
+    assert jit.private_cache_dir(tmp_path) == (folder, False)  # found again, not made
+    folder.chmod(0o750)  # open to the group
+    assert jit.private_cache_dir(tmp_path) == (None, False)
+    folder.chmod(0o700)
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    for uid, kind in enumerate(("link", "file", "another's"), start=4242):
+        monkeypatch.setattr(jit.os, "getuid", lambda uid=uid: uid)
+        found = elsewhere / f"{jit.PRIVATE_CACHE_PREFIX}{jit.os.getuid()}"
+        if kind == "link":
+            found.symlink_to(folder)
+        elif kind == "file":
+            found.write_text("")
+        else:
+            found.mkdir(mode=0o700)  # this user's: not the one of that id
+        assert jit.private_cache_dir(elsewhere) == (None, False), kind

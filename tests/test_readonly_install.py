@@ -1,8 +1,9 @@
 """An install nobody can write to: the checkout (its venv and package included) and the home
 folder mounted read-only in a private mount namespace, where numba can cache no kernel.
 
-A ``localize`` and an ``evaluate`` there give what they give in a writable install, and the
-``localize``, which compiles kernels, says once that it does so uncached. Every kernel goes
+A ``localize`` and an ``evaluate`` there give what they give in a writable install; the
+first ``localize``, which compiles kernels, says once where it caches them (a private folder
+under the temporary directory), and the second loads them from there. Every kernel goes
 through the same ``jit.njit``, so those of the run with the fewest, ICP's of one scan (a
 dozen, the verdict's: seconds), stand for the others; a default ``localize`` or a ``map
 build`` would add up to a minute of compiling and nothing else (that an uncached run starts
@@ -15,6 +16,7 @@ from __future__ import annotations
 import os
 import shlex
 import shutil
+import stat
 import subprocess
 from pathlib import Path
 
@@ -24,7 +26,7 @@ from conftest import HALL, SEGLOC
 from test_cli import run_in_turn
 
 from segloc_cli.estimates import ESTIMATE_COLUMNS
-from segloc_cli.jit import UNCACHED_COMPILE_S
+from segloc_cli.jit import PRIVATE_CACHE_PREFIX
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -77,27 +79,43 @@ def _answers(path: Path) -> pd.DataFrame:
 
 
 @pytest.mark.skipif(not _can_unshare(), reason="no private mount namespace (unshare -rm)")
-def test_a_read_only_install_runs_uncached_with_the_same_results(tmp_path):
-    home, locked, free = tmp_path / "home", tmp_path / "locked", tmp_path / "free"
-    for folder in (home, locked, free):
+def test_a_read_only_install_caches_its_kernels_privately_with_the_same_results(tmp_path):
+    home, temp, locked, again, free = (
+        tmp_path / name for name in ("home", "temp", "locked", "again", "free")
+    )
+    for folder in (home, temp, locked, again, free):
         folder.mkdir()
     env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
-    env |= {"HOME": str(home), "XDG_CACHE_HOME": str(home / ".cache")}
+    env |= {"HOME": str(home), "XDG_CACHE_HOME": str(home / ".cache"), "TMPDIR": str(temp)}
     estimates = _survey_as_estimates(tmp_path / "estimates.csv")
-    script = f"cd {shlex.quote(str(REPO))} && {_commands(locked, estimates)}"
-    run = subprocess.run(
-        _namespaced(script, home), capture_output=True, text=True, env=env, check=False
-    )
-    assert run.returncode == 0, run.stderr
-    # Said once, by localize; evaluate loads no kernel.
-    assert run.stderr.count("numba can write no cache") == 1
-    said = f"compiling segloc's kernels about {UNCACHED_COMPILE_S} s, in every run"
-    assert run.stderr.count(said) == 1
+
+    def run_locked(out: Path) -> subprocess.CompletedProcess:
+        script = f"cd {shlex.quote(str(REPO))} && {_commands(out, estimates)}"
+        return subprocess.run(
+            _namespaced(script, home), capture_output=True, text=True, env=env, check=False
+        )
+
+    first = run_locked(locked)
+    assert first.returncode == 0, first.stderr
+    (cache,) = temp.iterdir()
+    assert cache.name.startswith(PRIVATE_CACHE_PREFIX)
+    assert stat.S_IMODE(cache.stat().st_mode) == 0o700
+    assert any(cache.rglob("*.nbi"))
+    # Said once, by localize (evaluate loads no kernel), naming the folder.
+    assert first.stderr.count("segloc caches its compiled kernels in") == 1
+    assert first.stderr.count(str(temp)) == 1
+    assert "each run compiles" not in first.stderr
     assert not any(home.iterdir())
+    second = run_locked(again)
+    assert second.returncode == 0, second.stderr
+    # Every kernel loaded from there: nothing compiled, nothing said.
+    assert "compiling" not in second.stderr
+    assert "numba" not in second.stderr
     subprocess.run(["bash", "-c", _commands(free, estimates)], check=True, capture_output=True)
     answers = _answers(locked / "estimates.csv")
     assert answers["status"].tolist() == ["ok"]
     pd.testing.assert_frame_equal(answers, _answers(free / "estimates.csv"))
+    pd.testing.assert_frame_equal(_answers(again / "estimates.csv"), answers)
     assert (locked / "table.txt").read_text() == (free / "table.txt").read_text()
 
 
