@@ -40,6 +40,12 @@ def counted(n: int, noun: str, nouns: str | None = None) -> str:
     return f"{n} {plural(n, noun, nouns)}"
 
 
+def stopped_after(by: str, done: int, planned: int) -> str:
+    """How a run stopped early is told, in its run file, its run view and ``info``: "stopped
+    (SIGTERM) after 3 of 10 scans"."""
+    return f"stopped ({by}) after {done} of {counted(planned, 'scan')}"
+
+
 def article(word: str) -> str:
     """ "a" or "an", as ``word`` sounds when read out: "an explorer", "a scip2", "an RGBA",
     "an 8-byte", "an 11 × 4", "a 1-byte". Lower-case words go by their first letter ("u" as

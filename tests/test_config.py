@@ -426,3 +426,48 @@ def test_run_config_sets_the_region_and_refuses_what_cannot_go_together():
     ]:
         with pytest.raises(SettingError, match="^" + re.escape(said)):
             run_config(values, global_search, track)
+
+
+@pytest.mark.parametrize("stop", ["Ctrl-C", "SIGTERM"])
+@pytest.mark.parametrize("mode", [[], ["--track"]])
+def test_the_run_file_and_view_of_a_stopped_run_say_it_stopped_and_after_how_many_scans(
+    hall, capsys, monkeypatch, stop, mode
+):
+    """Stopped during its second scan of four selected, a localize keeps the rows done, and its
+    run file and run view say so, as ``info`` of the view and ``--config`` of the run file do;
+    a whole run's say nothing of it."""
+    import signal
+
+    from segloc_cli.method.localize import Localizer
+
+    real_localize, calls = Localizer.localize, []
+
+    def stopped_at_the_second(self, *args, **kwargs):
+        calls.append(1)
+        if len(calls) == 2:
+            if stop == "Ctrl-C":
+                raise KeyboardInterrupt
+            os.kill(os.getpid(), signal.SIGTERM)
+        return real_localize(self, *args, **kwargs)
+
+    monkeypatch.setattr(Localizer, "localize", stopped_at_the_second)
+    args = ["localize", "log.mcap", "--map", "map.json", "--scans", "4", "--initial", "survey.csv"]
+    result = run_cli(capsys, *args, *mode, "--out", "est.csv", "--mcap", "est.mcap")
+    assert result.code == 130, result.err
+    done = len(_rows(hall / "est.csv"))
+    assert 1 <= done < 4  # SIGTERM ends the run after the scan it came in
+    words = f"stopped ({stop}) after {done} of 4 scans"
+    text = (hall / "est.run.toml").read_text()
+    assert f"# This run was {words}" in text
+    assert tomllib.loads(text)["run"]["stopped"] == {"by": stop, "done": done, "planned": 4}
+    view = run_cli(capsys, "info", "est.mcap")
+    assert f"finished:  no (its run was {words}; it shows those scans)" in view.out
+    monkeypatch.setattr(Localizer, "localize", real_localize)
+    again = run_cli(capsys, "localize", "log.mcap", "--config", "est.run.toml", "--out", "o.csv",
+                    "--mcap", "o.mcap")  # fmt: skip
+    assert again.code == 0, again.err
+    assert f"est.run.toml records a run {words}" in again.err
+    assert len(_rows(hall / "o.csv")) == 4
+    assert "stopped" not in tomllib.loads((hall / "o.run.toml").read_text())["run"]
+    assert "This run was" not in (hall / "o.run.toml").read_text()
+    assert "finished:" not in run_cli(capsys, "info", "o.mcap").out

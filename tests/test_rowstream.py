@@ -42,14 +42,24 @@ def test_every_row_goes_to_every_output_and_the_summary_counts_them(tmp_path):
     assert summary.counts == [("ok", 10)] and summary.median_ms > 0
     assert len((tmp_path / "e.tum").read_text().splitlines()) == 1 + 10  # a comment line
     assert (tmp_path / "e.hypotheses.csv").is_file()
-    assert read_run_view(tmp_path / "e.mcap").drawn["status.ok"] == "10"
+    shown = read_run_view(tmp_path / "e.mcap")
+    assert shown.drawn["status.ok"] == "10" and shown.stopped is None
+    assert summary.stopped is None
     assert expected == []  # only a global search says what to expect
 
 
 def test_a_stop_ends_the_run_after_the_row_being_written(tmp_path):
     stops = ["SIGTERM"]
-    runs, _, _ = _runs(stops)
-    summary = write_rows(runs, RowOutputs(tmp_path / "e.csv"), stops, "guided")
+    runs, log, segments = _runs(stops)
+    view = RunView(segments, {"command": "test"}, [log], Config().extract)
+    outputs = RowOutputs(tmp_path / "e.csv", view=tmp_path / "e.mcap")
+    summary = write_rows(runs, outputs, stops, "guided", view=view)
     assert summary.stopped_by == "SIGTERM"
     assert summary.planned == 10 and 1 <= summary.done < 10
+    assert summary.stopped == ("SIGTERM", summary.done, 10)
     assert len((tmp_path / "e.csv").read_text().splitlines()) == summary.done + 1
+    # The view is finished, and says its run stopped, after how many scans.
+    shown = read_run_view(tmp_path / "e.mcap")
+    assert shown.finished
+    assert shown.stopped == f"stopped (SIGTERM) after {summary.done} of 10 scans"
+    assert sum(int(n) for k, n in shown.drawn.items() if k.startswith("status.")) == summary.done

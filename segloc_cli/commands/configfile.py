@@ -112,9 +112,9 @@ def _apply_config(ctx: click.Context, value: Path | None) -> None:
     table = runfile.read_table(value, command, set(_command_paths(ctx.find_root().command)))
     record = runfile.run_record(value)
     runfile.check_run_command(value, record, command)
-    note = runfile.version_note(value)
-    if note is not None:
-        warn(note)
+    for note in (runfile.version_note(value), runfile.stopped_note(value, record)):
+        if note is not None:
+            warn(note)
     if not table:
         warn(f"{value} has no [{'.'.join(command)}] table; nothing was set from it")
     options = options_by_key(ctx.command)

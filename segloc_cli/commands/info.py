@@ -81,6 +81,8 @@ def run_view_lines(path: Path, view) -> list[str]:
     ]
     if not view.finished:
         lines.insert(2, "finished:  no (its run was killed; it shows the scans written before)")
+    elif view.stopped is not None:
+        lines.insert(2, f"finished:  no (its run was {view.stopped}; it shows those scans)")
     if "map_segments" in view.drawn:
         lines.append(f"/map:      {counted(int(view.drawn['map_segments']), 'segment')}")
     statuses = [

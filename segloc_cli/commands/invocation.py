@@ -7,7 +7,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import click
 
@@ -15,6 +15,9 @@ from segloc_cli.commands.configfile import RECORDED_INPUTS, command_path, option
 from segloc_cli.commands.options import names_file
 from segloc_cli.commands.printing import warn
 from segloc_cli.config import Config
+
+if TYPE_CHECKING:
+    from segloc_cli.runs.runfile import Stopped
 
 OUTPUT_KEYS = frozenset(
     {"out", "tum", "mcap", "survey-out", "plots", "config", "force", "junit", "summary-md", "html"}
@@ -60,16 +63,21 @@ class Invocation:
         return [*self.arguments, *named]
 
     def write_run_file(
-        self, output: Path, also_read: Sequence[tuple[str, Path]] = (), whole_name: bool = False
+        self,
+        output: Path,
+        also_read: Sequence[tuple[str, Path]] = (),
+        whole_name: bool = False,
+        stopped: Stopped | None = None,
     ) -> Path:
         """Write the run file beside ``output`` (``runfile.run_file_path``, named after its
         whole name with ``whole_name``), its inputs with ``also_read`` (role, path): files the
-        inputs led to, such as a grid's image; return its path."""
+        inputs led to, such as a grid's image; for a run ``stopped`` before its end, how;
+        return its path."""
         from segloc_cli.runs.runfile import run_file_path, write_run_file
 
         path = run_file_path(output, whole_name)
         inputs = [*self.inputs(), *also_read]
-        hashes = write_run_file(path, self.command, self.options, inputs)
+        hashes = write_run_file(path, self.command, self.options, inputs, stopped)
         _warn_unrepeated(inputs, hashes)
         return path
 

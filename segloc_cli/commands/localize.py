@@ -181,7 +181,7 @@ def localize(
     say_how(runs)
     view = _view(segments_world, logs, mode, config) if mcap_path else None
     summary = write_rows(runs, written, stops, mode, Progress, expect, view)
-    run.write_run_file(out_path)
+    run.write_run_file(out_path, stopped=summary.stopped)
     report(summary, written)
 
 

@@ -27,7 +27,8 @@ schema (the schema travels in the file) and the file is chunked, indexed and com
 Every message's log time is its scan's time (ns). Metadata record ``segloc.run`` says what
 the file shows (the caller's words: command, logs, map...), and ``segloc.view``, written when
 the file is closed, what was drawn: ``map_segments`` and, for each status, ``status.NAME``
-the number of scans with it.
+the number of scans with it; for a run stopped before its end (``note_stopped``), also
+``stopped_by`` (the signal), ``scans_done`` and ``scans_planned``.
 
 The file is streamed in place, like the estimates beside it: the scans added are handed to
 the operating system as a chunk at least every ``FLUSH_INTERVAL_S`` (the first at once), so
@@ -56,7 +57,7 @@ import numpy as np
 from segloc_cli.geometry import Pose2, heading_to_quaternion
 from segloc_cli.io.files import OutputError, writing_error
 from segloc_cli.scan import Scan
-from segloc_cli.wording import counted
+from segloc_cli.wording import counted, stopped_after
 
 if TYPE_CHECKING:
     from foxglove.mcap import MCAPWriter
@@ -154,6 +155,7 @@ class RunViewWriter:
         self._map = np.asarray(map_segments, dtype=float).reshape(-1, 4)
         self._map_written = False
         self._statuses: Counter[str] = Counter()
+        self._stopped: dict[str, str] = {}
         self._flushed_at = -math.inf  # time.monotonic() of the last chunk handed on
         self._sink = _Sink(self.path)
         self._context = foxglove.Context()
@@ -266,6 +268,11 @@ class RunViewWriter:
         entity = _lines_entity(_timestamp(time_ns), "loops", WORLD_FRAME, lines, None)
         self._log(LOOPS_TOPIC, _scene_update(entity), time_ns)
 
+    def note_stopped(self, by: str, done: int, planned: int) -> None:
+        """Record, when the file is finished, that its run was stopped by the signal ``by``
+        after ``done`` of the ``planned`` scans: the view shows those alone."""
+        self._stopped = {"stopped_by": by, "scans_done": str(done), "scans_planned": str(planned)}
+
     def close(self) -> None:
         """Finish the file (with the map even if no scan came): what was drawn, the summary.
         Closing again does nothing."""
@@ -275,6 +282,7 @@ class RunViewWriter:
             self._write_map(0)
         drawn = {"map_segments": str(len(self._map))}
         drawn |= {f"status.{name}": str(n) for name, n in sorted(self._statuses.items())}
+        drawn |= self._stopped
         with self._failing_writes():
             self._writer.write_metadata(VIEW_METADATA_NAME, drawn)
             self._writer.close()
@@ -348,7 +356,8 @@ class RunViewContents:
     in a view written before it or cut short); ``message_counts`` topic → messages;
     ``span_s`` the first and last message's log time, seconds (None: no message);
     ``finished`` False for a view whose run was killed before it finished the file: it
-    holds the whole scans written before that.
+    holds the whole scans written before that. A view whose run was stopped before its end
+    but finished the file says how (``stopped``).
     """
 
     run: dict[str, str]
@@ -356,6 +365,16 @@ class RunViewContents:
     message_counts: dict[str, int]
     span_s: tuple[float, float] | None
     finished: bool = True
+
+    @property
+    def stopped(self) -> str | None:
+        """How the run was stopped before its end, in words ("stopped (SIGTERM) after 3 of 10
+        scans"); None for a run that ran to its end, or whose view does not say."""
+        try:
+            done, planned = int(self.drawn["scans_done"]), int(self.drawn["scans_planned"])
+            return stopped_after(self.drawn["stopped_by"], done, planned)
+        except (KeyError, ValueError):
+            return None
 
 
 def read_run_view(path: str | Path) -> RunViewContents | None:

@@ -17,7 +17,7 @@ from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import ExitStack
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
@@ -26,6 +26,9 @@ from segloc_cli.estimates import STATUS_LOST, STATUS_RECOVERED, EstimateRow
 from segloc_cli.io.log import Log
 from segloc_cli.progress import Progress, ProgressFactory, silent
 from segloc_cli.runs.pipeline import LogRun
+
+if TYPE_CHECKING:
+    from segloc_cli.runs.runfile import Stopped
 
 PROGRESS_LABELS = {"guided": "localizing", "global": "global search", "track": "tracking"}
 """What the progress display says a run of each mode (``pipeline.RUN_MODES``) is doing."""
@@ -109,6 +112,14 @@ class RunSummary:
         return len(self.statuses)
 
     @property
+    def stopped(self) -> Stopped | None:
+        """How the run stopped before its end (None: it ran to the end), for its run file."""
+        from segloc_cli.runs.runfile import Stopped
+
+        by = self.stopped_by
+        return None if by is None else Stopped(by, self.done, self.planned)
+
+    @property
     def counts(self) -> list[tuple[str, int]]:
         """(status, scans) of the rows written, most frequent first."""
         return Counter(self.statuses).most_common()
@@ -133,15 +144,18 @@ def write_rows(
     take long, calls ``expect(runtime_ms, planned)`` once its first row is written whose time
     includes no compiling of kernels (``jit.compiles_heard``): the time to expect per scan.
     The stop signals are noted in ``stops`` (which the runs' ``stop`` reads) and end the run
-    between scans, every finished row kept."""
+    between scans, every finished row kept; the run view then says so."""
     from segloc_cli.io.runview import RunViewWriter
 
     planned = sum(run.times_s.size for run in runs)
     with ExitStack() as stack:
         rows: Iterator[EstimateRow] = (row for run in runs for row in run.rows)
+        writer = None
         if outputs.view is not None and view is not None:
-            writer = RunViewWriter(outputs.view, view.segments_world, view.metadata)
-            rows = _shown(stack.enter_context(writer), runs, view)
+            writer = stack.enter_context(
+                RunViewWriter(outputs.view, view.segments_world, view.metadata)
+            )
+            rows = _shown(writer, runs, view)
         t0 = time.perf_counter()
         tallied = PROGRESS_TALLIES.get(mode, ())
 
@@ -151,6 +165,8 @@ def write_rows(
         timed = expect if mode == "global" else None
         statuses, runtimes_ms = _written(rows, outputs, stops, shown, timed, planned)
         elapsed_s = time.perf_counter() - t0
+        if writer is not None and stops:
+            writer.note_stopped(stops[0], len(statuses), planned)
     skipped = sum(run.skipped for run in runs)
     stopped_by = stops[0] if stops else None
     return RunSummary(planned, statuses, runtimes_ms, elapsed_s, stopped_by, skipped)

@@ -15,19 +15,34 @@ import os
 import tomllib
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import tomli_w
 
 from segloc_cli import __version__
 from segloc_cli.errors import InputError
 from segloc_cli.io.files import reading, sha256, write_text_atomic
+from segloc_cli.wording import stopped_after
 
 RUN_TABLE = "run"
 """The table of a run file that records how the file was made; ``--config`` skips it."""
 
 MAX_CONFIG_BYTES = 1 << 20
 """Largest configuration file read (1 MiB): settings, not data."""
+STOPPED_KEY = "stopped"
+"""The key of a run file's ``[run]`` table that records a run stopped before its end."""
+
+
+class Stopped(NamedTuple):
+    """A run stopped before its end: the signal that stopped it (``by``: "SIGTERM",
+    "Ctrl-C"), and how many of the scans it ``planned`` it had ``done``."""
+
+    by: str
+    done: int
+    planned: int
+
+    def __str__(self) -> str:
+        return stopped_after(self.by, self.done, self.planned)
 
 
 def run_file_path(output: Path, whole_name: bool = False) -> Path:
@@ -136,6 +151,19 @@ def version_note(path: Path) -> str | None:
     return f"{path} was written by segloc {made_by}, this is {__version__}; results may differ"
 
 
+def stopped_note(path: Path, record: Mapping[str, Any]) -> str | None:
+    """A warning when the run file ``path`` (its ``[run]`` table ``record``) is that of a run
+    stopped before its end: its outputs hold part of what the settings make."""
+    stopped = record.get(STOPPED_KEY)
+    if not isinstance(stopped, dict):
+        return None
+    try:
+        words = Stopped(str(stopped["by"]), int(stopped["done"]), int(stopped["planned"]))
+    except (KeyError, TypeError, ValueError):
+        return None
+    return f"{path} records a run {words}: its outputs hold those scans alone"
+
+
 def portable(value: Any, folder: Path) -> Any:
     """``value`` as TOML writes it: paths relative to ``folder``, other values as they are."""
     if isinstance(value, Path):
@@ -148,10 +176,13 @@ def write_run_file(
     command: Sequence[str],
     options: Mapping[str, Any],
     inputs: Sequence[tuple[str, Path]],
+    stopped: Stopped | None = None,
 ) -> list[str]:
     """Write the run file ``path``: ``options`` (key → value; None left out, paths made
     relative to the file's folder) as the table of ``command``, and the ``[run]`` table
-    with the version and each input (role, path, sha256). Returns the inputs' sha256s."""
+    with the version, each input (role, path, sha256) and, for a run ``stopped`` before its
+    end, how it stopped (its ``STOPPED_KEY``, also said in the file's header). Returns the
+    inputs' sha256s."""
     folder = path.parent
     table = {k: portable(v, folder) for k, v in options.items() if v is not None}
     document: dict[str, Any] = {}
@@ -169,9 +200,10 @@ def write_run_file(
         ],
     }
     name = " ".join(command)
-    header = (
-        f"# segloc run file: the settings and inputs of a `segloc {name}` run.\n"
-        f"# Run it again with: segloc {name} ... --config {path.name}\n\n"
-    )
+    header = f"# segloc run file: the settings and inputs of a `segloc {name}` run.\n"
+    if stopped is not None:
+        document[RUN_TABLE][STOPPED_KEY] = stopped._asdict()
+        header += f"# This run was {stopped}: its outputs hold those scans alone.\n"
+    header += f"# Run it again with: segloc {name} ... --config {path.name}\n\n"
     write_text_atomic(path, header + tomli_w.dumps(document))
     return hashes
