@@ -24,9 +24,6 @@ COMMAND_LINE_ONLY = frozenset({"force"})
 """Options a configuration file may not set: ``--force`` must be seen where it is given, or
 a file kept for its settings would overwrite outputs unasked."""
 
-RUN_FILE_OUTPUT = "--out (run file)"
-"""The name under which a command checks the run file it writes beside ``--out``."""
-
 RECORDED_INPUTS = "segloc.recorded_inputs"
 """Key of the click context's ``meta`` holding the ``--config`` file and the inputs it
 records, (role, sha256) pairs, when it is a run file."""
@@ -52,8 +49,9 @@ def check_command_outputs(
 ) -> None:
     """``io.files.check_outputs`` with the ``--config`` file read (if any) among ``inputs``:
     the file a command takes its options from is none of its outputs, ``--force`` or not;
-    only a run repeated in place from its run file rewrites that (``RUN_FILE_OUTPUT``)."""
+    only a run repeated in place from its run file rewrites that (``runfile.RUN_FILE_OUTPUT``)."""
     from segloc_cli.io.files import check_outputs
+    from segloc_cli.runs.runfile import RUN_FILE_OUTPUT
 
     ctx = click.get_current_context(silent=True)
     config = None if ctx is None else ctx.meta.get(RECORDED_INPUTS, (None,))[0]

@@ -23,7 +23,7 @@ from segloc_cli.commands.printing import info, warn, write_pose_file
 from segloc_cli.errors import InputError
 from segloc_cli.estimates import PoseTable
 from segloc_cli.geometry import Pose2
-from segloc_cli.runs.runfile import run_file_path
+from segloc_cli.runs.runfile import RUN_FILE_OUTPUT, run_file_path
 from segloc_cli.scan import MAX_RANGE_M
 from segloc_cli.wording import counted
 
@@ -119,9 +119,7 @@ def import_carmen(log_path, out_path, survey_out, laser, range_max_m, force):
     from segloc_cli.progress import Progress
 
     outputs = {"--out": out_path, "--survey-out": survey_out}
-    check_command_outputs(
-        {**outputs, "--out (run file)": run_file_path(out_path)}, [log_path], force
-    )
+    check_command_outputs({**outputs, RUN_FILE_OUTPUT: run_file_path(out_path)}, [log_path], force)
     log = read_carmen(log_path, laser=laser, range_max_m=range_max_m, progress=Progress)
     _write_imported(log, out_path)
     if survey_out is not None:
@@ -191,9 +189,7 @@ def import_rosbag(
             "odometry topic (nav_msgs/Odometry)"
         )
     outputs = {"--out": out_path, "--survey-out": survey_out}
-    check_command_outputs(
-        {**outputs, "--out (run file)": run_file_path(out_path)}, [bag_path], force
-    )
+    check_command_outputs({**outputs, RUN_FILE_OUTPUT: run_file_path(out_path)}, [bag_path], force)
     log = read_rosbag(
         bag_path,
         scan_topic=scan_topic,

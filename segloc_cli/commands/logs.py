@@ -24,7 +24,7 @@ from segloc_cli.commands.optionvalues import parsed
 from segloc_cli.commands.printing import info, load_log
 from segloc_cli.errors import InputError
 from segloc_cli.io.log import SIMULATED_GUESSES_KEY
-from segloc_cli.runs.runfile import run_file_path
+from segloc_cli.runs.runfile import RUN_FILE_OUTPUT, run_file_path
 from segloc_cli.scan import AT_ROBOT_ORIGIN, MAX_READINGS
 from segloc_cli.sim import OdometryDrift, SensorModel
 from segloc_cli.wording import counted
@@ -182,7 +182,7 @@ def simulate(
     log_path, survey_path = out_dir / "log.mcap", out_dir / "survey.csv"
     if out_dir.is_dir():
         outputs = {"--out (log.mcap)": log_path, "--out (survey.csv)": survey_path}
-        outputs["--out (run file)"] = run_file_path(log_path)
+        outputs[RUN_FILE_OUTPUT] = run_file_path(log_path)
         check_command_outputs(outputs, [world_path, poses_path], force)
     world = read_world(world_path, default_material=material)
     truth = read_pose_table(poses_path, require_time=False)

@@ -29,7 +29,7 @@ from segloc_cli.config import EXTRACT, FUSE
 from segloc_cli.errors import InputError
 from segloc_cli.geometry import Pose2
 from segloc_cli.limits import MAX_COORDINATE_M
-from segloc_cli.runs.runfile import run_file_path
+from segloc_cli.runs.runfile import RUN_FILE_OUTPUT, run_file_path
 from segloc_cli.wording import counted
 
 
@@ -135,7 +135,7 @@ def map_build(
             *parse_planar_pose(initial_text, "--initial", MAX_COORDINATE_M, "2.5,1.0,90")
         )
     outputs = {"--out": out_path, "--mcap": mcap_path, "--poses-out": poses_out}
-    outputs |= {"--loops-out": loops_out, "--out (run file)": run_file_path(out_path)}
+    outputs |= {"--loops-out": loops_out, RUN_FILE_OUTPUT: run_file_path(out_path)}
     check_command_outputs(outputs, [log_path, survey_path], force)
     if survey_path is None:
         extra = {"poses": poses_out, "loops": loops_out, "view": mcap_path}

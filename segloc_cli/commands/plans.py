@@ -19,7 +19,7 @@ from segloc_cli.commands.options import (
 from segloc_cli.commands.optionvalues import parse_point
 from segloc_cli.commands.printing import info, warn
 from segloc_cli.errors import InputError
-from segloc_cli.runs.runfile import run_file_path
+from segloc_cli.runs.runfile import RUN_FILE_OUTPUT, run_file_path
 from segloc_cli.wording import counted
 
 PLAN_FORMATS = {".dxf": "dxf", ".svg": "svg", ".yaml": "nav2", ".yml": "nav2"}
@@ -97,7 +97,7 @@ def map_import(plan_path, out_path, layers, units, scale_m, origin_m, force):
     _only_for(kind, "dxf", {"--layer": layers, "--units": units})
     _only_for(kind, "svg", {"--scale": scale_m, "--origin": origin_m})
     origin = (0.0, 0.0) if origin_m is None else parse_point(origin_m, "--origin", "-5,12")
-    outputs = {"--out": out_path, "--out (run file)": run_file_path(out_path)}
+    outputs = {"--out": out_path, RUN_FILE_OUTPUT: run_file_path(out_path)}
     check_command_outputs(outputs, [plan_path], force)
     wanted = [name.strip() for name in (layers or "").split(",") if name.strip()]
     plan = read_plan(plan_path, kind, wanted, units, scale_m, origin)
@@ -167,7 +167,7 @@ def map_export(map_path, out_path, plan_format, resolution_m, force):
     outputs = {"--out": out_path}
     if kind == "nav2":
         outputs["--out (image)"] = out_path.with_suffix(".pgm")
-    outputs["--out (run file)"] = run_file_path(out_path, whole_name=True)
+    outputs[RUN_FILE_OUTPUT] = run_file_path(out_path, whole_name=True)
     check_command_outputs(outputs, [map_path], force)
     segments = read_map(map_path)
     written = write_plan(out_path, segments, kind, resolution_m)

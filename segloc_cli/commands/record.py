@@ -18,7 +18,7 @@ from segloc_cli.commands.options import (
 from segloc_cli.commands.optionvalues import parsed
 from segloc_cli.commands.printing import info
 from segloc_cli.errors import EXIT_INTERRUPTED
-from segloc_cli.runs.runfile import run_file_path
+from segloc_cli.runs.runfile import RUN_FILE_OUTPUT, run_file_path
 from segloc_cli.wording import counted, said
 
 RECORD_OPTIONS = (
@@ -107,7 +107,7 @@ def record_command(
 
     protocol, port = parsed(parse_device, device, "--device")
     check_command_outputs(
-        {"--out": out_path, "--out (run file)": run_file_path(out_path)}, [port], force
+        {"--out": out_path, RUN_FILE_OUTPUT: run_file_path(out_path)}, [port], force
     )
     settings = RecordSettings(scans, duration_s, readings, rev_per_s, stall_s)
     driver = driver_class(protocol)(port, baud, timeout_s)

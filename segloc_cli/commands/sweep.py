@@ -95,14 +95,14 @@ def sweep(spec_path, out_path, scheduler, jobs, fmt, convergence, force):
 
     _check_extra()
     _check_scheduler(scheduler)
-    from segloc_cli.runs.runfile import run_file_path
+    from segloc_cli.runs.runfile import RUN_FILE_OUTPUT, run_file_path
     from segloc_cli.runs.sweep import convergence_outputs
 
     run = Invocation.current()
     curves = convergence_outputs(convergence)
     check_command_outputs(curves, [], force)
     # An existing OUT is the sweep's to resume (force), but never one of its inputs.
-    outputs = {"--out": out_path, "--out (run file)": run_file_path(out_path), **curves}
+    outputs = {"--out": out_path, RUN_FILE_OUTPUT: run_file_path(out_path), **curves}
     check_command_outputs(outputs, [spec_path], force=True)
     plan = read_spec(spec_path)
     check_command_outputs(outputs, [path for _, path in plan.inputs], force=True)

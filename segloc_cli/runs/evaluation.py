@@ -139,11 +139,11 @@ class EvaluateOptions:
         """Every file it writes besides the figures, by the option that names it (as
         ``io/files.check_outputs`` takes them): the table's and the run file beside it, the
         JUnit file, the Markdown summary, the HTML page."""
-        from segloc_cli.runs.runfile import run_file_path
+        from segloc_cli.runs.runfile import RUN_FILE_OUTPUT, run_file_path
 
         named: dict[str, Path | None] = {"--out": self.out_path}
         if self.out_path is not None:
-            named["--out (run file)"] = run_file_path(self.out_path)
+            named[RUN_FILE_OUTPUT] = run_file_path(self.out_path)
         named |= {"--junit": self.junit_path, "--summary-md": self.summary_md_path}
         return named | {"--html": self.html_path}
 

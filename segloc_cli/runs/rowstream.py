@@ -68,7 +68,7 @@ class RowOutputs:
     def by_option(self) -> dict[str, Path | None]:
         """Every file the run writes, by the option that names it (as ``io/files.check_outputs``
         takes them), the run file beside OUT among them."""
-        from segloc_cli.runs.runfile import run_file_path
+        from segloc_cli.runs.runfile import RUN_FILE_OUTPUT, run_file_path
 
         hypotheses = None if self.hypotheses is None else self.hypotheses[0]
         return {
@@ -76,7 +76,7 @@ class RowOutputs:
             "--tum": self.tum,
             "--mcap": self.view,
             "--hypotheses": hypotheses,
-            "--out (run file)": run_file_path(self.out),
+            RUN_FILE_OUTPUT: run_file_path(self.out),
         }
 
 

@@ -45,6 +45,11 @@ class Stopped(NamedTuple):
         return stopped_after(self.by, self.done, self.planned)
 
 
+RUN_FILE_OUTPUT = "--out (run file)"
+"""The name under which a command checks the run file it writes beside ``--out`` with its
+other outputs (``files.check_outputs``)."""
+
+
 def run_file_path(output: Path, whole_name: bool = False) -> Path:
     """Where the run file of ``output`` goes: beside it, ``est.csv`` → ``est.run.toml``; with
     ``whole_name``, after the whole name, ``map.dxf`` → ``map.dxf.run.toml``, for an output
