@@ -1,5 +1,5 @@
 """Numbers read back from the files segloc writes: equal to what was written to the
-precision of their unit (``io/numbers.py``), and written without binary noise."""
+precision of their unit (``numbers.py``), and written without binary noise."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import re
 import numpy as np
 import pandas as pd
 
-from segloc_cli.io.numbers import decimals_of, step_of, unit_of
+from segloc_cli.numbers import decimals_of, step_of, unit_of
 
 BINARY_NOISE = re.compile(r"\d\.\d{12,}|\d{17,}")
 """A number written with 12 or more decimals, or 17 or more digits: float64 noise such as

@@ -35,8 +35,8 @@ from trajectory_samples import (
 
 from segloc_cli.cli import main
 from segloc_cli.estimates import PoseTable
-from segloc_cli.io.numbers import step_of, unit_of
 from segloc_cli.io.tables import write_estimates, write_pose_table
+from segloc_cli.numbers import step_of, unit_of
 
 N = 30
 T0_NS = 1_000 * NS + 123  # stamps with nanoseconds of their own

@@ -21,7 +21,7 @@ from conftest import HALL
 from test_cli import run_cli
 
 from segloc_cli.cli import cli
-from segloc_cli.io.numbers import decimals_of, unit_of
+from segloc_cli.numbers import decimals_of, unit_of
 
 GOLDEN = Path(__file__).parent / "golden"
 UPDATE = os.environ.get("SEGLOC_UPDATE_GOLDEN") == "1"
@@ -104,7 +104,7 @@ def test_error_messages_are_unchanged(capsys, error_folder):
 
 LAST_BITS = 1e-9
 """Numbers of the hall's estimates may differ from the golden file by this much (relative,
-and absolute near 0), or by one step of their column's precision (``io/numbers.py``): a
+and absolute near 0), or by one step of their column's precision (``numbers.py``): a
 CPU's vector maths library (numpy uses SVML's arctan2, sin and cos where AVX-512 is present)
 rounds some results one bit differently from the C library, those bits reach the last digits
 of a fit, and where a value lies that close to a rounding boundary its written text takes

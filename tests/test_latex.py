@@ -14,7 +14,7 @@ import pytest
 from test_evaluate import mixed_table
 from test_relations import hand_summary
 
-from segloc_cli.io.latex import NEEDS, latex_text
+from segloc_cli.latex import NEEDS, latex_text
 from segloc_cli.runs.sweep import format_summary
 from segloc_cli.scoring.evaluate import format_table, summary
 from segloc_cli.scoring.gates import Gates

@@ -1,5 +1,5 @@
 """Numbers in the files segloc writes: each rounded to the precision of its unit, read from
-the name it is written under (``io/numbers.py``), with no float64 noise in any file."""
+the name it is written under (``numbers.py``), with no float64 noise in any file."""
 
 from __future__ import annotations
 
@@ -13,8 +13,8 @@ from precision import BINARY_NOISE, assert_at_precision, decimals
 from test_cli import run_cli
 
 from segloc_cli.io.maps import read_map, write_map
-from segloc_cli.io.numbers import json_text, number_text, rounded, unit_of
 from segloc_cli.io.times import logged_times
+from segloc_cli.numbers import json_text, number_text, rounded, unit_of
 
 
 @pytest.mark.parametrize(

@@ -17,8 +17,8 @@ from precision import assert_at_precision, assert_within_precision
 from segloc_cli.errors import InputError
 from segloc_cli.estimates import ESTIMATE_COLUMNS, Relations
 from segloc_cli.geometry import Pose2, relative_motion
-from segloc_cli.io.numbers import unit_of
 from segloc_cli.io.relations import read_relations
+from segloc_cli.numbers import unit_of
 from segloc_cli.scoring.relations import (
     CSV_COLUMNS,
     PUBLISHED,

@@ -22,7 +22,7 @@ import sys
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Protocol
 
 import jinja2
 import numpy as np
@@ -34,8 +34,23 @@ from segloc_cli.wording import counted
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
-    # Only the outcome's fields are read here: io/ does not import the layers above it.
-    from segloc_cli.scoring.gates import GateOutcome
+
+class GateShown(Protocol):
+    """What the page shows of a gate (``scoring.gates.GateOutcome`` is one): what it asks,
+    what it found, whether it held, and the line that says both."""
+
+    @property
+    def passed(self) -> bool: ...
+
+    @property
+    def title(self) -> str: ...
+
+    @property
+    def result(self) -> str: ...
+
+    @property
+    def text(self) -> str: ...
+
 
 ALIGNMENTS = ("left", "center", "right")
 """Cell alignments a pipe table's separator row can ask for (None: the browser's default)."""
@@ -178,7 +193,7 @@ def html_report(
     *,
     title: str,
     sections: Sequence[ReportSection],
-    gates: Sequence[GateOutcome],
+    gates: Sequence[GateShown],
     figures: Mapping[str, Callable[[], Figure]],
     settings: Mapping[str, object],
     inputs: Mapping[str, Path],
@@ -239,7 +254,7 @@ def _section_blocks(section: ReportSection) -> dict[str, object]:
     }
 
 
-def _gate_row(gate: GateOutcome) -> dict[str, object]:
+def _gate_row(gate: GateShown) -> dict[str, object]:
     """A gate as the page's row: what it asks (``RMS position error ≤ 5 cm``), and the
     measure against the bound with its counts (``3.2 cm ≤ 5 cm``)."""
     return {"name": gate.title, "outcome": gate.result, "passed": gate.passed, "text": gate.text}

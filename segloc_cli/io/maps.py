@@ -18,7 +18,7 @@ all; any other key is refused). A world file is accepted wherever a map is
 (``read_map`` returns its segments), and ``read_world`` takes a map as a world when
 given the material its segments are made of. Segments are (M, 4) float64 arrays
 ``x1 y1 x2 y2`` in metres, world frame. Both files are written one segment a line,
-coordinates to the micrometre (``io/numbers.py``).
+coordinates to the micrometre (``numbers.py``).
 
 Readers refuse, with one line naming the file, anything the localizer could not
 hold in reasonable memory and time: files over ``MAX_MAP_BYTES``, more than
@@ -38,8 +38,8 @@ import numpy as np
 
 from segloc_cli.errors import InputError
 from segloc_cli.io.files import reading, write_text_atomic
-from segloc_cli.io.numbers import json_text, rounded_tree
 from segloc_cli.limits import MAX_COORDINATE_M
+from segloc_cli.numbers import json_text, rounded_tree
 from segloc_cli.wording import counted, did_you_mean
 from segloc_cli.world import MATERIALS, World
 
@@ -237,7 +237,7 @@ _SEGMENTS_HERE = "\0segments\0"
 
 def _write_json(path: str | Path, document: dict) -> None:
     """Write a map or world ``document``: its fields one a line, its ``segments`` (metres)
-    one ``[x1, y1, x2, y2]`` a line, every number rounded (``io/numbers.py``)."""
+    one ``[x1, y1, x2, y2]`` a line, every number rounded (``numbers.py``)."""
     segments = rounded_tree(document["segments"], "m")
     text = json_text({**document, "segments": _SEGMENTS_HERE}, indent=1)
     rows = ",\n".join(f"  {json.dumps(segment)}" for segment in segments)

@@ -9,7 +9,7 @@ degrees only in the files.
 Whole tables are written atomically (a temporary file renamed into place); the
 estimates of a running ``localize`` are streamed row by row instead
 (``EstimatesWriter``, ``TumWriter``), so a killed run keeps every finished row.
-Numbers are written rounded to the precision of their column's unit (``io/numbers.py``).
+Numbers are written rounded to the precision of their column's unit (``numbers.py``).
 """
 
 from __future__ import annotations
@@ -43,8 +43,8 @@ from segloc_cli.estimates import (
 )
 from segloc_cli.geometry import heading_to_quaternion, quaternion_to_heading
 from segloc_cli.io.files import OutputError, atomic_write, reading, writing_error
-from segloc_cli.io.numbers import number_text, unit_of
 from segloc_cli.limits import MAX_ABS_ID, MAX_COORDINATE_M
+from segloc_cli.numbers import number_text, unit_of
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -288,7 +288,7 @@ def write_pose_table(
     path: str | Path, table: PoseTable, extra_columns: dict[str, np.ndarray] | None = None
 ) -> None:
     """Write ``table`` as a survey CSV (theta in degrees), atomically, numbers rounded to
-    their precision (``io/numbers.py``: 1 ns, 1 µm, 1e-6°).
+    their precision (``numbers.py``: 1 ns, 1 µm, 1e-6°).
 
     The ``time_s`` column is left out when every time is NaN; a table with only
     some NaN times raises ``ValueError``. ``extra_columns`` (name → (N,) values)
@@ -357,7 +357,7 @@ def estimate_cells(row: Mapping[str, Any]) -> list[str]:
     """One estimates row (column name → value) as the CSV fields of ``ESTIMATE_COLUMNS``.
 
     Integer columns as integers, ``status`` as text, other columns rounded to
-    the unit of their name (``io/numbers.py``); a missing value (NaN, None) is
+    the unit of their name (``numbers.py``); a missing value (NaN, None) is
     an empty field. Keys beyond ``ESTIMATE_COLUMNS`` are ignored.
     Raises ``ValueError`` when a column is absent, or an integer column or
     ``time_s`` has no value.
@@ -581,7 +581,7 @@ TUM_HEADER = "# segloc estimates: t x y z qx qy qz qw"
 
 def _tum_lines(numbers: np.ndarray) -> list[str]:
     """Rows (K, 4) ``time_s, x_m, y_m, theta_deg`` → TUM lines ``t x y 0 qx qy qz qw``
-    (seconds, metres, the quaternion's plain numbers, each rounded as ``io/numbers.py`` says)."""
+    (seconds, metres, the quaternion's plain numbers, each rounded as ``numbers.py`` says)."""
     quats = heading_to_quaternion(np.deg2rad(numbers[:, 3]))
     units = ("s", "m", "m", "m", None, None, None, None)
     return [

@@ -31,7 +31,7 @@ from segloc_cli.config import TIME_TOLERANCE_MS
 from segloc_cli.errors import InputError
 from segloc_cli.estimates import PoseTable, Relations
 from segloc_cli.io.log import Log
-from segloc_cli.io.numbers import json_text
+from segloc_cli.numbers import json_text
 from segloc_cli.scoring.gates import GateOutcome, Gates, outcomes_json
 from segloc_cli.timing import time_range
 from segloc_cli.wording import counted

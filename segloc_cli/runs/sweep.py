@@ -648,10 +648,10 @@ def _percentile(values: np.ndarray, q: float) -> float:
 
 def format_summary(frame: pd.DataFrame, fmt: str) -> str:
     """The summary as Markdown (1 decimal; 2 for degrees), CSV or JSON (each number rounded to
-    its unit's precision, ``io/numbers.py``), or a LaTeX booktabs ``tabular`` (``io/latex.py``).
+    its unit's precision, ``numbers.py``), or a LaTeX booktabs ``tabular`` (``latex.py``).
     An infinite error (too many poses without an estimate) is ∞, inf in CSV and null in
     JSON."""
-    from segloc_cli.io.numbers import rounded_frame
+    from segloc_cli.numbers import rounded_frame
 
     if fmt == "csv":
         return rounded_frame(frame).to_csv(index=False)
@@ -663,7 +663,7 @@ def format_summary(frame: pd.DataFrame, fmt: str) -> str:
     if fmt == "md":
         return shown.to_markdown(index=False, disable_numparse=True) + "\n"
     if fmt == "latex":
-        from segloc_cli.io.latex import latex_text, with_needs
+        from segloc_cli.latex import latex_text, with_needs
 
         shown = shown.map(lambda v: latex_text(str(v)))
         shown.columns = [latex_text(str(c)) for c in shown.columns]

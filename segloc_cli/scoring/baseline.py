@@ -26,9 +26,9 @@ import pandas as pd
 
 from segloc_cli.errors import InputError
 from segloc_cli.estimates import ESTIMATED
-from segloc_cli.io.numbers import rounded_frame
 from segloc_cli.limits import MAX_ABS_ID, MAX_COORDINATE_M
 from segloc_cli.markdown import cell
+from segloc_cli.numbers import rounded_frame
 from segloc_cli.scoring.gates import (
     GATE_SLACK,
     GateOutcome,
@@ -344,7 +344,7 @@ def _shown(value: float) -> str:
 
 def _table_run(table: pd.DataFrame) -> _Run:
     """The poses of this run's table, its errors rounded as evaluate's JSON writes them
-    (``io/numbers.py``), so that a run compared with the baseline it wrote changes by
+    (``numbers.py``), so that a run compared with the baseline it wrote changes by
     exactly nothing."""
     run = _Run(
         table["pose_id"].to_numpy(dtype=np.int64),

@@ -31,10 +31,10 @@ from segloc_cli.estimates import (
     PoseTable,
 )
 from segloc_cli.geometry import wrap_angle
-from segloc_cli.io.latex import latex_text, with_needs
-from segloc_cli.io.numbers import json_text, rounded_frame
+from segloc_cli.latex import latex_text, with_needs
 from segloc_cli.markdown import cell, pipe_table
 from segloc_cli.method.confidence import RIGHT_PLACE_DEG, RIGHT_PLACE_M
+from segloc_cli.numbers import json_text, rounded_frame
 from segloc_cli.scoring.drift import travelled_m
 from segloc_cli.scoring.gates import (
     Gates,
@@ -462,7 +462,7 @@ def pose_table_md(
 
 
 def _format_latex(table: pd.DataFrame, stats: pd.DataFrame) -> str:
-    """A booktabs ``tabular`` (``io/latex.py``: its first line says it needs booktabs), summary
+    """A booktabs ``tabular`` (``latex.py``: its first line says it needs booktabs), summary
     rows under a rule and the counts of ``summary_lines`` in full-width rows under another."""
     shown = _displayed(table)
     headers = ["Pose", *(tex for _, _, _, tex in shown), "Status"]
@@ -556,7 +556,7 @@ def format_table(table: pd.DataFrame, summary: pd.DataFrame, fmt: str) -> str:
       after the poses, then the counts of ``summary_lines``; AE and the initial errors
       are left out when no pose has them (another localizer's estimates).
     - ``csv``: the per-pose rows, TABLE_COLUMNS (rounded to their units' precision,
-      ``io/numbers.py``, as every number of csv and json) then ``scored``
+      ``numbers.py``, as every number of csv and json) then ``scored``
       (1 when the pose is in the RMS and max) and ``beyond_gate`` (1 when an
       error exceeds a --fail-above limit, 0 when not, empty without limits).
     - ``latex``: a booktabs ``tabular`` of the md content.

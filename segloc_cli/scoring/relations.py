@@ -36,9 +36,9 @@ from segloc_cli.config import TIME_TOLERANCE_MS
 from segloc_cli.errors import InputError
 from segloc_cli.estimates import ESTIMATE_COLUMNS, ESTIMATED, Relations
 from segloc_cli.geometry import relative_motion, wrap_angle
-from segloc_cli.io.latex import latex_text, with_needs
-from segloc_cli.io.numbers import json_text, number_text, unit_of
+from segloc_cli.latex import latex_text, with_needs
 from segloc_cli.markdown import cell
+from segloc_cli.numbers import json_text, number_text, unit_of
 from segloc_cli.scoring.evaluate import FORMATS
 from segloc_cli.timing import pair_by_time
 
@@ -360,7 +360,7 @@ def _format_md(summary: dict, published: dict | None, label: str, caveat: str | 
 
 
 def _format_latex(summary: dict, published: dict | None, label: str) -> str:
-    """A booktabs ``tabular``, its first line saying it needs booktabs (``io/latex.py``)."""
+    """A booktabs ``tabular``, its first line saying it needs booktabs (``latex.py``)."""
     lines = [
         r"\begin{tabular}{lrrrr}",
         r"\toprule",
@@ -461,7 +461,7 @@ def format_relations(
       "published_note"}``, NaN written as null; the last three only with ``published``,
       the caveat only where given.
 
-    Numbers of csv and json are rounded to the precision of their unit (``io/numbers.py``).
+    Numbers of csv and json are rounded to the precision of their unit (``numbers.py``).
     """
     if fmt == "md":
         return _format_md(summary, published, label, published_caveat)
