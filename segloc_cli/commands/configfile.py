@@ -50,21 +50,15 @@ def check_command_outputs(
     """``io.files.check_outputs`` with the ``--config`` file read (if any) among ``inputs``:
     the file a command takes its options from is none of its outputs, ``--force`` or not;
     only a run repeated in place from its run file rewrites that (``runfile.RUN_FILE_OUTPUT``)."""
-    from segloc_cli.io.files import check_outputs
+    from segloc_cli.io.files import check_outputs, same_file
     from segloc_cli.runs.runfile import RUN_FILE_OUTPUT
 
     ctx = click.get_current_context(silent=True)
     config = None if ctx is None else ctx.meta.get(RECORDED_INPUTS, (None,))[0]
-    if config is not None and _same_file(config, outputs.get(RUN_FILE_OUTPUT)):
+    run_file = outputs.get(RUN_FILE_OUTPUT)
+    if config is not None and run_file is not None and same_file(config, run_file):
         config = None
     check_outputs(outputs, [*inputs, config], force, replaced)
-
-
-def _same_file(path: Path, other: str | Path | None) -> bool:
-    try:
-        return other is not None and path.samefile(other)
-    except OSError:  # one of them does not exist
-        return False
 
 
 def option_key(option: click.Parameter) -> str:

@@ -139,6 +139,12 @@ def check_appended(
     return path
 
 
+def same_file(path: str | Path, other: str | Path) -> bool:
+    """Whether ``path`` and ``other`` name one file (through links, hard ones too, ``./``
+    or ``..``), whether or not it exists."""
+    return _identity(Path(path)) == _identity(Path(other))
+
+
 def _identity(path: Path) -> str:
     """The file ``path`` names (links, hard ones too, followed), whether or not it exists."""
     try:
