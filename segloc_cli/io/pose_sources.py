@@ -23,13 +23,13 @@ from rosbags.highlevel import AnyReader
 from rosbags.typesys import Stores, get_typestore
 
 from segloc_cli.errors import InputError
+from segloc_cli.io.mcap_log import MCAP_MAGIC
 from segloc_cli.io.pose_messages import SUPPORTED_TYPES
 from segloc_cli.io.ros1_salvage import salvage_ros1
 from segloc_cli.io.rosbag import failure_text, open_bag, ros1_typestore
 from segloc_cli.io.trajectories import TOPIC_OPTION
 
 SEVERAL_TYPES = "several types"
-MCAP_MAGIC = b"\x89MCAP0\r\n"
 
 
 class Message(NamedTuple):
