@@ -30,6 +30,7 @@ thread each: ``one_thread``).
 
 from __future__ import annotations
 
+import functools
 import os
 import stat
 import subprocess
@@ -53,8 +54,6 @@ if "NUMBA_THREADING_LAYER" not in os.environ:
     numba.config.THREADING_LAYER = "workqueue"  # type: ignore[attr-defined]
 
 _said_uncached = False
-_fallback_tried = False
-_cached_privately = False
 
 PRIVATE_CACHE_PREFIX = "segloc-numba-"
 """The private kernel cache's folder under the temporary directory, followed by the user's id."""
@@ -149,25 +148,23 @@ def private_cache_dir(temp: Path | None = None) -> tuple[Path | None, bool]:
     return folder, made
 
 
+@functools.cache
 def _cache_privately() -> bool:
     """Point numba's cache at ``private_cache_dir`` (once; saying where, if this run made
     it), and whether it is there. Set in numba's config, not the environment, which numba
     would read again and with it drop segloc's default threading layer; a process this one
     starts is given it as ``NUMBA_CACHE_DIR`` (``start_ahead``)."""
-    global _fallback_tried, _cached_privately
-    if not _fallback_tried:
-        _fallback_tried = True
-        folder, made = private_cache_dir()
-        if folder is not None:
-            numba.config.CACHE_DIR = str(folder)  # type: ignore[attr-defined]
-            _cached_privately = True
-            if made:
-                _say(
-                    "numba can write no cache beside the segloc_cli package nor in the "
-                    f"user's cache folder, so segloc caches its compiled kernels in {folder}; "
-                    "set NUMBA_CACHE_DIR to a writable folder to keep them elsewhere"
-                )
-    return _cached_privately
+    folder, made = private_cache_dir()
+    if folder is None:
+        return False
+    numba.config.CACHE_DIR = str(folder)  # type: ignore[attr-defined]
+    if made:
+        _say(
+            "numba can write no cache beside the segloc_cli package nor in the "
+            f"user's cache folder, so segloc caches its compiled kernels in {folder}; "
+            "set NUMBA_CACHE_DIR to a writable folder to keep them elsewhere"
+        )
+    return True
 
 
 def _say_uncached() -> None:

@@ -232,9 +232,10 @@ def no_cache_folder(monkeypatch, tmp_path):
     monkeypatch.setattr(jit, "_numba_njit", stand_in_njit)
     monkeypatch.setattr(numba.config, "CACHE_DIR", "")
     monkeypatch.setattr(jit.tempfile, "gettempdir", lambda: str(tmp_path))
-    for flag in ("_fallback_tried", "_cached_privately", "_said_uncached"):
-        monkeypatch.setattr(jit, flag, False)
-    return tmp_path
+    monkeypatch.setattr(jit, "_said_uncached", False)
+    jit._cache_privately.cache_clear()
+    yield tmp_path
+    jit._cache_privately.cache_clear()  # decided for this stand-in, not for numba
 
 
 def test_kernels_numba_cannot_cache_are_cached_in_a_private_folder_said_once(
