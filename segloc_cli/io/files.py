@@ -159,6 +159,21 @@ def writing_error(path: str | Path, exc: OSError) -> OutputError:
     return OutputError(f"cannot write file ({exc.strerror or exc})", path=path)
 
 
+def write_whole(fd: int, data: bytes, size: int) -> None:
+    """Write ``data`` to the open file ``fd`` whole (one write may take only part of it), or
+    on an ``OSError`` (a full disk) cut the file back to ``size`` bytes, its length before,
+    and raise the error: the file never ends in part of ``data``."""
+    view = memoryview(data)
+    try:
+        while view:
+            view = view[os.write(fd, view) :]
+    except OSError:
+        with contextlib.suppress(OSError):
+            os.ftruncate(fd, size)
+            os.lseek(fd, size, os.SEEK_SET)
+        raise
+
+
 @contextmanager
 def writing(path: str | Path) -> Iterator[None]:
     """Turn an ``OSError`` met in the block into the ``OutputError`` naming ``path``: for a

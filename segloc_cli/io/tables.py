@@ -14,7 +14,6 @@ Numbers are written rounded to the precision of their column's unit (``numbers.p
 
 from __future__ import annotations
 
-import contextlib
 import csv
 import io
 import math
@@ -42,7 +41,7 @@ from segloc_cli.estimates import (
     PoseTable,
 )
 from segloc_cli.geometry import heading_to_quaternion, quaternion_to_heading
-from segloc_cli.io.files import OutputError, atomic_write, reading, writing_error
+from segloc_cli.io.files import OutputError, atomic_write, reading, write_whole, writing_error
 from segloc_cli.limits import MAX_ABS_ID, MAX_COORDINATE_M
 from segloc_cli.numbers import number_text, unit_of
 
@@ -454,14 +453,9 @@ class _RowStream:
         if self._stream is None:
             raise ValueError(f"{self.path} is closed")
         encoded = (line + "\n").encode("utf-8")
-        data, fd = memoryview(encoded), self._stream.fileno()
         try:
-            while data:  # a write may take only part of the line
-                data = data[os.write(fd, data) :]
+            write_whole(self._stream.fileno(), encoded, self._size)
         except OSError as exc:
-            with contextlib.suppress(OSError):
-                os.ftruncate(fd, self._size)
-                os.lseek(fd, self._size, os.SEEK_SET)
             raise writing_error(self.path, exc) from None
         self._size += len(encoded)
 

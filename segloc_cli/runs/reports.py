@@ -14,7 +14,6 @@ those asked for and returns their paths; nothing here prints.
 
 from __future__ import annotations
 
-import contextlib
 import os
 from collections.abc import Callable, Mapping
 from pathlib import Path
@@ -22,7 +21,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from segloc_cli.io.files import OutputError, writing_error
+from segloc_cli.io.files import OutputError, write_whole, writing_error
 from segloc_cli.markdown import cell
 from segloc_cli.wording import counted
 
@@ -344,11 +343,8 @@ def _append_step_summary(path: Path, options: EvaluateOptions, scores: Scores) -
         room = min(SUMMARY_MAX_BYTES, STEP_SUMMARY_LIMIT_BYTES - used - 1)
         data = (summary_markdown(options, scores, max(room, 0)) + "\n").encode("utf-8")
         try:
-            while data:
-                data = data[os.write(fd, data) :]
+            write_whole(fd, data, used)
         except OSError as exc:
-            with contextlib.suppress(OSError):
-                os.ftruncate(fd, used)
             return f"{STEP_SUMMARY_SKIPPED}: {writing_error(path, exc)}"
     finally:
         os.close(fd)
